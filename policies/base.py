@@ -1,0 +1,182 @@
+"""The student-policy protocol shared by MSTA and the baselines.
+
+A student reads a batch of raw sensor windows keyed by registry name
+(``{"joint_pos": (B, T, 12), ...}``, oldest step first, optional ``"pad": (B, T)`` bool)
+and returns desired joint positions ``(B, 12)``. Every student owns a processor (the
+statistics it normalizes with) that is saved next to its weights; models never normalize.
+
+Checkpoint layout (LeRobot-style), written by :meth:`StudentPolicy.save_pretrained`::
+
+    <dir>/config.json         {"type": "<name>", ...config fields}
+    <dir>/model.safetensors   weights
+    <dir>/processor.json      the processor's statistics and settings (no pickle)
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar, Protocol, Self, runtime_checkable
+
+import draccus
+import torch
+from safetensors.torch import load_file, save_file
+from torch import Tensor, nn
+
+CONFIG_NAME = "config.json"
+WEIGHTS_NAME = "model.safetensors"
+PROCESSOR_NAME = "processor.json"
+
+#: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
+#: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
+Channels = Mapping[str, Sequence[int]]
+Batch = Mapping[str, Tensor]
+
+
+@dataclass
+class PolicyConfig(draccus.ChoiceRegistry):
+    """Base of every student config. Subclasses register by name with
+    ``@PolicyConfig.register_subclass("<name>")`` so draccus parses ``--policy.type=<name>``."""
+
+    @property
+    def type(self) -> str:
+        return self.get_choice_name(self.__class__)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict including the registered ``type``."""
+        return draccus.encode(self, PolicyConfig)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> PolicyConfig:
+        """Build a config from a dict with a ``type`` key; unknown keys raise.
+
+        Args:
+            data: e.g. the content of ``config.json``.
+        """
+        if "type" not in data:
+            raise ValueError(f"policy config has no 'type' key; known types: {sorted(cls.get_known_choices())}")
+        if data["type"] not in cls.get_known_choices():
+            raise ValueError(f"unknown policy type {data['type']!r}; known: {sorted(cls.get_known_choices())}")
+        try:
+            return draccus.decode(PolicyConfig, dict(data))
+        except draccus.utils.DecodingError as e:
+            raise ValueError(f"invalid {data['type']!r} policy config: {e}") from None
+
+    def save(self, directory: str | Path) -> Path:
+        path = Path(directory) / CONFIG_NAME
+        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, directory: str | Path) -> PolicyConfig:
+        path = Path(directory) / CONFIG_NAME
+        if not path.is_file():
+            raise FileNotFoundError(f"no {CONFIG_NAME} in {directory}")
+        return cls.from_dict(json.loads(path.read_text()))
+
+
+@runtime_checkable
+class Processor(Protocol):
+    """Statistics owner of a student: raw batch -> model inputs, saved with the weights."""
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Self: ...
+
+
+@runtime_checkable
+class Policy(Protocol):
+    """What rollout, training and evaluation rely on for any student."""
+
+    config: PolicyConfig
+
+    @property
+    def required_sensors(self) -> tuple[str, ...]:
+        """Registry names the policy reads (MSTA also accepts any subset of them)."""
+        ...
+
+    def act(self, batch: Batch, channels: Channels | None = None) -> Tensor:
+        """Raw sensor windows -> desired joint positions (B, 12), no gradient."""
+        ...
+
+    def loss(self, batch: Batch, channels: Channels | None = None) -> tuple[Tensor, dict[str, float]]:
+        """Batch with an ``"action"`` target (B, 12) -> (scalar loss, metrics)."""
+        ...
+
+    def save_pretrained(self, directory: str | Path) -> Path: ...
+
+
+def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None) -> Path:
+    """A local checkpoint directory for ``path_or_repo_id``.
+
+    Args:
+        path_or_repo_id: a local directory (hub repo ids are not supported yet).
+        revision: hub revision; only meaningful for repo ids.
+    """
+    path = Path(path_or_repo_id)
+    if path.is_dir():
+        return path
+    # Hub support is one line here: `return Path(snapshot_download(str(path_or_repo_id), revision=revision))`.
+    raise FileNotFoundError(
+        f"checkpoint directory {str(path_or_repo_id)!r} does not exist "
+        f"(loading hub repo ids{' at revision ' + revision if revision else ''} is not supported yet)"
+    )
+
+
+class StudentPolicy(nn.Module):
+    """Shared save / load for students: config + processor + weights.
+
+    Subclasses set ``config_class`` and ``processor_class`` and build their modules in
+    ``__init__(config, processor)``.
+    """
+
+    config_class: ClassVar[type[PolicyConfig]]
+    processor_class: ClassVar[type]
+
+    def __init__(self, config: PolicyConfig, processor: Any) -> None:
+        super().__init__()
+        self.config = config
+        self.processor = processor
+
+    def save_pretrained(self, directory: str | Path) -> Path:
+        """Write config.json, model.safetensors and processor.json into ``directory``.
+
+        Args:
+            directory: created if missing; existing files of the same names are replaced.
+        """
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        self.config.save(out)
+        state = {k: v.detach().contiguous().cpu() for k, v in self.state_dict().items()}
+        save_file(state, str(out / WEIGHTS_NAME), metadata={"type": self.config.type})
+        (out / PROCESSOR_NAME).write_text(json.dumps(self.processor.to_dict(), indent=1) + "\n")
+        return out
+
+    @classmethod
+    def from_pretrained(
+        cls, path_or_repo_id: str | Path, revision: str | None = None, device: str | torch.device = "cpu"
+    ) -> Self:
+        """Load a checkpoint written by :meth:`save_pretrained`.
+
+        Args:
+            path_or_repo_id: checkpoint directory (hub repo ids later).
+            revision: hub revision (branch, tag or commit) for repo ids.
+            device: where to put the weights.
+        """
+        directory = resolve_pretrained(path_or_repo_id, revision)
+        config = PolicyConfig.load(directory)
+        if not isinstance(config, cls.config_class):
+            raise TypeError(f"{directory} holds a {config.type!r} policy, not {cls.__name__}")
+        proc_path = directory / PROCESSOR_NAME
+        if not proc_path.is_file():
+            raise FileNotFoundError(f"no {PROCESSOR_NAME} in {directory}")
+        processor = cls.processor_class.from_dict(json.loads(proc_path.read_text()))
+        policy = cls(config, processor)
+        weights = directory / WEIGHTS_NAME
+        if not weights.is_file():
+            raise FileNotFoundError(f"no {WEIGHTS_NAME} in {directory}")
+        policy.load_state_dict(load_file(str(weights)), strict=True)
+        return policy.to(device).eval()
