@@ -1,0 +1,42 @@
+# msta: two commands on a fresh machine.
+#   make demo   create .venv when missing, run the main job on built-in defaults
+#   make test   create .venv when missing, run the test suite
+SHELL := /bin/bash
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench bench-sim venv clean-venv lint
+
+venv: $(STAMP)
+
+# Find a Python 3.12: on PATH first, then through pyenv. pyenv shims answer
+# `command -v python3.12` even when no 3.12 is selected, so each candidate is run.
+$(STAMP): pyproject.toml
+	@set -e; PYBIN=""; \
+	for c in python3.12 "$$(command -v pyenv >/dev/null 2>&1 && ls -d $$(pyenv root)/versions/3.12*/bin/python3.12 2>/dev/null | sort -V | tail -1)"; do \
+	  if [ -n "$$c" ] && "$$c" -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1; then PYBIN="$$c"; break; fi; \
+	done; \
+	if [ -z "$$PYBIN" ]; then echo "error: msta needs Python 3.12 (lerobot>=0.5 requires it). Install it (e.g. 'pyenv install 3.12') and re-run." >&2; exit 1; fi; \
+	echo "using $$PYBIN"; \
+	[ -x $(PY) ] || "$$PYBIN" -m venv $(VENV); \
+	$(PY) -m pip install --quiet --upgrade pip; \
+	$(PY) -m pip install --quiet -e ".[dev]"; \
+	touch $(STAMP)
+
+demo: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m collect.demo
+
+test: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
+
+bench: bench-sim
+
+bench-sim: $(STAMP)
+	$(PY) -m eval.bench_sim
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,432 @@
+"""Batched A1 locomotion environment on MuJoCo (numpy in, numpy out).
+
+N environments share one scene (robot + terrain heightfield) and are stepped together by
+``mujoco.rollout`` on a persistent thread pool: every control step is ``decimation``
+physics steps with a constant position target. Observations are named by the sensor
+registry (``msta_data/sensors.py``); environments reset automatically on a fall, a physics
+blow-up or the time limit.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from collect.sim import robot
+from collect.sim.commands import CommandConfig, CommandSampler
+from collect.sim.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
+from collect.sim.randomization import RandomizationConfig, build_pool
+from collect.sim.rewards import RewardConfig, RewardInputs, compute_rewards, soft_limits
+from collect.sim.terrain import Terrain, TerrainConfig, sample_initial, update_levels
+from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
+
+PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
+#: Episode end reasons reported in ``StepResult.reason``.
+REASONS = ("running", "fall", "timeout", "nan")
+CONTACT_THRESHOLD = 1.0  # N
+
+
+@dataclass
+class ControlConfig:
+    """Args:
+        kp, kd: PD gains of the position actuators (paper: 30, 0.7).
+        action_scale: joint target = default pose + action_scale * action.
+        clip_actions: actions are clipped to +-clip_actions before scaling.
+        sim_dt: physics step (s).
+        decimation: physics steps per control step (0.005 s x 4 -> 50 Hz).
+    """
+
+    kp: float = 30.0
+    kd: float = 0.7
+    action_scale: float = 0.25
+    clip_actions: float = 100.0
+    sim_dt: float = 0.005
+    decimation: int = 4
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "kd", "action_scale", "clip_actions", "sim_dt"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"control.{name}={getattr(self, name)} must be > 0")
+        if self.decimation < 1:
+            raise ValueError(f"control.decimation={self.decimation} must be >= 1")
+
+
+@dataclass
+class NoiseConfig:
+    """Uniform observation noise; half-widths come from the registry, times ``scale``."""
+
+    enabled: bool = True
+    scale: float = 1.0
+
+
+@dataclass
+class EnvConfig:
+    """Args:
+        num_envs: environments stepped together.
+        seed: seeds terrain, randomization, commands, noise and spawns.
+        episode_length_s: time limit (s).
+        nthread: rollout threads (0 = all cores).
+        spawn_offset: m, uniform xy offset of the spawn point around the tile centre.
+        type_weights: share of environments per terrain type (aligned with terrain.types);
+            empty = uniform.
+        fall_gravity_z: a fall is declared when the projected gravity's z exceeds this
+            (the trunk is tilted more than ~60 degrees), or the trunk touches the ground.
+    """
+
+    num_envs: int = 256
+    seed: int = 0
+    episode_length_s: float = 20.0
+    nthread: int = 2
+    spawn_offset: float = 1.0
+    type_weights: tuple[float, ...] = ()
+    fall_gravity_z: float = -0.5
+    terrain: TerrainConfig = field(default_factory=TerrainConfig)
+    commands: CommandConfig = field(default_factory=CommandConfig)
+    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    rewards: RewardConfig = field(default_factory=RewardConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+
+    def __post_init__(self) -> None:
+        if self.num_envs < 1:
+            raise ValueError(f"num_envs={self.num_envs} must be >= 1")
+        if self.episode_length_s <= 0:
+            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
+        self.type_weights = tuple(self.type_weights)
+        if self.type_weights and len(self.type_weights) != len(self.terrain.types):
+            raise ValueError(f"type_weights {self.type_weights} must have one weight per "
+                             f"terrain type {self.terrain.types}")
+
+    @property
+    def dt(self) -> float:
+        return self.control.sim_dt * self.control.decimation
+
+    @property
+    def max_episode_steps(self) -> int:
+        return int(round(self.episode_length_s / self.dt))
+
+
+@dataclass
+class StepResult:
+    """One control step of all environments.
+
+    ``obs`` is the observation after the step; for environments that ended this step it is
+    already the first observation of their next episode (auto-reset), and their final
+    values are in ``final`` (reason, terrain, level, length, return, distance).
+    """
+
+    obs: dict[str, np.ndarray]
+    reward: np.ndarray                 # (N,) total reward
+    metrics: dict[str, np.ndarray]     # lin_vel_tracking, ang_vel_tracking, total, terms
+    terminated: np.ndarray             # (N,) bool: fall or physics blow-up
+    truncated: np.ndarray              # (N,) bool: time limit
+    reason: np.ndarray                 # (N,) int index into REASONS
+    final: dict[str, np.ndarray]       # per-env episode summary, valid where done
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+
+class QuadrupedEnv:
+    """Batched environments. See the module docstring.
+
+    Args:
+        cfg: the environment configuration.
+    """
+
+    def __init__(self, cfg: EnvConfig | None = None) -> None:
+        self.cfg = cfg = cfg or EnvConfig()
+        self.num_envs = n = cfg.num_envs
+        self.rng = np.random.default_rng(cfg.seed)
+        self.terrain = Terrain(cfg.terrain, seed=cfg.seed)
+        self.model = robot.build_model(self.terrain.hfield_spec(), timestep=cfg.control.sim_dt)
+        self.layout = robot.state_layout(self.model)
+        self.pool, self.pool_params = build_pool(
+            self.model, cfg.randomization, cfg.control.kp, cfg.control.kd, self.rng)
+        nthread = cfg.nthread or os.cpu_count() or 1
+        self._runner = rollout.Rollout(nthread=nthread)
+        self._datas = [mujoco.MjData(self.model) for _ in range(nthread)]
+        self._template = robot.default_state(self.model)
+        self.soft_limits = soft_limits(robot.joint_limits(self.model),
+                                       cfg.rewards.soft_dof_pos_limit)
+        self.dt = cfg.dt
+        self.max_steps = cfg.max_episode_steps
+        self.commands = CommandSampler(cfg.commands, n)
+        scan = np.stack(np.meshgrid(HEIGHT_SCAN_X, HEIGHT_SCAN_Y, indexing="ij"), -1)
+        self._scan_points = scan.reshape(-1, 2)                       # (187, 2), x-major
+        self._noise = {k: (SENSORS[k].noise * cfg.noise.scale if cfg.noise.enabled else 0.0)
+                       for k in PROPRIO}
+        self._lat = cfg.randomization.max_latency_steps if cfg.randomization.enabled else 0
+        self._alloc(n)
+        self.type_idx, self.level = sample_initial(
+            n, self.rng, cfg.terrain, list(cfg.type_weights) or None)
+        self.resets_by_reason = np.zeros(len(REASONS), dtype=np.int64)
+        self._needs_reset = True
+
+    # ------------------------------------------------------------------ allocation
+    def _alloc(self, n: int) -> None:
+        d = self.cfg.control.decimation
+        self.state = np.zeros((n, self.layout.size))
+        self._out_state = np.zeros((n, d, self.layout.size))
+        self._out_sens = np.zeros((n, d, self.model.nsensordata))
+        self._control = np.zeros((n, d, self.model.nu))
+        self.variant = np.zeros(n, dtype=np.int64)
+        self._models = [self.pool[0]] * n
+        self.action = np.zeros((n, 12))
+        self.last_action = np.zeros((n, 12))
+        self.last_joint_vel = np.zeros((n, 12))
+        self.air_time = np.zeros((n, 4))
+        self.last_contact = np.zeros((n, 4), dtype=bool)
+        self.episode_step = np.zeros(n, dtype=np.int64)
+        self.episode_return = np.zeros(n)
+        self.spawn_xy = np.zeros((n, 2))
+        self.latency = np.zeros(n, dtype=np.int64)
+        self.push_step = np.zeros(n, dtype=np.int64)
+        self._hist = np.zeros((n, self._lat + 1, sum(SENSORS[k].dim for k in PROPRIO)),
+                              dtype=np.float32)
+        self.meas: dict[str, np.ndarray] = {}
+        self._hist_fresh = np.zeros(0, dtype=np.int64)
+
+    # ------------------------------------------------------------------ public API
+    def reset(self, type_idx: np.ndarray | None = None, level: np.ndarray | None = None,
+              ) -> dict[str, np.ndarray]:
+        """Reset every environment; optionally pin each one's terrain type and level.
+
+        Args:
+            type_idx: (N,) indices into ``cfg.terrain.types`` (kept for later episodes).
+            level: (N,) levels in [0, num_levels).
+        Returns:
+            the first observation of every environment.
+        """
+        if type_idx is not None or level is not None:
+            self.set_tiles(self.type_idx if type_idx is None else type_idx,
+                           self.level if level is None else level)
+        self._reset_ids(np.arange(self.num_envs))
+        self._needs_reset = False
+        return self._observe()
+
+    def set_tiles(self, type_idx: np.ndarray, level: np.ndarray) -> None:
+        """Pin terrain type and level per environment (applied at each env's next reset)."""
+        t = np.broadcast_to(np.asarray(type_idx, dtype=np.int64), (self.num_envs,)).copy()
+        lv = np.broadcast_to(np.asarray(level, dtype=np.int64), (self.num_envs,)).copy()
+        self.terrain.tile_center(t, lv)  # validates, raising with the bad value
+        self.type_idx, self.level = t, lv
+
+    def step(self, action: np.ndarray) -> StepResult:
+        """Apply (N, 12) actions for one control step.
+
+        Args:
+            action: offsets from the default pose in units of ``action_scale``.
+        """
+        if self._needs_reset:
+            raise RuntimeError("call reset() before step()")
+        a = self._check_action(action)
+        self.last_action[:] = self.action
+        self.action[:] = a
+        target = robot.DEFAULT_POSE + self.cfg.control.action_scale * a
+        self._control[:] = target[:, None, :]
+        self._runner.rollout(self._models, self._datas, self.state, self._control,
+                             control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True,
+                             nstep=self.cfg.control.decimation, state=self._out_state,
+                             sensordata=self._out_sens)
+        self.state[:] = self._out_state[:, -1]
+        blown = ~np.isfinite(self.state).all(axis=1)
+        if blown.any():
+            self.state[blown] = self._template
+        self.meas = self._measure(self.state, self._out_sens)
+        return self._finish_step(blown)
+
+    # ------------------------------------------------------------------ internals
+    def _check_action(self, action: np.ndarray) -> np.ndarray:
+        a = np.asarray(action, dtype=np.float64)
+        if a.shape != (self.num_envs, 12):
+            raise ValueError(f"action has shape {a.shape}, expected ({self.num_envs}, 12)")
+        bad = ~np.isfinite(a).all(axis=1)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"action for env {i} is not finite: {a[i].tolist()}")
+        lim = self.cfg.control.clip_actions
+        return np.clip(a, -lim, lim)
+
+    def _finish_step(self, blown: np.ndarray) -> StepResult:
+        m, cfg = self.meas, self.cfg
+        self.commands.update_yaw_rate(m["yaw"])
+        rew = self._rewards(m)
+        for k in rew:
+            rew[k][blown] = 0.0
+        self.episode_step += 1
+        self.episode_return += rew["total"]
+        fell = (m["trunk_contact"] > CONTACT_THRESHOLD) | (m["gravity"][:, 2] > cfg.fall_gravity_z)
+        terminated = (fell & ~blown) | blown
+        truncated = (self.episode_step >= self.max_steps) & ~terminated
+        reason = np.zeros(self.num_envs, dtype=np.int64)
+        reason[fell] = 1
+        reason[truncated] = 2
+        reason[blown] = 3
+        final = self._episode_summary(m)
+        done_ids = np.flatnonzero(terminated | truncated)
+        np.add.at(self.resets_by_reason, reason[done_ids], 1)
+        if cfg.terrain.curriculum and len(done_ids):
+            self.level[done_ids] = update_levels(
+                self.level[done_ids], final["distance"][done_ids],
+                np.linalg.norm(self.commands.command[done_ids, :2], axis=1),
+                cfg.episode_length_s, self.rng, cfg.terrain.num_levels,
+                tile_size=cfg.terrain.tile_size)
+        self._resample_commands()
+        self._push()
+        if len(done_ids):
+            self._reset_ids(done_ids)
+        obs = self._observe()
+        metrics = {k: v for k, v in rew.items()}
+        return StepResult(obs, rew["total"], metrics, terminated, truncated, reason, final)
+
+    def _episode_summary(self, m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return {
+            "type_idx": self.type_idx.copy(), "level": self.level.copy(),
+            "length": self.episode_step.copy(), "return": self.episode_return.copy(),
+            "distance": np.linalg.norm(m["base_pos"][:, :2] - self.spawn_xy, axis=1),
+            "variant": self.variant.copy(),
+        }
+
+    def _rewards(self, m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        contact = m["foot_contact"] > 0.5
+        self.air_time += self.dt
+        first = contact & ~self.last_contact
+        inputs = RewardInputs(
+            lin_vel=m["base_lin_vel"], ang_vel=m["base_ang_vel"], command=self.commands.command,
+            torques=m["torques"], joint_pos=m["joint_pos"], joint_vel=m["joint_vel"],
+            last_joint_vel=self.last_joint_vel, action=self.action, last_action=self.last_action,
+            leg_collisions=m["leg_collisions"], first_contact=first, air_time=self.air_time,
+            soft_limits=self.soft_limits, dt=self.dt, sigma=self.cfg.rewards.tracking_sigma,
+            air_time_target=self.cfg.rewards.air_time_target)
+        out = compute_rewards(self.cfg.rewards, inputs)
+        self.air_time[contact] = 0.0
+        self.last_contact = contact
+        self.last_joint_vel = m["joint_vel"].copy()
+        return out
+
+    def _resample_commands(self) -> None:
+        every = max(1, int(round(self.cfg.commands.resample_s / self.dt)))
+        ids = np.flatnonzero((self.episode_step % every == 0) & (self.episode_step > 0))
+        self.commands.resample(ids, self.rng)
+
+    def _push(self) -> None:
+        rc = self.cfg.randomization
+        if not (rc.enabled and rc.push_interval_s > 0 and rc.push_max_vel > 0):
+            return
+        every = max(1, int(round(rc.push_interval_s / self.dt)))
+        ids = np.flatnonzero((self.episode_step + self.push_step) % every == every - 1)
+        if len(ids):
+            v = self.layout.base_linvel
+            self.state[ids, v.start:v.start + 2] += self.rng.uniform(
+                -rc.push_max_vel, rc.push_max_vel, (len(ids), 2))
+
+    def _reset_ids(self, ids: np.ndarray) -> None:
+        """New episodes for ``ids``: spawn state, variant, command, latency, buffers."""
+        n, cfg = len(ids), self.cfg
+        centre = self.terrain.tile_center(self.type_idx[ids], self.level[ids], rng=self.rng)
+        xy = centre[:, :2] + self.rng.uniform(-cfg.spawn_offset, cfg.spawn_offset, (n, 2))
+        yaw = self.rng.uniform(-np.pi, np.pi, n)
+        st = np.tile(self._template, (n, 1))
+        lay = self.layout
+        ground = self.terrain.height_at(xy[:, None, :] + self._footprint()[None]).max(axis=1)
+        st[:, lay.base_pos] = np.column_stack([xy, ground + robot.SPAWN_HEIGHT])
+        st[:, lay.base_quat] = yaw_quat(yaw)
+        self.state[ids] = st
+        self.variant[ids] = self.rng.integers(0, len(self.pool), n)
+        for i, v in zip(ids, self.variant[ids]):
+            self._models[i] = self.pool[v]
+        self.commands.resample(ids, self.rng)
+        self.latency[ids] = self.rng.integers(0, self._lat + 1, n)
+        self.push_step[ids] = self.rng.integers(0, 1 << 30, n)
+        self.spawn_xy[ids] = xy
+        for buf in (self.action, self.last_action, self.last_joint_vel, self.air_time):
+            buf[ids] = 0.0
+        self.last_contact[ids] = False
+        self.episode_step[ids] = 0
+        self.episode_return[ids] = 0.0
+        sens = np.zeros((n, 1, self.model.nsensordata))
+        fresh = self._measure(self.state[ids], sens, ids)
+        if not self.meas:
+            self.meas = fresh
+        else:
+            for k, v in fresh.items():
+                self.meas[k][ids] = v
+        self.commands.update_yaw_rate(self.meas["yaw"])
+        self._hist[ids] = self._proprio(fresh, ids)[:, None, :]
+        self._hist_fresh = ids
+
+    def _footprint(self) -> np.ndarray:
+        return np.array([[0.2, 0.15], [0.2, -0.15], [-0.2, 0.15], [-0.2, -0.15], [0, 0]])
+
+    def _measure(self, state: np.ndarray, sens: np.ndarray,
+                 ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Physical quantities from states (N, nstate) and substep sensors (N, d, ns)."""
+        lay = self.layout
+        ids = np.arange(self.num_envs) if ids is None else ids
+        pos, quat = state[:, lay.base_pos], state[:, lay.base_quat]
+        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        rot = quat_to_mat(quat)
+        yaw = yaw_of(quat)
+        c, s = np.cos(yaw), np.sin(yaw)
+        px, py = self._scan_points[:, 0], self._scan_points[:, 1]
+        scan_xy = np.stack([pos[:, :1] + c[:, None] * px - s[:, None] * py,
+                            pos[:, 1:2] + s[:, None] * px + c[:, None] * py], axis=-1)
+        heights = self.terrain.height_at(scan_xy)                       # (N, 187)
+        below = self.terrain.height_at(pos[:, :2])
+        return {
+            "base_pos": pos, "yaw": yaw, "orientation": quat,
+            "joint_pos": state[:, lay.joint_pos], "joint_vel": state[:, lay.joint_vel],
+            "base_lin_vel": world_to_body(rot, state[:, lay.base_linvel]),
+            "base_ang_vel": state[:, lay.base_angvel].copy(),
+            "gravity": -rot[:, 2, :],
+            "foot_contact": (sens[:, :, robot.SENS_FOOT].max(axis=1) > CONTACT_THRESHOLD
+                             ).astype(np.float64),
+            "trunk_contact": sens[:, -1, robot.SENS_TRUNK],
+            "leg_collisions": sens[:, -1, robot.SENS_LEG_COLLISION],
+            "torques": sens[:, :, robot.SENS_TORQUE].mean(axis=1),
+            "height_scan": heights - pos[:, 2:3],
+            "base_height": (pos[:, 2] - below)[:, None],
+            "dynamics": self.pool_params[self.variant[ids]],
+        }
+
+    def _proprio(self, m: dict[str, np.ndarray], ids: np.ndarray) -> np.ndarray:
+        parts = []
+        for k in PROPRIO:
+            x = m["base_ang_vel"] if k == "ang_vel" else m[k]
+            w = self._noise[k]
+            if w > 0:
+                x = x + self.rng.uniform(-w, w, x.shape)
+            parts.append(x)
+        return np.concatenate(parts, axis=1).astype(np.float32)
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        """Registry-named observations (float32) of the current state, with noise and latency."""
+        m, n = self.meas, self.num_envs
+        fresh = self._proprio(m, np.arange(n))
+        if self._lat:
+            keep = np.ones(n, dtype=bool)
+            keep[self._hist_fresh] = False   # just reset: history already holds this frame
+            self._hist[keep] = np.roll(self._hist[keep], -1, axis=1)
+            self._hist[keep, -1] = fresh[keep]
+            delayed = self._hist[np.arange(n), self._lat - self.latency]
+        else:
+            delayed = fresh
+        self._hist_fresh = np.zeros(0, dtype=np.int64)
+        obs: dict[str, np.ndarray] = {}
+        start = 0
+        for k in PROPRIO:
+            d = SENSORS[k].dim
+            obs[k] = delayed[:, start:start + d]
+            start += d
+        obs["command"] = self.commands.command.astype(np.float32)
+        obs["last_action"] = self.action.astype(np.float32)
+        for k in ("base_lin_vel", "base_ang_vel", "orientation", "base_height", "height_scan",
+                  "dynamics"):
+            obs[k] = m[k].astype(np.float32)
+        return obs

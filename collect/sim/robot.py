@@ -1,0 +1,163 @@
+"""A1-class robot constants and scene assembly (robot MJCF + terrain heightfield)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from importlib import resources
+
+import mujoco
+import numpy as np
+
+from msta_data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
+
+ASSET = "a1.xml"
+
+#: legged_gym default pose: hip +0.1 (left) / -0.1 (right); thigh 0.8 front / 1.0 rear; calf -1.5.
+DEFAULT_POSE = np.array(
+    [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5], dtype=np.float64)
+TORQUE_LIMIT = 33.5
+VELOCITY_LIMIT = 21.0
+THIGH_LENGTH = 0.2
+CALF_LENGTH = 0.2
+FOOT_RADIUS = 0.02
+HIP_OFFSETS = np.array([[0.183, 0.047], [0.183, -0.047], [-0.183, 0.047], [-0.183, -0.047]])
+THIGH_OFFSET_Y = np.array([0.08505, -0.08505, 0.08505, -0.08505])
+#: Trunk height above flat ground in the default pose, plus a small drop margin.
+SPAWN_HEIGHT = 0.34
+
+# Sensor layout of the MJCF (see assets/a1.xml): 4 foot touches, trunk touch,
+# 4 thigh touches, 4 calf touches, 12 actuator forces.
+SENS_FOOT = slice(0, 4)
+SENS_TRUNK = 4
+SENS_LEG_COLLISION = slice(5, 13)
+SENS_TORQUE = slice(13, 25)
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Offsets of the fields inside MuJoCo's mjSTATE_FULLPHYSICS vector."""
+
+    size: int
+    qpos: slice
+    qvel: slice
+
+    @property
+    def base_pos(self) -> slice:
+        return slice(self.qpos.start, self.qpos.start + 3)
+
+    @property
+    def base_quat(self) -> slice:
+        return slice(self.qpos.start + 3, self.qpos.start + 7)
+
+    @property
+    def joint_pos(self) -> slice:
+        return slice(self.qpos.start + 7, self.qpos.stop)
+
+    @property
+    def base_linvel(self) -> slice:
+        return slice(self.qvel.start, self.qvel.start + 3)
+
+    @property
+    def base_angvel(self) -> slice:
+        return slice(self.qvel.start + 3, self.qvel.start + 6)
+
+    @property
+    def joint_vel(self) -> slice:
+        return slice(self.qvel.start + 6, self.qvel.stop)
+
+
+def state_layout(model: mujoco.MjModel) -> StateLayout:
+    """Locate qpos and qvel inside the full-physics state (time comes first)."""
+    size = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    q0 = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_TIME)
+    nq, nv = model.nq, model.nv
+    return StateLayout(size=size, qpos=slice(q0, q0 + nq), qvel=slice(q0 + nq, q0 + nq + nv))
+
+
+def build_model(hfield: dict | None, timestep: float = 0.005) -> mujoco.MjModel:
+    """Compile the robot with a terrain heightfield (or a plane when ``hfield`` is None).
+
+    Args:
+        hfield: ``Terrain.hfield_spec()``: nrow, ncol, size (rx, ry, elevation, base),
+            pos (x, y, z), data (nrow, ncol) in [0, 1].
+        timestep: physics step (s).
+    """
+    xml = resources.files("collect.sim").joinpath("assets", ASSET).read_text()
+    spec = mujoco.MjSpec.from_string(xml)
+    spec.option.timestep = timestep
+    if hfield is None:
+        spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_PLANE,
+                                size=[0, 0, 0.05], contype=1, conaffinity=2, rgba=[0.5, 0.6, 0.5, 1])
+    else:
+        hf = spec.add_hfield(name="terrain", nrow=int(hfield["nrow"]), ncol=int(hfield["ncol"]),
+                             size=[float(v) for v in hfield["size"]])
+        hf.userdata = np.asarray(hfield["data"], dtype=np.float32).ravel().tolist()
+        spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_HFIELD,
+                                hfieldname="terrain", pos=[float(v) for v in hfield["pos"]],
+                                contype=1, conaffinity=2, rgba=[0.55, 0.6, 0.55, 1])
+    _add_visuals(spec)
+    model = spec.compile()
+    _check_names(model)
+    return model
+
+
+def _add_visuals(spec: mujoco.MjSpec) -> None:
+    spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0.3, -1], diffuse=[0.8, 0.8, 0.8],
+                             type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    spec.visual.global_.offwidth = 1280
+    spec.visual.global_.offheight = 720
+
+
+def _check_names(model: mujoco.MjModel) -> None:
+    joints = [model.joint(i + 1).name for i in range(12)]
+    if tuple(joints) != JOINT_NAMES:
+        raise RuntimeError(f"robot joint order {joints} differs from the registry {JOINT_NAMES}")
+    foot_sensors = [model.sensor(i).name for i in range(4)]
+    if foot_sensors != [f"{f}_touch" for f in FOOT_NAMES]:
+        raise RuntimeError(f"foot sensor order {foot_sensors} differs from {FOOT_NAMES}")
+
+
+def default_state(model: mujoco.MjModel) -> np.ndarray:
+    """Full-physics state of the robot standing in the default pose at the origin."""
+    data = mujoco.MjData(model)
+    data.qpos[:3] = (0.0, 0.0, SPAWN_HEIGHT)
+    data.qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
+    data.qpos[7:] = DEFAULT_POSE
+    data.ctrl[:] = DEFAULT_POSE
+    mujoco.mj_forward(model, data)
+    out = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    return out
+
+
+def joint_limits(model: mujoco.MjModel) -> np.ndarray:
+    """(12, 2) joint position limits in registry order."""
+    return np.array(model.jnt_range[1:13], dtype=np.float64)
+
+
+def foot_positions_body(q: np.ndarray) -> np.ndarray:
+    """Forward kinematics of the feet in the base frame.
+
+    Args:
+        q: (N, 12) joint angles in registry order.
+    Returns:
+        (N, 4, 3) foot sphere centres in the base frame.
+    """
+    q = q.reshape(-1, 4, 3)
+    hip, thigh, calf = q[..., 0], q[..., 1], q[..., 2]
+    # Leg plane: thigh and calf rotate about y; x forward, z down.
+    x = -THIGH_LENGTH * np.sin(thigh) - CALF_LENGTH * np.sin(thigh + calf)
+    z_leg = -THIGH_LENGTH * np.cos(thigh) - CALF_LENGTH * np.cos(thigh + calf)
+    y_leg = THIGH_OFFSET_Y[None, :]
+    # Hip rotation about x.
+    c, s = np.cos(hip), np.sin(hip)
+    y = c * y_leg - s * z_leg
+    z = s * y_leg + c * z_leg
+    out = np.stack([x + HIP_OFFSETS[None, :, 0], y + HIP_OFFSETS[None, :, 1], z], axis=-1)
+    return out
+
+
+__all__ = [
+    "DEFAULT_POSE", "LEGS", "TORQUE_LIMIT", "StateLayout", "build_model", "default_state",
+    "foot_positions_body", "joint_limits", "state_layout",
+]
