@@ -1,0 +1,369 @@
+"""The msta dataset schema: registry -> LeRobot v3.0 features, and per-episode provenance.
+
+Columns of ``data/chunk-*/file-*.parquet`` (one row per control step, 50 Hz):
+
+* one float32 vector column per registry sensor (``SensorSpec.column``): student inputs
+  ``observation.<name>``, privileged signals ``privileged.<name>``, channel names from the
+  registry;
+* ``action`` (12): the teacher's label for this step; ``executed_action`` (12): the
+  action actually applied (equal to ``action`` for teacher rollouts, the student's action
+  in stage 2);
+* ``next.reward`` (total reward), ``next.lin_vel_tracking``, ``next.ang_vel_tracking``
+  (the paper's per-step metrics), all float32 scalars, and ``next.done`` (bool);
+* lerobot's standard ``timestamp``, ``frame_index``, ``episode_index``, ``index``,
+  ``task_index``, filled by the writer.
+
+Provenance: each episode's row in ``meta/episodes/*/*.parquet`` carries the columns
+``provenance/terrain``, ``provenance/terrain_level``, ``provenance/source``,
+``provenance/round``, ``provenance/policy``, ``provenance/policy_revision`` and
+``provenance/seed`` (the authoritative record; lerobot's loader ignores unknown episode
+columns and ``LeRobotDataset(..., episode_filter=lambda ep: ep["provenance/terrain"] ==
+"stairs_up")`` works). The task string, the only per-frame text lerobot knows, is
+``task_string(provenance)`` (``"a1 locomotion on <terrain>"``) so ``task_index`` groups
+episodes by terrain type.
+
+``meta/msta.json`` records the msta schema version and the sensor list; ``info.json`` is
+left exactly as lerobot writes it (lerobot warns about unknown keys there).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from msta_data import sensors as registry
+from msta_data.errors import DatasetFormatError, EpisodeValidationError
+
+CODEBASE_VERSION = "v3.0"
+MSTA_SCHEMA_VERSION = 1
+DEFAULT_FPS = 50
+DEFAULT_ROBOT_TYPE = "a1"
+MSTA_META_PATH = "meta/msta.json"
+
+#: lerobot's automatically filled columns (same dicts as ``lerobot.utils.constants``).
+LEROBOT_DEFAULT_FEATURES: dict[str, dict[str, Any]] = {
+    "timestamp": {"dtype": "float32", "shape": (1,), "names": None},
+    "frame_index": {"dtype": "int64", "shape": (1,), "names": None},
+    "episode_index": {"dtype": "int64", "shape": (1,), "names": None},
+    "index": {"dtype": "int64", "shape": (1,), "names": None},
+    "task_index": {"dtype": "int64", "shape": (1,), "names": None},
+}
+
+#: Columns every msta dataset has besides the sensors, supplied by the collector.
+NON_SENSOR_FEATURES: dict[str, dict[str, Any]] = {
+    "action": {"dtype": "float32", "shape": (registry.ACTION_DIM,),
+               "names": list(registry.JOINT_NAMES)},
+    "executed_action": {"dtype": "float32", "shape": (registry.ACTION_DIM,),
+                        "names": list(registry.JOINT_NAMES)},
+    "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
+    "next.lin_vel_tracking": {"dtype": "float32", "shape": (1,), "names": None},
+    "next.ang_vel_tracking": {"dtype": "float32", "shape": (1,), "names": None},
+    "next.done": {"dtype": "bool", "shape": (1,), "names": None},
+}
+
+Source = Literal["teacher", "student"]
+SOURCES: tuple[str, ...] = ("teacher", "student")
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """Where an episode came from; stored as ``provenance/<field>`` episode columns.
+
+    Args:
+        terrain: terrain type, e.g. ``"stairs_up"``.
+        terrain_level: curriculum difficulty row (0 = easiest).
+        source: ``"teacher"`` (stage 1 rollouts) or ``"student"`` (stage 2 corrections).
+        round: stage-2 round (0 for teacher data).
+        policy: name of the policy that acted, e.g. ``"gait"`` or ``"msta"``.
+        policy_revision: revision / checkpoint id of that policy ("" if none).
+        seed: the episode's random seed.
+    """
+
+    terrain: str
+    terrain_level: int
+    source: str
+    round: int
+    policy: str
+    policy_revision: str
+    seed: int
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise EpisodeValidationError(
+                f"provenance 'source' must be one of {SOURCES}, got {self.source!r}")
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.type == "int":
+                if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                    raise EpisodeValidationError(
+                        f"provenance {f.name!r} must be an int, got {value!r}")
+                object.__setattr__(self, f.name, int(value))
+            elif not isinstance(value, str):
+                raise EpisodeValidationError(
+                    f"provenance {f.name!r} must be a str, got {value!r}")
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Provenance:
+        """Build from a plain dict; unknown or missing keys are errors."""
+        if isinstance(d, Provenance):
+            return d
+        names = [f.name for f in dataclasses.fields(cls)]
+        unknown = sorted(set(d) - set(names))
+        missing = [n for n in names if n not in d]
+        if unknown or missing:
+            raise EpisodeValidationError(
+                f"bad provenance keys: missing {missing}, unknown {unknown}; expected {names}")
+        return cls(**d)
+
+    def columns(self) -> dict[str, Any]:
+        return {f"provenance/{k}": v for k, v in dataclasses.asdict(self).items()}
+
+
+PROVENANCE_COLUMNS: dict[str, pa.DataType] = {
+    f"provenance/{f.name}": (pa.int64() if f.type == "int" else pa.string())
+    for f in dataclasses.fields(Provenance)
+}
+
+
+def task_string(provenance: Provenance) -> str:
+    """The lerobot task text of an episode (groups episodes by terrain type)."""
+    return f"a1 locomotion on {provenance.terrain}"
+
+
+def resolve_sensors(sensors: Sequence[str] | None) -> tuple[str, ...]:
+    """Registry names to record, in registry order; ``None`` means every sensor."""
+    if sensors is None:
+        return tuple(registry.SENSORS)
+    if isinstance(sensors, str):
+        raise TypeError(f"sensors must be a sequence of names, got the string {sensors!r}")
+    for name in sensors:
+        registry.get(name)
+    if len(set(sensors)) != len(sensors):
+        raise ValueError(f"duplicate sensor names in {list(sensors)}")
+    return tuple(n for n in registry.SENSORS if n in set(sensors))
+
+
+def build_features(sensors: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+    """The lerobot ``features`` dict (as in ``meta/info.json``) for the given sensors.
+
+    Args:
+        sensors: registry names; ``None`` = the whole registry.
+
+    Returns:
+        column -> {"dtype", "shape", "names"}: sensors, then the non-sensor columns, then
+        lerobot's default columns (the same order as the Parquet columns).
+    """
+    feats: dict[str, dict[str, Any]] = {}
+    for name in resolve_sensors(sensors):
+        spec = registry.get(name)
+        feats[spec.column] = {"dtype": "float32", "shape": (spec.dim,), "names": list(spec.names)}
+    for col, ft in {**NON_SENSOR_FEATURES, **LEROBOT_DEFAULT_FEATURES}.items():
+        feats[col] = {"dtype": ft["dtype"], "shape": tuple(ft["shape"]),
+                      "names": None if ft["names"] is None else list(ft["names"])}
+    return feats
+
+
+def input_columns(features: dict[str, dict[str, Any]]) -> list[str]:
+    """Columns the collector supplies per episode (everything but lerobot's defaults)."""
+    return [c for c in features if c not in LEROBOT_DEFAULT_FEATURES]
+
+
+def sensor_column_to_name(features: dict[str, dict[str, Any]]) -> dict[str, str]:
+    """Map dataset column -> registry name for the sensor columns present."""
+    out = {}
+    for spec in registry.SENSORS.values():
+        if spec.column in features:
+            out[spec.column] = spec.name
+    return out
+
+
+def arrow_type(ft: dict[str, Any]) -> pa.DataType:
+    """The Arrow type lerobot's loader (``datasets``) expects for one feature."""
+    scalar = pa.bool_() if ft["dtype"] == "bool" else pa.from_numpy_dtype(ft["dtype"])
+    shape = tuple(ft["shape"])
+    if shape == (1,):
+        return scalar
+    if len(shape) != 1:
+        raise ValueError(f"only 1-D features are supported, got shape {shape}")
+    return pa.list_(pa.field("item", scalar), shape[0])
+
+
+def data_schema(features: dict[str, dict[str, Any]]) -> pa.Schema:
+    """Arrow schema of the data files, with the ``huggingface`` metadata lerobot writes."""
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+
+    hf = get_hf_features_from_features(
+        {k: {**v, "shape": tuple(v["shape"])} for k, v in features.items()})
+    schema = hf.arrow_schema
+    ours = pa.schema([pa.field(c, arrow_type(ft)) for c, ft in features.items()])
+    if not ours.equals(schema, check_metadata=False):
+        raise AssertionError(f"arrow schema mismatch with lerobot's:\n{ours}\nvs\n{schema}")
+    return schema
+
+
+# ---------------------------------------------------------------------------------------
+# On-disk layout (LeRobot v3.0) shared by the writer and the reader.
+# ---------------------------------------------------------------------------------------
+
+INFO_PATH = "meta/info.json"
+STATS_PATH = "meta/stats.json"
+TASKS_PATH = "meta/tasks.parquet"
+DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+#: Episode-table columns every msta dataset has (besides ``stats/...``), lerobot's first.
+EPISODE_INDEX_COLUMNS: dict[str, pa.DataType] = {
+    "episode_index": pa.int64(),
+    "tasks": pa.list_(pa.string()),
+    "length": pa.int64(),
+    "data/chunk_index": pa.int64(),
+    "data/file_index": pa.int64(),
+    "dataset_from_index": pa.int64(),
+    "dataset_to_index": pa.int64(),
+}
+EPISODE_META_COLUMNS: dict[str, pa.DataType] = {
+    "meta/episodes/chunk_index": pa.int64(),
+    "meta/episodes/file_index": pa.int64(),
+}
+
+
+def numbered_path(template: str, number: int, chunks_size: int) -> str:
+    """Relative path of the ``number``-th file (0-based) of a ``chunk-*/file-*`` series.
+
+    The numbering matches lerobot's ``update_chunk_file_indices``: ``chunks_size`` files
+    per chunk directory.
+    """
+    return template.format(chunk_index=number // chunks_size, file_index=number % chunks_size)
+
+
+def file_number(chunk_index: int, file_index: int, chunks_size: int) -> int:
+    return int(chunk_index) * chunks_size + int(file_index)
+
+
+def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
+    """Read and check ``meta/info.json``.
+
+    Args:
+        root: dataset root.
+        fps: if given, the dataset's fps must equal it.
+
+    Returns:
+        the raw dict, with feature shapes as tuples.
+
+    Raises:
+        DatasetFormatError: missing or unreadable file, another ``codebase_version``,
+            wrong fps, or malformed features (message names the file and key).
+    """
+    path = Path(root) / INFO_PATH
+    try:
+        info = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise DatasetFormatError(f"{path}: no such file (not a LeRobot dataset root?)") from None
+    except (OSError, json.JSONDecodeError) as e:
+        raise DatasetFormatError(f"{path}: cannot read JSON ({e})") from e
+    version = info.get("codebase_version")
+    if version != CODEBASE_VERSION:
+        raise DatasetFormatError(
+            f"{path}: codebase_version is {version!r}, expected {CODEBASE_VERSION!r} "
+            "(LeRobot v3.0 layout); convert the dataset with lerobot's converter")
+    for key in ("fps", "features", "total_episodes", "total_frames", "chunks_size", "data_path"):
+        if key not in info:
+            raise DatasetFormatError(f"{path}: missing key {key!r}")
+    if fps is not None and info["fps"] != fps:
+        raise DatasetFormatError(f"{path}: fps is {info['fps']}, expected {fps}")
+    if info["data_path"] != DATA_PATH:
+        raise DatasetFormatError(f"{path}: data_path {info['data_path']!r} != {DATA_PATH!r}")
+    for col, ft in info["features"].items():
+        if not isinstance(ft, dict) or "dtype" not in ft or "shape" not in ft:
+            raise DatasetFormatError(f"{path}: feature {col!r} lacks dtype/shape: {ft!r}")
+        ft["shape"] = tuple(ft["shape"])
+    return info
+
+
+def check_column_feature(info: dict[str, Any], column: str, root: str | Path) -> None:
+    """Raise unless ``info.json`` declares ``column`` as the registry / schema expects."""
+    path = Path(root) / INFO_PATH
+    expected = build_features().get(column)
+    actual = info["features"].get(column)
+    if actual is None:
+        raise DatasetFormatError(
+            f"{path}: column {column!r} missing; the dataset has {sorted(info['features'])}")
+    if expected is not None and (actual["dtype"] != expected["dtype"]
+                                 or tuple(actual["shape"]) != tuple(expected["shape"])):
+        raise DatasetFormatError(
+            f"{path}: column {column!r} is {actual['dtype']}{list(actual['shape'])}, expected "
+            f"{expected['dtype']}{list(expected['shape'])}")
+
+
+def read_parquet(path: Path, columns: list[str] | None = None) -> pa.Table:
+    """``pyarrow.parquet.read_table`` with errors that name the file and column."""
+    try:
+        if columns is not None:
+            names = pq.read_schema(path).names
+            for col in columns:
+                if col not in names:
+                    raise DatasetFormatError(f"{path}: column {col!r} missing (has {names})")
+        return pq.read_table(path, columns=columns)
+    except FileNotFoundError:
+        raise DatasetFormatError(f"{path}: no such file") from None
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetFormatError(f"{path}: cannot read Parquet (truncated or corrupt?): {e}") \
+            from e
+
+
+def episode_files(root: str | Path) -> list[Path]:
+    return sorted((Path(root) / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+
+
+def read_episode_table(root: str | Path, info: dict[str, Any],
+                       with_stats: bool = False) -> pa.Table:
+    """The committed episodes' rows of ``meta/episodes`` (``episode_index`` order).
+
+    Rows of episodes >= ``info["total_episodes"]`` (left by a writer killed between
+    writing an episode file and committing ``info.json``) are dropped.
+
+    Raises:
+        DatasetFormatError: unreadable file, missing column, or committed episodes missing.
+    """
+    tables = []
+    for path in episode_files(root):
+        names = read_parquet_schema(path).names
+        cols = [c for c in names if with_stats or not c.startswith("stats/")]
+        for col in EPISODE_INDEX_COLUMNS:
+            if col not in names:
+                raise DatasetFormatError(f"{path}: column {col!r} missing")
+        tables.append(read_parquet(path, cols))
+    total = int(info["total_episodes"])
+    if not tables:
+        if total:
+            raise DatasetFormatError(
+                f"{Path(root) / 'meta/episodes'}: no episode files but info.json says {total}")
+        return pa.table({c: pa.array([], t) for c, t in EPISODE_INDEX_COLUMNS.items()})
+    try:
+        table = pa.concat_tables(tables, promote_options="default")
+    except pa.ArrowException as e:
+        raise DatasetFormatError(f"{Path(root) / 'meta/episodes'}: inconsistent files: {e}") from e
+    ep = table.column("episode_index").to_numpy()
+    table = table.filter(pa.array(ep < total)).sort_by("episode_index")
+    got = table.column("episode_index").to_numpy()
+    if len(got) != total or (total and not np.array_equal(got, np.arange(total))):
+        missing = sorted(set(range(total)) - set(got.tolist()))[:10]
+        raise DatasetFormatError(
+            f"{Path(root) / 'meta/episodes'}: info.json has {total} episodes but the episode "
+            f"table has {len(got)} (missing e.g. {missing}, or duplicates)")
+    return table
+
+
+def read_parquet_schema(path: Path) -> pa.Schema:
+    try:
+        return pq.read_schema(path)
+    except (pa.ArrowException, OSError) as e:
+        raise DatasetFormatError(f"{path}: cannot read Parquet (truncated or corrupt?): {e}") \
+            from e

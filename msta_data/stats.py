@@ -1,0 +1,114 @@
+"""Per-channel statistics in lerobot's format.
+
+For every numeric column: ``min``, ``max``, ``mean``, ``std``, ``count`` and the quantiles
+``q01``, ``q10``, ``q50``, ``q90``, ``q99`` (lerobot's ``DEFAULT_QUANTILES``), each an
+array with one value per channel (``count`` has shape ``(1,)``).
+
+* Per episode (:func:`episode_stats`): exact values, vectorised over channels (lerobot
+  estimates the quantiles from 5000-bin histograms, one channel at a time, which is the
+  slowest part of its writer; the format is the same).
+* Across episodes (:func:`aggregate`): lerobot's own ``aggregate_stats`` — exact
+  count-weighted mean and pooled variance, min/max, and count-weighted averages of the
+  per-episode quantiles (an approximation, as in lerobot). Aggregation is associative, so
+  appending episodes to a dataset gives the same ``meta/stats.json`` as writing them all
+  at once, up to floating-point rounding.
+
+The MSTA tokenizer normalises each scalar and discretises it into 256 bins; ``mean``/
+``std`` (normalisation) and ``q01``/``q99`` or ``min``/``max`` (bin range) per channel
+are all here.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+
+QUANTILES: tuple[float, ...] = (0.01, 0.10, 0.50, 0.90, 0.99)
+QUANTILE_KEYS: tuple[str, ...] = tuple(f"q{int(q * 100):02d}" for q in QUANTILES)
+STAT_KEYS: tuple[str, ...] = ("min", "max", "mean", "std", "count", *QUANTILE_KEYS)
+
+Stats = dict[str, dict[str, np.ndarray]]
+
+
+def column_stats(values: np.ndarray) -> dict[str, np.ndarray]:
+    """Statistics of one column of one episode.
+
+    Args:
+        values: ``(L,)`` for scalar columns or ``(L, D)`` for vector columns; bool and
+            integer columns are treated as float (as lerobot does).
+
+    Returns:
+        stat name -> float64 array of shape ``(D,)`` (``(1,)`` for scalars), ``count``
+        an int64 array of shape ``(1,)``.
+    """
+    x = np.asarray(values)
+    if x.ndim == 1:
+        x = x[:, None]
+    if x.ndim != 2 or x.shape[0] == 0:
+        raise ValueError(f"expected a non-empty (L,) or (L, D) array, got shape {x.shape}")
+    x = x.astype(np.float64, copy=False)
+    mean = x.mean(axis=0)
+    out = {
+        "min": x.min(axis=0),
+        "max": x.max(axis=0),
+        "mean": mean,
+        "std": np.sqrt(np.maximum(0.0, (x * x).mean(axis=0) - mean * mean)),
+        "count": np.array([x.shape[0]], dtype=np.int64),
+    }
+    qs = np.quantile(x, QUANTILES, axis=0)  # (Q, D)
+    for key, q in zip(QUANTILE_KEYS, qs, strict=True):
+        out[key] = q
+    return out
+
+
+def episode_stats(columns: dict[str, np.ndarray]) -> Stats:
+    """Statistics of every column of one episode (see :func:`column_stats`)."""
+    return {col: column_stats(v) for col, v in columns.items()}
+
+
+def aggregate(stats_list: Iterable[Stats]) -> Stats:
+    """Aggregate statistics of several episodes or datasets (lerobot's ``aggregate_stats``)."""
+    from lerobot.datasets.compute_stats import aggregate_stats
+
+    stats_list = [s for s in stats_list if s]
+    if not stats_list:
+        return {}
+    return aggregate_stats(stats_list)
+
+
+def to_episode_columns(stats: Stats) -> dict[str, list]:
+    """Flatten to lerobot's ``meta/episodes`` columns: ``stats/<column>/<stat>`` -> list."""
+    out: dict[str, list] = {}
+    for col, st in stats.items():
+        for key in STAT_KEYS:
+            value = st[key]
+            out[f"stats/{col}/{key}"] = (
+                [int(v) for v in value] if key == "count" else [float(v) for v in value])
+    return out
+
+
+def from_episode_columns(row: dict[str, list]) -> Stats:
+    """Inverse of :func:`to_episode_columns` for one episode row (other keys ignored)."""
+    out: Stats = {}
+    for name, value in row.items():
+        if not name.startswith("stats/"):
+            continue
+        col, key = name[len("stats/"):].rsplit("/", 1)
+        dtype = np.int64 if key == "count" else np.float64
+        out.setdefault(col, {})[key] = np.asarray(value, dtype=dtype)
+    return out
+
+
+def to_json(stats: Stats) -> dict[str, dict[str, list]]:
+    """JSON-serialisable form, as lerobot's ``meta/stats.json``."""
+    return {col: {k: np.asarray(v).tolist() for k, v in st.items()} for col, st in stats.items()}
+
+
+def load_stats(root: str | Path) -> Stats:
+    """Read ``meta/stats.json`` into float64 arrays (``count`` int64)."""
+    raw = json.loads((Path(root) / "meta" / "stats.json").read_text())
+    return {col: {k: np.asarray(v, dtype=np.int64 if k == "count" else np.float64)
+                  for k, v in st.items()} for col, st in raw.items()}

@@ -1,0 +1,452 @@
+"""Fast, appendable, crash-safe episode writer producing a LeRobot v3.0 dataset.
+
+Parquet is written with pyarrow directly (no per-frame Python work). The layout and
+column types are exactly those lerobot 0.6.1's ``LeRobotDataset`` loads (the tests load
+our output with it).
+
+Durability protocol (one writer at a time, enforced by ``flock`` on ``root/.msta.lock``):
+
+1. Episodes are validated when added and buffered in memory.
+2. A *flush* (every ``flush_every_frames`` buffered frames, and on ``close``) writes the
+   buffered episodes as new data files ``data/chunk-C/file-F.parquet`` (at most
+   ``max_frames_per_file`` rows each, whole episodes only) plus one matching
+   ``meta/episodes/chunk-C/file-F.parquet`` per data file. Existing files are never
+   modified, so earlier episodes stay byte-identical on append.
+3. Then ``meta/tasks.parquet``, ``meta/stats.json`` and finally ``meta/info.json`` are
+   rewritten; ``info.json`` (``total_episodes``/``total_frames``) is the commit point.
+
+Every file is written to ``<name>.tmp``, fsync-ed and ``os.replace``-d into place, so a
+process killed at any instant leaves only complete files. A kill loses at most the
+buffered (unflushed) episodes; a kill during step 2-3 can leave the new files of one
+flush uncommitted (lerobot still loads the dataset: its frame count comes from
+``info.json``). :meth:`DatasetWriter.open` deletes such uncommitted files and ``.tmp``
+leftovers and recomputes ``stats.json`` from the committed per-episode stats.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from msta_data import features as F
+from msta_data import stats as S
+from msta_data.errors import DatasetFormatError, DatasetLockedError, EpisodeValidationError
+
+LOCK_NAME = ".msta.lock"
+DEFAULT_FLUSH_EVERY_FRAMES = 50_000
+
+
+@dataclass
+class _Episode:
+    index: int
+    length: int
+    task_index: int
+    task: str
+    columns: dict[str, np.ndarray]
+    stats: S.Stats
+    provenance: F.Provenance
+
+
+def _fsync_replace(tmp: Path, path: Path) -> None:
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+
+
+def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    """Write ``path`` via ``write(tmp)``, fsync, then rename over ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    _fsync_replace(tmp, path)
+
+
+def _atomic_json(path: Path, obj: Any) -> None:
+    _atomic_write(path, lambda p: p.write_text(json.dumps(obj, indent=4, ensure_ascii=False)))
+
+
+def _take_lock(root: Path) -> int:
+    path = root / LOCK_NAME
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = path.read_text().strip() or "?"
+        os.close(fd)
+        raise DatasetLockedError(
+            f"{root}: another writer (pid {holder}) holds {path}; only one writer at a time"
+        ) from None
+    os.ftruncate(fd, 0)
+    os.write(fd, str(os.getpid()).encode())
+    return fd
+
+
+def validate_episode(frames: dict[str, np.ndarray],
+                     features: dict[str, dict[str, Any]]) -> tuple[int, dict[str, np.ndarray]]:
+    """Check one episode against the schema and return ``(length, copied columns)``.
+
+    Scalar columns may be ``(L,)`` or ``(L, 1)`` and come back as ``(L,)``.
+
+    Raises:
+        EpisodeValidationError: missing/unknown column, wrong type, dtype or shape,
+            inconsistent lengths, or a NaN/Inf value (column, frame and channel named).
+    """
+    if not isinstance(frames, dict):
+        raise EpisodeValidationError(f"frames must be a dict column -> array, got {type(frames)}")
+    expected = F.input_columns(features)
+    missing = [c for c in expected if c not in frames]
+    extra = sorted(set(frames) - set(expected))
+    if missing or extra:
+        auto = [c for c in extra if c in F.LEROBOT_DEFAULT_FEATURES]
+        raise EpisodeValidationError(
+            f"episode columns do not match the dataset: missing {missing}, unknown {extra}"
+            + (f" ({auto} are filled by the writer)" if auto else ""))
+    length: int | None = None
+    out: dict[str, np.ndarray] = {}
+    for col in expected:
+        arr, ft = frames[col], features[col]
+        if not isinstance(arr, np.ndarray):
+            raise EpisodeValidationError(f"column {col!r}: expected np.ndarray, got {type(arr)}")
+        want = np.dtype(ft["dtype"])
+        if arr.dtype != want:
+            raise EpisodeValidationError(f"column {col!r}: dtype {arr.dtype}, expected {want}")
+        dim = ft["shape"][0]
+        if tuple(ft["shape"]) == (1,) and arr.ndim == 2 and arr.shape[1] == 1:
+            arr = arr[:, 0]
+        ok = arr.ndim == 1 if tuple(ft["shape"]) == (1,) else (arr.ndim == 2
+                                                                and arr.shape[1] == dim)
+        if not ok:
+            shape = "(L,)" if tuple(ft["shape"]) == (1,) else f"(L, {dim})"
+            raise EpisodeValidationError(f"column {col!r}: shape {arr.shape}, expected {shape}")
+        if length is None:
+            length = arr.shape[0]
+        if arr.shape[0] != length or length == 0:
+            raise EpisodeValidationError(
+                f"column {col!r}: {arr.shape[0]} frames, expected {length} (> 0) like "
+                f"{expected[0]!r}")
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            bad = np.argwhere(~np.isfinite(arr.reshape(length, -1)))[0]
+            names = ft["names"] or [col]
+            raise EpisodeValidationError(
+                f"column {col!r}: non-finite value {arr.reshape(length, -1)[tuple(bad)]} at "
+                f"frame {bad[0]}, channel {names[bad[1]]!r}")
+        out[col] = arr.copy()
+    assert length is not None
+    return length, out
+
+
+class DatasetWriter:
+    """Write episodes into a LeRobot v3.0 dataset; use as a context manager.
+
+    Create with :meth:`create` (new dataset) or :meth:`open` (append). Only one writer
+    may hold a dataset; a second gets :class:`DatasetLockedError`.
+    """
+
+    def __init__(self, root: Path, lock_fd: int, info: dict[str, Any], msta_meta: dict[str, Any],
+                 flush_every_frames: int, max_frames_per_file: int | None) -> None:
+        self.root = root
+        self._lock_fd: int | None = lock_fd
+        self.info = info
+        self.msta_meta = msta_meta
+        self.features: dict[str, dict[str, Any]] = info["features"]
+        self._schema = F.data_schema(self.features)
+        if flush_every_frames < 1:
+            raise ValueError(f"flush_every_frames must be >= 1, got {flush_every_frames}")
+        self.flush_every_frames = flush_every_frames
+        self.max_frames_per_file = max_frames_per_file or self._default_max_frames()
+        self._buffer: list[_Episode] = []
+        self._buffered_frames = 0
+        self._tasks: dict[str, int] = {}
+        self._tasks_dirty = False
+        self._stats: S.Stats = {}
+        self._next_file = 0
+
+    # ----- construction ----------------------------------------------------------------
+    @classmethod
+    def create(cls, root: str | Path, repo_id: str, fps: int = F.DEFAULT_FPS,
+               robot_type: str = F.DEFAULT_ROBOT_TYPE, sensors: Sequence[str] | None = None,
+               flush_every_frames: int = DEFAULT_FLUSH_EVERY_FRAMES,
+               max_frames_per_file: int | None = None) -> DatasetWriter:
+        """Start a new dataset at ``root`` (absent or an empty directory).
+
+        Args:
+            root: dataset directory.
+            repo_id: hub id, e.g. ``"local/a1_teacher"`` (recorded in ``meta/msta.json``).
+            fps: control rate; msta uses 50.
+            robot_type: ``info.json`` robot type.
+            sensors: registry names to record; ``None`` = every registry sensor.
+            flush_every_frames: buffered frames that trigger a flush (crash loses at most
+                this many frames plus the episode in progress).
+            max_frames_per_file: row cap per data file; default from lerobot's
+                ``data_files_size_in_mb`` (100 MB) and the row size.
+        """
+        root = Path(root)
+        root.mkdir(parents=True, exist_ok=True)
+        lock_fd = _take_lock(root)
+        try:
+            leftovers = [p.name for p in root.iterdir() if p.name != LOCK_NAME]
+            if leftovers:
+                raise FileExistsError(
+                    f"{root}: not empty ({sorted(leftovers)[:5]}); use DatasetWriter.open to append")
+            feats = F.build_features(sensors)
+            info = {
+                "codebase_version": F.CODEBASE_VERSION, "fps": int(fps), "features": feats,
+                "total_episodes": 0, "total_frames": 0, "total_tasks": 0, "chunks_size": 1000,
+                "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
+                "data_path": F.DATA_PATH, "video_path": None, "robot_type": robot_type,
+                "splits": {},
+            }
+            msta_meta = {"msta_schema_version": F.MSTA_SCHEMA_VERSION, "repo_id": repo_id,
+                         "sensors": list(F.resolve_sensors(sensors)),
+                         "provenance_columns": list(F.PROVENANCE_COLUMNS)}
+            self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
+            _atomic_json(root / F.MSTA_META_PATH, msta_meta)
+            self._write_info()
+            return self
+        except BaseException:
+            os.close(lock_fd)
+            raise
+
+    @classmethod
+    def open(cls, root: str | Path, flush_every_frames: int = DEFAULT_FLUSH_EVERY_FRAMES,
+             max_frames_per_file: int | None = None) -> DatasetWriter:
+        """Re-open a dataset written by msta to append episodes (stage 2, ``--resume``).
+
+        Files left uncommitted by a killed writer are removed (see module docstring).
+        """
+        root = Path(root)
+        if not (root / F.INFO_PATH).exists():
+            raise DatasetFormatError(f"{root / F.INFO_PATH}: no such file; use create()")
+        lock_fd = _take_lock(root)
+        try:
+            info = F.load_info(root)
+            msta_path = root / F.MSTA_META_PATH
+            try:
+                msta_meta = json.loads(msta_path.read_text())
+            except (OSError, json.JSONDecodeError) as e:
+                raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
+            if msta_meta.get("msta_schema_version") != F.MSTA_SCHEMA_VERSION:
+                raise DatasetFormatError(
+                    f"{msta_path}: msta_schema_version {msta_meta.get('msta_schema_version')!r}"
+                    f", expected {F.MSTA_SCHEMA_VERSION}")
+            expected = F.build_features(msta_meta["sensors"])
+            if info["features"] != expected:
+                bad = sorted(k for k in set(expected) | set(info["features"])
+                             if expected.get(k) != info["features"].get(k))
+                raise DatasetFormatError(f"{root / F.INFO_PATH}: features differ from the msta "
+                                         f"schema in columns {bad}")
+            self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
+            self._recover()
+            return self
+        except BaseException:
+            os.close(lock_fd)
+            raise
+
+    def _recover(self) -> None:
+        table = F.read_episode_table(self.root, self.info, with_stats=True)
+        cs = self.info["chunks_size"]
+        if len(table):
+            last = table.slice(len(table) - 1).to_pylist()[0]
+            if last["dataset_to_index"] != self.info["total_frames"]:
+                raise DatasetFormatError(
+                    f"{self.root / F.INFO_PATH}: total_frames {self.info['total_frames']} but "
+                    f"the last episode ends at {last['dataset_to_index']}")
+            nums = [F.file_number(c, f, cs) for c, f in zip(
+                table.column("data/chunk_index").to_pylist(),
+                table.column("data/file_index").to_pylist(), strict=True)]
+            self._next_file = max(nums) + 1
+        for sub in ("data", "meta/episodes"):
+            for path in (self.root / sub).glob("chunk-*/*"):
+                chunk = int(path.parent.name.split("-")[1])
+                stem = path.name.split(".")[0]
+                uncommitted = (stem.startswith("file-") and path.suffix == ".parquet"
+                               and F.file_number(chunk, int(stem[5:]), cs) >= self._next_file)
+                if path.name.endswith(".tmp") or uncommitted:
+                    path.unlink()
+        for path in (self.root / "meta").glob("*.tmp"):
+            path.unlink()
+        if (self.root / F.TASKS_PATH).exists():
+            tasks = pd.read_parquet(self.root / F.TASKS_PATH)
+            self._tasks = {str(t): int(i) for t, i in zip(tasks.index, tasks["task_index"],
+                                                          strict=True)}
+        rows = table.select([c for c in table.column_names if c.startswith("stats/")]).to_pylist()
+        self._stats = S.aggregate(S.from_episode_columns(r) for r in rows)
+        if self._stats:
+            _atomic_json(self.root / F.STATS_PATH, S.to_json(self._stats))
+
+    def _default_max_frames(self) -> int:
+        row = sum(np.dtype(ft["dtype"]).itemsize * ft["shape"][0] for ft in self.features.values())
+        return max(1, int(self.info["data_files_size_in_mb"] * 1024 * 1024 // row))
+
+    # ----- public API -------------------------------------------------------------------
+    @property
+    def num_episodes(self) -> int:
+        """Episodes committed plus buffered."""
+        return self.info["total_episodes"] + len(self._buffer)
+
+    @property
+    def num_frames(self) -> int:
+        return self.info["total_frames"] + self._buffered_frames
+
+    def add_episode(self, frames: dict[str, np.ndarray], provenance: dict[str, Any]) -> int:
+        """Validate and buffer one episode; flushes when enough frames are buffered.
+
+        Args:
+            frames: column -> ``(L, dim)`` array for every column of
+                ``features.input_columns`` (float32; ``next.done`` bool; scalars may be
+                ``(L,)``). Timestamps and indices are filled by the writer.
+            provenance: the :class:`~msta_data.features.Provenance` fields as a dict.
+
+        Returns:
+            the episode's index in the dataset.
+        """
+        self._check_open()
+        prov = F.Provenance.from_dict(provenance)
+        length, cols = validate_episode(frames, self.features)
+        task = F.task_string(prov)
+        if task not in self._tasks:
+            self._tasks[task] = len(self._tasks)
+            self._tasks_dirty = True
+        ep = _Episode(index=self.num_episodes, length=length, task_index=self._tasks[task],
+                      task=task, columns=cols, stats={}, provenance=prov)
+        ep.columns.update(self._auto_columns(ep, self.num_frames))
+        ep.stats = S.episode_stats(ep.columns)
+        ep.stats = {c: ep.stats[c] for c in self.features}  # schema order
+        self._buffer.append(ep)
+        self._buffered_frames += length
+        if self._buffered_frames >= self.flush_every_frames:
+            self.flush()
+        return ep.index
+
+    def flush(self) -> None:
+        """Write buffered episodes as new files and commit them (see module docstring)."""
+        self._check_open()
+        if not self._buffer:
+            return
+        for group in self._groups():
+            self._write_group(group)
+        if self._tasks_dirty:
+            df = pd.DataFrame({"task_index": list(self._tasks.values())},
+                              index=pd.Index(list(self._tasks), name="task"))
+            _atomic_write(self.root / F.TASKS_PATH, lambda p: df.to_parquet(p))
+            self._tasks_dirty = False
+        self._stats = S.aggregate([self._stats, *(ep.stats for ep in self._buffer)])
+        _atomic_json(self.root / F.STATS_PATH, S.to_json(self._stats))
+        self.info["total_episodes"] += len(self._buffer)
+        self.info["total_frames"] += self._buffered_frames
+        self.info["total_tasks"] = len(self._tasks)
+        self.info["splits"] = {"train": f"0:{self.info['total_episodes']}"}
+        self._write_info()  # commit point
+        self._buffer.clear()
+        self._buffered_frames = 0
+
+    def close(self) -> None:
+        """Flush and release the lock. Idempotent."""
+        if self._lock_fd is None:
+            return
+        try:
+            self.flush()
+        finally:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    def __enter__(self) -> DatasetWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        # Buffered episodes were validated when added, so they are committed even when the
+        # block raised (e.g. a later episode was malformed).
+        self.close()
+
+    # ----- internals ----------------------------------------------------------------------
+    def _check_open(self) -> None:
+        if self._lock_fd is None:
+            raise RuntimeError(f"{self.root}: writer is closed")
+
+    def _auto_columns(self, ep: _Episode, first_index: int) -> dict[str, np.ndarray]:
+        frame_index = np.arange(ep.length, dtype=np.int64)
+        return {
+            "timestamp": (frame_index / self.info["fps"]).astype(np.float32),
+            "frame_index": frame_index,
+            "episode_index": np.full(ep.length, ep.index, dtype=np.int64),
+            "index": np.arange(first_index, first_index + ep.length, dtype=np.int64),
+            "task_index": np.full(ep.length, ep.task_index, dtype=np.int64),
+        }
+
+    def _groups(self) -> list[list[_Episode]]:
+        groups: list[list[_Episode]] = [[]]
+        rows = 0
+        for ep in self._buffer:
+            if groups[-1] and rows + ep.length > self.max_frames_per_file:
+                groups.append([])
+                rows = 0
+            groups[-1].append(ep)
+            rows += ep.length
+        return groups
+
+    def _write_group(self, group: list[_Episode]) -> None:
+        number, cs = self._next_file, self.info["chunks_size"]
+        arrays = []
+        for col, ft in self.features.items():
+            values = np.concatenate([ep.columns[col] for ep in group])
+            if tuple(ft["shape"]) == (1,):
+                arrays.append(pa.array(values))
+            else:
+                arrays.append(pa.FixedSizeListArray.from_arrays(
+                    pa.array(values.reshape(-1)), ft["shape"][0]))
+        table = pa.Table.from_arrays(arrays, schema=self._schema)
+
+        def write_data(path: Path) -> None:
+            with pq.ParquetWriter(path, self._schema, compression="snappy",
+                                  use_dictionary=["episode_index", "task_index"]) as w:
+                start = 0
+                for ep in group:  # one row group per episode, as lerobot writes
+                    w.write_table(table.slice(start, ep.length))
+                    start += ep.length
+
+        _atomic_write(self.root / F.numbered_path(F.DATA_PATH, number, cs), write_data)
+        meta = self._episode_table(group, number)
+        _atomic_write(self.root / F.numbered_path(F.EPISODES_PATH, number, cs),
+                      lambda p: pq.write_table(meta, p, compression="snappy"))
+        self._next_file += 1
+
+    def _episode_table(self, group: list[_Episode], number: int) -> pa.Table:
+        cs = self.info["chunks_size"]
+        chunk, file = number // cs, number % cs
+        rows = []
+        for ep in group:
+            start = int(ep.columns["index"][0])
+            row = {"episode_index": ep.index, "tasks": [ep.task], "length": ep.length,
+                   "data/chunk_index": chunk, "data/file_index": file,
+                   "dataset_from_index": start, "dataset_to_index": start + ep.length}
+            row.update(S.to_episode_columns(ep.stats))
+            row.update({"meta/episodes/chunk_index": chunk, "meta/episodes/file_index": file})
+            row.update(ep.provenance.columns())
+            rows.append(row)
+        fields = [pa.field(c, t) for c, t in F.EPISODE_INDEX_COLUMNS.items()]
+        for col in self.features:
+            for key in S.STAT_KEYS:
+                fields.append(pa.field(f"stats/{col}/{key}", pa.list_(
+                    pa.int64() if key == "count" else pa.float64())))
+        fields += [pa.field(c, t) for c, t in {**F.EPISODE_META_COLUMNS,
+                                                **F.PROVENANCE_COLUMNS}.items()]
+        return pa.Table.from_pylist(rows, schema=pa.schema(fields))
+
+    def _write_info(self) -> None:
+        info = dict(self.info)
+        info["features"] = {c: {**ft, "shape": list(ft["shape"])}
+                            for c, ft in self.features.items()}
+        _atomic_json(self.root / F.INFO_PATH, info)
