@@ -1,0 +1,74 @@
+"""The teacher protocol and registry.
+
+A teacher maps a batch of observations (student sensors plus privileged signals, keyed by
+registry name, each (N, dim) float32) to actions in the simulator's convention: (N, 12)
+offsets from the default pose in units of ``ControlConfig.action_scale``
+(joint target = DEFAULT_POSE + action_scale * action). Teachers are deterministic and
+batched over environments; stateful ones (e.g. a gait phase) are told about episode
+starts through ``reset``.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from msta_data.sensors import get
+
+
+@runtime_checkable
+class Teacher(Protocol):
+    """What every teacher provides."""
+
+    #: registry name, e.g. "gait", "rma", "imported"
+    name: str
+    #: registry sensor names read by ``act`` (validated against msta_data.sensors)
+    sensors: tuple[str, ...]
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, 12) float actions for a batch of observations."""
+        ...
+
+    def reset(self, ids: np.ndarray) -> None:
+        """Environments ``ids`` start a new episode (clear any per-env state)."""
+        ...
+
+
+TEACHERS: dict[str, Callable[..., Teacher]] = {}
+
+
+def register_teacher(name: str) -> Callable:
+    """Class decorator: make a teacher constructible by name (``make_teacher``)."""
+
+    def wrap(cls):
+        if name in TEACHERS:
+            raise ValueError(f"teacher {name!r} registered twice")
+        TEACHERS[name] = cls
+        return cls
+
+    return wrap
+
+
+def make_teacher(name: str, **kwargs) -> Teacher:
+    """Build a registered teacher by name."""
+    if name not in TEACHERS:
+        raise KeyError(f"unknown teacher {name!r}; registered: {sorted(TEACHERS)}")
+    return TEACHERS[name](**kwargs)
+
+
+def check_obs(teacher: Teacher, obs: dict[str, np.ndarray]) -> int:
+    """Validate that ``obs`` holds every sensor the teacher reads; return the batch size."""
+    n = None
+    for name in teacher.sensors:
+        spec = get(name)
+        if name not in obs:
+            raise KeyError(f"teacher {teacher.name!r} needs sensor {name!r}, missing from obs "
+                           f"(has {sorted(obs)})")
+        x = obs[name]
+        if x.ndim != 2 or x.shape[1] != spec.dim:
+            raise ValueError(f"sensor {name!r} has shape {x.shape}, expected (N, {spec.dim})")
+        if n is not None and x.shape[0] != n:
+            raise ValueError(f"sensor {name!r} has batch {x.shape[0]}, others have {n}")
+        n = x.shape[0]
+    return int(n or 0)
