@@ -1,0 +1,139 @@
+"""The hub server: configuration, the application state and the threaded HTTP server."""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+from http.server import ThreadingHTTPServer
+from pathlib import Path
+from typing import Self
+
+from msta_data.hub_server import api, files
+from msta_data.hub_server.auth import AuthConfig, read_token_file
+from msta_data.hub_server.protocol import HubHandler, Route
+from msta_data.hub_server.storage import Storage
+
+logger = logging.getLogger("msta_data.hub_server")
+
+
+@dataclass
+class ServerConfig:
+    """Settings of ``msta-hub serve``.
+
+    Args:
+        root: directory holding all repos, commits and blobs (created when missing).
+        host: interface to bind; loopback unless you mean to serve a network.
+        port: TCP port; 0 picks a free one.
+        tokens: ``NAME:SECRET`` entries; each secret authenticates user NAME.
+        token_file: file with one ``NAME:SECRET`` a line (keeps secrets out of the process list).
+        orgs: ``ORG:USER1,USER2`` entries; members may write in the ORG namespace.
+        lfs_threshold: files of at least this many bytes are uploaded through Git LFS; None
+            keeps every upload inline ("regular"), which works with every huggingface_hub
+            setting. LFS needs clients started with HF_HUB_DISABLE_XET=1.
+        public_url: base URL written into links (repo URLs, LFS upload URLs); by default the
+            Host header of each request.
+    """
+
+    root: Path
+    host: str = "127.0.0.1"
+    port: int = 0
+    tokens: list[str] = field(default_factory=list)
+    token_file: Path | None = None
+    orgs: list[str] = field(default_factory=list)
+    lfs_threshold: int | None = None
+    public_url: str | None = None
+
+    def __post_init__(self) -> None:
+        self.root = Path(self.root)
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port must be in [0, 65535], got {self.port}")
+        if self.lfs_threshold is not None and self.lfs_threshold < 1:
+            raise ValueError(f"lfs_threshold must be a positive byte count, got {self.lfs_threshold}")
+
+
+class HubApp:
+    """Everything a request handler needs: storage, users, LFS tickets and routes."""
+
+    def __init__(self, config: ServerConfig):
+        specs = list(config.tokens)
+        if config.token_file is not None:
+            specs += read_token_file(config.token_file)
+        self.auth = AuthConfig.from_specs(specs, config.orgs)
+        self.storage = Storage(config.root)
+        self.tickets = files.TicketBook()
+        self.lfs_threshold = config.lfs_threshold
+        self.public_url = config.public_url.rstrip("/") if config.public_url else None
+        self.routes: list[Route] = api.ROUTES + files.ROUTES
+        self.fallback_url = f"http://{config.host}:{config.port}"
+
+    def base_url(self, host_header: str | None) -> str:
+        if self.public_url:
+            return self.public_url
+        return f"http://{host_header}" if host_header else self.fallback_url
+
+
+class HubServer:
+    """A running hub server. Use as a context manager, or ``start()`` / ``stop()``.
+
+    Args:
+        config: the server settings.
+    """
+
+    def __init__(self, config: ServerConfig):
+        self.config = config
+        self.app = HubApp(config)
+        handler = type("BoundHubHandler", (HubHandler,), {"app": self.app})
+        try:
+            self.httpd = ThreadingHTTPServer((config.host, config.port), handler)
+        except OSError:
+            self.app.storage.close()
+            raise
+        self.httpd.daemon_threads = True
+        host, port = self.httpd.server_address[:2]
+        self.app.fallback_url = f"http://{host}:{port}"
+        self._thread: threading.Thread | None = None
+
+    @property
+    def port(self) -> int:
+        return int(self.httpd.server_address[1])
+
+    @property
+    def url(self) -> str:
+        """Endpoint to give clients (HF_ENDPOINT)."""
+        host = self.config.host
+        host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        return self.app.public_url or f"http://{host}:{self.port}"
+
+    def start(self) -> HubServer:
+        """Serve in a background thread and return immediately."""
+        self._thread = threading.Thread(target=self.httpd.serve_forever, name="msta-hub", daemon=True)
+        self._thread.start()
+        logger.info("msta-hub serving %s on %s", self.config.root, self.url)
+        return self
+
+    def serve_forever(self) -> None:
+        """Serve in this thread until interrupted (Ctrl-C), then release the root."""
+        logger.info("msta-hub serving %s on %s", self.config.root, self.url)
+        try:
+            self.httpd.serve_forever()
+        except KeyboardInterrupt:
+            logger.info("msta-hub stopping")
+        finally:
+            self.httpd.server_close()
+            self.app.storage.close()
+
+    def stop(self) -> None:
+        """Stop serving, close the socket and release the root's lock."""
+        if self._thread is not None:
+            self.httpd.shutdown()
+            self._thread.join(timeout=10)
+            self._thread = None
+        self.httpd.server_close()
+        self.app.storage.close()
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
