@@ -1,0 +1,101 @@
+"""A writer killed with SIGKILL leaves a dataset that loads; open() recovers and appends."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+from msta_data import stats as S
+from msta_data.windows import WindowDataset, load_episode_table
+from msta_data.writer import DatasetWriter
+
+REPO = Path(__file__).resolve().parents[2]
+
+# Writes 20-frame episodes forever, flushing every 60 frames; prints the committed episode
+# count after each flush.
+WRITER_SCRIPT = r"""
+import sys
+import numpy as np
+from msta_data import features as F
+from msta_data.writer import DatasetWriter
+
+feats = F.build_features()
+rng = np.random.default_rng(0)
+w = DatasetWriter.create(sys.argv[1], "local/crash", flush_every_frames=60)
+i = 0
+while True:
+    ep = {c: (np.arange(20) == 19) if feats[c]["dtype"] == "bool" else
+          rng.standard_normal((20, feats[c]["shape"][0])).astype(np.float32)
+          for c in F.input_columns(feats)}
+    committed = w.info["total_episodes"]
+    w.add_episode(ep, dict(terrain="discrete", terrain_level=i % 10, source="teacher",
+                           round=0, policy="gait", policy_revision="", seed=i))
+    if w.info["total_episodes"] != committed:
+        print("committed", w.info["total_episodes"], flush=True)
+    i += 1
+"""
+
+
+def test_sigkill_mid_run_keeps_flushed_episodes(tmp_path, synth):
+    root = tmp_path / "ds"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER_SCRIPT, str(root)], cwd=REPO,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        committed = 0
+        for line in proc.stdout:
+            committed = int(line.split()[1])
+            if committed >= 12:
+                break
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL and committed >= 12
+    info = json.loads((root / "meta/info.json").read_text())
+    assert info["total_episodes"] >= committed  # it may have committed more before the kill
+    ds = LeRobotDataset("local/crash", root=root)
+    assert ds.num_episodes == info["total_episodes"] and len(ds) == 20 * ds.num_episodes
+    assert ds[len(ds) - 1]["frame_index"].item() == 19
+    # Recover, append, and check that the result is consistent again.
+    with DatasetWriter.open(root) as w:
+        assert w.num_episodes == info["total_episodes"]
+        w.add_episode(synth.episode(20, 0), synth.provenance(0))
+    assert list((root).glob("**/*.tmp")) == []
+    n = info["total_episodes"] + 1
+    assert load_episode_table(root)["episode_index"].tolist() == list(range(n))
+    assert len(WindowDataset(root, ["joint_pos"], T=3)) == 20 * n
+    assert LeRobotDataset("local/crash", root=root).num_episodes == n
+
+
+def test_uncommitted_files_are_ignored_then_removed(tmp_path, write_dataset, synth):
+    """Simulate a kill between writing a flush's files and committing info.json."""
+    root = tmp_path / "ds"
+    write_dataset(root, [5, 6], flush_every_frames=5)  # two flushes -> files 000 and 001
+    committed = {n: (root / "meta" / n).read_bytes() for n in ("info.json", "stats.json")}
+    write_dataset(root, [7], seed0=5, append=True)  # file 002 ...
+    for name, content in committed.items():  # ... but killed before the commit
+        (root / "meta" / name).write_bytes(content)
+    for sub in ("data", "meta/episodes"):
+        (root / sub / "chunk-000" / "file-003.parquet.tmp").write_bytes(b"partial")
+    (root / "meta/info.json.tmp").write_text("{")
+    # Readers only trust info.json: the leftovers are invisible to them.
+    assert LeRobotDataset("local/test", root=root).num_episodes == 2
+    assert len(WindowDataset(root, ["command"], T=2)) == 11
+    with DatasetWriter.open(root) as w:
+        w.add_episode(synth.episode(4, 9), synth.provenance(9))
+    names = sorted(p.name for p in (root / "data/chunk-000").iterdir())
+    assert names == ["file-000.parquet", "file-001.parquet", "file-002.parquet"]
+    assert not list(root.glob("**/*.tmp"))
+    wd = WindowDataset(root, ["command"], T=2)
+    assert len(wd) == 15
+    assert S.load_stats(root)["action"]["count"].tolist() == [15]  # recomputed, not 22
+    np.testing.assert_array_equal(wd.get_batch(np.array([11]))["command"][0, 1],
+                                  synth.episode(4, 9)["observation.command"][0])
