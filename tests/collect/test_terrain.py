@@ -3,11 +3,13 @@ curriculum, and that a real MuJoCo hfield reproduces the heights."""
 
 from __future__ import annotations
 
+import draccus
 import mujoco
 import numpy as np
 import pytest
 
 from collect.sim.terrain import (
+    LEGGED_GYM_TYPE_WEIGHTS,
     TERRAIN_TYPES,
     TILE_GENERATORS,
     Terrain,
@@ -200,6 +202,16 @@ def test_bad_input_errors(full):
         Terrain(TerrainConfig(num_levels=1, max_init_level=0), seed=-1)
 
 
+def test_config_parses_with_draccus_and_rejects_unknown_keys():
+    cfg = draccus.parse(config_class=TerrainConfig,
+                        args=["--types=[flat,stairs_up]", "--num_levels=4", "--max_init_level=2"])
+    assert cfg.types == ("flat", "stairs_up") and cfg.num_levels == 4
+    with pytest.raises(SystemExit):
+        draccus.parse(config_class=TerrainConfig, args=["--num_level=4"])
+    with pytest.raises(draccus.utils.ParsingError, match="TerrainConfig"):
+        draccus.parse(config_class=TerrainConfig, args=["--types=[flat,lava]"])
+
+
 def test_curriculum_up_down_stay_clip_and_wrap():
     rng = np.random.default_rng(0)
     levels = np.array([3, 3, 3, 0, 5, 3])
@@ -219,9 +231,7 @@ def test_curriculum_up_down_stay_clip_and_wrap():
 def test_sample_initial_mix_and_levels():
     rng = np.random.default_rng(0)
     cfg = TerrainConfig()
-    t, lv = sample_initial(1000, rng, cfg, {"stairs_up": 0.35, "stairs_down": 0.25,
-                                            "discrete": 0.2, "smooth_slope": 0.1,
-                                            "rough_slope": 0.1})
+    t, lv = sample_initial(1000, rng, cfg, LEGGED_GYM_TYPE_WEIGHTS)
     assert np.bincount(t, minlength=6).tolist() == [0, 100, 100, 350, 250, 200]
     assert lv.min() == 0 and lv.max() == 5
     t, lv = sample_initial(7, rng, cfg)
