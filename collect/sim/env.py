@@ -190,6 +190,8 @@ class QuadrupedEnv:
         self._hist = np.zeros((n, self._lat + 1, sum(SENSORS[k].dim for k in PROPRIO)),
                               dtype=np.float32)
         self.meas: dict[str, np.ndarray] = {}
+        self.last_obs: dict[str, np.ndarray] = {}
+        self.final_obs: dict[str, np.ndarray] = {}
         self._hist_fresh = np.zeros(0, dtype=np.int64)
 
     # ------------------------------------------------------------------ public API
@@ -208,7 +210,8 @@ class QuadrupedEnv:
                            self.level if level is None else level)
         self._reset_ids(np.arange(self.num_envs))
         self._needs_reset = False
-        return self._observe()
+        self.last_obs = self._observe()
+        return self.last_obs
 
     def set_tiles(self, type_idx: np.ndarray, level: np.ndarray) -> None:
         """Pin terrain type and level per environment (applied at each env's next reset)."""
@@ -230,12 +233,17 @@ class QuadrupedEnv:
         self.action[:] = a
         target = robot.DEFAULT_POSE + self.cfg.control.action_scale * a
         self._control[:] = target[:, None, :]
+        t_before = self.state[:, 0].copy()
         self._runner.rollout(self._models, self._datas, self.state, self._control,
                              control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True,
                              nstep=self.cfg.control.decimation, state=self._out_state,
                              sensordata=self._out_sens)
         self.state[:] = self._out_state[:, -1]
+        # MuJoCo resets an unstable MjData itself (time restarts at 0), so a blow-up shows
+        # as a clock that did not advance by one control step, or as non-finite values.
+        expected = t_before + self.cfg.control.decimation * self.cfg.control.sim_dt
         blown = ~np.isfinite(self.state).all(axis=1)
+        blown |= np.abs(self.state[:, 0] - expected) > 0.5 * self.cfg.control.sim_dt
         if blown.any():
             self.state[blown] = self._template
         self.meas = self._measure(self.state, self._out_sens)
@@ -280,8 +288,10 @@ class QuadrupedEnv:
         self._resample_commands()
         self._push()
         if len(done_ids):
+            # Last observation of the finished episodes (no latency), before the reset.
+            self.final_obs = self._obs_dict(self._proprio(m, np.arange(self.num_envs)), m)
             self._reset_ids(done_ids)
-        obs = self._observe()
+        obs = self.last_obs = self._observe()
         metrics = {k: v for k, v in rew.items()}
         return StepResult(obs, rew["total"], metrics, terminated, truncated, reason, final)
 
@@ -418,11 +428,14 @@ class QuadrupedEnv:
         else:
             delayed = fresh
         self._hist_fresh = np.zeros(0, dtype=np.int64)
+        return self._obs_dict(delayed, m)
+
+    def _obs_dict(self, proprio: np.ndarray, m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         obs: dict[str, np.ndarray] = {}
         start = 0
         for k in PROPRIO:
             d = SENSORS[k].dim
-            obs[k] = delayed[:, start:start + d]
+            obs[k] = proprio[:, start:start + d]
             start += d
         obs["command"] = self.commands.command.astype(np.float32)
         obs["last_action"] = self.action.astype(np.float32)

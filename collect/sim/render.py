@@ -1,0 +1,95 @@
+"""Offscreen pictures of the batched env: image strips (PNG) and short videos (MP4)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+GL_HELP = (
+    "MuJoCo offscreen rendering needs an OpenGL backend. Set MUJOCO_GL=egl (needs libEGL, "
+    "Debian/Ubuntu package 'libegl1' with Mesa's 'libgl1-mesa-dri') or MUJOCO_GL=osmesa "
+    "(package 'libosmesa6'); on a desktop MUJOCO_GL=glfw works. Current MUJOCO_GL={!r}.")
+
+
+def make_renderer(model: mujoco.MjModel, height: int = 360, width: int = 480) -> mujoco.Renderer:
+    """A renderer, or a RuntimeError that says which package provides a GL backend."""
+    try:
+        return mujoco.Renderer(model, height=height, width=width)
+    except Exception as exc:  # mujoco raises FatalError/RuntimeError/AttributeError by backend
+        raise RuntimeError(GL_HELP.format(os.environ.get("MUJOCO_GL"))) from exc
+
+
+def _camera(distance: float = 1.6, azimuth: float = 135.0, elevation: float = -20.0):
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    cam.trackbodyid = 1
+    cam.distance, cam.azimuth, cam.elevation = distance, azimuth, elevation
+    return cam
+
+
+def record(env, policy: Callable[[dict], np.ndarray], steps: int, env_id: int = 0,
+           every: int = 5, height: int = 360, width: int = 480) -> list[np.ndarray]:
+    """Run ``policy`` on all envs for ``steps`` control steps, rendering env ``env_id``.
+
+    Args:
+        env: a reset ``QuadrupedEnv``.
+        policy: obs dict -> (N, 12) actions.
+        steps: control steps to run.
+        env_id: which environment to film.
+        every: keep one frame every ``every`` control steps.
+    Returns:
+        list of (height, width, 3) uint8 frames.
+    """
+    renderer = make_renderer(env.model, height, width)
+    data = mujoco.MjData(env.model)
+    cam = _camera()
+    frames, obs = [], env.last_obs
+    try:
+        for t in range(steps):
+            if t % every == 0:
+                mujoco.mj_setState(env.model, data, env.state[env_id],
+                                   mujoco.mjtState.mjSTATE_FULLPHYSICS)
+                mujoco.mj_forward(env.model, data)
+                renderer.update_scene(data, camera=cam)
+                frames.append(renderer.render().copy())
+            obs = env.step(policy(obs)).obs
+    finally:
+        renderer.close()
+    return frames
+
+
+def save_strip(frames: list[np.ndarray], path: str | Path, columns: int = 6) -> Path:
+    """Tile up to ``columns`` evenly spaced frames side by side into one PNG."""
+    import matplotlib.image
+
+    if not frames:
+        raise ValueError("no frames to save")
+    pick = np.linspace(0, len(frames) - 1, min(columns, len(frames))).round().astype(int)
+    strip = np.concatenate([frames[i] for i in pick], axis=1)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    matplotlib.image.imsave(path, strip)
+    return path
+
+
+def save_video(frames: list[np.ndarray], path: str | Path, fps: int = 10) -> Path:
+    """Encode frames as H.264 MP4 with PyAV (installed with lerobot)."""
+    import av
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames[0].shape[:2]
+    with av.open(str(path), mode="w") as out:
+        stream = out.add_stream("libx264", rate=fps)
+        stream.width, stream.height, stream.pix_fmt = w - w % 2, h - h % 2, "yuv420p"
+        for f in frames:
+            frame = av.VideoFrame.from_ndarray(f[: h - h % 2, : w - w % 2], format="rgb24")
+            for packet in stream.encode(frame):
+                out.mux(packet)
+        for packet in stream.encode():
+            out.mux(packet)
+    return path

@@ -1,0 +1,71 @@
+"""Benchmark: batched env control steps/s vs raw ``mujoco.rollout`` of the same model.
+
+Both run in the same process, interleaved in rounds, on the same states, thread count
+and environment count, so the printed ratio is robust to a busy machine.
+
+    python -m eval.bench_sim [--num_envs 1024] [--steps 50] [--rounds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from collect.sim.env import EnvConfig, QuadrupedEnv
+
+
+def _raw_rate(env: QuadrupedEnv, steps: int) -> float:
+    """Control steps/s of bare rollout calls chaining the final state, no observations."""
+    runner = rollout.Rollout(nthread=len(env._datas))
+    state = env.state.copy()
+    d = env.cfg.control.decimation
+    control = np.broadcast_to(env._control[:, :1], env._control.shape).copy()
+    out_s = np.zeros((env.num_envs, d, env.layout.size))
+    out_sens = np.zeros((env.num_envs, d, env.model.nsensordata))
+    t = time.perf_counter()
+    for _ in range(steps):
+        runner.rollout(env._models, env._datas, state, control,
+                       control_spec=mujoco.mjtState.mjSTATE_CTRL.value, skip_checks=True,
+                       nstep=d, state=out_s, sensordata=out_sens)
+        state[:] = out_s[:, -1]
+    return steps * env.num_envs / (time.perf_counter() - t)
+
+
+def _env_rate(env: QuadrupedEnv, steps: int, rng: np.random.Generator) -> float:
+    actions = rng.normal(0, 0.3, (steps, env.num_envs, 12))
+    t = time.perf_counter()
+    for i in range(steps):
+        env.step(actions[i])
+    return steps * env.num_envs / (time.perf_counter() - t)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--num_envs", type=int, default=1024)
+    p.add_argument("--steps", type=int, default=50, help="control steps per measurement")
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--nthread", type=int, default=2)
+    args = p.parse_args(argv)
+    env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0))
+    env.reset()
+    rng = np.random.default_rng(0)
+    _env_rate(env, 5, rng)  # warm-up: let robots land
+    env_rates, raw_rates = [], []
+    for r in range(args.rounds):
+        raw_rates.append(_raw_rate(env, args.steps))
+        env_rates.append(_env_rate(env, args.steps, rng))
+        print(f"round {r}: env {env_rates[-1]:,.0f} steps/s | raw rollout {raw_rates[-1]:,.0f} "
+              f"steps/s")
+    env_r, raw_r = float(np.median(env_rates)), float(np.median(raw_rates))
+    print(f"num_envs={args.num_envs} nthread={args.nthread} terrain types={env.cfg.terrain.types}")
+    print(f"batched env (all sensors + privileged, rewards, resets): {env_r:,.0f} control steps/s")
+    print(f"raw mujoco.rollout, same model and states:              {raw_r:,.0f} control steps/s")
+    print(f"env/raw ratio: {env_r / raw_r:.2f}")
+
+
+if __name__ == "__main__":
+    main()
