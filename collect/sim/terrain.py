@@ -188,7 +188,7 @@ def _discrete(u, v, d, cfg, rng) -> np.ndarray:
     h = DISCRETE_BASE + DISCRETE_PER_DIFFICULTY * d
     heights = np.zeros((n, n))
     for _ in range(DISCRETE_NUM_RECTS):
-        w, l = (np.round(rng.uniform(*DISCRETE_SIZE_RANGE, size=2) / hs)).astype(int)
+        w, l = np.minimum(np.round(rng.uniform(*DISCRETE_SIZE_RANGE, size=2) / hs), n).astype(int)
         ix, iy = rng.integers(0, n - w + 1), rng.integers(0, n - l + 1)
         heights[iy:iy + l, ix:ix + w] = rng.choice([-h, -h / 2, h / 2, h])
     on_platform = np.maximum(np.abs(u), np.abs(v)) <= cfg.platform_size / 2 + 1e-9
