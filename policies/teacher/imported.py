@@ -173,8 +173,9 @@ def load_spec(path: str | Path) -> ImportedSpec:
         raise ValueError(f"spec {str(path)!r} must hold a mapping, got {type(data).__name__}")
     try:
         return draccus.decode(ImportedSpec, data)
-    except draccus.utils.DecodingError as e:
-        raise ValueError(f"invalid imported-teacher spec {str(path)!r}: {e}") from None
+    except (draccus.utils.DecodingError, draccus.utils.ParsingError) as e:
+        raise ValueError(f"invalid imported-teacher spec {str(path)!r}: {e.__cause__ or e}"
+                         ) from None
 
 
 # ---------------------------------------------------------------------- backends

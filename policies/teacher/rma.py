@@ -124,8 +124,8 @@ class RMAConfig:
             raise ValueError(f"config type {kind!r} is not an RMA teacher ({TYPE!r})")
         try:
             return draccus.decode(cls, data)
-        except draccus.utils.DecodingError as e:
-            raise ValueError(f"invalid RMA teacher config: {e}") from None
+        except (draccus.utils.DecodingError, draccus.utils.ParsingError) as e:
+            raise ValueError(f"invalid RMA teacher config: {e.__cause__ or e}") from None
 
 
 def mlp(sizes: list[int], activation: str) -> nn.Sequential:
