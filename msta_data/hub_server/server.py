@@ -107,7 +107,7 @@ class HubServer:
 
     def start(self) -> HubServer:
         """Serve in a background thread and return immediately."""
-        self._thread = threading.Thread(target=self.httpd.serve_forever, name="msta-hub", daemon=True)
+        self._thread = threading.Thread(target=self.httpd.serve_forever, args=(0.05,), name="msta-hub", daemon=True)
         self._thread.start()
         logger.info("msta-hub serving %s on %s", self.config.root, self.url)
         return self
