@@ -70,13 +70,33 @@ def episode_stats(columns: dict[str, np.ndarray]) -> Stats:
 
 
 def aggregate(stats_list: Iterable[Stats]) -> Stats:
-    """Aggregate statistics of several episodes or datasets (lerobot's ``aggregate_stats``)."""
-    from lerobot.datasets.compute_stats import aggregate_stats
+    """Aggregate statistics of several episodes or datasets.
 
+    The same formulas as lerobot's ``compute_stats.aggregate_stats`` (a test checks they
+    agree): count-weighted mean, pooled variance, min of mins, max of maxes, and
+    count-weighted means of the quantiles. Re-implemented only to keep the ~15 s lerobot
+    import out of the writer.
+    """
     stats_list = [s for s in stats_list if s]
-    if not stats_list:
-        return {}
-    return aggregate_stats(stats_list)
+    keys = list(dict.fromkeys(k for s in stats_list for k in s))
+    out: Stats = {}
+    for key in keys:
+        group = [s[key] for s in stats_list if key in s]
+        counts = np.stack([np.asarray(g["count"], np.float64) for g in group])  # (n, 1)
+        total = counts.sum(axis=0)
+        means = np.stack([g["mean"] for g in group])  # (n, D)
+        mean = (means * counts).sum(axis=0) / total
+        var = ((np.stack([g["std"] for g in group]) ** 2 + (means - mean) ** 2)
+               * counts).sum(axis=0) / total
+        agg = {"min": np.min(np.stack([g["min"] for g in group]), axis=0),
+               "max": np.max(np.stack([g["max"] for g in group]), axis=0),
+               "mean": mean, "std": np.sqrt(var),
+               "count": np.array([int(total[0])], dtype=np.int64)}
+        for q in QUANTILE_KEYS:
+            if all(q in g for g in group):
+                agg[q] = (np.stack([g[q] for g in group]) * counts).sum(axis=0) / total
+        out[key] = agg
+    return out
 
 
 def to_episode_columns(stats: Stats) -> dict[str, list]:

@@ -111,3 +111,22 @@ def test_student_columns_are_the_only_observation_inputs(written):
     ds = LeRobotDataset("local/test", root=root)
     obs = sorted(k for k in ds.features if k.startswith("observation."))
     assert obs == sorted(SENSORS[s].column for s in STUDENT_SENSORS)
+
+
+def test_schema_and_stats_aggregation_agree_with_lerobot(synth):
+    from lerobot.datasets.compute_stats import aggregate_stats
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+
+    from msta_data import stats as S
+
+    feats = F.build_features()
+    assert F.data_schema(feats).equals(get_hf_features_from_features(feats).arrow_schema,
+                                       check_metadata=True)
+    per_episode = [S.episode_stats({"a": synth.episode(n, n)["observation.joint_pos"],
+                                    "r": synth.episode(n, n)["next.reward"]})
+                   for n in (1, 4, 9)]
+    ours, theirs = S.aggregate(per_episode), aggregate_stats(per_episode)
+    for col in ("a", "r"):
+        assert set(ours[col]) == set(theirs[col])
+        for k in ours[col]:
+            np.testing.assert_allclose(ours[col][k], theirs[col][k], rtol=1e-12, err_msg=k)
