@@ -287,6 +287,8 @@ class QuadrupedEnv:
                 tile_size=cfg.terrain.tile_size)
         self._resample_commands()
         self._push()
+        self.meas_before_reset = {k: m[k].copy() for k in ("base_lin_vel", "base_ang_vel",
+                                                             "base_pos")}
         if len(done_ids):
             # Last observation of the finished episodes (no latency), before the reset.
             self.final_obs = self._obs_dict(self._proprio(m, np.arange(self.num_envs)), m)

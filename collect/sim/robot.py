@@ -87,14 +87,14 @@ def build_model(hfield: dict | None, timestep: float = 0.005) -> mujoco.MjModel:
     spec.option.timestep = timestep
     if hfield is None:
         spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_PLANE,
-                                size=[0, 0, 0.05], contype=1, conaffinity=2, rgba=[0.5, 0.6, 0.5, 1])
+                                size=[0, 0, 0.05], contype=1, conaffinity=2, material="ground")
     else:
         hf = spec.add_hfield(name="terrain", nrow=int(hfield["nrow"]), ncol=int(hfield["ncol"]),
                              size=[float(v) for v in hfield["size"]])
         hf.userdata = np.asarray(hfield["data"], dtype=np.float32).ravel().tolist()
         spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_HFIELD,
                                 hfieldname="terrain", pos=[float(v) for v in hfield["pos"]],
-                                contype=1, conaffinity=2, rgba=[0.55, 0.6, 0.55, 1])
+                                contype=1, conaffinity=2, material="ground")
     _add_visuals(spec)
     model = spec.compile()
     _check_names(model)
@@ -102,8 +102,14 @@ def build_model(hfield: dict | None, timestep: float = 0.005) -> mujoco.MjModel:
 
 
 def _add_visuals(spec: mujoco.MjSpec) -> None:
+    spec.add_texture(name="grid", type=mujoco.mjtTexture.mjTEXTURE_2D,
+                     builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, rgb1=[0.45, 0.5, 0.45],
+                     rgb2=[0.6, 0.65, 0.6], width=64, height=64)
+    mat = spec.add_material(name="ground", texrepeat=[2, 2], texuniform=True)
+    mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "grid"
     spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0.3, -1], diffuse=[0.8, 0.8, 0.8],
                              type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    spec.visual.map.znear = 0.001   # relative to the (large) terrain extent
     spec.visual.global_.offwidth = 1280
     spec.visual.global_.offheight = 720
 
