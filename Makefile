@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m collect.demo
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.demo
 
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
