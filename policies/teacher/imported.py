@@ -19,9 +19,10 @@ shared with the RMA teacher.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Literal, Protocol
+from typing import Literal, Protocol
 
 import draccus
 import numpy as np
@@ -170,7 +171,7 @@ def load_spec(path: str | Path) -> ImportedSpec:
         raise ValueError(f"spec {str(path)!r}: unknown suffix {path.suffix!r} "
                          f"(use .json, .yaml or .yml)")
     if not isinstance(data, dict):
-        raise ValueError(f"spec {str(path)!r} must hold a mapping, got {type(data).__name__}")
+        raise TypeError(f"spec {str(path)!r} must hold a mapping, got {type(data).__name__}")
     try:
         return draccus.decode(ImportedSpec, data)
     except (draccus.utils.DecodingError, draccus.utils.ParsingError) as e:
@@ -253,7 +254,7 @@ def _check_io(backend: Backend, dim: int, path: Path, spec_what: str) -> None:
                          f"{str(path)!r} expects {backend.declared_dim}")
     try:
         out = backend(np.zeros((2, dim), dtype=np.float32))
-    except Exception as e:  # the runtimes raise their own types
+    except Exception as e:  # noqa: BLE001  (torch and onnxruntime raise their own types)
         raise ValueError(f"input size mismatch: the spec gives {dim} inputs ({spec_what}) but "
                          f"{str(path)!r} rejects a (2, {dim}) input "
                          f"(file expects {backend.declared_dim or 'an unknown size'}): "

@@ -15,7 +15,7 @@ from policies.teacher.base import TEACHERS, Teacher, make_teacher
 from policies.teacher.imported import SignalSpec
 from policies.teacher.rma import RMAConfig, RMATeacher
 
-SMALL = dict(encoder_hidden=(16, 8), latent_dim=4, policy_hidden=(8,))
+SMALL = {"encoder_hidden": (16, 8), "latent_dim": 4, "policy_hidden": (8,)}
 
 
 def random_obs(n: int, seed: int = 0) -> dict[str, np.ndarray]:
