@@ -12,6 +12,8 @@ import logging
 import sys
 from pathlib import Path
 
+from huggingface_hub.errors import HfHubHTTPError
+
 from msta_data import hub
 
 _EPILOG = """examples:
@@ -174,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("httpx").setLevel(logging.WARNING)
     try:
         return args.func(args)
-    except (hub.HubError, FileNotFoundError, FileExistsError, ValueError) as err:
+    except (hub.HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError) as err:
         print(f"msta-hub {args.command}: error: {err}", file=sys.stderr)
         return 1
 

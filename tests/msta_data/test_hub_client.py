@@ -8,13 +8,12 @@ import logging
 import os
 import subprocess
 import sys
-import textwrap
 import time
 from pathlib import Path
 
 import pytest
 from huggingface_hub import HfApi
-from huggingface_hub.errors import RepositoryNotFoundError
+from huggingface_hub.errors import HfHubHTTPError, RepositoryNotFoundError
 
 from msta_data import hub
 from msta_data.hub_cli import main as cli_main
@@ -142,8 +141,9 @@ def test_private_push_refused_to_anonymous_pull(server, tmp_path):
     hub.push(_checkpoint(tmp_path / "c", 6), "alice/priv", private=True)
     with pytest.raises(RepositoryNotFoundError):
         hub.pull("alice/priv", tmp_path / "anon", token=False)
-    with pytest.raises(RepositoryNotFoundError):
+    with pytest.raises(HfHubHTTPError) as wrong:
         hub.pull("alice/priv", tmp_path / "wrong", token="wrong-token-0000")
+    assert wrong.value.response.status_code == 401
     assert not (tmp_path / "anon").exists() and not (tmp_path / "wrong").exists()
     assert (hub.pull("alice/priv", tmp_path / "ok") / "config.json").exists()
 
@@ -165,7 +165,7 @@ def test_large_file_through_lfs(tmp_path):
         env = {**os.environ, "HF_ENDPOINT": srv.url, "HF_TOKEN": SECRET, "HF_HUB_DISABLE_XET": "1",
                "HF_HOME": str(tmp_path / "hf")}
         code = f"from msta_data import hub; print(hub.push({str(ckpt)!r}, 'alice/lfs', tag='v1'))"
-        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+        out = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         files = {f.path: f for f in HfApi(endpoint=srv.url, token=SECRET).list_repo_tree("alice/lfs")}
         assert files["big.safetensors"].lfs.sha256 == hashlib.sha256(big).hexdigest()
@@ -182,11 +182,12 @@ def test_push_dataset_tags_codebase_version(server, tmp_path):
             "total_frames": 3}
     (root / "meta" / "info.json").write_text(json.dumps(info))
     (root / "data" / "chunk-000" / "file-000.parquet").write_bytes(b"PAR1fakePAR1")
-    s1 = hub.push_dataset(root, "alice/teacher", card=hub.CardInfo(config={"episodes": 1}))
-    s2 = hub.push_dataset(root, "alice/teacher", tag="round1")  # same content: same commit
+    card = hub.CardInfo(config={"episodes": 1})
+    s1 = hub.push_dataset(root, "alice/teacher", card=card)
+    s2 = hub.push_dataset(root, "alice/teacher", card=card, tag="round1")  # same content: same commit
     assert s1 == s2
     (root / "meta" / "stats.json").write_text("{}")
-    s3 = hub.push_dataset(root, "alice/teacher")
+    s3 = hub.push_dataset(root, "alice/teacher", card=card)
     refs = hub.hub_api().list_repo_refs("alice/teacher", repo_type="dataset")
     assert {t.name: t.target_commit for t in refs.tags} == {"v3.0": s3, "round1": s1}
     pulled = hub.pull("datasets/alice/teacher@v3.0", tmp_path / "pulled")
@@ -201,7 +202,7 @@ def test_tokens_never_logged_or_printed(server, tmp_path, caplog, capfd):
     with caplog.at_level(logging.DEBUG):
         sha = hub.push(_checkpoint(tmp_path / "c", 9), "alice/quiet", tag="t", private=True)
         hub.pull("alice/quiet@t", tmp_path / "p")
-        with pytest.raises(RepositoryNotFoundError):
+        with pytest.raises(HfHubHTTPError):
             hub.pull("alice/quiet@t", tmp_path / "q", token="another-secret-42")
         assert cli_main(["versions", "alice/quiet", "--json"]) == 0
     out, err = capfd.readouterr()
