@@ -10,7 +10,7 @@ import os
 from pathlib import Path
 
 import pytest
-from huggingface_hub import HfApi
+from huggingface_hub import HfApi, get_hf_file_metadata, hf_hub_url
 from huggingface_hub.errors import (
     EntryNotFoundError,
     HfHubHTTPError,
@@ -222,3 +222,30 @@ def test_error_bodies_are_read_and_connection_kept_alive(server):
     conn.request("GET", "/api/whoami-v2", headers={"Authorization": f"Bearer {ALICE}"})
     r = conn.getresponse()
     assert r.status == 200 and json.loads(r.read())["name"] == "alice"
+
+
+def test_more_client_calls(server, tmp_path):
+    api = _api(server, ALICE)
+    api.create_repo("alice/more", repo_type="dataset")
+    src = _folder(tmp_path, "more", {"a/x.txt": b"x", "a/y.txt": b"y", "b.txt": b"b"})
+    c1 = api.upload_folder(repo_id="alice/more", repo_type="dataset", folder_path=src).oid
+    assert api.revision_exists("alice/more", c1, repo_type="dataset")
+    assert not api.revision_exists("alice/more", "nope", repo_type="dataset")
+    assert api.resolve_revision("alice/more", repo_type="dataset", revision="main",
+                                cache_dir=tmp_path / "cache").resolved == c1
+    meta = get_hf_file_metadata(hf_hub_url("alice/more", "b.txt", repo_type="dataset", endpoint=server.url),
+                                token=ALICE)
+    assert meta.commit_hash == c1 and meta.size == 1 and meta.etag == hashlib.sha1(b"blob 1\0b").hexdigest()
+    api.create_branch("alice/more", branch="dev", repo_type="dataset")
+    api.create_branch("alice/more", branch="dev", repo_type="dataset", exist_ok=True)
+    with pytest.raises(HfHubHTTPError) as e:
+        api.create_branch("alice/more", branch="dev", repo_type="dataset")
+    assert e.value.response.status_code == 409
+    c2 = api.delete_folder("a", repo_id="alice/more", repo_type="dataset", parent_commit=c1).oid
+    assert api.list_repo_files("alice/more", repo_type="dataset") == ["b.txt"]
+    with pytest.raises(HfHubHTTPError) as e:  # stale parent commit
+        api.upload_file(path_or_fileobj=b"z", path_in_repo="z.txt", repo_id="alice/more", repo_type="dataset",
+                        parent_commit=c1)
+    assert e.value.response.status_code == 412
+    assert api.list_repo_files("alice/more", repo_type="dataset", revision="dev") == ["a/x.txt", "a/y.txt", "b.txt"]
+    assert api.dataset_info("alice/more").sha == c2
