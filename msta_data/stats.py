@@ -44,29 +44,48 @@ def column_stats(values: np.ndarray) -> dict[str, np.ndarray]:
         stat name -> float64 array of shape ``(D,)`` (``(1,)`` for scalars), ``count``
         an int64 array of shape ``(1,)``.
     """
-    x = np.asarray(values)
-    if x.ndim == 1:
-        x = x[:, None]
-    if x.ndim != 2 or x.shape[0] == 0:
-        raise ValueError(f"expected a non-empty (L,) or (L, D) array, got shape {x.shape}")
-    x = x.astype(np.float64, copy=False)
-    mean = x.mean(axis=0)
-    out = {
-        "min": x.min(axis=0),
-        "max": x.max(axis=0),
-        "mean": mean,
-        "std": np.sqrt(np.maximum(0.0, (x * x).mean(axis=0) - mean * mean)),
-        "count": np.array([x.shape[0]], dtype=np.int64),
-    }
-    qs = np.quantile(x, QUANTILES, axis=0)  # (Q, D)
-    for key, q in zip(QUANTILE_KEYS, qs, strict=True):
-        out[key] = q
-    return out
+    return episode_stats({"x": values})["x"]
 
 
 def episode_stats(columns: dict[str, np.ndarray]) -> Stats:
-    """Statistics of every column of one episode (see :func:`column_stats`)."""
-    return {col: column_stats(v) for col, v in columns.items()}
+    """Statistics of every column of one episode (see :func:`column_stats`).
+
+    All columns are stacked into one ``(D_total, L)`` float64 matrix and sorted once per
+    channel; quantiles use numpy's default linear interpolation (``np.quantile``).
+    """
+    parts, dims = [], []
+    length = None
+    for col, v in columns.items():
+        x = np.asarray(v)
+        x = x[:, None] if x.ndim == 1 else x
+        if x.ndim != 2 or x.shape[0] == 0 or (length is not None and x.shape[0] != length):
+            raise ValueError(f"column {col!r}: expected a non-empty (L,) or (L, D) array with "
+                             f"the episode's length, got shape {np.shape(v)}")
+        length = x.shape[0]
+        parts.append(x.T.astype(np.float64))
+        dims.append(x.shape[1])
+    if not parts:
+        return {}
+    xs = np.sort(np.concatenate(parts), axis=1)  # (D_total, L)
+    assert length is not None
+    mean = xs.mean(axis=1)
+    std = np.sqrt(np.maximum(0.0, (xs * xs).mean(axis=1) - mean * mean))
+    pos = np.asarray(QUANTILES) * (length - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, length - 1)
+    frac = pos - lo
+    quant = xs[:, lo] + frac * (xs[:, hi] - xs[:, lo])  # (D_total, Q)
+    out: Stats = {}
+    start = 0
+    for col, d in zip(columns, dims, strict=True):
+        sl = slice(start, start + d)
+        st = {"min": xs[sl, 0], "max": xs[sl, -1], "mean": mean[sl], "std": std[sl],
+              "count": np.array([length], dtype=np.int64)}
+        for j, key in enumerate(QUANTILE_KEYS):
+            st[key] = quant[sl, j].copy()
+        out[col] = {k: np.array(v) for k, v in st.items()}
+        start += d
+    return out
 
 
 def aggregate(stats_list: Iterable[Stats]) -> Stats:

@@ -120,6 +120,9 @@ class WindowDataset:
         self._columns = {s.column: s.name for s in specs}
         table = F.read_episode_table(self.root, self.info)
         self.episodes = self._select(table, episodes)
+        if not self.episodes:
+            raise ValueError(f"{self.root}: no episodes selected (dataset has "
+                             f"{self.info['total_episodes']})")
         meta = table.to_pandas().set_index("episode_index").loc[self.episodes]
         self.lengths = meta["length"].to_numpy(np.int64)
         self.starts = np.concatenate([[0], np.cumsum(self.lengths)[:-1]]).astype(np.int64)

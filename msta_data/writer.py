@@ -31,7 +31,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import pandas as pd
@@ -363,7 +363,7 @@ class DatasetWriter:
             os.close(self._lock_fd)
             self._lock_fd = None
 
-    def __enter__(self) -> DatasetWriter:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -411,7 +411,8 @@ class DatasetWriter:
 
         def write_data(path: Path) -> None:
             with pq.ParquetWriter(path, self._schema, compression="snappy",
-                                  use_dictionary=["episode_index", "task_index"]) as w:
+                                  use_dictionary=["episode_index", "task_index"],
+                                  write_statistics=list(F.LEROBOT_DEFAULT_FEATURES)) as w:
                 start = 0
                 for ep in group:  # one row group per episode, as lerobot writes
                     w.write_table(table.slice(start, ep.length))

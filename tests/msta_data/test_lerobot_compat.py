@@ -62,7 +62,7 @@ def _prov(ds, e):
 
 
 def test_delta_timestamps_match_window_dataset(written):
-    root, eps = written
+    root, _ = written
     T = 4
     keys = ["observation.joint_pos", "observation.foot_contact"]
     deltas = {k: [(t - T + 1) / 50 for t in range(T)] for k in keys}

@@ -120,24 +120,23 @@ def _with(a, value):
 
 @pytest.mark.parametrize("prov, match", [
     ({"terrain": "x"}, "missing"),
-    ({**{"extra": 1}}, "unknown"),
+    ({"extra": 1}, "unknown"),
     ({"source": "robot"}, "source"),
     ({"seed": "7"}, "'seed' must be an int"),
 ])
 def test_bad_provenance_is_rejected(tmp_path, synth, prov, match):
     base = synth.provenance(0)
     p = prov if list(prov) == ["terrain"] else {**base, **prov}
-    with DatasetWriter.create(tmp_path / "ds", "local/x") as w:
-        with pytest.raises(EpisodeValidationError, match=match):
-            w.add_episode(synth.episode(4, 0), p)
+    with (DatasetWriter.create(tmp_path / "ds", "local/x") as w,
+          pytest.raises(EpisodeValidationError, match=match)):
+        w.add_episode(synth.episode(4, 0), p)
 
 
 def test_buffered_episodes_survive_an_exception_in_the_block(tmp_path, synth):
     root = tmp_path / "ds"
-    with pytest.raises(EpisodeValidationError):
-        with DatasetWriter.create(root, "local/x") as w:
-            w.add_episode(synth.episode(4, 0), synth.provenance(0))
-            w.add_episode({}, synth.provenance(1))
+    with pytest.raises(EpisodeValidationError), DatasetWriter.create(root, "local/x") as w:
+        w.add_episode(synth.episode(4, 0), synth.provenance(0))
+        w.add_episode({}, synth.provenance(1))
     assert json.loads((root / "meta/info.json").read_text())["total_episodes"] == 1
 
 

@@ -1,0 +1,150 @@
+"""Benchmark the data layer against lerobot's stock paths, measured in the same run.
+
+    python -m eval.bench_data [--episodes 20] [--frames 1000]
+
+Write: ``DatasetWriter`` (all registry columns, 20 x 1000 frames) vs lerobot's
+``LeRobotDataset.create / add_frame / save_episode / finalize`` on a subset of the same
+frames (2 x 500), both in frames/s.
+Read: ``WindowDataset.get_batch`` (batch 256, 7 student sensors) vs ``LeRobotDataset``
+with ``delta_timestamps`` on the same 7 keys (~100 single samples), both in samples/s,
+with the same window length (16 steps) for both.
+
+The last two lines are ``write speed-up vs lerobot: <x>`` and ``read speed-up vs lerobot:
+<x>``. Absolute numbers depend on the (shared, noisy) machine; the ratios are the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from msta_data import features as F
+from msta_data.sensors import SENSORS, STUDENT_SENSORS
+from msta_data.windows import WindowDataset
+from msta_data.writer import DatasetWriter
+
+WINDOW = 16
+PROVENANCE = {"terrain": "stairs_up", "terrain_level": 3, "source": "teacher", "round": 0,
+              "policy": "gait", "policy_revision": "bench", "seed": 0}
+
+
+def make_episodes(n: int, length: int, seed: int = 0) -> list[dict[str, np.ndarray]]:
+    feats = F.build_features()
+    rng = np.random.default_rng(seed)
+    eps = []
+    for _ in range(n):
+        ep = {}
+        for col in F.input_columns(feats):
+            ft = feats[col]
+            if ft["dtype"] == "bool":
+                ep[col] = np.arange(length) == length - 1
+            else:
+                ep[col] = rng.standard_normal((length, ft["shape"][0])).astype(np.float32)
+                if tuple(ft["shape"]) == (1,):
+                    ep[col] = ep[col][:, 0]
+        eps.append(ep)
+    return eps
+
+
+def bench_write_ours(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
+    t0 = time.perf_counter()
+    with DatasetWriter.create(root, "local/bench") as w:
+        for ep in eps:
+            w.add_episode(ep, PROVENANCE)
+    dt = time.perf_counter() - t0
+    return sum(len(ep["action"]) for ep in eps) / dt
+
+
+def bench_write_lerobot(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    feats = {c: ft for c, ft in F.build_features().items()
+             if c not in F.LEROBOT_DEFAULT_FEATURES}
+    frames = []  # per-frame dicts prepared outside the timed region
+    for ep in eps:
+        n = len(ep["action"])
+        frames.append([{c: (v[t] if v.ndim == 2 else v[t:t + 1]) for c, v in ep.items()}
+                       for t in range(n)])
+    t0 = time.perf_counter()
+    ds = LeRobotDataset.create("local/bench_stock", fps=F.DEFAULT_FPS, features=feats,
+                               root=root, use_videos=False, robot_type="a1")
+    for ep_frames in frames:
+        for fr in ep_frames:
+            ds.add_frame({**fr, "task": F.task_string(F.Provenance(**PROVENANCE))})
+        ds.save_episode()
+    ds.finalize()
+    dt = time.perf_counter() - t0
+    return sum(len(f) for f in frames) / dt
+
+
+def bench_read_ours(root: Path, batch: int, seconds: float = 2.0) -> tuple[float, float]:
+    t0 = time.perf_counter()
+    wd = WindowDataset(root, STUDENT_SENSORS, T=WINDOW)
+    load_s = time.perf_counter() - t0
+    rng = np.random.default_rng(0)
+    batches = [rng.integers(0, len(wd), batch) for _ in range(64)]
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for idx in batches:
+            wd.get_batch(idx)
+        n += batch * len(batches)
+    return n / (time.perf_counter() - t0), load_s
+
+
+def bench_read_lerobot(root: Path, samples: int) -> float:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    deltas = {SENSORS[s].column: [(k - WINDOW + 1) / F.DEFAULT_FPS for k in range(WINDOW)]
+              for s in STUDENT_SENSORS}
+    ds = LeRobotDataset("local/bench", root=root, delta_timestamps=deltas)
+    ds[0]  # warm-up
+    rng = np.random.default_rng(0)
+    idx = rng.integers(0, len(ds), samples)
+    t0 = time.perf_counter()
+    for i in idx:
+        ds[int(i)]
+    return samples / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--frames", type=int, default=1000)
+    p.add_argument("--stock-episodes", type=int, default=2)
+    p.add_argument("--stock-frames", type=int, default=500)
+    p.add_argument("--batch", type=int, default=256)
+    p.add_argument("--stock-samples", type=int, default=100)
+    args = p.parse_args()
+    logging.disable(logging.WARNING)
+    import datasets
+
+    datasets.disable_progress_bars()
+    F.data_schema(F.build_features())  # one-time imports (datasets) outside the timing
+    eps = make_episodes(args.episodes, args.frames)
+    stock_eps = [{c: v[:args.stock_frames] for c, v in ep.items()}
+                 for ep in eps[:args.stock_episodes]]
+    with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
+        tmp = Path(tmp)
+        ours_w = bench_write_ours(tmp / "ours", eps)
+        print(f"write  msta DatasetWriter : {ours_w:12,.0f} frames/s "
+              f"({args.episodes} x {args.frames} frames, {len(F.build_features())} columns)")
+        stock_w = bench_write_lerobot(tmp / "stock", stock_eps)
+        print(f"write  lerobot add_frame  : {stock_w:12,.0f} frames/s "
+              f"({args.stock_episodes} x {args.stock_frames} frames)")
+        ours_r, load_s = bench_read_ours(tmp / "ours", args.batch)
+        print(f"read   msta WindowDataset : {ours_r:12,.0f} samples/s (batch {args.batch}, "
+              f"{len(STUDENT_SENSORS)} sensors, {WINDOW} steps; load {load_s:.2f} s)")
+        stock_r = bench_read_lerobot(tmp / "ours", args.stock_samples)
+        print(f"read   lerobot delta_ts   : {stock_r:12,.1f} samples/s "
+              f"({args.stock_samples} samples, {len(STUDENT_SENSORS)} keys, {WINDOW} steps)")
+    print(f"write speed-up vs lerobot: {ours_w / stock_w:.1f}")
+    print(f"read speed-up vs lerobot: {ours_r / stock_r:.1f}")
+
+
+if __name__ == "__main__":
+    main()
