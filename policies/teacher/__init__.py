@@ -1,0 +1,3 @@
+"""Teachers: the protocol (base.py) and the built-in implementations, registered by name."""
+
+from policies.teacher import imported, rma  # noqa: F401  (registration)
