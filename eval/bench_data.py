@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -121,15 +122,17 @@ def main() -> None:
     p.add_argument("--stock-samples", type=int, default=100)
     args = p.parse_args()
     logging.disable(logging.WARNING)
-    import datasets
-
-    datasets.disable_progress_bars()
-    F.data_schema(F.build_features())  # one-time imports (datasets) outside the timing
-    eps = make_episodes(args.episodes, args.frames)
-    stock_eps = [{c: v[:args.stock_frames] for c, v in ep.items()}
-                 for ep in eps[:args.stock_episodes]]
     with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
         tmp = Path(tmp)
+        # lerobot's loader converts Parquet into an Arrow cache; keep it out of ~/.cache
+        os.environ["HF_DATASETS_CACHE"] = str(tmp / "hf_datasets_cache")
+        import datasets
+
+        datasets.disable_progress_bars()
+        F.data_schema(F.build_features())  # one-time imports (datasets) outside the timing
+        eps = make_episodes(args.episodes, args.frames)
+        stock_eps = [{c: v[:args.stock_frames] for c, v in ep.items()}
+                     for ep in eps[:args.stock_episodes]]
         ours_w = bench_write_ours(tmp / "ours", eps)
         print(f"write  msta DatasetWriter : {ours_w:12,.0f} frames/s "
               f"({args.episodes} x {args.frames} frames, {len(F.build_features())} columns)")
