@@ -56,9 +56,13 @@ class PolicyConfig(draccus.ChoiceRegistry):
             data: e.g. the content of ``config.json``.
         """
         if "type" not in data:
-            raise ValueError(f"policy config has no 'type' key; known types: {sorted(cls.get_known_choices())}")
+            raise ValueError(
+                f"policy config has no 'type' key; known types: {sorted(cls.get_known_choices())}"
+            )
         if data["type"] not in cls.get_known_choices():
-            raise ValueError(f"unknown policy type {data['type']!r}; known: {sorted(cls.get_known_choices())}")
+            raise ValueError(
+                f"unknown policy type {data['type']!r}; known: {sorted(cls.get_known_choices())}"
+            )
         try:
             return draccus.decode(PolicyConfig, dict(data))
         except draccus.utils.DecodingError as e:
@@ -102,7 +106,9 @@ class Policy(Protocol):
         """Raw sensor windows -> desired joint positions (B, 12), no gradient."""
         ...
 
-    def loss(self, batch: Batch, channels: Channels | None = None) -> tuple[Tensor, dict[str, float]]:
+    def loss(
+        self, batch: Batch, channels: Channels | None = None
+    ) -> tuple[Tensor, dict[str, float]]:
         """Batch with an ``"action"`` target (B, 12) -> (scalar loss, metrics)."""
         ...
 
@@ -119,10 +125,11 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None)
     path = Path(path_or_repo_id)
     if path.is_dir():
         return path
-    # Hub support is one line here: `return Path(snapshot_download(str(path_or_repo_id), revision=revision))`.
+    # Hub support is one line here:
+    # return Path(snapshot_download(str(path_or_repo_id), revision=revision))
     raise FileNotFoundError(
-        f"checkpoint directory {str(path_or_repo_id)!r} does not exist "
-        f"(loading hub repo ids{' at revision ' + revision if revision else ''} is not supported yet)"
+        f"checkpoint directory {str(path_or_repo_id)!r} does not exist (loading hub repo "
+        f"ids{' at revision ' + revision if revision else ''} is not supported yet)"
     )
 
 
@@ -157,7 +164,10 @@ class StudentPolicy(nn.Module):
 
     @classmethod
     def from_pretrained(
-        cls, path_or_repo_id: str | Path, revision: str | None = None, device: str | torch.device = "cpu"
+        cls,
+        path_or_repo_id: str | Path,
+        revision: str | None = None,
+        device: str | torch.device = "cpu",
     ) -> Self:
         """Load a checkpoint written by :meth:`save_pretrained`.
 

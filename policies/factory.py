@@ -31,7 +31,9 @@ def register_policy(name: str) -> Callable[[type[StudentPolicy]], type[StudentPo
 
     def wrap(cls: type[StudentPolicy]) -> type[StudentPolicy]:
         if name in _POLICIES and _POLICIES[name] is not cls:
-            raise ValueError(f"policy name {name!r} is already registered to {_POLICIES[name].__name__}")
+            raise ValueError(
+                f"policy name {name!r} is already registered to {_POLICIES[name].__name__}"
+            )
         _POLICIES[name] = cls
         return cls
 

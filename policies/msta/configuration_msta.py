@@ -65,10 +65,20 @@ class MSTAConfig(PolicyConfig):
         for name in self.input_sensors:
             spec = sensors.get(name)  # KeyError lists the known sensors
             if not spec.is_student_input:
-                raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student input")
-        _positive(history=self.history, num_bins=self.num_bins, dim=self.dim, num_layers=self.num_layers,
-                  num_heads=self.num_heads, action_dim=self.action_dim, clip_std=self.clip_std,
-                  mlp_ratio=self.mlp_ratio, pos_base=self.pos_base)
+                raise ValueError(
+                    f"sensor {name!r} is privileged (teacher only), not a student input"
+                )
+        _positive(
+            history=self.history,
+            num_bins=self.num_bins,
+            dim=self.dim,
+            num_layers=self.num_layers,
+            num_heads=self.num_heads,
+            action_dim=self.action_dim,
+            clip_std=self.clip_std,
+            mlp_ratio=self.mlp_ratio,
+            pos_base=self.pos_base,
+        )
         if self.num_bins < 2:
             raise ValueError(f"num_bins must be >= 2, got {self.num_bins}")
         if self.dim % self.num_heads:

@@ -32,7 +32,9 @@ from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
 def sincos_1d(pos: Tensor, dim: int, base: float) -> Tensor:
     """Fixed sin-cos code. pos (n,) float -> (n, dim)."""
     half = dim // 2
-    omega = 1.0 / base ** (torch.arange(half, dtype=torch.float64, device=pos.device) / half)  # (dim/2,)
+    omega = 1.0 / base ** (
+        torch.arange(half, dtype=torch.float64, device=pos.device) / half
+    )  # (dim/2,)
     angle = pos.double()[:, None] * omega[None, :]  # (n, dim/2)
     return torch.cat([angle.sin(), angle.cos()], dim=1).float()  # (n, dim)
 
@@ -57,9 +59,12 @@ class SelfAttention(nn.Module):
     def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
         B, L, D = x.shape  # (B, L, d)
         q, k, v = self.qkv(x).split(D, dim=2)
-        q, k, v = (z.view(B, L, self.num_heads, D // self.num_heads).transpose(1, 2) for z in (q, k, v))  # (B, nh, L, hs)
-        y = F.scaled_dot_product_attention(q, k, v, attn_mask=attn_mask,
-                                           dropout_p=self.dropout if self.training else 0.0)  # (B, nh, L, hs)
+        q, k, v = (
+            z.view(B, L, self.num_heads, D // self.num_heads).transpose(1, 2) for z in (q, k, v)
+        )  # (B, nh, L, hs)
+        y = F.scaled_dot_product_attention(
+            q, k, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
+        )  # (B, nh, L, hs)
         return self.proj(y.transpose(1, 2).reshape(B, L, D))  # (B, L, d)
 
 
@@ -68,11 +73,15 @@ class Block(nn.Module):
 
     def __init__(self, cfg: MSTAConfig) -> None:
         super().__init__()
-        hidden = int(round(cfg.mlp_ratio * cfg.dim))
+        hidden = round(cfg.mlp_ratio * cfg.dim)
         self.ln1, self.ln2 = nn.LayerNorm(cfg.dim), nn.LayerNorm(cfg.dim)
         self.attn = SelfAttention(cfg)
-        self.mlp = nn.Sequential(nn.Linear(cfg.dim, hidden), nn.GELU(approximate="tanh"),
-                                 nn.Linear(hidden, cfg.dim), nn.Dropout(cfg.dropout))
+        self.mlp = nn.Sequential(
+            nn.Linear(cfg.dim, hidden),
+            nn.GELU(approximate="tanh"),
+            nn.Linear(hidden, cfg.dim),
+            nn.Dropout(cfg.dropout),
+        )
 
     def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
         x = x + self.attn(self.ln1(x), attn_mask)  # (B, L, d)
@@ -87,14 +96,21 @@ class MSTATransformer(nn.Module):
         self.cfg = cfg
         d = cfg.dim
         self.bin_embed = nn.Embedding(cfg.num_bins, d)
-        self.sensor_embed = nn.ParameterDict({n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors})
+        self.sensor_embed = nn.ParameterDict(
+            {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors}
+        )
         self.state_token = nn.Parameter(torch.zeros(d))
         self.mask_token = nn.Parameter(torch.zeros(d)) if cfg.learnable_mask else None
         self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
         self.ln_f = nn.LayerNorm(d)
         h = cfg.head_hidden_dim
-        self.head = (nn.Sequential(nn.Linear(d, h), nn.GELU(approximate="tanh"), nn.Linear(h, cfg.action_dim))
-                     if h else nn.Linear(d, cfg.action_dim))
+        self.head = (
+            nn.Sequential(
+                nn.Linear(d, h), nn.GELU(approximate="tanh"), nn.Linear(h, cfg.action_dim)
+            )
+            if h
+            else nn.Linear(d, cfg.action_dim)
+        )
         self._pos_cache: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
         self._init_weights()
 
@@ -110,7 +126,9 @@ class MSTATransformer(nn.Module):
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
             self.bin_embed.weight.copy_(sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins)))
-        for p in [*self.sensor_embed.values(), self.state_token] + ([self.mask_token] if self.mask_token is not None else []):
+        for p in [*self.sensor_embed.values(), self.state_token] + (
+            [self.mask_token] if self.mask_token is not None else []
+        ):
             nn.init.normal_(p, std=0.02)
 
     def layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, Tensor, Tensor]:
@@ -118,14 +136,20 @@ class MSTATransformer(nn.Module):
 
         Returns pos (N, d) fixed embedding, sensor_id (N,) into the present sensors, step (N,).
         """
-        key = (T, tuple((n, tuple(c.tolist())) for n, c in channels.items()), self.bin_embed.weight.device)
+        key = (
+            T,
+            tuple((n, tuple(c.tolist())) for n, c in channels.items()),
+            self.bin_embed.weight.device,
+        )
         if key not in self._pos_cache:
             dev = self.bin_embed.weight.device
             pos, sid, step = [], [], []
             for s, (name, ch) in enumerate(channels.items()):
                 t = torch.arange(T, device=dev).repeat_interleave(len(ch))  # (T*c,) oldest first
                 c = ch.to(dev).repeat(T)  # (T*c,)
-                pos.append(sincos_2d(c.float(), (T - 1 - t).float(), self.cfg.dim, self.cfg.pos_base))
+                pos.append(
+                    sincos_2d(c.float(), (T - 1 - t).float(), self.cfg.dim, self.cfg.pos_base)
+                )
                 sid.append(torch.full_like(t, s))
                 step.append(t)
             if len(self._pos_cache) > 64:
@@ -133,11 +157,14 @@ class MSTATransformer(nn.Module):
             self._pos_cache[key] = (torch.cat(pos), torch.cat(sid), torch.cat(step))
         return self._pos_cache[key]
 
-    def embed(self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
-              ) -> tuple[Tensor, Tensor | None]:
+    def embed(
+        self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
+    ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking plus <S>: (B, K + 1, d), and a key mask (B, 1, 1, K + 1) or None."""
         names = list(inputs.bins)
-        bins = torch.cat([inputs.bins[n].flatten(1) for n in names], dim=1)  # (B, N) time-major per sensor
+        bins = torch.cat(
+            [inputs.bins[n].flatten(1) for n in names], dim=1
+        )  # (B, N) time-major per sensor
         B, N = bins.shape
         T = inputs.bins[names[0]].shape[1]
         pos, sid, step = self.layout(inputs.channels, T)  # (N, d), (N,), (N,)
@@ -153,38 +180,63 @@ class MSTATransformer(nn.Module):
         x = torch.cat([x, self.state_token.expand(B, 1, -1)], dim=1)  # (B, K + 1, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
-            keep = torch.cat([~key_pad, key_pad.new_ones(B, 1)], dim=1)  # (B, K + 1), <S> always visible
+            keep = torch.cat(
+                [~key_pad, key_pad.new_ones(B, 1)], dim=1
+            )  # (B, K + 1), <S> always visible
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + 1)
         return x, attn_mask
 
-    def _drop_scores(self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None) -> Tensor:
+    def _drop_scores(
+        self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None
+    ) -> Tensor:
         """Random keep scores (B, N) in [0, 1); padded tokens get -1 so they are dropped first."""
         scores = torch.rand(B, N, generator=generator, device=self.bin_embed.weight.device)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
-    def _remove_masked(self, bins: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
-                       generator: torch.Generator | None) -> tuple[Tensor, Tensor | None]:
+    def _remove_masked(
+        self,
+        bins: Tensor,
+        static: Tensor,
+        pad: Tensor | None,
+        n_drop: int,
+        generator: torch.Generator | None,
+    ) -> tuple[Tensor, Tensor | None]:
         B, N = bins.shape
         if pad is not None:  # padding every sample shares is removed even beyond round(αN)
             n_drop = max(n_drop, int(pad.sum(1).min()))
         if n_drop == 0:
             return self.bin_embed(bins) + static, pad  # (B, N, d)
-        keep = torch.topk(self._drop_scores(B, N, pad, generator), N - n_drop, dim=1, sorted=False).indices  # (B, K)
+        keep = torch.topk(
+            self._drop_scores(B, N, pad, generator), N - n_drop, dim=1, sorted=False
+        ).indices  # (B, K)
         x = self.bin_embed(torch.gather(bins, 1, keep)) + static[keep]  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
 
-    def _replace_masked(self, bins: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
-                        generator: torch.Generator | None) -> Tensor:
+    def _replace_masked(
+        self,
+        bins: Tensor,
+        static: Tensor,
+        pad: Tensor | None,
+        n_drop: int,
+        generator: torch.Generator | None,
+    ) -> Tensor:
         B, N = bins.shape
-        masked = pad.clone() if pad is not None else torch.zeros(B, N, dtype=torch.bool, device=bins.device)
+        masked = (
+            pad.clone()
+            if pad is not None
+            else torch.zeros(B, N, dtype=torch.bool, device=bins.device)
+        )
         if n_drop:
-            drop = torch.topk(-self._drop_scores(B, N, pad, generator), n_drop, dim=1).indices  # (B, n_drop)
+            drop = torch.topk(
+                -self._drop_scores(B, N, pad, generator), n_drop, dim=1
+            ).indices  # (B, n_drop)
             masked.scatter_(1, drop, True)
         value = torch.where(masked[..., None], self.mask_token, self.bin_embed(bins))  # (B, N, d)
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
-    def forward(self, inputs: MSTAInputs, mask_ratio: float = 0.0,
-                generator: torch.Generator | None = None) -> Tensor:
+    def forward(
+        self, inputs: MSTAInputs, mask_ratio: float = 0.0, generator: torch.Generator | None = None
+    ) -> Tensor:
         x, attn_mask = self.embed(inputs, mask_ratio, generator)  # (B, L, d)
         for block in self.blocks:
             x = block(x, attn_mask)
@@ -206,15 +258,22 @@ class MSTAPolicy(StudentPolicy):
     def __init__(self, config: MSTAConfig, processor: MSTAProcessor) -> None:
         super().__init__(config, processor)
         if tuple(processor.input_sensors) != tuple(config.input_sensors):
-            raise ValueError(f"processor sensors {processor.input_sensors} != config {config.input_sensors}")
+            raise ValueError(
+                f"processor sensors {processor.input_sensors} != config {config.input_sensors}"
+            )
         self.model = MSTATransformer(config)
 
     @property
     def required_sensors(self) -> tuple[str, ...]:
         return self.config.input_sensors
 
-    def forward(self, batch: Batch, channels: Channels | None = None, mask_ratio: float | None = None,
-                generator: torch.Generator | None = None) -> Tensor:
+    def forward(
+        self,
+        batch: Batch,
+        channels: Channels | None = None,
+        mask_ratio: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode."""
         if mask_ratio is None:
@@ -224,8 +283,13 @@ class MSTAPolicy(StudentPolicy):
         return self.model(self.processor.discretize(batch, channels), mask_ratio, generator)
 
     @torch.no_grad()
-    def act(self, batch: Batch, channels: Channels | None = None, mask_ratio: float = 0.0,
-            generator: torch.Generator | None = None) -> Tensor:
+    def act(
+        self,
+        batch: Batch,
+        channels: Channels | None = None,
+        mask_ratio: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
         """Desired joint positions (B, 12) in raw units.
 
         Args:
@@ -237,8 +301,13 @@ class MSTAPolicy(StudentPolicy):
         """
         return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
 
-    def loss(self, batch: Batch, channels: Channels | None = None, mask_ratio: float | None = None,
-             generator: torch.Generator | None = None) -> tuple[Tensor, dict[str, float]]:
+    def loss(
+        self,
+        batch: Batch,
+        channels: Channels | None = None,
+        mask_ratio: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[Tensor, dict[str, float]]:
         """MSE between predicted and target actions in the processor's target space.
 
         Args:

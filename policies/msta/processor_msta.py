@@ -74,7 +74,9 @@ class MSTAProcessor:
         for name in self.input_sensors:
             spec = sensors.get(name)
             if not spec.binary:
-                self.stats[spec.column] = _read_stats(stats, spec.column, spec.dim, f"sensor {name!r}")
+                self.stats[spec.column] = _read_stats(
+                    stats, spec.column, spec.dim, f"sensor {name!r}"
+                )
         if self.normalize_action:
             self.stats[action_key] = _read_stats(stats, action_key, None, "the action target")
         self._cache: dict[tuple[str, torch.device], tuple[Tensor, Tensor]] = {}
@@ -83,8 +85,14 @@ class MSTAProcessor:
     @classmethod
     def from_stats(cls, config: MSTAConfig, stats: Mapping[str, Mapping[str, Any]]) -> Self:
         """Processor for ``config`` from dataset statistics (lerobot stats.json layout)."""
-        return cls(config.input_sensors, stats, config.num_bins, config.clip_std,
-                   config.action_key, config.normalize_action)
+        return cls(
+            config.input_sensors,
+            stats,
+            config.num_bins,
+            config.clip_std,
+            config.action_key,
+            config.normalize_action,
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -101,8 +109,14 @@ class MSTAProcessor:
     def from_dict(cls, data: Mapping[str, Any]) -> Self:
         if data.get("format") != FORMAT:
             raise ValueError(f"processor format {data.get('format')!r} is not {FORMAT!r}")
-        return cls(data["input_sensors"], data["stats"], data["num_bins"], data["clip_std"],
-                   data["action_key"], data["normalize_action"])
+        return cls(
+            data["input_sensors"],
+            data["stats"],
+            data["num_bins"],
+            data["clip_std"],
+            data["action_key"],
+            data["normalize_action"],
+        )
 
     # --- observations -> bins ---------------------------------------------------------
     def discretize(self, batch: Batch, channels: Channels | None = None) -> MSTAInputs:
@@ -121,7 +135,9 @@ class MSTAProcessor:
             if name not in batch:
                 raise ValueError(f"channels given for sensor {name!r}, which is not in the batch")
         if not present:
-            raise ValueError(f"batch holds no input sensor; expected some of {list(self.input_sensors)}")
+            raise ValueError(
+                f"batch holds no input sensor; expected some of {list(self.input_sensors)}"
+            )
         shape = None
         bins, chans = {}, {}
         for name in self.input_sensors:  # canonical order: the dict order never matters
@@ -132,7 +148,9 @@ class MSTAProcessor:
             if shape is None:
                 shape = x.shape[:2]
             elif x.shape[:2] != shape:
-                raise ValueError(f"sensor {name!r} has (B, T) = {tuple(x.shape[:2])}, others {tuple(shape)}")
+                raise ValueError(
+                    f"sensor {name!r} has (B, T) = {tuple(x.shape[:2])}, others {tuple(shape)}"
+                )
             if not torch.isfinite(x).all():
                 bad = (~torch.isfinite(x)).nonzero()[0].tolist()
                 raise ValueError(f"sensor {name!r} has a non-finite value (NaN/inf) at index {bad}")
@@ -143,17 +161,23 @@ class MSTAProcessor:
     def _check_input_sensor(self, name: str) -> None:
         sensors.get(name)  # KeyError naming the unknown sensor and listing the known ones
         if name not in self.input_sensors:
-            raise ValueError(f"sensor {name!r} is not an input of this policy (inputs: {list(self.input_sensors)})")
+            raise ValueError(
+                f"sensor {name!r} is not an input of this policy (inputs: {list(self.input_sensors)})"
+            )
 
     def _channel_index(self, name: str, chosen: Sequence[int] | None, x: Tensor) -> Tensor:
         dim = sensors.get(name).dim
         if x.dim() != 3:
-            raise ValueError(f"sensor {name!r} must be (B, T, channels), got shape {tuple(x.shape)}")
+            raise ValueError(
+                f"sensor {name!r} must be (B, T, channels), got shape {tuple(x.shape)}"
+            )
         if chosen is None:
             chosen = range(dim)
         idx = [int(i) for i in chosen]
         if not idx or len(set(idx)) != len(idx) or min(idx) < 0 or max(idx) >= dim:
-            raise ValueError(f"channels for {name!r} must be distinct indices in [0, {dim}), got {idx}")
+            raise ValueError(
+                f"channels for {name!r} must be distinct indices in [0, {dim}), got {idx}"
+            )
         if x.shape[-1] != len(idx):
             raise ValueError(f"sensor {name!r} has {x.shape[-1]} channels, expected {len(idx)}")
         return torch.tensor(idx, dtype=torch.long, device=x.device)
@@ -173,9 +197,13 @@ class MSTAProcessor:
         if pad is None:
             return None
         if pad.dtype != torch.bool or tuple(pad.shape) != tuple(shape):
-            raise ValueError(f"'pad' must be a bool tensor of shape {tuple(shape)}, got {pad.dtype} {tuple(pad.shape)}")
+            raise ValueError(
+                f"'pad' must be a bool tensor of shape {tuple(shape)}, got {pad.dtype} {tuple(pad.shape)}"
+            )
         if pad[:, -1].any():
-            raise ValueError("'pad' marks the newest step as padding; every window needs a real last step")
+            raise ValueError(
+                "'pad' marks the newest step as padding; every window needs a real last step"
+            )
         return pad if pad.any() else None
 
     # --- actions ----------------------------------------------------------------------
@@ -205,17 +233,23 @@ class MSTAProcessor:
         return self._cache[key]
 
 
-def _read_stats(stats: Mapping[str, Mapping[str, Any]], column: str, dim: int | None, what: str) -> dict:
+def _read_stats(
+    stats: Mapping[str, Mapping[str, Any]], column: str, dim: int | None, what: str
+) -> dict:
     if column not in stats:
-        raise KeyError(f"statistics have no column {column!r} (needed for {what}); "
-                       f"available columns: {sorted(stats)}")
+        raise KeyError(
+            f"statistics have no column {column!r} (needed for {what}); "
+            f"available columns: {sorted(stats)}"
+        )
     out = {}
     for field in ("mean", "std"):
         if field not in stats[column]:
             raise KeyError(f"statistics of column {column!r} have no {field!r} entry")
         values = [float(v) for v in _flat(stats[column][field])]
         if dim is not None and len(values) != dim:
-            raise ValueError(f"statistics {column!r}.{field} has {len(values)} values, sensor has {dim} channels")
+            raise ValueError(
+                f"statistics {column!r}.{field} has {len(values)} values, sensor has {dim} channels"
+            )
         if not all(math.isfinite(v) for v in values) or (field == "std" and min(values) < 0):
             raise ValueError(f"statistics {column!r}.{field} has invalid values: {values}")
         out[field] = values
