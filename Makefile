@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-sim venv clean-venv lint
+.PHONY: demo test bench bench-sim bench-data bench-train venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -30,10 +30,23 @@ demo: $(STAMP)
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
 
-bench: bench-sim
+bench: bench-sim bench-data bench-train
 
 bench-sim: $(STAMP)
 	$(PY) -m eval.bench_sim
+
+bench-data: $(STAMP)
+	$(PY) -m eval.bench_data
+
+bench-train: $(STAMP)
+	$(PY) -m eval.bench_train
+
+docs-terrain: $(STAMP)
+	$(PY) -m collect.sim.terrain --docs docs/
+
+# A local Hugging Face-compatible hub for air-gapped labs (see docs/hub.md).
+hub: $(STAMP)
+	$(VENV)/bin/msta-hub serve --root $${HUB_ROOT:-.hub} --port $${HUB_PORT:-8008} --token-file $${HUB_TOKENS:-.hub-tokens}
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .

@@ -203,10 +203,16 @@ def card_metrics(metadata: dict[str, Any]) -> dict[str, float]:
 
 
 # ------------------------------------------------------------------ push
+#: machine-local files never uploaded: the dataset writer's lock, MuJoCo's warning log
+_SKIP_FILES = {".msta.lock", "MUJOCO_LOG.TXT"}
+
+
 def _local_files(root: Path) -> dict[str, Path]:
     out = {}
     for path in sorted(root.rglob("*")):
         rel = path.relative_to(root).as_posix()
+        if path.name in _SKIP_FILES:
+            continue
         if path.is_file() and not any(rel == d or rel.startswith(d + "/") for d in _SKIP_DIRS):
             out[rel] = path
     return out

@@ -1,0 +1,206 @@
+"""``msta-collect``: roll a teacher in the batched simulator and record a LeRobot v3.0 dataset.
+
+    msta-collect --teacher.type=gait --episodes=2000 --num_envs=256 \\
+        --repo_id=local/a1_teacher --root=outputs/datasets/a1_teacher
+    msta-collect ... --resume=true      # continue a killed run up to --episodes
+
+Every finished episode (fall or time limit) is written with its provenance; episodes still
+running when the requested count is reached are dropped. The writer flushes complete
+Parquet files atomically, so a killed collector loses at most the episodes in flight.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import draccus
+import numpy as np
+from tqdm import tqdm
+
+from collect.rollout import as_policy
+from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
+from msta_data.features import NON_SENSOR_FEATURES
+from msta_data.sensors import SENSORS
+from msta_data.writer import DatasetWriter
+from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+
+
+class EpisodeRecorder:
+    """Per-environment buffers of the running episodes, emitted when an episode ends.
+
+    Args:
+        num_envs: environments recorded.
+        max_steps: longest episode (the env's time limit in control steps).
+        sensors: registry sensors to record.
+    """
+
+    def __init__(self, num_envs: int, max_steps: int, sensors: tuple[str, ...]) -> None:
+        dims = {SENSORS[s].column: SENSORS[s].dim for s in sensors}
+        dims.update({k: int(np.prod(v["shape"])) for k, v in NON_SENSOR_FEATURES.items()})
+        self.sensors = sensors
+        self.buf = {k: np.zeros((num_envs, max_steps, d),
+                                dtype=bool if k == "next.done" else np.float32)
+                    for k, d in dims.items()}
+        self.ptr = np.zeros(num_envs, dtype=np.int64)
+        self.level = np.zeros(num_envs, dtype=np.int64)
+        self.type_idx = np.zeros(num_envs, dtype=np.int64)
+
+    def start(self, ids: np.ndarray, type_idx: np.ndarray, level: np.ndarray) -> None:
+        self.ptr[ids] = 0
+        self.type_idx[ids] = type_idx[ids]
+        self.level[ids] = level[ids]
+
+    def add(self, obs: dict[str, np.ndarray], label: np.ndarray, executed: np.ndarray,
+            res: StepResult) -> None:
+        rows = np.arange(len(self.ptr))
+        p = np.minimum(self.ptr, self.buf["action"].shape[1] - 1)
+        for s in self.sensors:
+            self.buf[SENSORS[s].column][rows, p] = obs[s]
+        self.buf["action"][rows, p] = label
+        self.buf["executed_action"][rows, p] = executed
+        self.buf["next.reward"][rows, p, 0] = res.reward
+        self.buf["next.lin_vel_tracking"][rows, p, 0] = res.metrics["lin_vel_tracking"]
+        self.buf["next.ang_vel_tracking"][rows, p, 0] = res.metrics["ang_vel_tracking"]
+        self.buf["next.done"][rows, p, 0] = res.done
+        self.ptr += 1
+
+    def take(self, i: int) -> dict[str, np.ndarray]:
+        """Copy out env ``i``'s finished episode."""
+        n = int(self.ptr[i])
+        return {k: v[i, :n].copy() for k, v in self.buf.items()}
+
+
+def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
+                    write: Callable[[dict[str, np.ndarray], int, int], None],
+                    sensors: tuple[str, ...] | None = None, label: Any = None,
+                    progress: bool = True) -> int:
+    """Run ``actor`` until ``episodes`` episodes have finished, handing each to ``write``.
+
+    Args:
+        env: the simulator (reset here).
+        actor: the policy that drives (act/reset or a callable).
+        episodes: how many finished episodes to emit.
+        write: called as ``write(frames, type_idx, level)`` per finished episode.
+        sensors: registry sensors to record (default: all).
+        label: the policy whose action is stored as the ``action`` label (default: actor).
+    Returns:
+        environment steps taken.
+    """
+    sensors = tuple(sensors or SENSORS)
+    act, reset = as_policy(actor)
+    lab_act, lab_reset = as_policy(label) if label is not None else (None, lambda ids: None)
+    obs = env.reset()
+    rec = EpisodeRecorder(env.num_envs, env.max_steps, sensors)
+    all_ids = np.arange(env.num_envs)
+    rec.start(all_ids, env.type_idx, env.level)
+    reset(all_ids)
+    lab_reset(all_ids)
+    done_count, steps = 0, 0
+    bar = tqdm(total=episodes, disable=not progress, unit="ep", desc="episodes")
+    t0 = time.time()
+    while done_count < episodes:
+        executed = np.asarray(act(obs), dtype=np.float32)
+        labels = executed if lab_act is None else np.asarray(lab_act(obs), dtype=np.float32)
+        res = env.step(executed)
+        steps += env.num_envs
+        rec.add(obs, labels, executed, res)
+        ended = np.flatnonzero(res.done)
+        for i in ended:
+            if done_count < episodes:
+                write(rec.take(i), int(rec.type_idx[i]), int(rec.level[i]))
+                done_count += 1
+        if len(ended):
+            rec.start(ended, env.type_idx, env.level)
+            reset(ended)
+            lab_reset(ended)
+            bar.update(min(len(ended), bar.total - bar.n))
+        bar.set_postfix(frames_per_s=f"{steps / max(time.time() - t0, 1e-9):,.0f}")
+        obs = res.obs
+    bar.close()
+    return steps
+
+
+@dataclass
+class CollectConfig:
+    """Args:
+        teacher: which teacher acts and labels (``--teacher.type=gait``).
+        episodes: total finished episodes wanted in the dataset (with ``resume``, counting
+            the ones already there).
+        num_envs: environments simulated together.
+        repo_id: dataset id recorded in the metadata (``user/name``).
+        root: dataset directory.
+        resume: append to an existing dataset at ``root`` until it holds ``episodes``.
+        seed: seeds the simulator (a resumed run shifts it by the episodes already present).
+        episode_length_s: episode time limit (s).
+        env: simulator options (terrain mix and levels, randomization, noise, ...).
+        flush_every_frames: frames buffered before they are written (a killed run loses at
+            most these plus the episodes in flight).
+        progress: show a progress bar.
+    """
+
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    episodes: int = 200
+    num_envs: int = 64
+    repo_id: str = "local/a1_teacher"
+    root: str = "outputs/datasets/a1_teacher"
+    resume: bool = False
+    seed: int = 0
+    episode_length_s: float = 20.0
+    env: EnvConfig = field(default_factory=EnvConfig)
+    flush_every_frames: int = 50_000
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1 or self.num_envs < 1:
+            raise ValueError(f"episodes={self.episodes} and num_envs={self.num_envs} must be >= 1")
+
+
+def collect(cfg: CollectConfig) -> Path:
+    """Record (or extend) the dataset; returns its root."""
+    root = Path(cfg.root)
+    if cfg.resume and (root / "meta" / "info.json").exists():
+        writer = DatasetWriter.open(root, flush_every_frames=cfg.flush_every_frames)
+    elif root.exists() and any(p for p in root.iterdir() if p.name != ".msta.lock"):
+        raise FileExistsError(f"{root} already holds a dataset; pass --resume=true to extend it "
+                              f"or choose another --root")
+    else:
+        writer = DatasetWriter.create(root, cfg.repo_id,
+                                       flush_every_frames=cfg.flush_every_frames)
+    with writer:
+        have = writer.num_episodes
+        todo = cfg.episodes - have
+        if todo <= 0:
+            print(f"{root}: already holds {have} episodes (>= {cfg.episodes}); nothing to do")
+            return root
+        seed = cfg.seed + have
+        env_cfg = cfg.env
+        env_cfg.num_envs, env_cfg.seed, env_cfg.episode_length_s = (
+            cfg.num_envs, seed, cfg.episode_length_s)
+        env = QuadrupedEnv(env_cfg)
+        teacher = build_teacher(cfg.teacher)
+        revision = teacher_revision(cfg.teacher)
+        types = env.cfg.terrain.types
+
+        def write(frames: dict[str, np.ndarray], type_idx: int, level: int) -> None:
+            writer.add_episode(frames, {
+                "terrain": types[type_idx], "terrain_level": level, "source": "teacher",
+                "round": 0, "policy": cfg.teacher.type, "policy_revision": revision,
+                "seed": seed})
+
+        t0 = time.time()
+        steps = record_rollouts(env, teacher, todo, write, progress=cfg.progress)
+        print(f"recorded {todo} episodes ({steps:,} env steps simulated, "
+              f"{steps / (time.time() - t0):,.0f}/s) -> {root} ({writer.num_episodes} episodes, "
+              f"{writer.num_frames:,} frames)")
+    return root
+
+
+def main() -> None:
+    collect(draccus.parse(CollectConfig))
+
+
+if __name__ == "__main__":
+    main()

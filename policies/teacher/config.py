@@ -1,0 +1,80 @@
+"""Choosing a teacher from the command line: ``--teacher.type=gait`` / ``--teacher.path=...``."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
+
+
+@register_teacher("zero")
+class ZeroTeacher:
+    """Holds the default pose (action 0). A baseline and a fast stand-in for tests."""
+
+    name = "zero"
+    sensors: tuple[str, ...] = ("joint_pos",)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return np.zeros((len(obs["joint_pos"]), 12), dtype=np.float32)
+
+    def reset(self, ids: np.ndarray) -> None:
+        pass
+
+
+#: which constructor argument receives ``TeacherConfig.path`` for each teacher type
+PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
+
+
+@dataclass
+class TeacherConfig:
+    """Args:
+        type: registered teacher name: gait (default, no training), rma (needs ``path`` to a
+            checkpoint directory), imported (needs ``path`` to a spec file), zero.
+        path: checkpoint directory (rma) or spec file (imported).
+    """
+
+    type: str = "gait"
+    path: str = ""
+
+    def __post_init__(self) -> None:
+        import policies.teacher  # noqa: F401  (registers the built-in teachers)
+
+        if self.type not in TEACHERS:
+            raise ValueError(f"unknown teacher type {self.type!r}; registered: {sorted(TEACHERS)}")
+        if self.type in PATH_ARGUMENT and not self.path:
+            raise ValueError(f"teacher type {self.type!r} needs --teacher.path "
+                             f"({PATH_ARGUMENT[self.type]})")
+        if self.path and not Path(self.path).exists():
+            raise FileNotFoundError(f"teacher path {self.path!r} does not exist")
+
+
+def build_teacher(cfg: TeacherConfig) -> Teacher:
+    """Instantiate the configured teacher."""
+    if cfg.type in PATH_ARGUMENT:
+        return make_teacher(cfg.type, **{PATH_ARGUMENT[cfg.type]: cfg.path})
+    return make_teacher(cfg.type)
+
+
+def teacher_revision(cfg: TeacherConfig) -> str:
+    """A short content hash identifying the teacher (its files, or its type and config)."""
+    h = hashlib.sha256(cfg.type.encode())
+    p = Path(cfg.path) if cfg.path else None
+    if p is not None:
+        files = sorted(p.rglob("*")) if p.is_dir() else [p]
+        for f in files:
+            if f.is_file():
+                h.update(f.name.encode())
+                h.update(f.read_bytes())
+    else:
+        teacher = build_teacher(cfg)
+        conf = getattr(teacher, "cfg", None) or getattr(teacher, "config", None)
+        if conf is not None and hasattr(conf, "__dataclass_fields__"):
+            from dataclasses import asdict
+
+            h.update(json.dumps(asdict(conf), sort_keys=True, default=str).encode())
+    return f"{cfg.type}-{h.hexdigest()[:12]}"
