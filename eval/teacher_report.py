@@ -1,0 +1,211 @@
+"""Quality report of a teacher: survival and command tracking per terrain type and level.
+
+    python -m eval.teacher_report --episodes 100 --out docs/teacher_quality.md
+
+Every (terrain type, level) tile gets ``--envs-per-tile`` environments pinned to it
+(terrain curriculum off); each environment runs the same number of 20 s episodes, so
+falls do not bias the count. Commands come from the simulator's defaults (the paper's
+ranges: vx, vy in [-1, 1] m/s, yaw rate from a sampled heading capped to [-1, 1] rad/s);
+domain randomization and observation noise are on unless disabled. The image strip shows
+the teacher climbing stairs (MuJoCo offscreen, ``MUJOCO_GL=egl``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from collect.sim.randomization import RandomizationConfig
+from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from policies.teacher.base import TEACHERS, make_teacher
+
+MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival
+MINIMUM_LOW_LEVELS = 3           # every type, levels 0-2: >= 80 % survival
+
+
+@dataclass
+class TileStats:
+    """Accumulated per-step and per-episode numbers of one (terrain, level) tile."""
+
+    episodes: int = 0
+    survived: int = 0
+    steps: int = 0
+    lin_reward: float = 0.0
+    ang_reward: float = 0.0
+    lin_err: float = 0.0
+    ang_err: float = 0.0
+
+    def row(self) -> dict[str, float]:
+        s = max(self.steps, 1)
+        return {"episodes": self.episodes, "survival": self.survived / max(self.episodes, 1),
+                "lin_reward": self.lin_reward / s, "ang_reward": self.ang_reward / s,
+                "lin_err": self.lin_err / s, "ang_err": self.ang_err / s}
+
+
+@dataclass
+class ReportConfig:
+    teacher: str = "gait"
+    episodes: int = 100
+    envs_per_tile: int = 10
+    types: tuple[str, ...] = TERRAIN_TYPES
+    levels: tuple[int, ...] = tuple(range(10))
+    episode_s: float = 20.0
+    randomization: bool = True
+    noise: bool = True
+    seed: int = 0
+    nthread: int = 2
+    extra: dict = field(default_factory=dict)
+
+
+def _tracking_error(reward: np.ndarray, scale: float, dt: float, sigma: float) -> np.ndarray:
+    """Invert the tracking kernel r = scale dt exp(-err^2 / sigma) to |err| (exact)."""
+    ratio = np.clip(reward / (scale * dt), 1e-300, 1.0)
+    return np.sqrt(-sigma * np.log(ratio))
+
+
+def evaluate(cfg: ReportConfig, progress: bool = True) -> dict[tuple[str, int], TileStats]:
+    """Roll the teacher on every (type, level) tile; see the module docstring.
+
+    Args:
+        cfg: what to run.
+        progress: show a tqdm bar over control steps.
+    Returns:
+        stats per (type name, level).
+    """
+    tiles = [(t, lv) for t in cfg.types for lv in cfg.levels]
+    k = cfg.envs_per_tile
+    n = len(tiles) * k
+    env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_s,
+                        nthread=cfg.nthread, terrain=TerrainConfig(curriculum=False),
+                        randomization=RandomizationConfig(enabled=cfg.randomization),
+                        noise=NoiseConfig(enabled=cfg.noise))
+    env = QuadrupedEnv(env_cfg)
+    type_idx = np.repeat([env_cfg.terrain.types.index(t) for t, _ in tiles], k)
+    level = np.repeat([lv for _, lv in tiles], k)
+    obs = env.reset(type_idx=type_idx, level=level)
+    teacher = make_teacher(cfg.teacher)
+    per_env = math.ceil(cfg.episodes / k)
+    done_eps = np.zeros(n, dtype=np.int64)
+    stats = {tile: TileStats() for tile in tiles}
+    tile_of_env = np.repeat(np.arange(len(tiles)), k)
+    acc = np.zeros((len(tiles), 5))        # steps, lin_r, ang_r, lin_err, ang_err
+    ends = np.zeros((len(tiles), 2), dtype=np.int64)
+    rs = env_cfg.rewards
+    total = per_env * env.max_steps
+    bar = _bar(total, progress)
+    step = 0
+    while (done_eps < per_env).any():
+        res = env.step(teacher.act(obs))
+        obs = res.obs
+        active = done_eps < per_env
+        lin, ang = res.metrics["lin_vel_tracking"], res.metrics["ang_vel_tracking"]
+        lin_e = _tracking_error(lin, rs.scales.tracking_lin_vel, env.dt, rs.tracking_sigma)
+        ang_e = _tracking_error(ang, rs.scales.tracking_ang_vel, env.dt, rs.tracking_sigma)
+        vals = np.column_stack([np.ones(n), lin, ang, lin_e, ang_e]) * active[:, None]
+        np.add.at(acc, tile_of_env, vals)
+        ended = np.flatnonzero(res.done & active)
+        np.add.at(ends, (tile_of_env[ended], 0), 1)
+        np.add.at(ends, (tile_of_env[ended], 1), (res.reason[ended] == 2).astype(np.int64))
+        done_eps[ended] += 1
+        teacher.reset(np.flatnonzero(res.done))
+        step += 1
+        if bar is not None and step % 25 == 0:
+            bar.n = min(total, int(np.minimum(done_eps * env.max_steps + env.episode_step,
+                                              per_env * env.max_steps).mean()))
+            bar.refresh()
+    if bar is not None:
+        bar.close()
+    for i, tile in enumerate(tiles):
+        stats[tile] = TileStats(episodes=int(ends[i, 0]), survived=int(ends[i, 1]),
+                                steps=int(acc[i, 0]), lin_reward=acc[i, 1], ang_reward=acc[i, 2],
+                                lin_err=acc[i, 3], ang_err=acc[i, 4])
+    return stats
+
+
+def _bar(total: int, progress: bool):
+    if not progress:
+        return None
+    from tqdm import tqdm
+    return tqdm(total=total, unit="step/env", desc="teacher report", smoothing=0.1)
+
+
+def highest_level(stats: dict[tuple[str, int], TileStats], terrain: str, levels: tuple[int, ...],
+                  threshold: float = 0.8) -> int:
+    """Highest level L such that every level <= L has survival >= threshold (-1 if none)."""
+    best = -1
+    for lv in sorted(levels):
+        if stats[(terrain, lv)].row()["survival"] < threshold:
+            break
+        best = lv
+    return best
+
+
+def render_markdown(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig, command: str,
+                    seconds: float, image: str | None) -> str:
+    """The report as Markdown (tables per terrain, summary, minimums)."""
+    lines = [f"# Teacher quality: `{cfg.teacher}`", "",
+             f"Regenerate: `{command}`", "",
+             f"{cfg.episodes} episodes of {cfg.episode_s:g} s per terrain type and level "
+             f"({cfg.envs_per_tile} environments per tile), terrain curriculum off, "
+             f"randomization {'on' if cfg.randomization else 'off'}, observation noise "
+             f"{'on' if cfg.noise else 'off'}, commands from the paper's ranges "
+             f"(vx, vy in [-1, 1] m/s, yaw rate from a heading, capped to [-1, 1] rad/s), "
+             f"seed {cfg.seed}. Wall time {seconds / 60:.1f} min.", "",
+             "Columns: survival = episodes reaching the time limit; lin/ang track = mean per-step "
+             "tracking reward exp(-err^2/0.25) (1 = perfect; the simulator's reward adds the "
+             "scale x dt factor: x 0.02 and x 0.01); |v err| = mean |v_xy - cmd_xy| (m/s); "
+             "|w err| = mean |w_z - cmd_wz| (rad/s), over all steps of all episodes.", ""]
+    lines += ["## Summary", "", "| terrain | highest level with >= 80 % survival | "
+              "survival L0-4 | mean abs(v err) L0-4 |", "|---|---|---|---|"]
+    for t in cfg.types:
+        low = [stats[(t, lv)].row() for lv in cfg.levels if lv < 5]
+        surv = np.mean([r["survival"] for r in low]) if low else float("nan")
+        err = np.mean([r["lin_err"] for r in low]) if low else float("nan")
+        lines.append(f"| {t} | {highest_level(stats, t, cfg.levels)} | {surv:.1%} | {err:.3f} |")
+    lines += ["", "## Minimums (issue 3)", ""] + _minimums(stats, cfg) + [""]
+    for t in cfg.types:
+        lines += [f"## {t}", "", "| level | episodes | survival | lin track | ang track | "
+                  "abs(v err) m/s | abs(w err) rad/s |", "|---|---|---|---|---|---|---|"]
+        for lv in cfg.levels:
+            r = stats[(t, lv)].row()
+            lines.append(f"| {lv} | {r['episodes']} | {r['survival']:.1%} | "
+                         f"{r['lin_reward'] / (env_scale('lin')):.3f} | "
+                         f"{r['ang_reward'] / env_scale('ang'):.3f} | {r['lin_err']:.3f} | "
+                         f"{r['ang_err']:.3f} |")
+        lines.append("")
+    if image:
+        lines += ["## Stairs up", "", f"![teacher on stairs up]({Path(image).name})", ""]
+    return "\n".join(lines)
+
+
+def env_scale(which: str) -> float:
+    """scale x dt of the default tracking rewards (to map them to [0, 1])."""
+    cfg = EnvConfig(num_envs=1)
+    s = cfg.rewards.scales
+    return (s.tracking_lin_vel if which == "lin" else s.tracking_ang_vel) * cfg.dt
+
+
+def _minimums(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig) -> list[str]:
+    out = []
+    for t in ("flat", "smooth_slope"):
+        for lv in range(MINIMUM_FLAT_LEVELS):
+            if (t, lv) in stats:
+                r = stats[(t, lv)].row()
+                ok = r["survival"] >= 0.95 and r["lin_err"] <= 0.25
+                out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 95 %), |v err| "
+                           f"{r['lin_err']:.3f} (<= 0.25): {'met' if ok else 'NOT met'}")
+    for t in cfg.types:
+        for lv in range(MINIMUM_LOW_LEVELS):
+            if (t, lv) in stats:
+                r = stats[(t, lv)].row()
+                ok = r["survival"] >= 0.8
+                out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 80 %): "
+                           f"{'met' if ok else 'NOT met'}")
+    return out

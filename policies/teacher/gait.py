@@ -1,0 +1,375 @@
+"""The default teacher: a model-based trotting controller with privileged information.
+
+No training. Every control step, per environment (batched in numpy):
+
+1. A gait clock advances; legs FL+RR and FR+RL alternate (trot) with duty factor ``duty``.
+2. Feet are planned in the *horizontal frame* H: origin at the base, yaw-aligned, z up.
+   Stance feet slide backward at the commanded planar and yaw velocity (this drives the
+   body), at a height that puts the base ``body_height`` above the mean ground under the
+   body (from the privileged height scan). Swing feet go from lift-off to a Raibert
+   touchdown point ``hip + v T_stance / 2 + k (v - v_cmd)`` (privileged true velocity),
+   snapped away from step edges, lifted ``swing_height`` above the highest ground on the
+   way (height scan).
+3. H-frame targets are rotated into the base frame with the true roll and pitch, so the
+   legs level the body; analytic inverse kinematics gives joint angles.
+4. The soft position servo (Kp = 30) sags under load, so the weight carried by the stance
+   legs (plus height, attitude and velocity feedback forces) is mapped through the leg
+   Jacobians to torques and added to the targets as ``tau / Kp`` (with the privileged
+   motor-strength and Kp factors).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from collect.sim.math3d import quat_to_mat, yaw_of
+from collect.sim.robot import DEFAULT_POSE, FOOT_RADIUS, HIP_OFFSETS, THIGH_OFFSET_Y
+from msta_data.sensors import DYNAMICS_NAMES
+from policies.teacher.base import check_obs, register_teacher
+from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
+from policies.teacher.gait_terrain import (body_reference, ground_at, ground_max_along,
+                                           scan_grid)
+
+GRAVITY = 9.81
+#: Trot: diagonal pairs FL+RR and FR+RL half a cycle apart.
+TROT_OFFSETS = (0.0, 0.5, 0.5, 0.0)
+_DYN = {name: i for i, name in enumerate(DYNAMICS_NAMES)}
+
+
+@dataclass
+class GaitConfig:
+    """Gait controller parameters (draccus-compatible).
+
+    Args:
+        period: s, gait cycle duration.
+        duty: fraction of the cycle a foot is on the ground.
+        phase_offsets: per-leg phase offsets (FL, FR, RL, RR); default trot.
+        body_height: m, base height above the mean ground under the body.
+        swing_height: m, foot clearance above the highest ground along the swing.
+        swing_lift_frac: fraction of the swing spent lifting before moving forward much.
+        swing_lead: s, swing targets run this far ahead of the clock (servo lag).
+        stance_width: m, extra lateral offset of the feet outward of the thigh joints.
+        raibert_gain: s, touchdown shift per m/s of velocity error (v - v_cmd), (x, y).
+        max_step: m, cap on the touchdown offset from the nominal foothold (per axis).
+        velocity_gain: feedback of the velocity error into the stance sweep velocity (x, y).
+        yaw_gain: feedback of the yaw-rate error into the stance sweep yaw rate.
+        max_accel: m/s^2, the internal velocity reference follows the command at most
+            this fast (and yaw rate at ``2 * max_accel`` rad/s^2).
+        force_velocity_gain: N per m/s of planar velocity error, as stance forces (x, y).
+        height_gain, height_damping: N/m and N s/m vertical feedback forces.
+        attitude_gain: extra (roll, pitch) stiffness: feet are placed as if the body were
+            tilted ``attitude_gain`` times its attitude error the other way.
+        attitude_damping: s, the same for (roll, pitch) rates.
+        moment_gain, moment_damping: N m/rad and N m s/rad roll/pitch feedback moments
+            realised by stance forces.
+        slope_follow: fraction of the ground slope (roll and pitch) the body tilts along.
+        edge_margin: m, touchdown points within this of a step edge are moved away.
+        edge_threshold: m, a height change this large within ``edge_margin`` is an edge.
+        mass: kg, nominal robot mass (the privileged added mass is added).
+        kp: nominal position gain of the servo.
+        kd: nominal damping gain of the servo plus the joints' passive damping; the
+            damping torque of the planned joint velocity is pre-compensated.
+        damping_comp: fraction of that damping torque compensated.
+        max_joint_speed: rad/s, cap on the planned joint velocity used for compensation.
+        action_scale: joint target = default pose + action_scale * action.
+        dt: s, control period.
+    """
+
+    period: float = 0.33
+    duty: float = 0.65
+    phase_offsets: tuple[float, float, float, float] = TROT_OFFSETS
+    body_height: float = 0.30
+    swing_height: float = 0.07
+    swing_lift_frac: float = 0.08
+    swing_lead: float = 0.0
+    stance_width: float = 0.0
+    raibert_gain: tuple[float, float] = (0.2, 0.2)
+    max_step: float = 0.2
+    velocity_gain: tuple[float, float] = (1.0, 0.3)
+    yaw_gain: float = 1.2
+    max_accel: float = 2.4
+    force_velocity_gain: tuple[float, float] = (100.0, 30.0)
+    height_gain: float = 0.0
+    height_damping: float = 0.0
+    attitude_gain: tuple[float, float] = (1.0, 0.8)
+    attitude_damping: tuple[float, float] = (0.02, 0.02)
+    moment_gain: float = 0.0
+    moment_damping: float = 0.0
+    slope_follow: float = 0.0
+    edge_margin: float = 0.06
+    edge_threshold: float = 0.03
+    mass: float = 12.453
+    kp: float = 30.0
+    kd: float = 0.8
+    damping_comp: float = 0.35
+    max_joint_speed: float = 15.0
+    action_scale: float = 0.25
+    dt: float = 0.02
+
+    def __post_init__(self) -> None:
+        self.phase_offsets = tuple(float(v) for v in self.phase_offsets)
+        for name in ("raibert_gain", "velocity_gain", "force_velocity_gain", "attitude_gain",
+                     "attitude_damping"):
+            value = tuple(float(v) for v in getattr(self, name))
+            if len(value) != 2:
+                raise ValueError(f"{name}={value} needs two values")
+            setattr(self, name, value)
+        if len(self.phase_offsets) != 4:
+            raise ValueError(f"phase_offsets={self.phase_offsets} needs one value per leg")
+        if not 0.0 < self.duty < 1.0:
+            raise ValueError(f"duty={self.duty} must be in (0, 1)")
+        for name in ("period", "body_height", "mass", "kp", "action_scale", "dt"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0")
+        if not 0.0 <= self.swing_lift_frac < 0.5:
+            raise ValueError(f"swing_lift_frac={self.swing_lift_frac} must be in [0, 0.5)")
+
+
+def _smooth(s: np.ndarray) -> np.ndarray:
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+@register_teacher("gait")
+class GaitTeacher:
+    """Trotting controller on privileged state (see the module docstring).
+
+    Args:
+        config: controller parameters; defaults walk all terrains.
+    """
+
+    name = "gait"
+    sensors: tuple[str, ...] = ("command", "joint_pos", "base_lin_vel", "base_ang_vel",
+                                "orientation", "height_scan", "dynamics")
+
+    def __init__(self, config: GaitConfig | None = None) -> None:
+        self.cfg = config or GaitConfig()
+        self._n = 0
+        self.phase = np.zeros(0)
+        self.feet = np.zeros((0, 4, 3))      # current H-frame foot targets
+        self.liftoff = np.zeros((0, 4, 3))   # H-frame foot position at lift-off
+        self.stance = np.zeros((0, 4), dtype=bool)
+        self.fresh = np.zeros(0, dtype=bool)
+        self.q_prev = np.zeros((0, 12))
+        self.ref_cmd = np.zeros((0, 3))      # rate-limited command
+        nominal = np.column_stack([HIP_OFFSETS[:, 0],
+                                   HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
+                                   + np.sign(THIGH_OFFSET_Y) * self.cfg.stance_width])
+        self.nominal_xy = nominal                      # (4, 2)
+
+    # ------------------------------------------------------------------ protocol
+    def reset(self, ids: np.ndarray) -> None:
+        """Restart the gait of environments ``ids`` (their next ``act`` re-initializes)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if self._n and len(ids):
+            self.fresh[ids] = True
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, 12) actions (offsets from the default pose in units of ``action_scale``)."""
+        n = check_obs(self, obs)
+        if n != self._n:
+            self._allocate(n)
+        cfg = self.cfg
+        st = _State.from_obs(obs, cfg.slope_follow)
+        self.just_reset = self.fresh.copy()
+        if self.fresh.any():
+            self._init_feet(np.flatnonzero(self.fresh), st)
+            self.fresh[:] = False
+        step = cfg.max_accel * cfg.dt * np.array([1.0, 1.0, 2.0])
+        self.ref_cmd += np.clip(st.cmd - self.ref_cmd, -step, step)
+        st.cmd = self.ref_cmd.copy()
+        leg_phase = (self.phase[:, None] + np.asarray(cfg.phase_offsets)[None]) % 1.0
+        stance = leg_phase < cfg.duty
+        self._update_stance(st, stance)
+        self._update_swing(st, stance, leg_phase)
+        self.stance = stance
+        weight = self._stance_weight(stance, leg_phase)
+        q_des, jac = self._joint_targets(st, weight)
+        tau = self._feedforward(st, weight, jac)
+        strength = st.dyn[:, _DYN["motor_strength"]]
+        kp = cfg.kp * st.dyn[:, _DYN["kp_factor"]] * strength
+        kd = cfg.kd * st.dyn[:, _DYN["kd_factor"]] * strength
+        qd = np.clip((q_des - self.q_prev) / cfg.dt, -cfg.max_joint_speed, cfg.max_joint_speed)
+        qd[self.just_reset] = 0.0
+        self.q_prev = q_des
+        tau = tau + cfg.damping_comp * kd[:, None] * qd
+        target = q_des + tau / kp[:, None]
+        self.phase = (self.phase + cfg.dt / cfg.period) % 1.0
+        return ((target - DEFAULT_POSE[None]) / cfg.action_scale).astype(np.float32)
+
+    # ------------------------------------------------------------------ internals
+    def _allocate(self, n: int) -> None:
+        self._n = n
+        self.phase = np.zeros(n)
+        self.feet = np.zeros((n, 4, 3))
+        self.liftoff = np.zeros((n, 4, 3))
+        self.stance = np.ones((n, 4), dtype=bool)
+        self.fresh = np.ones(n, dtype=bool)
+        self.q_prev = np.tile(DEFAULT_POSE, (n, 1))
+        self.ref_cmd = np.zeros((n, 3))
+
+    def _init_feet(self, ids: np.ndarray, st: "_State") -> None:
+        self.phase[ids] = 0.0
+        self.ref_cmd[ids] = 0.0
+        xy = np.broadcast_to(self.nominal_xy, (len(ids), 4, 2))
+        z = ground_at(st.grid[ids], xy) - st.ref[ids, None] - self.cfg.body_height + FOOT_RADIUS
+        self.feet[ids] = np.concatenate([xy, z[..., None]], axis=-1)
+        self.liftoff[ids] = self.feet[ids]
+        self.stance[ids] = True
+
+    def _sweep_velocity(self, st: "_State") -> tuple[np.ndarray, np.ndarray]:
+        """Planar velocity (N, 2) and yaw rate (N,) the stance feet move the body at."""
+        cfg = self.cfg
+        v = st.cmd[:, :2] + np.asarray(cfg.velocity_gain) * (st.cmd[:, :2] - st.v[:, :2])
+        return v, st.cmd[:, 2] + cfg.yaw_gain * (st.cmd[:, 2] - st.w[:, 2])
+
+    def _update_stance(self, st: "_State", stance: np.ndarray) -> None:
+        cfg = self.cfg
+        v, wz = self._sweep_velocity(st)
+        p = self.feet[..., :2]
+        dp = v[:, None, :] + wz[:, None, None] * np.stack([-p[..., 1], p[..., 0]], axis=-1)
+        new_xy = p - cfg.dt * dp
+        z = ground_at(st.grid, new_xy) - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
+        z = z
+        upd = np.concatenate([new_xy, z[..., None]], axis=-1)
+        self.feet = np.where(stance[..., None], upd, self.feet)
+        lifting = ~stance & self.stance
+        self.liftoff = np.where(lifting[..., None], self.feet, self.liftoff)
+
+    def _touchdown(self, st: "_State") -> np.ndarray:
+        """Raibert touchdown points (N, 4, 2) in the H frame."""
+        cfg = self.cfg
+        t_stance = cfg.duty * cfg.period
+        hips = np.broadcast_to(self.nominal_xy, (st.n, 4, 2))
+        wz = st.cmd[:, 2][:, None]
+        v_hip = st.cmd[:, None, :2] + wz[..., None] * np.stack([-hips[..., 1], hips[..., 0]], -1)
+        err = st.v[:, None, :2] - st.cmd[:, None, :2]
+        off = v_hip * t_stance / 2 + np.asarray(cfg.raibert_gain) * err
+        off = np.clip(off, -cfg.max_step, cfg.max_step)
+        return hips + off
+
+    def _update_swing(self, st: "_State", stance: np.ndarray, leg_phase: np.ndarray) -> None:
+        cfg = self.cfg
+        t_swing = cfg.period * (1.0 - cfg.duty)
+        s = np.clip((leg_phase - cfg.duty) / (1.0 - cfg.duty) + (cfg.dt + cfg.swing_lead) / t_swing,
+                    0.0, 1.0)
+        td = self._touchdown(st)
+        lift_xy = self.liftoff[..., :2]
+        u = _smooth((s - cfg.swing_lift_frac) / (1.0 - 2 * cfg.swing_lift_frac))
+        xy = lift_xy + (td - lift_xy) * u[..., None]
+        g_here = ground_at(st.grid, xy)
+        g_ahead = ground_max_along(st.grid, xy, td)
+        g_td = ground_at(st.grid, td)
+        # Rise over the highest ground ahead, come down onto the touchdown ground.
+        clear = np.maximum(g_here, g_ahead) + cfg.swing_height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
+        landing = _smooth((s - 0.75) / 0.25)
+        zg = (1 - landing) * clear + landing * g_td
+        z = zg - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
+        sw = np.concatenate([xy, z[..., None]], axis=-1)
+        self.feet = np.where(stance[..., None], self.feet, sw)
+
+    def _stance_weight(self, stance: np.ndarray, leg_phase: np.ndarray) -> np.ndarray:
+        """(N, 4) in [0, 1]: 1 in mid-stance, ramping at touchdown and lift-off, 0 in swing."""
+        ramp = 0.12
+        sph = leg_phase / self.cfg.duty
+        w = np.where(stance, np.minimum(_smooth(sph / ramp), _smooth((1 - sph) / ramp)), 0.0)
+        return np.maximum(w, 1e-3 * stance)
+
+    def _joint_targets(self, st: "_State", weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Joint angles (N, 12) and foot Jacobians for the H-frame feet.
+
+        H -> base frame is p_b = R^T p_h. Stance feet use the *commanded* roll/pitch
+        (the desired attitude pushed further against the error), so the legs torque the
+        body back; swing feet use the true attitude, so they land where planned.
+        """
+        cfg = self.cfg
+        err = st.rp - st.rp_des
+        rp_cmd = (st.rp_des - np.asarray(cfg.attitude_gain) * err
+                  - np.asarray(cfg.attitude_damping) * st.w[:, :2])
+        feet_cmd = np.einsum("nji,nkj->nki", _rot_rp(rp_cmd), self.feet)
+        feet_true = np.einsum("nji,nkj->nki", st.rot_rp, self.feet)
+        feet_b = weight[..., None] * feet_cmd + (1.0 - weight[..., None]) * feet_true
+        q = leg_ik(feet_b)
+        return q, foot_jacobian(q)
+
+    def _feedforward(self, st: "_State", w: np.ndarray, jac: np.ndarray) -> np.ndarray:
+        """Joint torques (N, 12) for the stance forces of a virtual-model balance law."""
+        cfg = self.cfg
+        share = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-6)       # (N, 4)
+        mass = cfg.mass + st.dyn[:, _DYN["added_mass"]]
+        fz = mass * GRAVITY
+        fz = fz + cfg.height_gain * (cfg.body_height - st.height) - cfg.height_damping * st.v[:, 2]
+        f = np.zeros((st.n, 4, 3))
+        f[..., 2] = share * fz[:, None]
+        fxy = (np.asarray(cfg.force_velocity_gain) * (st.cmd[:, :2] - st.v[:, :2])
+               * mass[:, None] / cfg.mass)
+        f[..., :2] = share[..., None] * fxy[:, None, :]
+        # Roll/pitch moments from vertical force differences between stance feet.
+        m_rp = -cfg.moment_gain * (st.rp - st.rp_des) - cfg.moment_damping * st.w[:, :2]
+        x, y = self.feet[..., 0], self.feet[..., 1]
+        # moment about x: sum y_i f_i = m_roll; about y: -sum x_i f_i = m_pitch
+        for axis, lever, sign in ((0, y, 1.0), (1, x, -1.0)):
+            lev = lever - (share * lever).sum(axis=1, keepdims=True)
+            denom = np.maximum((share * lev * lev).sum(axis=1, keepdims=True), 1e-4)
+            f[..., 2] += sign * m_rp[:, axis:axis + 1] * share * lev / denom
+        f_b = np.einsum("nji,nkj->nki", st.rot_rp, f)          # ground force in base frame
+        tau = -np.einsum("nkij,nki->nkj", jac, f_b)
+        return tau.reshape(st.n, 12)
+
+
+@dataclass
+class _State:
+    """Privileged state of one control step, in the frames the controller uses."""
+
+    n: int
+    cmd: np.ndarray        # (N, 3)
+    v: np.ndarray          # (N, 3) base velocity in H
+    w: np.ndarray          # (N, 3) base angular velocity in H
+    rot_rp: np.ndarray     # (N, 3, 3) base -> H (roll and pitch only)
+    rp: np.ndarray         # (N, 2) roll, pitch (rad)
+    grid: np.ndarray       # (N, 17, 11) height scan
+    ref: np.ndarray        # (N,) mean ground under the body, relative to the base
+    height: np.ndarray     # (N,) base height above ref
+    slope: np.ndarray      # (N, 2) ground gradient dz/dx, dz/dy in H
+    dyn: np.ndarray        # (N, 8)
+    rp_des: np.ndarray     # (N, 2) desired roll, pitch
+
+    @classmethod
+    def from_obs(cls, obs: dict[str, np.ndarray], slope_follow: float = 0.0) -> "_State":
+        quat = np.asarray(obs["orientation"], dtype=np.float64)
+        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        rot = quat_to_mat(quat)
+        yaw = yaw_of(quat)
+        c, s = np.cos(yaw), np.sin(yaw)
+        rz_t = np.zeros_like(rot)
+        rz_t[:, 0, 0], rz_t[:, 0, 1], rz_t[:, 1, 0], rz_t[:, 1, 1] = c, s, -s, c
+        rz_t[:, 2, 2] = 1.0
+        rot_rp = rz_t @ rot
+        v = np.einsum("nij,nj->ni", rot_rp, obs["base_lin_vel"].astype(np.float64))
+        w = np.einsum("nij,nj->ni", rot_rp, obs["base_ang_vel"].astype(np.float64))
+        roll = np.arctan2(rot_rp[:, 2, 1], rot_rp[:, 2, 2])
+        pitch = -np.arcsin(np.clip(rot_rp[:, 2, 0], -1, 1))
+        grid = scan_grid(obs["height_scan"])
+        ref = body_reference(grid)
+        gx = (grid[:, 11:14].mean(axis=(1, 2)) - grid[:, 3:6].mean(axis=(1, 2))) / 0.8
+        gy = (grid[:, :, 7:10].mean(axis=(1, 2)) - grid[:, :, 1:4].mean(axis=(1, 2))) / 0.6
+        return cls(n=len(quat), cmd=obs["command"].astype(np.float64), v=v, w=w, rot_rp=rot_rp,
+                   rp=np.column_stack([roll, pitch]), grid=grid, ref=ref, height=-ref,
+                   slope=np.column_stack([gx, gy]), dyn=obs["dynamics"].astype(np.float64),
+                   rp_des=slope_follow * np.column_stack([np.arctan(gy), -np.arctan(gx)]))
+
+
+def _rot_rp(rp: np.ndarray) -> np.ndarray:
+    """(N, 2) roll, pitch -> (N, 3, 3) rotation Ry(pitch) Rx(roll) (base -> H)."""
+    cr, sr = np.cos(rp[:, 0]), np.sin(rp[:, 0])
+    cp, sp = np.cos(rp[:, 1]), np.sin(rp[:, 1])
+    out = np.zeros((len(rp), 3, 3))
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = cp, sp * sr, sp * cr
+    out[:, 1, 1], out[:, 1, 2] = cr, -sr
+    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = -sp, cp * sr, cp * cr
+    return out
+
+
+__all__ = ["GaitConfig", "GaitTeacher"]
