@@ -32,7 +32,8 @@ PROCESSOR_NAME = "processor.json"
 #: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
 #: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
 Channels = Mapping[str, Sequence[int]]
-Batch = Mapping[str, Tensor]
+#: Sensor name -> (B, T, c) window; tensors or numpy arrays (converted on the policy's device).
+Batch = Mapping[str, Any]
 
 
 @dataclass
@@ -147,6 +148,19 @@ class StudentPolicy(nn.Module):
         super().__init__()
         self.config = config
         self.processor = processor
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.parameters()).device
+
+    def as_tensors(self, batch: Mapping[str, Any]) -> dict[str, Tensor]:
+        """Numpy arrays or tensors -> tensors on the policy's device (no copy when possible).
+
+        Args:
+            batch: e.g. ``WindowDataset.get_batch`` output or a rollout's observations.
+        """
+        device = self.device
+        return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in batch.items()}
 
     def save_pretrained(self, directory: str | Path) -> Path:
         """Write config.json, model.safetensors and processor.json into ``directory``.

@@ -280,7 +280,8 @@ class MSTAPolicy(StudentPolicy):
             mask_ratio = self.config.mask_ratio if self.training else 0.0
         if not 0.0 <= mask_ratio < 1.0:
             raise ValueError(f"mask_ratio must be in [0, 1), got {mask_ratio}")
-        return self.model(self.processor.discretize(batch, channels), mask_ratio, generator)
+        inputs = self.processor.discretize(self.as_tensors(batch), channels)
+        return self.model(inputs, mask_ratio, generator)
 
     @torch.no_grad()
     def act(
@@ -317,6 +318,7 @@ class MSTAPolicy(StudentPolicy):
         key = self.config.action_key
         if key not in batch:
             raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
+        batch = self.as_tensors(batch)
         target = self.processor.normalize_target(batch[key])  # (B, A)
         pred = self(batch, channels, mask_ratio, generator)  # (B, A)
         loss = F.mse_loss(pred, target)

@@ -213,3 +213,13 @@ def test_overfits_a_tiny_dataset() -> None:
         first = first if first is not None else loss.item()
     final, _ = policy.eval().loss(batch)
     assert final.item() < first / 10, (first, final.item())
+
+
+def test_numpy_batches_are_accepted() -> None:
+    """The window reader and the simulator hand over numpy arrays."""
+    policy = make().eval()
+    batch = {**make_batch(), "pad": torch.zeros(4, T, dtype=torch.bool)}
+    as_numpy = {k: v.numpy() for k, v in batch.items()}
+    assert torch.equal(policy.act(as_numpy), policy.act(batch))
+    loss, _ = policy.loss({**as_numpy, "action": torch.zeros(4, 12).numpy()})
+    assert torch.isfinite(loss)
