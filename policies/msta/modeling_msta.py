@@ -142,6 +142,14 @@ class MSTATransformer(nn.Module):
             self.bin_embed.weight.device,
         )
         if key not in self._pos_cache:
+            self._pos_cache[key] = self._build_layout(channels, T)
+            if len(self._pos_cache) > 64:
+                self._pos_cache.pop(next(iter(self._pos_cache)))
+        return self._pos_cache[key]
+
+    @torch.inference_mode(False)  # cached: must stay usable by training after an act()
+    def _build_layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, Tensor, Tensor]:
+        with torch.no_grad():
             dev = self.bin_embed.weight.device
             pos, sid, step = [], [], []
             for s, (name, ch) in enumerate(channels.items()):
@@ -152,19 +160,15 @@ class MSTATransformer(nn.Module):
                 )
                 sid.append(torch.full_like(t, s))
                 step.append(t)
-            if len(self._pos_cache) > 64:
-                self._pos_cache.clear()
-            self._pos_cache[key] = (torch.cat(pos), torch.cat(sid), torch.cat(step))
-        return self._pos_cache[key]
+            return torch.cat(pos), torch.cat(sid), torch.cat(step)
 
     def embed(
         self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
     ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking plus <S>: (B, K + 1, d), and a key mask (B, 1, 1, K + 1) or None."""
         names = list(inputs.bins)
-        bins = torch.cat(
-            [inputs.bins[n].flatten(1) for n in names], dim=1
-        )  # (B, N) time-major per sensor
+        # (B, N): sensors in config order, time-major within each sensor
+        bins = torch.cat([inputs.bins[n].flatten(1) for n in names], dim=1)
         B, N = bins.shape
         T = inputs.bins[names[0]].shape[1]
         pos, sid, step = self.layout(inputs.channels, T)  # (N, d), (N,), (N,)
@@ -180,9 +184,8 @@ class MSTATransformer(nn.Module):
         x = torch.cat([x, self.state_token.expand(B, 1, -1)], dim=1)  # (B, K + 1, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
-            keep = torch.cat(
-                [~key_pad, key_pad.new_ones(B, 1)], dim=1
-            )  # (B, K + 1), <S> always visible
+            # (B, K + 1) True = may be attended to; <S> is always visible
+            keep = torch.cat([~key_pad, key_pad.new_ones(B, 1)], dim=1)
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + 1)
         return x, attn_mask
 
@@ -206,9 +209,8 @@ class MSTATransformer(nn.Module):
             n_drop = max(n_drop, int(pad.sum(1).min()))
         if n_drop == 0:
             return self.bin_embed(bins) + static, pad  # (B, N, d)
-        keep = torch.topk(
-            self._drop_scores(B, N, pad, generator), N - n_drop, dim=1, sorted=False
-        ).indices  # (B, K)
+        scores = self._drop_scores(B, N, pad, generator)  # (B, N)
+        keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
         x = self.bin_embed(torch.gather(bins, 1, keep)) + static[keep]  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
 
@@ -227,9 +229,8 @@ class MSTATransformer(nn.Module):
             else torch.zeros(B, N, dtype=torch.bool, device=bins.device)
         )
         if n_drop:
-            drop = torch.topk(
-                -self._drop_scores(B, N, pad, generator), n_drop, dim=1
-            ).indices  # (B, n_drop)
+            scores = self._drop_scores(B, N, pad, generator)  # (B, N)
+            drop = torch.topk(-scores, n_drop, dim=1).indices  # (B, n_drop)
             masked.scatter_(1, drop, True)
         value = torch.where(masked[..., None], self.mask_token, self.bin_embed(bins))  # (B, N, d)
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens

@@ -223,3 +223,15 @@ def test_numpy_batches_are_accepted() -> None:
     assert torch.equal(policy.act(as_numpy), policy.act(batch))
     loss, _ = policy.loss({**as_numpy, "action": torch.zeros(4, 12).numpy()})
     assert torch.isfinite(loss)
+
+
+def test_training_after_acting_in_inference_mode() -> None:
+    """Stage 2 acts (under inference_mode) and then trains the same policy: cached layouts
+    and statistics must stay usable by autograd."""
+    policy = make()
+    batch = make_batch()
+    with torch.inference_mode():
+        policy.act(batch, mask_ratio=0.5)
+    loss, _ = policy.train().loss({**batch, "action": torch.zeros(4, 12)})
+    loss.backward()
+    assert policy.model.sensor_embed["joint_pos"].grad is not None
