@@ -192,6 +192,7 @@ class QuadrupedEnv:
         self.meas: dict[str, np.ndarray] = {}
         self.last_obs: dict[str, np.ndarray] = {}
         self.final_obs: dict[str, np.ndarray] = {}
+        self.final_ids = np.zeros(0, dtype=np.int64)
         self._hist_fresh = np.zeros(0, dtype=np.int64)
 
     # ------------------------------------------------------------------ public API
@@ -290,8 +291,11 @@ class QuadrupedEnv:
         self.meas_before_reset = {k: m[k].copy() for k in ("base_lin_vel", "base_ang_vel",
                                                              "base_pos")}
         if len(done_ids):
-            # Last observation of the finished episodes (no latency), before the reset.
-            self.final_obs = self._obs_dict(self._proprio(m, np.arange(self.num_envs)), m)
+            # Last observation of the finished episodes (no latency), before the reset:
+            # rows of ``final_obs`` belong to ``final_ids``.
+            sub = {k: v[done_ids] for k, v in m.items()}
+            self.final_obs = self._obs_dict(self._proprio(sub, done_ids), sub, done_ids)
+            self.final_ids = done_ids
             self._reset_ids(done_ids)
         obs = self.last_obs = self._observe()
         metrics = {k: v for k, v in rew.items()}
@@ -432,15 +436,16 @@ class QuadrupedEnv:
         self._hist_fresh = np.zeros(0, dtype=np.int64)
         return self._obs_dict(delayed, m)
 
-    def _obs_dict(self, proprio: np.ndarray, m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _obs_dict(self, proprio: np.ndarray, m: dict[str, np.ndarray],
+                  ids: np.ndarray | slice = slice(None)) -> dict[str, np.ndarray]:
         obs: dict[str, np.ndarray] = {}
         start = 0
         for k in PROPRIO:
             d = SENSORS[k].dim
             obs[k] = proprio[:, start:start + d]
             start += d
-        obs["command"] = self.commands.command.astype(np.float32)
-        obs["last_action"] = self.action.astype(np.float32)
+        obs["command"] = self.commands.command[ids].astype(np.float32)
+        obs["last_action"] = self.action[ids].astype(np.float32)
         for k in ("base_lin_vel", "base_ang_vel", "orientation", "base_height", "height_scan",
                   "dynamics"):
             obs[k] = m[k].astype(np.float32)

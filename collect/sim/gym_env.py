@@ -62,8 +62,11 @@ class MstaVectorEnv(VectorEnv):
             "reason": np.array([REASONS[i] for i in res.reason]),
         }
         if done.any():
-            infos["final_obs"] = {k: np.where(done[:, None], self.sim.final_obs[k], 0)
-                                  for k in self.sensors}
+            final = {}
+            for k in self.sensors:
+                final[k] = np.zeros((self.num_envs, get(k).dim), dtype=np.float32)
+                final[k][self.sim.final_ids] = self.sim.final_obs[k]
+            infos["final_obs"] = final
             infos["_final_obs"] = done.copy()
         return self._select(res.obs), res.reward.astype(np.float32), res.terminated, \
             res.truncated, infos
