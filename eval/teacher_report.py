@@ -24,6 +24,7 @@ import numpy as np
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+import policies.teacher.gait  # noqa: F401  (registers "gait")
 from policies.teacher.base import TEACHERS, make_teacher
 
 MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival
@@ -209,3 +210,117 @@ def _minimums(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig) -> lis
                 out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 80 %): "
                            f"{'met' if ok else 'NOT met'}")
     return out
+
+
+# ----------------------------------------------------------------------------- image
+def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, seconds: float = 6.0,
+                  frames: int = 6, seed: int = 0) -> Path:
+    """Image strip of the teacher walking out of the stairs-up pit (forward command).
+
+    Args:
+        path: PNG to write.
+        teacher_name: registered teacher.
+        level: stairs-up level (step height 0.05 + 0.18 level / 10 m).
+        seconds: simulated time covered by the strip.
+        frames: pictures in the strip.
+        seed: simulator seed.
+    """
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+    from PIL import Image
+
+    from collect.sim.commands import CommandConfig
+    cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
+                    commands=CommandConfig(use_heading=False, resample_s=1e6),
+                    randomization=RandomizationConfig(enabled=False),
+                    noise=NoiseConfig(enabled=False), spawn_offset=0.0)
+    env = QuadrupedEnv(cfg)
+    obs = env.reset(type_idx=np.array([cfg.terrain.types.index("stairs_up")]),
+                    level=np.array([level]))
+    teacher = make_teacher(teacher_name)
+    command = np.array([[0.6, 0.0, 0.0]])
+    renderer = mujoco.Renderer(env.model, 360, 480)
+    data = mujoco.MjData(env.model)
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+    cam.trackbodyid = 1
+    cam.distance, cam.elevation = 1.4, -15.0
+    steps = int(round(seconds / env.dt))
+    every = max(1, steps // frames)
+    images = []
+    try:
+        for t in range(steps):
+            env.commands.command[:] = command
+            obs["command"][:] = command
+            if t % every == every - 1 and len(images) < frames:
+                mujoco.mj_setState(env.model, data, env.state[0],
+                                   mujoco.mjtState.mjSTATE_FULLPHYSICS)
+                mujoco.mj_forward(env.model, data)
+                cam.azimuth = float(np.degrees(env.meas["yaw"][0])) + 90.0
+                renderer.update_scene(data, camera=cam)
+                images.append(renderer.render().copy())
+            res = env.step(teacher.act(obs))
+            obs = res.obs
+            teacher.reset(np.flatnonzero(res.done))
+    finally:
+        renderer.close()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.concatenate(images, axis=1)).save(path)
+    return path
+
+
+# ----------------------------------------------------------------------------- CLI
+def _parse(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m eval.teacher_report", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--teacher", default="gait", help=f"registered teacher {sorted(TEACHERS)}")
+    p.add_argument("--episodes", type=int, default=100, help="episodes per (terrain, level)")
+    p.add_argument("--envs-per-tile", type=int, default=10)
+    p.add_argument("--types", default=",".join(TERRAIN_TYPES), help="comma-separated types")
+    p.add_argument("--levels", default="0-9", help="e.g. 0-9 or 0,1,2")
+    p.add_argument("--seconds", type=float, default=20.0, help="episode length (s)")
+    p.add_argument("--no-randomization", action="store_true")
+    p.add_argument("--no-noise", action="store_true")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="docs/teacher_quality.md")
+    p.add_argument("--image", default="docs/teacher_stairs_up.png",
+                   help="image strip path ('' to skip)")
+    p.add_argument("--no-progress", action="store_true")
+    return p.parse_args(argv)
+
+
+def _levels(text: str) -> tuple[int, ...]:
+    if "-" in text:
+        lo, hi = (int(v) for v in text.split("-"))
+        return tuple(range(lo, hi + 1))
+    return tuple(int(v) for v in text.split(","))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the report and write the Markdown (and the stairs image)."""
+    import sys
+    a = _parse(argv)
+    types = tuple(t for t in a.types.split(",") if t)
+    for t in types:
+        if t not in TERRAIN_TYPES:
+            raise SystemExit(f"unknown terrain type {t!r}; known: {TERRAIN_TYPES}")
+    cfg = ReportConfig(teacher=a.teacher, episodes=a.episodes,
+                       envs_per_tile=min(a.envs_per_tile, a.episodes), types=types,
+                       levels=_levels(a.levels), episode_s=a.seconds,
+                       randomization=not a.no_randomization, noise=not a.no_noise, seed=a.seed)
+    t0 = time.time()
+    stats = evaluate(cfg, progress=not a.no_progress)
+    image = None
+    if a.image:
+        image = str(render_stairs(Path(a.image), a.teacher, seed=a.seed))
+    command = "python -m eval.teacher_report " + " ".join(sys.argv[1:] if argv is None else argv)
+    md = render_markdown(stats, cfg, command.strip(), time.time() - t0, image)
+    out = Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(md)
+    print(md.split("## Minimums")[0])
+    print(f"wrote {out}" + (f" and {image}" if image else ""))
+
+
+if __name__ == "__main__":
+    main()

@@ -29,8 +29,8 @@ from collect.sim.robot import DEFAULT_POSE, FOOT_RADIUS, HIP_OFFSETS, THIGH_OFFS
 from msta_data.sensors import DYNAMICS_NAMES
 from policies.teacher.base import check_obs, register_teacher
 from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import (body_reference, ground_at, ground_max_along,
-                                           scan_grid)
+from policies.teacher.gait_terrain import (body_reference, dilate, ground_at,
+                                           ground_max_along, scan_grid)
 
 GRAVITY = 9.81
 #: Trot: diagonal pairs FL+RR and FR+RL half a cycle apart.
@@ -55,13 +55,16 @@ class GaitConfig:
         max_step: m, cap on the touchdown offset from the nominal foothold (per axis).
         velocity_gain: feedback of the velocity error into the stance sweep velocity (x, y).
         yaw_gain: feedback of the yaw-rate error into the stance sweep yaw rate.
+        max_speed: (vx, vy, wz) caps of the internal velocity reference (m/s, rad/s).
         max_accel: m/s^2, the internal velocity reference follows the command at most
             this fast (and yaw rate at ``2 * max_accel`` rad/s^2).
         force_velocity_gain: N per m/s of planar velocity error, as stance forces (x, y).
+        max_velocity_error: m/s, cap of the velocity error fed to the two terms above.
         height_gain, height_damping: N/m and N s/m vertical feedback forces.
         attitude_gain: extra (roll, pitch) stiffness: feet are placed as if the body were
             tilted ``attitude_gain`` times its attitude error the other way.
         attitude_damping: s, the same for (roll, pitch) rates.
+        max_attitude_correction: rad, cap on that attitude feedback.
         moment_gain, moment_damping: N m/rad and N m s/rad roll/pitch feedback moments
             realised by stance forces.
         slope_follow: fraction of the ground slope (roll and pitch) the body tilts along.
@@ -89,12 +92,15 @@ class GaitConfig:
     max_step: float = 0.2
     velocity_gain: tuple[float, float] = (1.0, 0.3)
     yaw_gain: float = 1.2
+    max_speed: tuple[float, float, float] = (0.8, 0.6, 1.0)
     max_accel: float = 2.4
     force_velocity_gain: tuple[float, float] = (100.0, 30.0)
+    max_velocity_error: float = 0.25
     height_gain: float = 0.0
     height_damping: float = 0.0
     attitude_gain: tuple[float, float] = (1.0, 0.8)
     attitude_damping: tuple[float, float] = (0.02, 0.02)
+    max_attitude_correction: float = 0.25
     moment_gain: float = 0.0
     moment_damping: float = 0.0
     slope_follow: float = 0.0
@@ -110,6 +116,9 @@ class GaitConfig:
 
     def __post_init__(self) -> None:
         self.phase_offsets = tuple(float(v) for v in self.phase_offsets)
+        self.max_speed = tuple(float(v) for v in self.max_speed)
+        if len(self.max_speed) != 3 or min(self.max_speed) <= 0:
+            raise ValueError(f"max_speed={self.max_speed} needs three positive values")
         for name in ("raibert_gain", "velocity_gain", "force_velocity_gain", "attitude_gain",
                      "attitude_damping"):
             value = tuple(float(v) for v in getattr(self, name))
@@ -178,7 +187,8 @@ class GaitTeacher:
             self._init_feet(np.flatnonzero(self.fresh), st)
             self.fresh[:] = False
         step = cfg.max_accel * cfg.dt * np.array([1.0, 1.0, 2.0])
-        self.ref_cmd += np.clip(st.cmd - self.ref_cmd, -step, step)
+        lim = np.asarray(cfg.max_speed)
+        self.ref_cmd += np.clip(np.clip(st.cmd, -lim, lim) - self.ref_cmd, -step, step)
         st.cmd = self.ref_cmd.copy()
         leg_phase = (self.phase[:, None] + np.asarray(cfg.phase_offsets)[None]) % 1.0
         stance = leg_phase < cfg.duty
@@ -186,14 +196,15 @@ class GaitTeacher:
         self._update_swing(st, stance, leg_phase)
         self.stance = stance
         weight = self._stance_weight(stance, leg_phase)
-        q_des, jac = self._joint_targets(st, weight)
+        q_des, jac, q_plan = self._joint_targets(st, weight)
         tau = self._feedforward(st, weight, jac)
         strength = st.dyn[:, _DYN["motor_strength"]]
         kp = cfg.kp * st.dyn[:, _DYN["kp_factor"]] * strength
         kd = cfg.kd * st.dyn[:, _DYN["kd_factor"]] * strength
-        qd = np.clip((q_des - self.q_prev) / cfg.dt, -cfg.max_joint_speed, cfg.max_joint_speed)
+        # Planned joint velocity (attitude feedback excluded, so it cannot pump energy).
+        qd = np.clip((q_plan - self.q_prev) / cfg.dt, -cfg.max_joint_speed, cfg.max_joint_speed)
         qd[self.just_reset] = 0.0
-        self.q_prev = q_des
+        self.q_prev = q_plan
         tau = tau + cfg.damping_comp * kd[:, None] * qd
         target = q_des + tau / kp[:, None]
         self.phase = (self.phase + cfg.dt / cfg.period) % 1.0
@@ -222,7 +233,8 @@ class GaitTeacher:
     def _sweep_velocity(self, st: "_State") -> tuple[np.ndarray, np.ndarray]:
         """Planar velocity (N, 2) and yaw rate (N,) the stance feet move the body at."""
         cfg = self.cfg
-        v = st.cmd[:, :2] + np.asarray(cfg.velocity_gain) * (st.cmd[:, :2] - st.v[:, :2])
+        err = np.clip(st.cmd[:, :2] - st.v[:, :2], -cfg.max_velocity_error, cfg.max_velocity_error)
+        v = st.cmd[:, :2] + np.asarray(cfg.velocity_gain) * err
         return v, st.cmd[:, 2] + cfg.yaw_gain * (st.cmd[:, 2] - st.w[:, 2])
 
     def _update_stance(self, st: "_State", stance: np.ndarray) -> None:
@@ -260,7 +272,7 @@ class GaitTeacher:
         u = _smooth((s - cfg.swing_lift_frac) / (1.0 - 2 * cfg.swing_lift_frac))
         xy = lift_xy + (td - lift_xy) * u[..., None]
         g_here = ground_at(st.grid, xy)
-        g_ahead = ground_max_along(st.grid, xy, td)
+        g_ahead = ground_max_along(st.dilated, xy, td)
         g_td = ground_at(st.grid, td)
         # Rise over the highest ground ahead, come down onto the touchdown ground.
         clear = np.maximum(g_here, g_ahead) + cfg.swing_height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
@@ -277,8 +289,10 @@ class GaitTeacher:
         w = np.where(stance, np.minimum(_smooth(sph / ramp), _smooth((1 - sph) / ramp)), 0.0)
         return np.maximum(w, 1e-3 * stance)
 
-    def _joint_targets(self, st: "_State", weight: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Joint angles (N, 12) and foot Jacobians for the H-frame feet.
+    def _joint_targets(self, st: "_State", weight: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint angles (N, 12), foot Jacobians and the joint angles without attitude
+        feedback (N, 12) for the H-frame feet.
 
         H -> base frame is p_b = R^T p_h. Stance feet use the *commanded* roll/pitch
         (the desired attitude pushed further against the error), so the legs torque the
@@ -286,13 +300,14 @@ class GaitTeacher:
         """
         cfg = self.cfg
         err = st.rp - st.rp_des
-        rp_cmd = (st.rp_des - np.asarray(cfg.attitude_gain) * err
-                  - np.asarray(cfg.attitude_damping) * st.w[:, :2])
+        corr = -np.asarray(cfg.attitude_gain) * err - np.asarray(cfg.attitude_damping) * st.w[:, :2]
+        rp_cmd = st.rp_des + np.clip(corr, -cfg.max_attitude_correction, cfg.max_attitude_correction)
         feet_cmd = np.einsum("nji,nkj->nki", _rot_rp(rp_cmd), self.feet)
         feet_true = np.einsum("nji,nkj->nki", st.rot_rp, self.feet)
         feet_b = weight[..., None] * feet_cmd + (1.0 - weight[..., None]) * feet_true
         q = leg_ik(feet_b)
-        return q, foot_jacobian(q)
+        feet_plan = np.einsum("nji,nkj->nki", _rot_rp(st.rp_des), self.feet)
+        return q, foot_jacobian(q), leg_ik(feet_plan)
 
     def _feedforward(self, st: "_State", w: np.ndarray, jac: np.ndarray) -> np.ndarray:
         """Joint torques (N, 12) for the stance forces of a virtual-model balance law."""
@@ -303,8 +318,8 @@ class GaitTeacher:
         fz = fz + cfg.height_gain * (cfg.body_height - st.height) - cfg.height_damping * st.v[:, 2]
         f = np.zeros((st.n, 4, 3))
         f[..., 2] = share * fz[:, None]
-        fxy = (np.asarray(cfg.force_velocity_gain) * (st.cmd[:, :2] - st.v[:, :2])
-               * mass[:, None] / cfg.mass)
+        err = np.clip(st.cmd[:, :2] - st.v[:, :2], -cfg.max_velocity_error, cfg.max_velocity_error)
+        fxy = np.asarray(cfg.force_velocity_gain) * err * mass[:, None] / cfg.mass
         f[..., :2] = share[..., None] * fxy[:, None, :]
         # Roll/pitch moments from vertical force differences between stance feet.
         m_rp = -cfg.moment_gain * (st.rp - st.rp_des) - cfg.moment_damping * st.w[:, :2]
@@ -330,6 +345,7 @@ class _State:
     rot_rp: np.ndarray     # (N, 3, 3) base -> H (roll and pitch only)
     rp: np.ndarray         # (N, 2) roll, pitch (rad)
     grid: np.ndarray       # (N, 17, 11) height scan
+    dilated: np.ndarray    # (N, 17, 11) height scan, 3 x 3 max filter
     ref: np.ndarray        # (N,) mean ground under the body, relative to the base
     height: np.ndarray     # (N,) base height above ref
     slope: np.ndarray      # (N, 2) ground gradient dz/dx, dz/dy in H
@@ -356,7 +372,7 @@ class _State:
         gx = (grid[:, 11:14].mean(axis=(1, 2)) - grid[:, 3:6].mean(axis=(1, 2))) / 0.8
         gy = (grid[:, :, 7:10].mean(axis=(1, 2)) - grid[:, :, 1:4].mean(axis=(1, 2))) / 0.6
         return cls(n=len(quat), cmd=obs["command"].astype(np.float64), v=v, w=w, rot_rp=rot_rp,
-                   rp=np.column_stack([roll, pitch]), grid=grid, ref=ref, height=-ref,
+                   rp=np.column_stack([roll, pitch]), grid=grid, dilated=dilate(grid), ref=ref, height=-ref,
                    slope=np.column_stack([gx, gy]), dyn=obs["dynamics"].astype(np.float64),
                    rp_des=slope_follow * np.column_stack([np.arctan(gy), -np.arctan(gx)]))
 

@@ -28,10 +28,12 @@ def ground_at(grid: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
     Args:
         grid: (N, 17, 11) from ``scan_grid``.
-        xy: (N, K, 2) query points.
+        xy: (N, ..., 2) query points.
     Returns:
-        (N, K) heights.
+        (N, ...) heights.
     """
+    shape = xy.shape[:-1]
+    xy = xy.reshape(len(xy), -1, 2)
     fx = np.clip((xy[..., 0] - X0) / STEP, 0.0, NX - 1 - 1e-6)
     fy = np.clip((xy[..., 1] - Y0) / STEP, 0.0, NY - 1 - 1e-6)
     ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
@@ -39,37 +41,32 @@ def ground_at(grid: np.ndarray, xy: np.ndarray) -> np.ndarray:
     n = np.arange(len(grid))[:, None]
     h00, h10 = grid[n, ix, iy], grid[n, ix + 1, iy]
     h01, h11 = grid[n, ix, iy + 1], grid[n, ix + 1, iy + 1]
-    return (h00 * (1 - tx) * (1 - ty) + h10 * tx * (1 - ty) + h01 * (1 - tx) * ty
-            + h11 * tx * ty)
+    out = h00 * (1 - tx) * (1 - ty) + h10 * tx * (1 - ty) + h01 * (1 - tx) * ty + h11 * tx * ty
+    return out.reshape(shape)
 
 
-def ground_max_near(grid: np.ndarray, xy: np.ndarray, radius: float) -> np.ndarray:
-    """Highest ground within ``radius`` (a 3 x 3 stencil) around each point.
+def dilate(grid: np.ndarray) -> np.ndarray:
+    """3 x 3 max filter of the scan grid (each cell: highest ground within 0.1 m)."""
+    pad = np.pad(grid, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    out = grid.copy()
+    for dx in range(3):
+        for dy in range(3):
+            np.maximum(out, pad[:, dx:dx + NX, dy:dy + NY], out=out)
+    return out
+
+
+def ground_max_along(dilated: np.ndarray, start: np.ndarray, end: np.ndarray,
+                     samples: int = 5) -> np.ndarray:
+    """Highest ground near the segments ``start -> end`` (both (N, K, 2)): (N, K).
 
     Args:
-        grid: (N, 17, 11) from ``scan_grid``.
-        xy: (N, K, 2) query points.
-        radius: m, half-width of the stencil.
-    Returns:
-        (N, K) heights.
+        dilated: (N, 17, 11) from ``dilate(scan_grid(scan))``.
+        start, end: segment end points in the yaw-aligned frame.
+        samples: points per segment.
     """
-    best = ground_at(grid, xy)
-    for dx in (-radius, 0.0, radius):
-        for dy in (-radius, 0.0, radius):
-            if dx or dy:
-                best = np.maximum(best, ground_at(grid, xy + np.array([dx, dy])))
-    return best
-
-
-def ground_max_along(grid: np.ndarray, start: np.ndarray, end: np.ndarray,
-                     samples: int = 6, radius: float = 0.04) -> np.ndarray:
-    """Highest ground on the segments ``start -> end`` (both (N, K, 2)), widened by
-    ``radius`` across the path; returns (N, K)."""
-    best = np.full(start.shape[:2], -np.inf)
-    for t in np.linspace(0.0, 1.0, samples):
-        p = start + t * (end - start)
-        best = np.maximum(best, ground_max_near(grid, p, radius))
-    return best
+    t = np.linspace(0.0, 1.0, samples)[:, None]                                  # (S, 1)
+    pts = start[..., None, :] + t * (end - start)[..., None, :]                  # (N, K, S, 2)
+    return ground_at(dilated, pts).max(axis=-1)
 
 
 def body_reference(grid: np.ndarray, half_x: float = 0.3, half_y: float = 0.2) -> np.ndarray:
@@ -79,4 +76,4 @@ def body_reference(grid: np.ndarray, half_x: float = 0.3, half_y: float = 0.2) -
     return grid[:, xs][:, :, ys].mean(axis=(1, 2))
 
 
-__all__ = ["body_reference", "ground_at", "ground_max_along", "ground_max_near", "scan_grid"]
+__all__ = ["body_reference", "dilate", "ground_at", "ground_max_along", "scan_grid"]
