@@ -1,0 +1,124 @@
+"""Run a student policy in the batched simulator.
+
+``StudentActor`` keeps, for every environment, the last T steps of the sensors the student
+reads, marks the steps before the episode start as padding (filled with the episode's
+first frame, exactly like ``msta_data.windows.WindowDataset``), applies the test-time
+input changes of the paper's experiments (sensors removed, dead joint encoders, random
+token removal, another window length) and calls the policy on the whole batch at once.
+It has the same ``act(obs)`` / ``reset(ids)`` interface as a teacher.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from msta_data.sensors import get
+
+#: sensors whose channels are per joint (a dead joint encoder removes q_j and qdot_j)
+JOINT_ENCODER_SENSORS = ("joint_pos", "joint_vel")
+
+
+@dataclass
+class InputSpec:
+    """What the student sees at test time.
+
+    Args:
+        T: history window (steps); None = the policy's training window.
+        drop_sensors: registry sensors removed entirely.
+        dead_joints: joint indices (0..11) whose q and qdot channels are removed.
+        mask_ratio: fraction of tokens removed at random every step (MSTA's test masks).
+        seed: seeds the random token removal.
+    """
+
+    T: int | None = None
+    drop_sensors: tuple[str, ...] = ()
+    dead_joints: tuple[int, ...] = ()
+    mask_ratio: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self.drop_sensors = tuple(self.drop_sensors)
+        self.dead_joints = tuple(int(j) for j in self.dead_joints)
+        for s in self.drop_sensors:
+            get(s)
+        bad = [j for j in self.dead_joints if not 0 <= j < 12]
+        if bad:
+            raise ValueError(f"dead joint index {bad[0]} out of range [0, 12)")
+        if self.T is not None and self.T < 1:
+            raise ValueError(f"T={self.T} must be >= 1")
+        if not 0.0 <= self.mask_ratio < 1.0:
+            raise ValueError(f"mask_ratio={self.mask_ratio} must be in [0, 1)")
+
+
+class StudentActor:
+    """A student policy as a batched actor with per-environment history.
+
+    Args:
+        policy: a student (``policies.base.Policy``): ``act(batch, channels, mask_ratio,
+            generator)`` on raw windows.
+        num_envs: environments driven together.
+        spec: test-time input changes.
+        name: label used in datasets and reports.
+    """
+
+    def __init__(self, policy: Any, num_envs: int, spec: InputSpec | None = None,
+                 name: str = "student") -> None:
+        self.policy = policy
+        self.spec = spec = spec or InputSpec()
+        self.name = name
+        self.num_envs = num_envs
+        self.T = spec.T or int(getattr(policy.config, "T", getattr(policy.config, "window", 15)))
+        self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
+        if not self.sensors:
+            raise ValueError("every input sensor was dropped; nothing left to act on")
+        keep = [j for j in range(12) if j not in spec.dead_joints]
+        self.channels = {s: keep for s in JOINT_ENCODER_SENSORS
+                         if s in self.sensors and spec.dead_joints}
+        self.hist = {s: np.zeros((num_envs, self.T, len(self.channels.get(s, range(get(s).dim)))),
+                                 dtype=np.float32) for s in self.sensors}
+        self.pad = np.ones((num_envs, self.T), dtype=bool)
+        self.fresh = np.ones(num_envs, dtype=bool)
+        self.generator = torch.Generator().manual_seed(spec.seed)
+
+    def reset(self, ids: np.ndarray) -> None:
+        """Environments ``ids`` start new episodes: their history is padding."""
+        self.pad[ids] = True
+        self.fresh[ids] = True
+
+    def _push(self, obs: dict[str, np.ndarray]) -> None:
+        fresh = self.fresh
+        for s in self.sensors:
+            x = obs[s]
+            if s in self.channels:
+                x = x[:, self.channels[s]]
+            h = self.hist[s]
+            h[:, :-1] = h[:, 1:]
+            h[:, -1] = x
+            if fresh.any():
+                h[fresh] = x[fresh, None, :]
+        self.pad[:, :-1] = self.pad[:, 1:]
+        self.pad[:, -1] = False
+        self.fresh[:] = False
+
+    def window(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Push this step's observation and return the batch the policy sees."""
+        self._push(obs)
+        batch = {s: self.hist[s] for s in self.sensors}
+        batch["pad"] = self.pad
+        return batch
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, 12) actions for this step's observations."""
+        batch = self.window(obs)
+        kwargs: dict[str, Any] = {}
+        if self.channels:
+            kwargs["channels"] = self.channels
+        if self.spec.mask_ratio > 0:
+            kwargs["mask_ratio"] = self.spec.mask_ratio
+            kwargs["generator"] = self.generator
+        out = self.policy.act(batch, **kwargs)
+        return out.detach().cpu().numpy().astype(np.float32)

@@ -1,0 +1,76 @@
+"""StudentActor: per-env history windows, padding, test-time input changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from policies.actor import InputSpec, StudentActor
+
+
+class Recorder:
+    """A stand-in student that records what it is given (the actor is under test)."""
+
+    class config:  # noqa: N801
+        T = 4
+
+    required_sensors = ("joint_pos", "joint_vel", "command")
+
+    def __init__(self):
+        self.calls = []
+
+    def act(self, batch, channels=None, mask_ratio=0.0, generator=None):
+        self.calls.append(({k: np.array(v) for k, v in batch.items()}, channels, mask_ratio))
+        return torch.zeros(len(batch["pad"]), 12)
+
+
+def obs_at(t: float, n: int = 3) -> dict[str, np.ndarray]:
+    base = np.arange(n, dtype=np.float32)[:, None]
+    return {"joint_pos": base + t + np.zeros((n, 12), np.float32),
+            "joint_vel": -(base + t) + np.zeros((n, 12), np.float32),
+            "command": np.full((n, 3), t, np.float32),
+            "gravity": np.zeros((n, 3), np.float32)}
+
+
+def test_history_padding_and_reset():
+    pol = Recorder()
+    actor = StudentActor(pol, 3)
+    for t in range(3):
+        out = actor.act(obs_at(t))
+    assert out.shape == (3, 12) and out.dtype == np.float32
+    batch, channels, ratio = pol.calls[-1]
+    assert batch["joint_pos"].shape == (3, 4, 12)
+    # oldest first; the step before the first one repeats the first frame and is padding
+    np.testing.assert_array_equal(batch["joint_pos"][0, :, 0], [0, 0, 1, 2])
+    np.testing.assert_array_equal(batch["pad"][0], [True, False, False, False])
+    assert channels is None and ratio == 0.0
+    actor.reset(np.array([1]))
+    actor.act(obs_at(10))
+    batch = pol.calls[-1][0]
+    np.testing.assert_array_equal(batch["pad"][1], [True, True, True, False])
+    np.testing.assert_array_equal(batch["joint_pos"][1, :, 0], [11, 11, 11, 11])
+    np.testing.assert_array_equal(batch["joint_pos"][0, :, 0], [0, 1, 2, 10])
+    assert "gravity" not in batch
+
+
+def test_dropped_sensor_dead_joints_window_and_mask():
+    pol = Recorder()
+    spec = InputSpec(T=6, drop_sensors=("command",), dead_joints=(1, 5), mask_ratio=0.5)
+    actor = StudentActor(pol, 3, spec)
+    actor.act(obs_at(0))
+    batch, channels, ratio = pol.calls[-1]
+    assert "command" not in batch
+    assert batch["joint_pos"].shape == (3, 6, 10) and batch["joint_vel"].shape == (3, 6, 10)
+    keep = [j for j in range(12) if j not in (1, 5)]
+    assert channels == {"joint_pos": keep, "joint_vel": keep}
+    assert ratio == 0.5
+
+
+def test_bad_specs_error():
+    with pytest.raises(KeyError, match="sonar"):
+        InputSpec(drop_sensors=("sonar",))
+    with pytest.raises(ValueError, match="dead joint index 12"):
+        InputSpec(dead_joints=(12,))
+    with pytest.raises(ValueError, match="nothing left"):
+        StudentActor(Recorder(), 2, InputSpec(drop_sensors=("joint_pos", "joint_vel", "command")))
