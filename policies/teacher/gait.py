@@ -68,6 +68,8 @@ class GaitConfig:
         moment_gain, moment_damping: N m/rad and N m s/rad roll/pitch feedback moments
             realised by stance forces.
         slope_follow: fraction of the ground slope (roll and pitch) the body tilts along.
+        reach_rate: m/s, how fast a stance foot without ground contact extends downward.
+        max_reach: m, cap on that extension.
         edge_margin: m, touchdown points within this of a step edge are moved away.
         edge_threshold: m, a height change this large within ``edge_margin`` is an edge.
         mass: kg, nominal robot mass (the privileged added mass is added).
@@ -104,6 +106,8 @@ class GaitConfig:
     moment_gain: float = 0.0
     moment_damping: float = 0.0
     slope_follow: float = 0.0
+    reach_rate: float = 1.0
+    max_reach: float = 0.08
     edge_margin: float = 0.06
     edge_threshold: float = 0.03
     mass: float = 12.453
@@ -150,7 +154,7 @@ class GaitTeacher:
     """
 
     name = "gait"
-    sensors: tuple[str, ...] = ("command", "joint_pos", "base_lin_vel", "base_ang_vel",
+    sensors: tuple[str, ...] = ("command", "foot_contact", "base_lin_vel", "base_ang_vel",
                                 "orientation", "height_scan", "dynamics")
 
     def __init__(self, config: GaitConfig | None = None) -> None:
@@ -162,6 +166,7 @@ class GaitTeacher:
         self.stance = np.zeros((0, 4), dtype=bool)
         self.fresh = np.zeros(0, dtype=bool)
         self.q_prev = np.zeros((0, 12))
+        self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
         nominal = np.column_stack([HIP_OFFSETS[:, 0],
                                    HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
@@ -195,6 +200,7 @@ class GaitTeacher:
         self._update_stance(st, stance)
         self._update_swing(st, stance, leg_phase)
         self.stance = stance
+        self._update_reach(obs["foot_contact"], stance, leg_phase)
         weight = self._stance_weight(stance, leg_phase)
         q_des, jac, q_plan = self._joint_targets(st, weight)
         tau = self._feedforward(st, weight, jac)
@@ -219,10 +225,12 @@ class GaitTeacher:
         self.stance = np.ones((n, 4), dtype=bool)
         self.fresh = np.ones(n, dtype=bool)
         self.q_prev = np.tile(DEFAULT_POSE, (n, 1))
+        self.reach = np.zeros((n, 4))
         self.ref_cmd = np.zeros((n, 3))
 
     def _init_feet(self, ids: np.ndarray, st: "_State") -> None:
         self.phase[ids] = 0.0
+        self.reach[ids] = 0.0
         self.ref_cmd[ids] = 0.0
         xy = np.broadcast_to(self.nominal_xy, (len(ids), 4, 2))
         z = ground_at(st.grid[ids], xy) - st.ref[ids, None] - self.cfg.body_height + FOOT_RADIUS
@@ -282,6 +290,16 @@ class GaitTeacher:
         sw = np.concatenate([xy, z[..., None]], axis=-1)
         self.feet = np.where(stance[..., None], self.feet, sw)
 
+    def _update_reach(self, contact: np.ndarray, stance: np.ndarray, leg_phase: np.ndarray
+                      ) -> None:
+        """Stance feet that find no ground keep extending downward (late touchdown,
+        unexpected drop); the extra reach fades once they touch."""
+        cfg = self.cfg
+        searching = stance & (contact < 0.5) & (leg_phase > 0.1 * cfg.duty)
+        self.reach = np.where(searching, np.minimum(self.reach + cfg.reach_rate * cfg.dt,
+                                                    cfg.max_reach), self.reach * 0.8)
+        self.reach[~stance] = 0.0
+
     def _stance_weight(self, stance: np.ndarray, leg_phase: np.ndarray) -> np.ndarray:
         """(N, 4) in [0, 1]: 1 in mid-stance, ramping at touchdown and lift-off, 0 in swing."""
         ramp = 0.12
@@ -302,8 +320,10 @@ class GaitTeacher:
         err = st.rp - st.rp_des
         corr = -np.asarray(cfg.attitude_gain) * err - np.asarray(cfg.attitude_damping) * st.w[:, :2]
         rp_cmd = st.rp_des + np.clip(corr, -cfg.max_attitude_correction, cfg.max_attitude_correction)
-        feet_cmd = np.einsum("nji,nkj->nki", _rot_rp(rp_cmd), self.feet)
-        feet_true = np.einsum("nji,nkj->nki", st.rot_rp, self.feet)
+        feet = self.feet.copy()
+        feet[..., 2] -= self.reach
+        feet_cmd = np.einsum("nji,nkj->nki", _rot_rp(rp_cmd), feet)
+        feet_true = np.einsum("nji,nkj->nki", st.rot_rp, feet)
         feet_b = weight[..., None] * feet_cmd + (1.0 - weight[..., None]) * feet_true
         q = leg_ik(feet_b)
         feet_plan = np.einsum("nji,nkj->nki", _rot_rp(st.rp_des), self.feet)

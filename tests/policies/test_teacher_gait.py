@@ -1,0 +1,119 @@
+"""The default gait teacher: protocol contract, kinematics, terrain lookups, and walking
+on flat ground in the real MuJoCo simulator."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from collect.sim import robot
+from collect.sim.commands import CommandConfig
+from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from collect.sim.randomization import RandomizationConfig
+from collect.sim.terrain import TerrainConfig
+from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
+from policies.teacher.base import Teacher, make_teacher
+from policies.teacher.gait import GaitConfig, GaitTeacher
+from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
+from policies.teacher.gait_terrain import dilate, ground_at, ground_max_along, scan_grid
+
+
+def _env(n: int, seed: int = 0, terrain: str = "flat") -> QuadrupedEnv:
+    # A 12 m border: a robot walking 20 s at 0.6 m/s must not leave the heightfield.
+    cfg = EnvConfig(num_envs=n, seed=seed, nthread=1,
+                    terrain=TerrainConfig(types=(terrain,), num_levels=1, border=12.0,
+                                          max_init_level=0,
+                                          curriculum=False),
+                    commands=CommandConfig(use_heading=False, resample_s=1e6),
+                    randomization=RandomizationConfig(enabled=False),
+                    noise=NoiseConfig(enabled=False))
+    return QuadrupedEnv(cfg)
+
+
+def test_contract_shape_dtype_determinism_and_reset():
+    env = _env(4)
+    obs = env.reset()
+    teacher = make_teacher("gait")
+    assert isinstance(teacher, Teacher) and teacher.name == "gait"
+    assert all(s in SENSORS for s in teacher.sensors)
+    a = teacher.act(obs)
+    assert a.shape == (4, 12) and a.dtype == np.float32 and np.isfinite(a).all()
+    twin = GaitTeacher()
+    np.testing.assert_array_equal(twin.act(obs), a)
+    # A few steps on, env 2 restarts: its action equals a fresh teacher's.
+    for _ in range(7):
+        obs = env.step(teacher.act(obs)).obs
+    teacher.reset(np.array([2]))
+    fresh = GaitTeacher().act({k: v[2:3] for k, v in obs.items()})
+    np.testing.assert_allclose(teacher.act(obs)[2], fresh[0], atol=1e-6)
+    with pytest.raises(KeyError, match="height_scan"):
+        teacher.act({k: v for k, v in obs.items() if k != "height_scan"})
+
+
+def test_config_validation():
+    with pytest.raises(ValueError, match="duty"):
+        GaitConfig(duty=1.2)
+    with pytest.raises(ValueError, match="raibert_gain"):
+        GaitConfig(raibert_gain=(0.1,))
+
+
+def test_fk_matches_mujoco_and_ik_round_trip():
+    model = robot.build_model(None)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(0)
+    q = robot.DEFAULT_POSE + rng.uniform(-0.4, 0.4, (20, 12))
+    feet = robot.foot_positions_body(q)
+    for i in range(3):
+        data.qpos[:7] = (0, 0, 0, 1, 0, 0, 0)
+        data.qpos[7:] = q[i]
+        mujoco.mj_kinematics(model, data)
+        sim = np.array([data.geom(f"{leg}_foot").xpos for leg in robot.LEGS])
+        np.testing.assert_allclose(feet[i], sim, atol=1e-9)
+    q2 = leg_ik(feet)
+    np.testing.assert_allclose(q2, q, atol=1e-9)
+    # Jacobian columns: the foot moves by J dq for a small dq.
+    jac = foot_jacobian(q)
+    dq = rng.normal(0, 1e-4, (20, 12))
+    moved = robot.foot_positions_body(q + dq) - feet
+    pred = np.einsum("nkij,nkj->nki", jac, dq.reshape(20, 4, 3))
+    np.testing.assert_allclose(moved, pred, atol=1e-7)
+    # Unreachable targets are projected, never NaN.
+    far = feet * 3.0
+    assert np.isfinite(leg_ik(far)).all()
+
+
+def test_height_scan_lookups():
+    xs, ys = np.meshgrid(HEIGHT_SCAN_X, HEIGHT_SCAN_Y, indexing="ij")
+    plane = 0.3 * xs - 0.2 * ys - 0.3                       # bilinear is exact on a plane
+    grid = scan_grid(plane.reshape(1, -1))
+    pts = np.array([[[0.13, -0.07], [-0.42, 0.33], [0.0, 0.0]]])
+    np.testing.assert_allclose(ground_at(grid, pts), 0.3 * pts[..., 0] - 0.2 * pts[..., 1] - 0.3,
+                               atol=1e-12)
+    step = np.where(xs >= 0.3, 0.1, 0.0)                     # a 10 cm riser at x = 0.3
+    g = scan_grid(step.reshape(1, -1))
+    a, b = np.array([[[0.0, 0.1]]]), np.array([[[0.25, 0.1]]])
+    assert ground_at(g, b)[0, 0] < 0.1 < ground_max_along(dilate(g), a, b)[0, 0] + 1e-9
+
+
+COMMANDS = np.array([[0.6, 0, 0], [-0.6, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
+                     [0, 0, 0.8], [0, 0, -0.8], [0.5, 0.3, 0.5], [0, 0, 0]])
+
+
+def test_walks_flat_for_20s_under_8_commands():
+    env = _env(len(COMMANDS), seed=3)
+    obs = env.reset()
+    teacher = GaitTeacher()
+    lin_err, yaw_err = [], []
+    for t in range(env.max_steps - 1):                       # 20 s without a time-out reset
+        env.commands.command[:] = COMMANDS
+        obs["command"][:] = COMMANDS
+        res = env.step(teacher.act(obs))
+        obs = res.obs
+        assert not res.terminated.any(), f"env(s) {np.flatnonzero(res.terminated)} fell at {t}"
+        if t >= 50:
+            lin_err.append(np.linalg.norm(env.meas["base_lin_vel"][:, :2] - COMMANDS[:, :2], axis=1))
+            yaw_err.append(np.abs(env.meas["base_ang_vel"][:, 2] - COMMANDS[:, 2]))
+    lin, yaw = np.mean(lin_err, axis=0), np.mean(yaw_err, axis=0)
+    assert (lin < 0.3).all(), f"planar velocity error per command {lin.round(3)}"
+    assert (yaw < 0.5).all(), f"yaw-rate error per command {yaw.round(3)}"
