@@ -8,14 +8,18 @@ No training. Every control step, per environment (batched in numpy):
    body), at a height that puts the base ``body_height`` above the mean ground under the
    body (from the privileged height scan). Swing feet go from lift-off to a Raibert
    touchdown point ``hip + v T_stance / 2 + k (v - v_cmd)`` (privileged true velocity),
-   snapped away from step edges, lifted ``swing_height`` above the highest ground on the
-   way (height scan).
-3. H-frame targets are rotated into the base frame with the true roll and pitch, so the
-   legs level the body; analytic inverse kinematics gives joint angles.
-4. The soft position servo (Kp = 30) sags under load, so the weight carried by the stance
-   legs (plus height, attitude and velocity feedback forces) is mapped through the leg
-   Jacobians to torques and added to the targets as ``tau / Kp`` (with the privileged
-   motor-strength and Kp factors).
+   lifted ``swing_height`` above the highest ground on the way (height scan); stance
+   feet that find no ground keep extending (foot contact).
+3. H-frame targets go to the base frame through a roll/pitch rotation: for stance feet the
+   desired attitude pushed against the measured error (so the legs torque the body
+   level), for swing feet the true attitude (so they land where planned); analytic
+   inverse kinematics gives joint angles. The internal velocity reference is rate-limited
+   and capped (``max_speed``), which trades top-speed tracking for survival.
+4. The soft position servo (Kp = 30, Kd = 0.7) sags under load and lags in motion, so the
+   weight carried by the stance legs (plus velocity feedback forces) is mapped through
+   the leg Jacobians to torques, the damping torque of the planned joint velocity is
+   added, and the sum enters the target as ``tau / Kp`` (with the privileged
+   motor-strength and Kp/Kd factors).
 """
 
 from __future__ import annotations
@@ -70,8 +74,6 @@ class GaitConfig:
         slope_follow: fraction of the ground slope (roll and pitch) the body tilts along.
         reach_rate: m/s, how fast a stance foot without ground contact extends downward.
         max_reach: m, cap on that extension.
-        edge_margin: m, touchdown points within this of a step edge are moved away.
-        edge_threshold: m, a height change this large within ``edge_margin`` is an edge.
         mass: kg, nominal robot mass (the privileged added mass is added).
         kp: nominal position gain of the servo.
         kd: nominal damping gain of the servo plus the joints' passive damping; the
@@ -108,8 +110,6 @@ class GaitConfig:
     slope_follow: float = 0.0
     reach_rate: float = 1.0
     max_reach: float = 0.08
-    edge_margin: float = 0.06
-    edge_threshold: float = 0.03
     mass: float = 12.453
     kp: float = 30.0
     kd: float = 0.8
