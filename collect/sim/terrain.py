@@ -71,7 +71,8 @@ class TerrainConfig:
         border: flat border (z = 0) around the whole grid (m); multiple of horizontal_scale.
         curriculum: start robots at levels <= max_init_level and move them up/down
             (update_levels); if False, initial levels are uniform over all levels.
-        max_init_level: initial levels are sampled in [0, max_init_level] with curriculum.
+        max_init_level: initial levels are sampled in [0, max_init_level] with curriculum
+            (capped at num_levels - 1).
         platform_size: side of the flat spawn platform at each tile centre (m).
         base_depth: thickness of MuJoCo's solid box under the lowest point (m).
     """
@@ -109,9 +110,8 @@ class TerrainConfig:
             _as_int_ratio(self.border, self.horizontal_scale, "border")
         if not 0 <= self.platform_size <= self.tile_size:
             raise ValueError(f"platform_size={self.platform_size} must be in [0, tile_size]")
-        if not 0 <= self.max_init_level < self.num_levels:
-            raise ValueError(
-                f"max_init_level={self.max_init_level} must be in [0, num_levels={self.num_levels})")
+        if self.max_init_level < 0:
+            raise ValueError(f"max_init_level={self.max_init_level} must be >= 0")
 
     @property
     def tile_samples(self) -> int:
@@ -494,7 +494,8 @@ def sample_initial(num_envs: int, rng: np.random.Generator, cfg: TerrainConfig,
     counts = np.floor(share).astype(np.int64)
     counts[np.argsort(counts - share)[: num_envs - counts.sum()]] += 1
     type_idx = rng.permutation(np.repeat(np.arange(len(cfg.types)), counts))
-    top = cfg.max_init_level if cfg.curriculum else cfg.num_levels - 1
+    # max_init_level is capped by the grid: a 1-level grid needs no extra setting
+    top = min(cfg.max_init_level, cfg.num_levels - 1) if cfg.curriculum else cfg.num_levels - 1
     return type_idx, rng.integers(0, top + 1, size=num_envs)
 
 

@@ -186,8 +186,12 @@ def test_height_at_samples_interpolation_and_clamping(full):
 def test_bad_input_errors(full):
     with pytest.raises(ValueError, match="'lava'"):
         TerrainConfig(types=("flat", "lava"))
-    with pytest.raises(ValueError, match="max_init_level=12"):
-        TerrainConfig(max_init_level=12)
+    with pytest.raises(ValueError, match="max_init_level=-1"):
+        TerrainConfig(max_init_level=-1)
+    # a small grid needs no extra setting: initial levels are capped by the grid
+    one = TerrainConfig(types=("flat",), num_levels=2)
+    _, levels = sample_initial(50, np.random.default_rng(0), one)
+    assert set(levels.tolist()) == {0, 1}
     with pytest.raises(ValueError, match="tile_size=8.05"):
         TerrainConfig(tile_size=8.05)
     with pytest.raises(ValueError, match="level 10 out of range"):
