@@ -1,6 +1,6 @@
 """Training-speed benchmark of the MSTA student: ``python -m eval.bench_train``.
 
-Measures training samples/s (processor + forward + backward + AdamW step, batch 64) for
+Measures training samples/s (processor + forward + backward + fused AdamW step, batch 64) for
 the ``paper`` and ``cpu`` presets at mask ratios 0, 0.5 and 0.75, in fp32 and with bf16
 autocast, and the machine's dense fp32 matmul rate (torch.mm on the model's own linear
 shapes) in the same run. Configurations run round-robin and the best round counts, so a
@@ -16,6 +16,7 @@ forward + backward = 3x forward; embeddings, norms and the head are left out.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -78,7 +79,7 @@ class Case:
 def training_case(preset: str, alpha: float, bf16: bool, gen: torch.Generator) -> Case:
     cfg = MSTAConfig.from_preset(preset, mask_ratio=alpha)
     policy: MSTAPolicy = make_policy(cfg, synthetic_stats(cfg)).train()
-    opt = torch.optim.AdamW(policy.parameters(), lr=1e-4)
+    opt = torch.optim.AdamW(policy.parameters(), lr=1e-4, fused=True)  # one kernel per tensor
     batch = synthetic_batch(cfg, BATCH, gen)
 
     def step() -> None:
@@ -156,7 +157,11 @@ def tokens_kept(preset: str, alpha: float) -> int:
 
 def report(cases: dict[tuple[str, float, bool], Case], mm: Case, gen: torch.Generator) -> None:
     mm_rate = mm.best * mm.flops_per_step
-    print(f"\nbatch {BATCH}, {torch.get_num_threads()} threads, torch {torch.__version__}")
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    print(
+        f"\nbatch {BATCH}, {torch.get_num_threads()} threads, torch {torch.__version__}, "
+        f"load average {load} (other processes slow small-op training most)"
+    )
     print(f"dense fp32 matmul: {mm_rate / 1e9:.1f} GFLOP/s ({mm.name})")
     print(f"{'case':28s} {'tokens':>6s} {'samples/s':>10s} {'GFLOP/s':>8s} {'share':>6s}  rounds")
     for (preset, alpha, _), case in cases.items():
