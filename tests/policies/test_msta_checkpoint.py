@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from msta_data import sensors
-from policies.base import PolicyConfig
+from policies.base import Policy, PolicyConfig
 from policies.factory import get_config_class, known_policies, load_policy, make_config, make_policy
 from policies.msta import PRESETS, MSTAConfig, MSTAPolicy
 
@@ -63,7 +63,8 @@ def test_save_load_is_bit_identical(tmp_path: Path, learnable_mask: bool) -> Non
         "processor.json",
     ]
     loaded = load_policy(out)
-    assert isinstance(loaded, MSTAPolicy) and loaded.config == policy.config
+    assert isinstance(loaded, MSTAPolicy) and isinstance(loaded, Policy)
+    assert loaded.config == policy.config and loaded.required_sensors == sensors.STUDENT_SENSORS
     batch = make_batch()
     assert torch.equal(loaded.act(batch), policy.act(batch))
     masked = [
