@@ -17,6 +17,11 @@ from policies.base import PolicyConfig, StudentPolicy, resolve_pretrained
 #: Built-in policy name -> module whose import registers its config and policy class.
 BUILTIN_POLICIES: dict[str, str] = {
     "msta": "policies.msta",
+    "gru": "policies.baselines",
+    "rma_tcn": "policies.baselines",
+    "tert_concat": "policies.baselines",
+    "tert_separate": "policies.baselines",
+    "tert_mask": "policies.baselines",
 }
 
 _POLICIES: dict[str, type[StudentPolicy]] = {}
