@@ -2,7 +2,12 @@
 ``gru``, ``rma_tcn``, ``tert_concat``, ``tert_separate``, ``tert_mask``.
 MSTA's learnable-mask variant is ``msta`` with ``learnable_mask=True``."""
 
-from policies.baselines.common import TimestepConfig, TimestepInputs, TimestepPolicy, TimestepProcessor
+from policies.baselines.common import (
+    TimestepConfig,
+    TimestepInputs,
+    TimestepPolicy,
+    TimestepProcessor,
+)
 from policies.baselines.gru import GRUConfig, GRUPolicy
 from policies.baselines.tcn import TCNConfig, TCNPolicy
 from policies.baselines.tert import (

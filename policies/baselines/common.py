@@ -71,7 +71,9 @@ class TimestepConfig(PolicyConfig):
             raise ValueError(f"input_sensors has duplicates: {self.input_sensors}")
         for name in self.input_sensors:
             if not sensors.get(name).is_student_input:  # get(): KeyError lists known sensors
-                raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student input")
+                raise ValueError(
+                    f"sensor {name!r} is privileged (teacher only), not a student input"
+                )
         for key in ("history", "clip_std", "action_dim"):
             if not getattr(self, key) > 0:
                 raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
@@ -189,7 +191,9 @@ class TimestepProcessor(MSTAProcessor):
             if name not in batch:
                 raise ValueError(f"channels given for sensor {name!r}, which is not in the batch")
         if not present:
-            raise ValueError(f"batch holds no input sensor; expected some of {list(self.input_sensors)}")
+            raise ValueError(
+                f"batch holds no input sensor; expected some of {list(self.input_sensors)}"
+            )
         x: Tensor | None = None
         missing: Tensor | None = None
         for name in self.input_sensors:  # canonical order: the dict order never matters
@@ -212,7 +216,9 @@ class TimestepProcessor(MSTAProcessor):
             missing[cols] = False
         pad = self._pad(batch, x.shape[:2])
         if pad is not None and (pad[:, 1:] & ~pad[:, :-1]).any():
-            raise ValueError("'pad' must mark a prefix of each window (steps before the episode start)")
+            raise ValueError(
+                "'pad' must mark a prefix of each window (steps before the episode start)"
+            )
         return TimestepInputs(x, missing, pad)
 
     def _zscore(self, name: str, v: Tensor, idx: Tensor) -> Tensor:

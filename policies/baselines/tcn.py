@@ -42,8 +42,12 @@ class TCNConfig(TimestepConfig):
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
         "paper": {},
         "cpu": {"head_hidden_dim": 64},
-        "tiny": {"embed_hidden_dim": 32, "embed_dim": 16, "conv_channels": 16,
-                 "head_hidden_dim": 32},
+        "tiny": {
+            "embed_hidden_dim": 32,
+            "embed_dim": 16,
+            "conv_channels": 16,
+            "head_hidden_dim": 32,
+        },
     }
 
     embed_hidden_dim: int = 128
@@ -71,7 +75,9 @@ class TCNConfig(TimestepConfig):
             raise ValueError(f"readout must be one of {READOUTS}, got {self.readout!r}")
         if self.history < self.min_steps:
             raise ValueError(
-                f"history {self.history} is shorter than the convolutions need ({self.min_steps})"
+                f"history {self.history} is shorter than the convolutions need ({self.min_steps}); "
+                "choose smaller conv_kernels / conv_strides (e.g. kernels (3, 3, 3), strides "
+                "(1, 1, 1) need 7 steps)"
             )
 
     def out_steps(self, T: int) -> int:

@@ -142,7 +142,7 @@ class TERTPolicy(TimestepPolicy):
 
     def tokens(self, x: Tensor) -> Tensor:
         """x (B, T, C) -> tokens (B, T * G, d), time-major, G tokens per step."""
-        B, T, _ = x.shape
+        T = x.shape[1]
         cfg: TERTConfig = self.config
         G = len(self.proj)
         tok = torch.stack(
@@ -154,7 +154,7 @@ class TERTPolicy(TimestepPolicy):
         return tok.flatten(1, 2)  # (B, T * G, d)
 
     def encode(self, x: Tensor, pad: Tensor | None) -> Tensor:
-        B, T, _ = x.shape
+        B = x.shape[0]
         h = self.tokens(x)  # (B, L, d), L = T * G
         h = torch.cat([h, self.state_token.expand(B, 1, -1)], dim=1)  # (B, L + 1, d)
         attn_mask = None
