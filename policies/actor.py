@@ -71,7 +71,10 @@ class StudentActor:
         self.spec = spec = spec or InputSpec()
         self.name = name
         self.num_envs = num_envs
-        self.T = spec.T or int(getattr(policy.config, "T", getattr(policy.config, "window", 15)))
+        trained_T = getattr(policy.config, "history", None)
+        if spec.T is None and trained_T is None:
+            raise ValueError(f"{type(policy).__name__}.config has no 'history'; pass InputSpec(T=...)")
+        self.T = int(spec.T or trained_T)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:
             raise ValueError("every input sensor was dropped; nothing left to act on")

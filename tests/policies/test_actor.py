@@ -13,7 +13,7 @@ class Recorder:
     """A stand-in student that records what it is given (the actor is under test)."""
 
     class config:  # noqa: N801
-        T = 4
+        history = 4
 
     required_sensors = ("joint_pos", "joint_vel", "command")
 
