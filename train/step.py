@@ -1,0 +1,95 @@
+"""One optimizer step and one validation pass, shared by stage 1 and stage 2.
+
+Both stages train the same way (behaviour cloning on teacher labels, ‖a − â‖²); they
+differ only in where the data comes from and in the mask ratio.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import torch
+
+from policies.base import Channels, StudentPolicy
+
+
+def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
+               scheduler: torch.optim.lr_scheduler.LRScheduler | None,
+               batch: Mapping[str, Any], grad_clip: float, mask_ratio: float | None,
+               generator: torch.Generator | None = None,
+               channels: Channels | None = None) -> dict[str, float]:
+    """Forward, backward, clip, AdamW step, scheduler step.
+
+    Args:
+        policy: a student with ``loss(batch, channels, mask_ratio, generator)``.
+        optimizer: over the policy's parameters.
+        scheduler: stepped once after the optimizer (None: constant LR).
+        batch: raw windows plus the ``action`` target (numpy or tensors).
+        grad_clip: max global gradient norm; 0 disables clipping (the norm is still reported).
+        mask_ratio: token-removal ratio (None: the policy config's).
+        generator: RNG of the random token removal (on the policy's device).
+        channels: per-sensor channel subsets present in the batch.
+
+    Returns:
+        the policy's metrics (``loss``, ``action_mse``, ...) plus ``grad_norm`` and ``lr``
+        (the learning rate this step used).
+
+    Raises:
+        FloatingPointError: the loss or the gradient norm is not finite (weights untouched).
+    """
+    policy.train()
+    loss, metrics = policy.loss(batch, channels, mask_ratio, generator)
+    if not torch.isfinite(loss):
+        raise FloatingPointError(f"training loss is {float(loss)}; metrics {metrics}")
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    params = [p for g in optimizer.param_groups for p in g["params"] if p.grad is not None]
+    norm = torch.nn.utils.clip_grad_norm_(params, grad_clip if grad_clip > 0 else math.inf)
+    if not torch.isfinite(norm):
+        optimizer.zero_grad(set_to_none=True)
+        raise FloatingPointError(f"gradient norm is {float(norm)} (loss {float(loss)})")
+    lr = float(optimizer.param_groups[0]["lr"])
+    optimizer.step()
+    if scheduler is not None:
+        scheduler.step()
+    return {**metrics, "grad_norm": float(norm), "lr": lr}
+
+
+@torch.no_grad()
+def validate(policy: StudentPolicy, dataset: Any, batch_size: int, max_samples: int,
+             mask_ratio: float, seed: int = 0) -> dict[str, float]:
+    """Mean loss over a fixed, evenly spaced subset of a window dataset.
+
+    The masked loss uses its own generator seeded with ``seed``, so validation never
+    touches the training RNG streams and is comparable across steps.
+
+    Args:
+        policy: the student (switched to eval mode and back to train mode).
+        dataset: a ``WindowDataset`` (``len`` and ``get_batch``).
+        batch_size: windows per forward pass.
+        max_samples: at most this many windows.
+        mask_ratio: the training mask ratio (``loss``); ``loss_unmasked`` uses 0.
+
+    Returns:
+        ``{"loss", "loss_unmasked", "action_mse"}`` (``action_mse`` is unmasked, raw units).
+    """
+    n = len(dataset)
+    idx = np.unique(np.linspace(0, n - 1, min(n, max_samples)).round().astype(np.int64))
+    gen = torch.Generator(device=policy.device).manual_seed(seed)
+    sums = {"loss": 0.0, "loss_unmasked": 0.0, "action_mse": 0.0}
+    policy.eval()
+    try:
+        for lo in range(0, len(idx), batch_size):
+            part = idx[lo:lo + batch_size]
+            batch = dataset.get_batch(part)
+            _, m0 = policy.loss(batch, mask_ratio=0.0)
+            _, mm = policy.loss(batch, mask_ratio=mask_ratio, generator=gen)
+            sums["loss"] += mm["loss"] * len(part)
+            sums["loss_unmasked"] += m0["loss"] * len(part)
+            sums["action_mse"] += m0["action_mse"] * len(part)
+    finally:
+        policy.train()
+    return {k: v / len(idx) for k, v in sums.items()}
