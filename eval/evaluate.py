@@ -1,0 +1,414 @@
+"""``msta-eval``: the paper's experiments on any checkpoints, as one command.
+
+    msta-eval --policies teacher,CKPT_A,user/ckpt_b@v1 --suite quick --out outputs/eval
+    msta-eval --policies teacher,CKPT --suite paper --trials 500 --terrains stairs_up,discrete
+    msta-eval --policies teacher,A,B,C,D --scenarios mask_matrix --matrix A=0.75:0.5,B=0.5:0.5,...
+
+``--policies`` entries: ``teacher`` (the reference teacher of ``--teacher.type``, rolled out
+again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input row, e.g.
+``teacher:zero`` holds the default pose), a checkpoint directory, or a hub id
+``user/name[@revision]`` (pulled through ``msta_data.hub.materialize``).
+
+Writes into ``--out``: ``metrics.json`` (every number, the configuration, each policy's
+source and revision), ``report.md`` (Table I layout and one table per scenario), PNG
+plots for scenarios 2-5, ``timing.json``, and optionally a video (``--video``). See
+docs/eval.md for the metric definitions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import draccus
+import numpy as np
+import torch
+from tqdm import tqdm
+
+import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+from collect.sim.env import EnvConfig, NoiseConfig
+from collect.sim.randomization import RandomizationConfig
+from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from collect.sim.commands import CommandConfig
+from eval import report
+from eval.metrics import (EvalEnv, NotApplicable, TrialLayout, aggregate, normalize,
+                          run_trials)
+from eval.scenarios import Condition, build_conditions, get_scenario, get_suite
+from policies.actor import InputSpec, StudentActor
+from policies.teacher.base import TEACHERS
+from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+
+METRICS_VERSION = 1
+
+
+@dataclass
+class EvalConfig:
+    """Args:
+        policies: comma-separated entries: teacher, teacher:<type>, checkpoint dirs, hub ids.
+        suite: quick (``make demo``) or paper (5000 trials, every sweep value).
+        out: output directory.
+        trials: episodes per (policy, condition); 0 = the suite's.
+        terrains: comma-separated terrain types; empty = the suite's (the paper's five).
+        levels: comma-separated levels (0-9); empty = the suite's.
+        scenarios: comma-separated scenario names; empty = the suite's.
+        episode_s: episode time limit (s); 0 = the suite's.
+        max_envs: environments simulated together; 0 = the suite's.
+        seed: seeds trials (tiles are pinned; spawns, commands, noise, pushes, masks).
+        matrix: checkpoint -> train mask ratios for the heatmaps: ``CKPT=a1:a2,...`` (CKPT as
+            written in --policies).
+        teacher: the reference teacher (``--teacher.type=gait``).
+        noise: observation noise on.
+        randomization: domain randomization (dynamics, pushes, latency) on.
+        heading_commands: yaw-rate command steers to a sampled heading (paper); False samples
+            the yaw rate directly (then command sequences do not depend on the policy at all).
+        threads: torch threads (results are bit-identical for the same value).
+        nthread: MuJoCo rollout threads.
+        video: ``POLICY:TERRAIN[:LEVEL]`` renders a short MP4 of that policy (needs EGL).
+        video_s: video length (s).
+        progress: show progress bars.
+    """
+
+    policies: str = "teacher"
+    suite: str = "quick"
+    out: str = "outputs/eval"
+    trials: int = 0
+    terrains: str = ""
+    levels: str = ""
+    scenarios: str = ""
+    episode_s: float = 0.0
+    max_envs: int = 0
+    seed: int = 0
+    matrix: str = ""
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    noise: bool = True
+    randomization: bool = True
+    heading_commands: bool = True
+    threads: int = 1
+    nthread: int = 2
+    video: str = ""
+    video_s: float = 5.0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        suite = get_suite(self.suite)
+        self.policy_list = _split(self.policies)
+        if not self.policy_list:
+            raise ValueError("--policies is empty")
+        self.scenario_list = _split(self.scenarios) or list(suite.scenarios)
+        for s in self.scenario_list:
+            get_scenario(s)
+        self.terrain_list = _split(self.terrains) or list(suite.terrains)
+        for t in self.terrain_list:
+            if t not in TERRAIN_TYPES:
+                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
+        try:
+            self.level_list = [int(v) for v in _split(self.levels)] or list(suite.levels)
+        except ValueError:
+            raise ValueError(f"--levels {self.levels!r} must be comma-separated integers") \
+                from None
+        bad = [lv for lv in self.level_list if not 0 <= lv < TerrainConfig().num_levels]
+        if bad:
+            raise ValueError(f"level {bad[0]} out of range [0, {TerrainConfig().num_levels})")
+        self.num_trials = self.trials or suite.trials
+        self.episode = self.episode_s or suite.episode_s
+        self.envs = self.max_envs or suite.max_envs
+        for name in ("num_trials", "envs", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.episode <= 0:
+            raise ValueError(f"episode_s={self.episode} must be > 0")
+        self.matrix_map = _parse_matrix(self.matrix, self.policy_list)
+
+    def resolved(self) -> dict[str, Any]:
+        """The effective configuration as stored in metrics.json (``out`` left out)."""
+        d = {k: v for k, v in asdict(self).items() if k not in ("out", "progress")}
+        d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
+                 scenarios=self.scenario_list, episode_s=self.episode, max_envs=self.envs,
+                 policies=self.policy_list, matrix={k: list(v) for k, v in
+                                                    self.matrix_map.items()})
+        return d
+
+
+def _split(text: str) -> list[str]:
+    return [p.strip() for p in str(text).split(",") if p.strip()]
+
+
+def _parse_matrix(text: str, policies: list[str]) -> dict[str, tuple[float, float]]:
+    out = {}
+    for item in _split(text):
+        key, sep, ratios = item.rpartition("=")
+        parts = ratios.split(":")
+        try:
+            a1, a2 = (float(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"--matrix entry {item!r} must look like CKPT=0.75:0.5") from None
+        if not sep or key not in policies:
+            raise ValueError(f"--matrix entry {item!r}: {key!r} is not one of --policies "
+                             f"{policies}")
+        out[key] = (a1, a2)
+    return out
+
+
+@dataclass
+class PolicyEntry:
+    """One row of the outputs.
+
+    Args:
+        name: row label.
+        source: the --policies entry as written.
+        kind: "teacher" (fixed inputs, no input changes) or "student".
+        path: local checkpoint directory ("" for teachers).
+        revision: content hash (checkpoint files) or the teacher's revision.
+        obj: the loaded teacher or student.
+        train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
+    """
+
+    name: str
+    source: str
+    kind: str
+    path: str
+    revision: str
+    obj: Any = None
+    train_masks: tuple[float, float] | None = None
+
+    def describe(self) -> dict[str, Any]:
+        d = {k: getattr(self, k) for k in ("name", "source", "kind", "path", "revision")}
+        d["train_masks"] = list(self.train_masks) if self.train_masks else None
+        if self.kind == "student":
+            d["type"] = self.obj.config.type
+            d["input_sensors"] = list(self.obj.required_sensors)
+        return d
+
+
+def dir_revision(path: Path) -> str:
+    """Short sha256 over a checkpoint directory's file names and bytes."""
+    h = hashlib.sha256()
+    for f in sorted(p for p in path.rglob("*") if p.is_file()):
+        h.update(str(f.relative_to(path)).encode())
+        h.update(f.read_bytes())
+    return h.hexdigest()[:12]
+
+
+def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
+    """Resolve one --policies entry (teacher, teacher:<type>, directory or hub id)."""
+    if source == "teacher":
+        return PolicyEntry("teacher", source, "teacher", cfg.teacher.path,
+                           teacher_revision(cfg.teacher), build_teacher(cfg.teacher))
+    if source.startswith("teacher:"):
+        tcfg = TeacherConfig(type=source.split(":", 1)[1])
+        return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg),
+                           build_teacher(tcfg))
+    from msta_data.hub import is_hub_id, materialize
+    from policies.factory import load_policy
+
+    if not Path(source).exists() and not is_hub_id(source):
+        raise FileNotFoundError(f"checkpoint {source!r} not found: not a directory and not a "
+                                f"hub id user/name[@revision] (teachers: 'teacher' or "
+                                f"'teacher:<type>' with type in {sorted(TEACHERS)})")
+    path = materialize(source)
+    name = source if is_hub_id(source) else Path(source).resolve().name
+    return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
+                       load_policy(path), cfg.matrix_map.get(source))
+
+
+def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
+    """Every --policies entry, names made unique."""
+    entries, seen = [], {}
+    for src in cfg.policy_list:
+        e = load_entry(src, cfg)
+        seen[e.name] = seen.get(e.name, 0) + 1
+        if seen[e.name] > 1:
+            e.name = f"{e.name}#{seen[e.name]}"
+        entries.append(e)
+    return entries
+
+
+def make_env(cfg: EvalConfig, num_envs: int) -> EvalEnv:
+    """The evaluation simulator: tiles pinned, only the evaluated terrain columns built."""
+    return EvalEnv(EnvConfig(
+        num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
+        terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
+        commands=CommandConfig(use_heading=cfg.heading_commands),
+        noise=NoiseConfig(enabled=cfg.noise),
+        randomization=RandomizationConfig(enabled=cfg.randomization)))
+
+
+def spec_dict(spec: InputSpec) -> dict[str, Any]:
+    """JSON-ready InputSpec."""
+    return {"T": spec.T, "drop_sensors": list(spec.drop_sensors),
+            "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
+            "seed": spec.seed}
+
+
+def _is_null(spec: InputSpec) -> bool:
+    return spec.T is None and not spec.drop_sensors and not spec.dead_joints \
+        and spec.mask_ratio == 0
+
+
+class Evaluator:
+    """Runs conditions on one shared evaluation env and caches identical student inputs.
+
+    Args:
+        cfg: the evaluation configuration.
+    """
+
+    def __init__(self, cfg: EvalConfig) -> None:
+        self.cfg = cfg
+        self.layout = TrialLayout(tuple(cfg.terrain_list), tuple(cfg.level_list),
+                                  cfg.num_trials)
+        self.env = make_env(cfg, len(self.layout.rounds(cfg.envs)[0]))
+        self.reference: dict[str, Any] | None = None
+        self.timing: dict[str, float] = {}
+        self._cache: dict[tuple, dict[str, Any]] = {}
+
+    def _run(self, label: str, make_actor) -> dict[str, Any]:
+        t0 = time.perf_counter()
+        res = run_trials(self.env, make_actor, self.layout, desc=label,
+                         progress=self.cfg.progress)
+        self.timing[label] = round(time.perf_counter() - t0, 3)
+        return aggregate(res, self.layout)
+
+    def run_reference(self) -> dict[str, Any]:
+        """Roll the reference teacher (``cfg.teacher``) over every trial."""
+        teacher = build_teacher(self.cfg.teacher)
+        self.reference = self._run("reference teacher", lambda r, n: teacher)
+        return self.reference
+
+    def _student_key(self, entry: PolicyEntry, spec: InputSpec) -> tuple:
+        actor = StudentActor(entry.obj, 1, spec)
+        channels = tuple(sorted((k, tuple(v)) for k, v in actor.channels.items()))
+        return (entry.name, actor.T, actor.sensors, channels, spec.mask_ratio)
+
+    def condition(self, entry: PolicyEntry, cond: Condition) -> dict[str, Any]:
+        """Metrics of one policy under one condition (or n/a with the reason)."""
+        rec: dict[str, Any] = {"policy": entry.name, "scenario": cond.scenario,
+                               "condition": cond.label, "value": cond.value,
+                               "spec": spec_dict(cond.spec)}
+        label = f"{entry.name} | {cond.key}"
+        try:
+            if entry.kind == "teacher":
+                if not _is_null(cond.spec):
+                    raise NotApplicable("a teacher reads fixed (privileged) inputs; test-time "
+                                        "input changes do not apply")
+                key: tuple = (entry.name,)
+                make = (lambda r, n: entry.obj)
+            else:
+                try:
+                    key = self._student_key(entry, cond.spec)
+                except (ValueError, KeyError, NotImplementedError) as e:
+                    raise NotApplicable(f"{type(e).__name__}: {e}") from e
+                make = self._student_factory(entry, cond.spec)
+            if key not in self._cache:
+                self._cache[key] = self._run(label, make)
+        except NotApplicable as e:
+            return {**rec, "status": "n/a", "reason": str(e)}
+        raw = self._cache[key]
+        return {**rec, "status": "ok", "raw": raw, "normalized": normalize(raw, self.reference)}
+
+    @staticmethod
+    def _student_factory(entry: PolicyEntry, spec: InputSpec):
+        def make(r: int, n: int) -> StudentActor:  # a new mask stream per round
+            return StudentActor(entry.obj, n, replace(spec, seed=spec.seed * 1_000_003 + r),
+                                name=entry.name)
+        return make
+
+
+def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
+    """Every (policy, condition) pair, policies in --policies order."""
+    from msta_data.sensors import STUDENT_SENSORS
+
+    suite = get_suite(cfg.suite)
+    out = []
+    for e in entries:
+        sensors = e.obj.required_sensors if e.kind == "student" else STUDENT_SENSORS
+        out += [(e, c) for c in build_conditions(cfg.scenario_list, suite, sensors, cfg.seed)]
+    return out
+
+
+def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[str, Any]:
+    """Run the configured suite and write metrics.json, report.md and the plots.
+
+    Args:
+        cfg: the evaluation configuration.
+        entries: already loaded policies (default: load ``cfg.policies``).
+    Returns:
+        the content of metrics.json.
+    """
+    entries = entries if entries is not None else load_entries(cfg)
+    torch.set_num_threads(cfg.threads)
+    torch.use_deterministic_algorithms(True)
+    ev = Evaluator(cfg)
+    pairs = plan(cfg, entries)
+    t0 = time.perf_counter()
+    ev.run_reference()
+    runs = []
+    for e, c in tqdm(pairs, desc="msta-eval", unit="run", disable=not cfg.progress):
+        runs.append(ev.condition(e, c))
+    metrics = {
+        "msta_eval_version": METRICS_VERSION,
+        "config": cfg.resolved(),
+        "reference": {"teacher": asdict(cfg.teacher),
+                      "revision": teacher_revision(cfg.teacher), **ev.reference},
+        "policies": [e.describe() for e in entries],
+        "terrains": cfg.terrain_list,
+        "levels": cfg.level_list,
+        "runs": runs,
+    }
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
+    ev.timing["total"] = round(time.perf_counter() - t0, 3)
+    (out / "timing.json").write_text(json.dumps(ev.timing, indent=1) + "\n")
+    report.write_report(metrics, out)
+    if cfg.video:
+        save_policy_video(cfg, entries, out)
+    return metrics
+
+
+def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) -> Path:
+    """Render ``cfg.video`` = ``POLICY:TERRAIN[:LEVEL]`` (one robot, ``cfg.video_s``) to MP4."""
+    from collect.sim.render import record, save_video
+
+    parts = cfg.video.rsplit(":", 2) if cfg.video.count(":") >= 2 else cfg.video.rsplit(":", 1)
+    if len(parts) < 2:
+        raise ValueError(f"--video {cfg.video!r} must look like POLICY:TERRAIN[:LEVEL]")
+    name, terrain = parts[0], parts[1]
+    level = int(parts[2]) if len(parts) > 2 else cfg.level_list[0]
+    by_name = {e.name: e for e in entries} | {e.source: e for e in entries}
+    if name not in by_name:
+        raise ValueError(f"--video policy {name!r} is not one of {sorted(by_name)}")
+    if terrain not in cfg.terrain_list:
+        raise ValueError(f"--video terrain {terrain!r} is not evaluated ({cfg.terrain_list})")
+    entry = by_name[name]
+    env = make_env(replace(cfg, episode_s=max(cfg.video_s, cfg.episode)), 1)
+    env.start(np.array([0]), np.array([cfg.terrain_list.index(terrain)]), np.array([level]))
+    # teachers keep per-env state sized at first use: build a fresh one for one robot
+    actor = load_entry(entry.source, cfg).obj if entry.kind == "teacher" \
+        else StudentActor(entry.obj, 1)
+    actor.reset(np.arange(1))
+    frames = record(env, actor.act, int(round(cfg.video_s / env.dt)), every=2)
+    path = out / f"video_{entry.name.replace('/', '_')}_{terrain}_L{level}.mp4"
+    return save_video(frames, path, fps=int(round(1 / (2 * env.dt))))
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point (``msta-eval``)."""
+    try:
+        cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
+        metrics = evaluate(cfg)
+    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"msta-eval: error: {msg}", file=sys.stderr)
+        raise SystemExit(2) from None
+    out = Path(cfg.out)
+    print(report.table_one(metrics, "total"))
+    print(f"\nmsta-eval: wrote {out / 'metrics.json'}, {out / 'report.md'} and the plots in {out}/")
+
+
+if __name__ == "__main__":
+    main()

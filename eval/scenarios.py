@@ -1,0 +1,228 @@
+"""The paper's test-time experiments as a registry of scenarios, and the suites that run them.
+
+A *scenario* turns a student (its input sensors) and a suite's values into *conditions*:
+one :class:`~policies.actor.InputSpec` each (what the student sees at test time) plus the
+label and x-axis value used in tables and plots. The teacher is the reference: no input
+change applies to it.
+
+Scenarios (registry :data:`SCENARIOS`):
+
+1. ``token_removal``: random token removal at test time, 0 / 25 / 50 % (Table I).
+2. ``sensor_removal``: one sensor removed entirely, for each sensor of the student.
+3. ``dead_joints``: q and q̇ of k = 0..6 random joints removed (fixed seeds; the k-joint
+   set is a prefix of one seeded permutation, so k + 1 adds a joint to the k set).
+4. ``history``: history window T without masking (T = 20 is longer than trained).
+5. ``mask_matrix``: the token-removal conditions of checkpoints trained with different
+   stage-1 x stage-2 mask ratios, shown as heatmaps (needs ``--matrix`` or ratios recorded
+   in the checkpoints).
+
+A *suite* (registry :data:`SUITES`) fixes trials, terrains, levels, episode length and the
+values each scenario sweeps.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from policies.actor import InputSpec
+
+#: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
+PAPER_TERRAINS: tuple[str, ...] = (
+    "smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete")
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One test-time setting of one scenario.
+
+    Args:
+        scenario: registry name of the scenario.
+        label: short human label, e.g. ``"mask 25%"``.
+        value: x-axis value in plots (ratio, sensor name, k, T).
+        spec: what the student sees.
+    """
+
+    scenario: str
+    label: str
+    value: float | int | str
+    spec: InputSpec
+
+    @property
+    def key(self) -> str:
+        return f"{self.scenario}/{self.label}"
+
+
+@dataclass(frozen=True)
+class ScenarioContext:
+    """What a scenario needs to build its conditions for one student.
+
+    Args:
+        sensors: the student's input sensors (registry names).
+        values: the suite's sweep values for this scenario.
+        seed: seeds random choices (dead joints, token removal).
+    """
+
+    sensors: tuple[str, ...]
+    values: tuple
+    seed: int
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A registered experiment.
+
+    Args:
+        name: registry key (``--scenarios`` accepts it).
+        title: plot / table title.
+        axis: x-axis label.
+        build: context -> conditions (first one is the scenario's reference setting).
+        plot: whether report.py draws a figure for it.
+    """
+
+    name: str
+    title: str
+    axis: str
+    build: Callable[[ScenarioContext], list[Condition]]
+    plot: bool = True
+
+
+SCENARIOS: dict[str, Scenario] = {}
+
+
+def register_scenario(scenario: Scenario) -> Scenario:
+    """Add a scenario to :data:`SCENARIOS` (names are unique)."""
+    if scenario.name in SCENARIOS:
+        raise ValueError(f"scenario {scenario.name!r} registered twice")
+    SCENARIOS[scenario.name] = scenario
+    return scenario
+
+
+def get_scenario(name: str) -> Scenario:
+    """Registered scenario ``name``; the error lists the known names."""
+    try:
+        return SCENARIOS[name]
+    except KeyError:
+        raise KeyError(f"unknown scenario {name!r}; known scenarios: {sorted(SCENARIOS)}") \
+            from None
+
+
+def dead_joint_set(k: int, seed: int) -> tuple[int, ...]:
+    """The k dead joints for ``seed``: the first k of one seeded permutation of 0..11 (sorted).
+
+    Args:
+        k: number of dead joint encoders (0..12).
+        seed: fixes the permutation.
+    """
+    if not 0 <= k <= 12:
+        raise ValueError(f"dead joint count k={k} must be in [0, 12]")
+    perm = np.random.default_rng([seed, 0xDEAD]).permutation(12)
+    return tuple(sorted(int(j) for j in perm[:k]))
+
+
+def _token_removal(ctx: ScenarioContext) -> list[Condition]:
+    return [Condition("token_removal", f"mask {round(100 * r)}%", float(r),
+                      InputSpec(mask_ratio=float(r), seed=ctx.seed)) for r in ctx.values]
+
+
+def _sensor_removal(ctx: ScenarioContext) -> list[Condition]:
+    out = [Condition("sensor_removal", "none", "none", InputSpec(seed=ctx.seed))]
+    return out + [Condition("sensor_removal", f"-{s}", s,
+                            InputSpec(drop_sensors=(s,), seed=ctx.seed))
+                  for s in (ctx.values or ctx.sensors)]
+
+
+def _dead_joints(ctx: ScenarioContext) -> list[Condition]:
+    return [Condition("dead_joints", f"k={k}", int(k),
+                      InputSpec(dead_joints=dead_joint_set(int(k), ctx.seed), seed=ctx.seed))
+            for k in ctx.values]
+
+
+def _history(ctx: ScenarioContext) -> list[Condition]:
+    return [Condition("history", f"T={t}", int(t), InputSpec(T=int(t), seed=ctx.seed))
+            for t in ctx.values]
+
+
+register_scenario(Scenario("token_removal", "Random token removal at test time",
+                           "test mask ratio", _token_removal, plot=False))
+register_scenario(Scenario("sensor_removal", "One sensor removed entirely", "removed sensor",
+                           _sensor_removal))
+register_scenario(Scenario("dead_joints", "Dead joint encoders (q and q̇ removed)",
+                           "dead joints k", _dead_joints))
+register_scenario(Scenario("history", "History window T (no masking)", "history T",
+                           _history))
+register_scenario(Scenario("mask_matrix", "Train mask ratios (stage 1 x stage 2)",
+                           "stage-2 mask ratio", _token_removal))
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A named evaluation budget.
+
+    Args:
+        name: registry key (``--suite``).
+        trials: episodes per (policy, condition), spread evenly over terrains x levels.
+        terrains: terrain types.
+        levels: difficulty levels.
+        episode_s: episode time limit (s).
+        max_envs: environments simulated together (trials run in rounds of this many).
+        values: scenario name -> sweep values (empty tuple for sensor_removal: every sensor).
+    """
+
+    name: str
+    trials: int
+    terrains: tuple[str, ...]
+    levels: tuple[int, ...]
+    episode_s: float
+    max_envs: int
+    values: dict[str, tuple] = field(default_factory=dict)
+
+    @property
+    def scenarios(self) -> tuple[str, ...]:
+        return tuple(self.values)
+
+
+SUITES: dict[str, Suite] = {
+    # The paper: 5000 trials over the five terrains and their levels, every sweep value.
+    "paper": Suite(
+        "paper", trials=5000, terrains=PAPER_TERRAINS, levels=tuple(range(10)), episode_s=20.0,
+        max_envs=250,
+        values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
+                "dead_joints": (0, 1, 2, 3, 4, 5, 6), "history": (3, 5, 7, 10, 15, 20),
+                "mask_matrix": (0.0, 0.25, 0.5)}),
+    # `make demo`: a few minutes on two CPU cores with the cpu MSTA preset.
+    "quick": Suite(
+        "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_s=4.0, max_envs=50,
+        values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
+                "dead_joints": (0, 3, 6), "history": (3, 7, 15, 20),
+                "mask_matrix": (0.0, 0.25, 0.5)}),
+}
+
+
+def get_suite(name: str) -> Suite:
+    """Registered suite ``name``; the error lists the known names."""
+    try:
+        return SUITES[name]
+    except KeyError:
+        raise KeyError(f"unknown suite {name!r}; known suites: {sorted(SUITES)}") from None
+
+
+def build_conditions(scenarios: Sequence[str], suite: Suite, sensors: Sequence[str],
+                     seed: int) -> list[Condition]:
+    """Every condition of ``scenarios`` for a student reading ``sensors``.
+
+    Args:
+        scenarios: registry names, in output order.
+        suite: supplies the sweep values.
+        sensors: the student's input sensors.
+        seed: the evaluation seed.
+    """
+    out: dict[str, Condition] = {}
+    for name in scenarios:
+        scenario = get_scenario(name)
+        values = suite.values.get(name, SUITES["paper"].values[name])
+        for cond in scenario.build(ScenarioContext(tuple(sensors), tuple(values), seed)):
+            out.setdefault(cond.key, cond)  # mask_matrix reuses the token_removal conditions
+    return list(out.values())
