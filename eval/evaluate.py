@@ -126,12 +126,16 @@ class EvalConfig:
 
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
-        d = {k: v for k, v in asdict(self).items() if k not in ("out", "progress")}
+        d = {k: v for k, v in asdict(self).items() if k not in _NOT_RESULTS}
         d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
                  scenarios=self.scenario_list, episode_s=self.episode, max_envs=self.envs,
                  policies=self.policy_list, matrix={k: list(v) for k, v in
                                                     self.matrix_map.items()})
         return d
+
+
+#: config fields that do not change any number (left out of metrics.json)
+_NOT_RESULTS = ("out", "progress", "video", "video_s", "nthread")
 
 
 def _split(text: str) -> list[str]:
@@ -267,6 +271,9 @@ class Evaluator:
         self._cache: dict[tuple, dict[str, Any]] = {}
 
     def _run(self, label: str, make_actor) -> dict[str, Any]:
+        # MSTA draws token order from the global torch RNG when no generator is passed
+        # (StudentActor passes one only for mask_ratio > 0): seed it per run.
+        torch.manual_seed(self.cfg.seed)
         t0 = time.perf_counter()
         res = run_trials(self.env, make_actor, self.layout, desc=label,
                          progress=self.cfg.progress)
@@ -401,7 +408,11 @@ def main(argv: list[str] | None = None) -> None:
     try:
         cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
         metrics = evaluate(cfg)
-    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError) as e:
+    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError,
+            draccus.utils.ParsingError, draccus.utils.DecodingError) as e:
+        while isinstance(e, (draccus.utils.ParsingError, draccus.utils.DecodingError)) \
+                and e.__cause__ is not None:  # draccus wraps our validation errors
+            e = e.__cause__
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-eval: error: {msg}", file=sys.stderr)
         raise SystemExit(2) from None

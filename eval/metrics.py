@@ -19,8 +19,9 @@ Metrics per trial (rewards are the simulator's, already scaled by dt):
 - ``length``: steps lived / time limit.
 
 Per terrain type the metrics are means over that terrain's trials (errors weighted by
-steps); ``normalized`` divides the three returns by the teacher's on the same trials; the
-``average`` row is the mean over terrain types.
+steps); the ``average`` row is the mean over terrain types; ``normalized`` divides the
+three returns by the teacher's on the same trials (for ``average``: the student's
+terrain-averaged return over the teacher's).
 """
 
 from __future__ import annotations
@@ -89,12 +90,16 @@ class EvalEnv(QuadrupedEnv):
 
     def _reset_ids(self, ids: np.ndarray) -> None:
         shared = self.rng
+        # the parent re-steers the yaw-rate command of *every* env on a reset: keep the others'
+        yaw_rate = self.commands.command[:, 2].copy()
         try:
             for i in ids:
                 self.rng = self.trial_rngs[i]
                 super()._reset_ids(np.array([i]))
         finally:
             self.rng = shared
+        others = np.setdiff1d(np.arange(self.num_envs), ids)
+        self.commands.command[others, 2] = yaw_rate[others]
         self._hist_fresh = np.asarray(ids)
 
     def _resample_commands(self) -> None:
@@ -310,7 +315,8 @@ def normalize(student: dict[str, Any], teacher: dict[str, Any]) -> dict[str, Any
         student, teacher: :func:`aggregate` outputs over the same layout.
     Returns:
         ``{"per_terrain": {terrain: {metric: ratio}}, "per_level": ...}``; the average row
-        is the mean of the per-terrain ratios; a ratio over a zero teacher value is None.
+        divides the student's terrain-averaged return by the teacher's (defined even when
+        the teacher scores 0 on one terrain); a ratio over a zero teacher value is None.
     """
     out: dict[str, Any] = {"per_terrain": {}, "per_level": {}}
     terrains = [t for t in student["per_terrain"] if t != "average"]
@@ -320,9 +326,6 @@ def normalize(student: dict[str, Any], teacher: dict[str, Any]) -> dict[str, Any
         out["per_level"][t] = {
             lv: {k: _ratio(v[k], teacher["per_level"][t][lv][k]) for k in RETURNS}
             for lv, v in student["per_level"][t].items()}
-    avg = {}
-    for k in RETURNS:
-        vals = [out["per_terrain"][t][k] for t in terrains]
-        avg[k] = float(np.mean(vals)) if all(v is not None for v in vals) else None
-    out["per_terrain"]["average"] = avg
+    s, r = student["per_terrain"]["average"], teacher["per_terrain"]["average"]
+    out["per_terrain"]["average"] = {k: _ratio(s[k], r[k]) for k in RETURNS}
     return out

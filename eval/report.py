@@ -234,6 +234,7 @@ def _sweep_plot(metrics: dict, scenario: str, path: Path, bars: bool) -> Path:
                     ax.annotate("n/a", (xi, 0.02), ha="center", fontsize=7, color="gray",
                                 xycoords=("data", "axes fraction"), rotation=90)
         ax.axhline(1.0, color="gray", lw=0.8, ls="--")
+        ax.set_ylim(bottom=0.0)
         ax.set_xticks(x, [str(v) for _, v in conds], rotation=30 if bars else 0)
         ax.set_xlabel(SCENARIOS[scenario].axis)
         ax.set_ylabel("normalized to teacher")

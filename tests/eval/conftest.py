@@ -1,0 +1,44 @@
+"""Tiny checkpoints for the eval tests: a gait-teacher dataset and random-weight MSTA students."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+import policies.teacher.gait  # noqa: F401  (registers "gait")
+
+from collect.record import CollectConfig, collect
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from msta_data.stats import load_stats
+from policies.factory import make_policy
+from policies.msta import MSTAConfig
+from policies.teacher.config import TeacherConfig
+
+
+@pytest.fixture(scope="session")
+def tiny_ckpt(tmp_path_factory) -> Path:
+    """A tiny MSTA checkpoint (random weights; its actions vary with its inputs because the
+    action statistics come from a walking teacher)."""
+    base = tmp_path_factory.mktemp("eval_ckpt")
+    root = base / "dataset"
+    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=2, num_envs=2,
+                          root=str(root), episode_length_s=0.5, progress=False,
+                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
+    policy = make_policy(MSTAConfig.from_preset("tiny"), load_stats(root))
+    # Large random weights: the initial model's output hardly depends on its input tokens.
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.add_(0.5 * torch.randn(p.shape, generator=gen))
+    return policy.save_pretrained(base / "msta_tiny")
+
+
+@pytest.fixture(scope="session")
+def two_ckpts(tiny_ckpt, tmp_path_factory) -> tuple[Path, Path]:
+    """Two checkpoint directories (same weights) standing for two train mask settings."""
+    base = tmp_path_factory.mktemp("eval_matrix")
+    return tuple(shutil.copytree(tiny_ckpt, base / name) for name in ("a75_50", "a50_50"))

@@ -1,0 +1,111 @@
+"""msta-eval end to end: normalization, token removal, determinism, outputs, errors."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+from eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
+from eval.scenarios import Condition
+from policies.actor import InputSpec
+
+FAST = dict(suite="quick", terrains="flat,smooth_slope", levels="0", progress=False)
+
+
+def test_teacher_is_exactly_one_and_the_default_pose_far_below(tmp_path):
+    cfg = EvalConfig(policies="teacher,teacher:zero", scenarios="token_removal", trials=4,
+                     episode_s=3.0, out=str(tmp_path), **FAST)
+    metrics = evaluate(cfg)
+    runs = {(r["policy"], r["condition"]): r for r in metrics["runs"]}
+    teacher = runs[("teacher", "mask 0%")]
+    for terrain in ("flat", "smooth_slope", "average"):
+        assert teacher["normalized"]["per_terrain"][terrain] == \
+            {"lin_tracking": 1.0, "ang_tracking": 1.0, "total": 1.0}
+    zero = runs[("zero", "mask 0%")]["normalized"]["per_terrain"]["average"]
+    assert zero["lin_tracking"] < 0.5 and zero["total"] < 0.85, zero
+    # no input change applies to a teacher: marked n/a with the reason, not skipped
+    masked = runs[("teacher", "mask 25%")]
+    assert masked["status"] == "n/a" and "teacher" in masked["reason"]
+    assert metrics["reference"]["per_terrain"]["flat"]["survival"] > 0
+
+
+def _token_counts(ev: Evaluator, entry, spec: InputSpec) -> int:
+    seen: list[int] = []
+    hook = entry.obj.model.blocks[0].register_forward_pre_hook(
+        lambda mod, args: seen.append(args[0].shape[1]))
+    try:
+        rec = ev.condition(entry, Condition("test", repr(spec), 0, spec))
+    finally:
+        hook.remove()
+    assert rec["status"] == "ok"
+    return max(seen)
+
+
+def test_removed_sensors_and_joints_remove_tokens(tiny_ckpt, tmp_path):
+    cfg = EvalConfig(policies=str(tiny_ckpt), trials=2, episode_s=0.5, out=str(tmp_path),
+                     **FAST)
+    [entry] = load_entries(cfg)
+    ev = Evaluator(cfg)
+    ev.run_reference()
+    T = 15
+    assert _token_counts(ev, entry, InputSpec()) == 49 * T + 1          # + the state token
+    assert _token_counts(ev, entry, InputSpec(drop_sensors=("joint_vel",))) == 37 * T + 1
+    assert _token_counts(ev, entry, InputSpec(drop_sensors=("command",))) == 46 * T + 1
+    assert _token_counts(ev, entry, InputSpec(dead_joints=(0, 4, 7))) == 43 * T + 1
+    assert _token_counts(ev, entry, InputSpec(T=3)) == 49 * 3 + 1
+    assert _token_counts(ev, entry, InputSpec(mask_ratio=0.5)) == 49 * T - round(49 * T / 2) + 1
+
+
+ALL = "token_removal,sensor_removal,dead_joints,history,mask_matrix"
+
+
+def _cli(out, ckpts, seed=0, scenarios=ALL, extra=()):
+    a, b = ckpts
+    main(["--policies", f"teacher,{a},{b}", "--suite", "quick", "--out", str(out),
+          "--terrains", "flat,stairs_up", "--levels", "0,1", "--trials", "2", "--episode_s",
+          "0.5", "--seed", str(seed), "--progress", "false", "--scenarios", scenarios,
+          "--matrix", f"{a}=0.75:0.5,{b}=0.5:0.5", *extra])
+    return (out / "metrics.json").read_bytes()
+
+
+def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
+    first = _cli(tmp_path / "a", two_ckpts, extra=("--video", "a75_50:stairs_up",
+                                                   "--video_s", "0.3"))
+    assert _cli(tmp_path / "b", two_ckpts) == first          # bit for bit
+    again = json.loads(_cli(tmp_path / "c", two_ckpts, seed=1, scenarios="token_removal"))
+    assert again["runs"][0]["raw"] != json.loads(first)["runs"][0]["raw"]  # the seed matters
+    printed = capsys.readouterr().out
+    assert "| policy | flat 0% | flat 25% | flat 50% |" in printed
+    metrics = json.loads(first)
+    assert [p["train_masks"] for p in metrics["policies"]] == [None, [0.75, 0.5], [0.5, 0.5]]
+    assert all(len(p["revision"]) >= 12 for p in metrics["policies"])
+    students = [r for r in metrics["runs"] if r["policy"] != "teacher"]
+    assert students and all(r["status"] == "ok" for r in students)
+    # masks change what the random-weight student does (the token removal is real)
+    by = {(r["policy"], r["condition"]): r for r in students}
+    assert by[("a75_50", "mask 0%")]["raw"] != by[("a75_50", "mask 50%")]["raw"]
+    report = (tmp_path / "a" / "report.md").read_text()
+    assert "## Table I" in report and "| teacher | sensor_removal/-joint_pos | a teacher" in report
+    for name in ("sensor_removal", "dead_joints", "history", "mask_matrix"):
+        img = matplotlib.image.imread(tmp_path / "a" / f"{name}.png")
+        assert img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img) > 0.5, name
+    video = next((tmp_path / "a").glob("video_a75_50_stairs_up_L0.mp4"))
+    assert video.stat().st_size > 1000
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--scenarios", "token_removal,bogus"], "unknown scenario 'bogus'"),
+    (["--policies", "teacher,/no/such/ckpt"], "checkpoint '/no/such/ckpt' not found"),
+    (["--terrains", "flat,lava"], "unknown terrain 'lava'"),
+    (["--levels", "12"], "level 12 out of range"),
+    (["--suite", "huge"], "unknown suite 'huge'"),
+    (["--policies", "teacher:nope"], "unknown teacher type 'nope'"),
+])
+def test_clear_errors(args, message, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--out", str(tmp_path), "--progress", "false", *args])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err

@@ -1,0 +1,96 @@
+"""EvalEnv (per-trial random streams), trial layout and metric aggregation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from collect.sim.commands import CommandConfig
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from eval.metrics import EvalEnv, TrialLayout, aggregate, normalize, run_trials
+from policies.teacher.config import ZeroTeacher
+
+TYPES = ("flat", "smooth_slope")
+
+
+def make_env(n: int, seconds: float = 2.0) -> EvalEnv:
+    return EvalEnv(EnvConfig(num_envs=n, seed=5, episode_length_s=seconds,
+                             terrain=TerrainConfig(types=TYPES, curriculum=False),
+                             commands=CommandConfig(resample_s=0.2)))
+
+
+def roll(env: EvalEnv, wild_env0: bool, steps: int = 60):
+    """Observations of env 1 and commands of every env per step; env 0 may flail."""
+    env.start(np.arange(3), np.array([0, 1, 0]), np.array([0, 2, 3]))
+    obs1, cmds, done0 = [], [], False
+    for t in range(steps):
+        a = np.zeros((3, 12))
+        if wild_env0:
+            a[0] = 8.0 * np.sign(np.sin(0.7 * t + np.arange(12)))
+        res = env.step(a)
+        done0 |= bool(res.done[0])
+        obs1.append(np.concatenate([res.obs[k][1] for k in sorted(res.obs)]))
+        cmds.append((env.commands.command[1:, :2].copy(), env.commands.heading[1:].copy()))
+    return np.array(obs1), cmds, done0
+
+
+def test_trials_do_not_see_other_environments():
+    """Env 0 falling and resetting must not change what env 1 and 2 observe or are told."""
+    env = make_env(3)
+    calm_obs, calm_cmds, calm_done = roll(env, wild_env0=False)
+    wild_obs, wild_cmds, wild_done = roll(env, wild_env0=True)
+    assert wild_done and not calm_done, "precondition: the flailing robot must fall"
+    np.testing.assert_array_equal(calm_obs, wild_obs)  # noise, commands, pushes, physics
+    for (c1, h1), (c2, h2) in zip(calm_cmds, wild_cmds):
+        np.testing.assert_array_equal(c1, c2)
+        np.testing.assert_array_equal(h1, h2)
+    assert len({tuple(c.ravel()) for c, _ in calm_cmds}) > 3  # commands were resampled
+
+
+def test_results_do_not_depend_on_batch_layout():
+    layout = TrialLayout(TYPES, (0, 4), trials=4)
+    zero = ZeroTeacher()
+    a = run_trials(make_env(4, 1.0), lambda r, n: zero, layout, progress=False)
+    b = run_trials(make_env(2, 1.0), lambda r, n: zero, layout, progress=False)
+    for field in ("lin", "ang", "total", "steps", "fell", "vel_err", "yaw_err"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+    assert a.steps.min() > 0 and a.lin.max() > 0
+
+
+def test_layout_rounds_and_tiles():
+    lay = TrialLayout(("a", "b", "c"), (1, 5), trials=7)
+    np.testing.assert_array_equal(lay.terrain_of(np.arange(7)), [0, 1, 2, 0, 1, 2, 0])
+    np.testing.assert_array_equal(lay.level_of(np.arange(7)), [1, 1, 1, 5, 5, 5, 1])
+    rounds = lay.rounds(3)
+    assert [len(r) for r in rounds] == [3, 3, 3] and rounds[-1][-1] == 8
+    with pytest.raises(ValueError, match="trials=0"):
+        TrialLayout(("a",), (0,), 0)
+
+
+def test_curriculum_is_refused():
+    with pytest.raises(ValueError, match="curriculum"):
+        EvalEnv(EnvConfig(num_envs=1, terrain=TerrainConfig(curriculum=True)))
+
+
+def test_aggregate_and_normalize_by_hand():
+    from eval.metrics import TrialResults
+
+    lay = TrialLayout(("a", "b"), (0,), trials=4)   # trials 0, 2 on a; 1, 3 on b
+    r = TrialResults.zeros(4, max_steps=10)
+    r.lin[:] = [1.0, 2.0, 3.0, 4.0]
+    r.total[:] = [2.0, 0.0, 2.0, 0.0]
+    r.steps[:] = [10, 5, 10, 10]
+    r.fell[:] = [False, True, False, False]
+    r.vel_err[:] = [1.0, 1.0, 2.0, 2.0]
+    agg = aggregate(r, lay)
+    assert agg["per_terrain"]["a"]["lin_tracking"] == pytest.approx(0.2)
+    assert agg["per_terrain"]["b"]["survival"] == 0.5
+    assert agg["per_terrain"]["b"]["vel_err"] == pytest.approx(3.0 / 15)
+    assert agg["per_terrain"]["average"]["lin_tracking"] == pytest.approx(0.25)
+    half = TrialResults(r.lin / 2, r.ang, r.total / 2, r.steps, r.fell, r.vel_err, r.yaw_err, 10)
+    norm = normalize(aggregate(half, lay), agg)
+    assert norm["per_terrain"]["a"]["lin_tracking"] == pytest.approx(0.5)
+    assert norm["per_terrain"]["b"]["total"] is None        # teacher scored 0 there
+    assert norm["per_terrain"]["average"]["total"] == pytest.approx(0.5)
+    assert norm["per_level"]["a"]["0"]["lin_tracking"] == pytest.approx(0.5)
