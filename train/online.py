@@ -1,0 +1,494 @@
+"""``msta-correct``: stage 2, online correction (TERT / DAgger style).
+
+    msta-correct --policy=outputs/train/msta_cpu/final --dataset=outputs/datasets/a1_teacher \\
+        --output_dir=outputs/correct/msta_cpu --rounds=3 --episodes_per_round=64 \\
+        --teacher.type=gait --mask_ratio=0.5 --beta=0.0 --steps=500
+    msta-correct ... --resume=true        # after a kill: continue at the unfinished round
+
+Each round r = 1..R:
+
+1. **roll out** the current student in the batched simulator (one batched forward pass for
+   all environments per step; test-time input changes from ``--rollout.*``). With DAgger
+   ``beta`` > 0 each environment executes the teacher's action instead with probability
+   ``beta * beta_decay**(r-1)`` per step;
+2. **label**: the teacher acts on the same observation (privileged inputs included) every
+   step; its action is the ``action`` column, the executed one ``executed_action``;
+3. **append** the round's episodes in one writer session (provenance source=student,
+   round=r, policy=<type>, policy_revision=hash of the weights that drove);
+4. **retrain** from the current weights on all episodes (``--recent_weight`` < 1 favours
+   recent rounds), with :func:`train.offline.fit` (mask ratio 0.5 by default);
+5. **save** ``output_dir/round_<r>/`` and **evaluate** it on fixed seeds and terrains against
+   the teacher on the same seeds (normalized total reward); a table is printed per round.
+
+Resume and crash windows (``progress.json``, written atomically after every phase):
+the round's episodes are kept in memory until all are collected, then appended by a single
+writer flush whose commit point is the atomic rename of ``meta/info.json``. Before the
+append, ``progress.json`` records the dataset's episode count. On resume a round that is
+not marked appended is checked against the dataset: the same count means the kill came
+before the commit (the rollout is redone, same seeds); the count plus this round's
+episodes, with matching provenance at the tail, means the kill came between the commit
+and the progress update (the round is marked appended); anything else is an error.
+Killed during retraining, the round resumes from its last training checkpoint
+(``output_dir/train/round_<r>/``); killed during evaluation, only the evaluation reruns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import draccus
+import numpy as np
+import torch
+
+import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from policies.actor import InputSpec, StudentActor
+from policies.base import StudentPolicy
+from policies.teacher.config import TeacherConfig
+from train.common import LoopConfig, atomic_json, parse_cli, seed_everything, select_device
+
+PROGRESS = "progress.json"
+PROGRESS_FORMAT = "msta-correct/1"
+#: Fields that must match progress.json when resuming (they define the data).
+RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
+                 "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed")
+
+
+@dataclass
+class EvalConfig:
+    """Args:
+        env: the fixed evaluation environments (seed, terrains, levels, number of robots).
+        steps: control steps per evaluation (every environment steps this many times).
+        mask_ratios: test-time token-removal ratios evaluated for the student.
+        seed: seeds the student's test-time masks.
+        enabled: evaluate at all (off: no per-round table).
+    """
+
+    env: EnvConfig = field(default_factory=lambda: EnvConfig(
+        num_envs=20, seed=10_000, terrain=TerrainConfig(curriculum=False, max_init_level=4)))
+    steps: int = 500
+    mask_ratios: tuple[float, ...] = (0.0, 0.5)
+    seed: int = 0
+    enabled: bool = True
+
+
+@dataclass
+class CorrectConfig(LoopConfig):
+    """Args:
+        policy: the starting student checkpoint (stage-1 ``final/``) or a hub id.
+        dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
+        output_dir: round checkpoints, training runs and progress.json.
+        rounds: correction rounds (raise it on ``--resume`` to run more).
+        episodes_per_round: student episodes appended per round.
+        num_envs: environments rolled out together.
+        episode_length_s: time limit of the student episodes (s).
+        env: simulator options of the rollouts (its seed is shifted by the round).
+        teacher: the labelling teacher (``--teacher.type=gait``).
+        beta: DAgger mixing: probability that an env executes the teacher's action in a step.
+        beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
+        rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
+        recent_weight: sampling weight of an episode from round k in round r is
+            ``recent_weight**(r-k)`` (teacher data is round 0); 1 = uniform over all frames.
+        val_fraction: share of episodes held out for the validation loss (by episode).
+        eval: the per-round evaluation.
+        resume: continue the run in output_dir.
+        device: auto (CUDA when available), cpu, cuda, ...
+        num_threads: torch threads (0 = default).
+    """
+
+    steps: int = 500
+    mask_ratio: float | None = 0.5
+    policy: str = ""
+    dataset: str = ""
+    output_dir: str = "outputs/correct/msta"
+    rounds: int = 1
+    episodes_per_round: int = 64
+    num_envs: int = 32
+    episode_length_s: float = 10.0
+    env: EnvConfig = field(default_factory=EnvConfig)
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    beta: float = 0.0
+    beta_decay: float = 1.0
+    rollout: InputSpec = field(default_factory=InputSpec)
+    recent_weight: float = 1.0
+    val_fraction: float = 0.05
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    resume: bool = False
+    device: str = "auto"
+    num_threads: int = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("rounds", "episodes_per_round", "num_envs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
+            raise ValueError(f"beta={self.beta} and beta_decay={self.beta_decay} must be in [0, 1]")
+        if not 0.0 < self.recent_weight <= 1.0:
+            raise ValueError(f"recent_weight={self.recent_weight} must be in (0, 1]")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
+
+
+# ----- actors --------------------------------------------------------------------------
+class MixedActor:
+    """The student drives; per env and step the teacher's action is executed instead with
+    probability ``beta``. The teacher is called exactly once per step (stateful teachers
+    such as the gait clock advance once); :class:`TeacherLabel` hands out that action.
+
+    Args:
+        student: a :class:`~policies.actor.StudentActor`.
+        teacher: a teacher (act/reset).
+        beta: teacher-execution probability.
+        seed: seeds the per-step coin flips.
+    """
+
+    def __init__(self, student: StudentActor, teacher: Any, beta: float, seed: int) -> None:
+        self.student, self.teacher, self.beta = student, teacher, beta
+        self.rng = np.random.default_rng(seed)
+        self.last_obs: dict[str, np.ndarray] | None = None
+        self.last_teacher: np.ndarray | None = None
+        self.teacher_share = [0, 0]  # teacher-executed env steps, all env steps
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        a_student = self.student.act(obs)  # (N, 12), also advances the student's history
+        a_teacher = np.asarray(self.teacher.act(obs), dtype=np.float32)  # (N, 12)
+        self.last_obs, self.last_teacher = obs, a_teacher
+        use = self.rng.random(len(a_student)) < self.beta  # (N,)
+        self.teacher_share[0] += int(use.sum())
+        self.teacher_share[1] += len(use)
+        return np.where(use[:, None], a_teacher, a_student)
+
+    def reset(self, ids: np.ndarray) -> None:
+        self.student.reset(ids)
+        self.teacher.reset(ids)
+
+
+class TeacherLabel:
+    """The label policy of :func:`collect.record.record_rollouts`: the teacher action the
+    :class:`MixedActor` computed for the same observation."""
+
+    def __init__(self, mixed: MixedActor) -> None:
+        self.mixed = mixed
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if obs is not self.mixed.last_obs or self.mixed.last_teacher is None:
+            raise RuntimeError("labels must be requested right after the actor's step")
+        return self.mixed.last_teacher
+
+
+def policy_revision(policy: StudentPolicy) -> str:
+    """``<type>-<12 hex>``: a hash of the weights (names, dtypes, shapes, bytes)."""
+    h = hashlib.sha256()
+    for name, t in sorted(policy.state_dict().items()):
+        t = t.detach().cpu().contiguous()
+        h.update(f"{name}:{t.dtype}:{tuple(t.shape)}".encode())
+        h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return f"{policy.config.type}-{h.hexdigest()[:12]}"
+
+
+def student_actor(policy: StudentPolicy, n: int, spec: InputSpec) -> StudentActor:
+    return StudentActor(policy, n, spec, name=policy.config.type)
+
+
+# ----- phases ----------------------------------------------------------------------------
+Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
+
+
+def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
+             revision: str) -> tuple[list[Episode], dict[str, float]]:
+    """Phase 1-2: the round's student episodes with teacher labels, in memory."""
+    from collect.record import record_rollouts
+    from collect.sim.env import QuadrupedEnv
+    from policies.teacher.config import build_teacher
+
+    teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
+
+    seed = cfg.env.seed + 1000 * r
+    env = QuadrupedEnv(replace(cfg.env, num_envs=cfg.num_envs, seed=seed,
+                               episode_length_s=cfg.episode_length_s))
+    beta = cfg.beta * cfg.beta_decay ** (r - 1)
+    spec = replace(cfg.rollout, seed=cfg.rollout.seed + r)
+    mixed = MixedActor(student_actor(policy, cfg.num_envs, spec), teacher, beta, cfg.seed + r)
+    types = env.cfg.terrain.types
+    episodes: list[Episode] = []
+
+    def keep(frames: dict[str, np.ndarray], type_idx: int, level: int) -> None:
+        episodes.append((frames, {
+            "terrain": types[type_idx], "terrain_level": level, "source": "student",
+            "round": r, "policy": policy.config.type, "policy_revision": revision,
+            "seed": seed}))
+
+    policy.eval()
+    t0 = time.perf_counter()
+    steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, label=TeacherLabel(mixed),
+                            progress=cfg.progress)
+    dt = time.perf_counter() - t0
+    share = mixed.teacher_share[0] / max(mixed.teacher_share[1], 1)
+    return episodes, {"env_steps": steps, "env_steps_per_s": steps / dt, "beta": beta,
+                      "teacher_executed_share": share,
+                      "frames": sum(len(f["action"]) for f, _ in episodes)}
+
+
+def append_episodes(root: Path, episodes: list[Episode]) -> int:
+    """Phase 3: one writer session, one flush (one commit); returns the new episode count."""
+    from msta_data.writer import DatasetWriter
+
+    frames = sum(len(f["action"]) for f, _ in episodes)
+    with DatasetWriter.open(root, flush_every_frames=frames + 1) as w:
+        for f, prov in episodes:
+            w.add_episode(f, prov)
+        w.flush()
+        return w.num_episodes
+
+
+def check_tail(root: Path, before: int, expected: int, r: int, revision: str) -> bool:
+    """Did a killed run already commit this round's episodes? (see the module docstring)"""
+    from msta_data.windows import load_episode_table
+
+    table = load_episode_table(root)
+    if len(table) == before:
+        return False
+    tail = table.iloc[before:]
+    ok = (len(table) == before + expected and (tail["provenance/source"] == "student").all()
+          and (tail["provenance/round"] == r).all()
+          and (tail["provenance/policy_revision"] == revision).all())
+    if not ok:
+        raise RuntimeError(
+            f"{root}: {len(table)} episodes, but progress.json recorded {before} before round "
+            f"{r} and the round appends {expected} by {revision}; the dataset was modified by "
+            "someone else. Restore it or start a new --output_dir.")
+    return True
+
+
+def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path
+            ) -> dict[str, float]:
+    """Phase 4: :func:`train.offline.fit` on the aggregate, from the current weights."""
+    from msta_data.windows import episode_split, load_episode_table
+    from train.offline import fit, load_windows
+
+    train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed + r)
+    train_ds = load_windows(root, policy, train_eps)
+    val_ds = load_windows(root, policy, val_eps) if val_eps else None
+    weights = None
+    if cfg.recent_weight < 1.0:
+        rounds = load_episode_table(root).set_index("episode_index")["provenance/round"]
+        per_ep = cfg.recent_weight ** (r - rounds.loc[train_ds.episodes].to_numpy())
+        weights = np.repeat(per_ep, train_ds.lengths)
+    loop = replace(cfg.loop_part(), seed=cfg.seed + r)
+    res = fit(policy, train_ds, val_ds, loop, out / "train" / f"round_{r}", resume=True,
+              weights=weights, desc=f"round {r} train")
+    return {"windows": len(train_ds), "train_samples_per_s": res.samples_per_s,
+            "train_loss": res.train.get("loss", float("nan")),
+            **{f"val_{k}": v for k, v in res.val.items()}}
+
+
+def evaluate(cfg: EvalConfig, actor: Any) -> dict[str, Any]:
+    """Phase 5: ``collect.rollout.run`` on the fixed evaluation environments."""
+    from collect.rollout import run
+    from collect.sim.env import QuadrupedEnv
+
+    env = QuadrupedEnv(replace(cfg.env))
+    env.reset()
+    summary = run(env, actor, cfg.steps, progress=False)
+    per = {name: st.row() for name, st in summary.per_type.items()}
+    steps = sum(st.steps for st in summary.per_type.values())
+    total = sum(st.total for st in summary.per_type.values())
+    return {"reward_per_step": total / max(steps, 1), "terrains": per}
+
+
+def eval_student(cfg: CorrectConfig, policy: StudentPolicy) -> dict[str, Any]:
+    policy.eval()
+    out = {}
+    for m in cfg.eval.mask_ratios:
+        spec = replace(cfg.rollout, mask_ratio=m, seed=cfg.eval.seed)
+        out[f"{m:g}"] = evaluate(cfg.eval, student_actor(policy, cfg.eval.env.num_envs, spec))
+    return out
+
+
+# ----- progress and the round loop -------------------------------------------------------
+def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
+    path = out / PROGRESS
+    encoded = draccus.encode(cfg)
+    if not path.exists():
+        if cfg.resume:
+            raise FileNotFoundError(f"--resume=true but {path} does not exist (nothing to "
+                                    "resume; drop --resume to start)")
+        out.mkdir(parents=True, exist_ok=True)
+        prog = {"format": PROGRESS_FORMAT, "config": encoded, "dataset": str(root),
+                "rounds": {}}
+        atomic_json(path, prog)
+        return prog
+    if not cfg.resume:
+        raise FileExistsError(f"{path} exists; pass --resume=true to continue that run or "
+                              "choose another --output_dir")
+    prog = json.loads(path.read_text())
+    bad = [k for k in RESUME_FIELDS if prog["config"].get(k) != encoded.get(k)]
+    if bad:
+        raise ValueError(f"--resume=true with different {bad} than {path}")
+    return prog
+
+
+def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
+    """(checkpoint directory, local dataset root to append to)."""
+    from policies.base import PolicyConfig
+    from train.offline import resolve_dataset
+
+    if not cfg.policy:
+        raise ValueError("--policy is required (a stage-1 checkpoint directory or hub id)")
+    ckpt = Path(cfg.policy).expanduser()
+    if not ckpt.is_dir():
+        from msta_data.hub import materialize
+
+        try:
+            ckpt = materialize(cfg.policy, repo_type="model")
+        except Exception as e:  # any hub failure: say what was tried
+            raise FileNotFoundError(f"--policy {cfg.policy!r} is not a checkpoint directory "
+                                    f"and fetching it as a hub id failed: {e}") from e
+    PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
+    local = out / "dataset"
+    if local.is_dir():  # a hub dataset copied by an earlier run
+        return ckpt, local
+    root = resolve_dataset(cfg.dataset)
+    if not Path(cfg.dataset).expanduser().is_dir():  # pulled from the hub: append to a copy
+        shutil.copytree(root, local)
+        root = local
+    return ckpt, root
+
+
+PhaseHook = Callable[[str, int], None]
+
+
+def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, Any]:
+    """Run (or resume) stage 2; returns the content of progress.json.
+
+    Args:
+        cfg: the parsed configuration.
+        on_phase: called as ``on_phase(phase, round)`` at ``rolled_out`` (before the
+            append), ``committed`` (episodes in the dataset, progress.json not yet updated),
+            ``trained`` and ``evaluated``; tests raise there to simulate a kill.
+    """
+    from msta_data.features import load_info
+    from policies.factory import load_policy
+    from policies.teacher.config import build_teacher, teacher_revision
+
+    hook = on_phase or (lambda phase, r: None)
+    out = Path(cfg.output_dir)
+    if not cfg.resume and out.exists() and any(out.iterdir()):
+        raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
+                              "choose another --output_dir")
+    ckpt, root = resolve_inputs(cfg, out)
+    prog = load_progress(out, cfg, root)
+    path = out / PROGRESS
+    if cfg.num_threads:
+        torch.set_num_threads(cfg.num_threads)
+    device = select_device(cfg.device)
+    seed_everything(cfg.seed)
+    prog.setdefault("teacher_revision", teacher_revision(cfg.teacher))
+    trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
+    start = out / f"round_{max(trained)}" if trained else ckpt
+    policy = load_policy(start, device=str(device))
+    if cfg.eval.enabled and "teacher_eval" not in prog:
+        prog["teacher_eval"] = evaluate(cfg.eval, build_teacher(cfg.teacher))
+        prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
+                               "episodes_after": int(load_info(root)["total_episodes"]),
+                               "policy_revision": policy_revision(policy),
+                               "eval": eval_student(cfg, policy)}
+        atomic_json(path, prog)
+        print_table(prog)
+    for r in range(1, cfg.rounds + 1):
+        rec = prog["rounds"].setdefault(str(r), {})
+        if rec.get("evaluated"):
+            continue
+        run_round(cfg, policy, root, out, r, rec, prog, hook)
+    return prog
+
+
+def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
+              r: int, rec: dict[str, Any], prog: dict[str, Any], hook: PhaseHook) -> None:
+    """One round's phases, each skipped when progress.json marks it done."""
+    path = out / PROGRESS
+    revision = policy_revision(policy)
+    if not rec.get("appended"):
+        from msta_data.features import load_info
+
+        if "episodes_before" in rec and check_tail(root, rec["episodes_before"],
+                                                   cfg.episodes_per_round, r, revision):
+            rec.update(appended=True, recovered_after_commit=True,
+                       episodes_after=rec["episodes_before"] + cfg.episodes_per_round)
+        else:
+            rec.update(episodes_before=int(load_info(root)["total_episodes"]),
+                       policy_revision=revision)
+            atomic_json(path, prog)
+            episodes, stats = roll_out(cfg, policy, r, revision)
+            hook("rolled_out", r)
+            total = append_episodes(root, episodes)
+            hook("committed", r)
+            rec.update(appended=True, episodes_after=total, rollout=stats)
+        atomic_json(path, prog)
+    if not rec.get("trained"):
+        rec["train"] = retrain(cfg, policy, root, r, out)
+        policy.save_pretrained(out / f"round_{r}")
+        rec.update(trained=True, checkpoint=str(out / f"round_{r}"),
+                   trained_revision=policy_revision(policy))
+        atomic_json(path, prog)
+        hook("trained", r)
+    if cfg.eval.enabled:
+        rec["eval"] = eval_student(cfg, policy)
+    rec["evaluated"] = True
+    atomic_json(path, prog)
+    hook("evaluated", r)
+    print_table(prog)
+
+
+def print_table(prog: dict[str, Any]) -> None:
+    """Per-round table: speeds and normalized total reward vs the teacher (same seeds)."""
+    ref = prog.get("teacher_eval")
+    lines = [("| round | episodes | env steps/s | train samples/s | val loss | mask "
+              "| reward/step | vs teacher | per terrain vs teacher |"), "|" + "---|" * 9]
+    for k in sorted(prog["rounds"], key=int):
+        rec = prog["rounds"][k]
+        ro, tr = rec.get("rollout", {}), rec.get("train", {})
+        head = (f"| {k} | {rec.get('episodes_after', '-')} | "
+                f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('val_loss'), '.4f')}")
+        for m, ev in rec.get("eval", {}).items():
+            norm = _ratio(ev["reward_per_step"], ref["reward_per_step"]) if ref else float("nan")
+            terr = " ".join(f"{t}:{_ratio(row['total'], ref['terrains'][t]['total']):.2f}"
+                            for t, row in ev["terrains"].items()
+                            if ref and t in ref["terrains"])
+            lines.append(f"{head} | {float(m):.0%} | {ev['reward_per_step']:.4f} | {norm:.2f} "
+                         f"| {terr} |")
+        if not rec.get("eval"):
+            lines.append(f"{head} | - | - | - | - |")
+    if ref:
+        print(f"teacher reward/step on the evaluation seeds: {ref['reward_per_step']:.4f}")
+    print("\n".join(lines), flush=True)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if b else float("nan")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    cfg = parse_cli(CorrectConfig, argv, prog="msta-correct")
+    prog = correct(cfg)
+    print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
+          f"{prog['rounds'][str(cfg.rounds)].get('checkpoint')}")
+
+
+if __name__ == "__main__":
+    main()
