@@ -95,10 +95,26 @@ def build_model(hfield: dict | None, timestep: float = 0.005) -> mujoco.MjModel:
         spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_HFIELD,
                                 hfieldname="terrain", pos=[float(v) for v in hfield["pos"]],
                                 contype=1, conaffinity=2, material="ground")
+        _add_surround(spec, hfield)
     _add_visuals(spec)
     model = spec.compile()
     _check_names(model)
     return model
+
+
+def _add_surround(spec: mujoco.MjSpec, hfield: dict, reach: float = 100.0) -> None:
+    """Ground at z = 0 around the heightfield (whose outer border is at z = 0), so a robot
+    that walks off the grid keeps walking on flat ground instead of falling into the void."""
+    cx, cy, _ = (float(v) for v in hfield["pos"])
+    rx, ry = float(hfield["size"][0]), float(hfield["size"][1])
+    half = reach / 2
+    for name, pos, size in (
+            ("ground_west", [cx - rx - half, cy], [half, ry + reach, 0.5]),
+            ("ground_east", [cx + rx + half, cy], [half, ry + reach, 0.5]),
+            ("ground_south", [cx, cy - ry - half], [rx, half, 0.5]),
+            ("ground_north", [cx, cy + ry + half], [rx, half, 0.5])):
+        spec.worldbody.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=pos + [-0.5],
+                                size=size, contype=1, conaffinity=2, material="ground")
 
 
 def _add_visuals(spec: mujoco.MjSpec) -> None:

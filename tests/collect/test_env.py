@@ -199,3 +199,16 @@ def test_curriculum_moves_levels():
     for _ in range(5):
         env.step(np.zeros((4, 12)))
     assert (env.level == 1).all()
+
+
+def test_ground_continues_beyond_the_terrain_grid():
+    """A robot spawned outside the heightfield stands on the surrounding z = 0 ground."""
+    env = QuadrupedEnv(flat_cfg(n=1))
+    env.reset()
+    lay = env.layout
+    x_far = env.terrain.x0 - 5.0
+    env.state[0, lay.base_pos] = [x_far, 1.0, robot.SPAWN_HEIGHT]
+    for _ in range(50):
+        res = env.step(np.zeros((1, 12)))
+        assert not res.done[0]
+    assert 0.2 < env.state[0, lay.base_pos.start + 2] < 0.4
