@@ -96,11 +96,13 @@ def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path):
 
 def test_loss_decreases_on_a_learnable_dataset(synthetic_dataset, tmp_path):
     out = tmp_path / "learn"
-    train(cfg_for(synthetic_dataset, out, "--steps=120", "--lr=3e-3", "--warmup_steps=10",
-                  "--eval_every=0", "--save_every=0", "--log_every=1", "--val_fraction=0"))
+    train(cfg_for(synthetic_dataset, out, "--steps=60", "--lr=3e-3", "--warmup_steps=10",
+                  "--eval_every=0", "--save_every=0", "--log_every=1", "--val_fraction=0",
+                  "--policy.input_sensors=[command,gravity]", "--mask_ratio=0.25",
+                  "--batch_size=32"))
     losses = [float(r["loss"]) for r in csv_rows(out / "metrics.csv")]
     first, last = np.mean(losses[:10]), np.mean(losses[-20:])
-    assert last < 0.5 * first, (first, last)
+    assert last < 0.25 * first, (first, last)
 
 
 def test_bad_inputs_give_clear_errors(synthetic_dataset, tmp_path, capsys):
