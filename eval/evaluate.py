@@ -31,13 +31,12 @@ import torch
 from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, NoiseConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from collect.sim.commands import CommandConfig
 from eval import report
-from eval.metrics import (EvalEnv, NotApplicable, TrialLayout, aggregate, normalize,
-                          run_trials)
+from eval.metrics import EvalEnv, NotApplicable, TrialLayout, aggregate, normalize, run_trials
 from eval.scenarios import Condition, build_conditions, get_scenario, get_suite
 from policies.actor import InputSpec, StudentActor
 from policies.teacher.base import TEACHERS
@@ -91,7 +90,7 @@ class EvalConfig:
     threads: int = 1
     nthread: int = 2
     video: str = ""
-    video_s: float = 5.0
+    video_s: float = 4.0
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -398,9 +397,10 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
     actor = load_entry(entry.source, cfg).obj if entry.kind == "teacher" \
         else StudentActor(entry.obj, 1)
     actor.reset(np.arange(1))
-    frames = record(env, actor.act, int(round(cfg.video_s / env.dt)), every=2)
+    every = 5  # 10 frames per second of simulated time (software GL renders slowly)
+    frames = record(env, actor.act, round(cfg.video_s / env.dt), every=every)
     path = out / f"video_{entry.name.replace('/', '_')}_{terrain}_L{level}.mp4"
-    return save_video(frames, path, fps=int(round(1 / (2 * env.dt))))
+    return save_video(frames, path, fps=round(1 / (every * env.dt)))
 
 
 def main(argv: list[str] | None = None) -> None:

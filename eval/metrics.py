@@ -103,7 +103,7 @@ class EvalEnv(QuadrupedEnv):
         self._hist_fresh = np.asarray(ids)
 
     def _resample_commands(self) -> None:
-        every = max(1, int(round(self.cfg.commands.resample_s / self.dt)))
+        every = max(1, round(self.cfg.commands.resample_s / self.dt))
         ids = np.flatnonzero((self.episode_step % every == 0) & (self.episode_step > 0))
         for i in ids:
             self.commands.resample(np.array([i]), self.trial_rngs[i])
@@ -112,7 +112,7 @@ class EvalEnv(QuadrupedEnv):
         rc = self.cfg.randomization
         if not (rc.enabled and rc.push_interval_s > 0 and rc.push_max_vel > 0):
             return
-        every = max(1, int(round(rc.push_interval_s / self.dt)))
+        every = max(1, round(rc.push_interval_s / self.dt))
         v = self.layout.base_linvel
         for i in np.flatnonzero((self.episode_step + self.push_step) % every == every - 1):
             self.state[i, v.start:v.start + 2] += self.trial_rngs[i].uniform(
@@ -197,7 +197,7 @@ class TrialResults:
                 "vel_err": float(self.vel_err.sum() / steps),
                 "yaw_err": float(self.yaw_err.sum() / steps),
                 "length": float(self.steps.mean() / m),
-                "trials": int(len(self.lin))}
+                "trials": len(self.lin)}
 
 
 #: round index, number of envs -> an actor with act(obs) / reset(ids)
@@ -229,7 +229,7 @@ def run_trials(env: EvalEnv, make_actor: ActorFactory, layout: TrialLayout, desc
         NotApplicable: the actor cannot be built or fails on its first step.
     """
     n, max_steps = env.num_envs, env.max_steps
-    rounds = [ids for ids in layout.rounds(n)]
+    rounds = layout.rounds(n)
     if len(rounds[0]) != n:
         raise ValueError(f"env has {n} envs, the layout needs rounds of {len(rounds[0])}")
     out = TrialResults.zeros(len(rounds) * n, max_steps)

@@ -145,12 +145,12 @@ def markdown(metrics: dict) -> str:
     from eval.scenarios import SCENARIOS
 
     cfg = metrics["config"]
-    parts = [f"# msta-eval report ({cfg['suite']} suite)", "",
-             f"{cfg['trials']} trials per policy and condition over {', '.join(cfg['terrains'])}"
-             f" at levels {', '.join(map(str, cfg['levels']))}; {cfg['episode_s']:g} s episodes; "
-             f"seed {cfg['seed']}; reference teacher `{cfg['teacher']['type']}` "
-             f"({metrics['reference']['revision']}). Returns are per-step means normalized by "
-             "the teacher's on identical trials; see docs/eval.md.", ""]
+    intro = (f"{cfg['trials']} trials per policy and condition over "
+             f"{', '.join(cfg['terrains'])} at levels {', '.join(map(str, cfg['levels']))}; "
+             f"{cfg['episode_s']:g} s episodes; seed {cfg['seed']}; reference teacher "
+             f"`{cfg['teacher']['type']}` ({metrics['reference']['revision']}). Returns are "
+             "per-step means normalized by the teacher's on identical trials; see docs/eval.md.")
+    parts = [f"# msta-eval report ({cfg['suite']} suite)", "", intro, ""]
     parts += ["## Policies", "", "| name | kind | source | revision |", "|---|---|---|---|"]
     parts += [f"| {p['name']} | {p['kind']} | `{p['source']}` | {p['revision']} |"
               for p in metrics["policies"]]

@@ -9,7 +9,6 @@ import pytest
 import torch
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-
 from collect.record import CollectConfig, collect
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig

@@ -12,7 +12,7 @@ from eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
 from eval.scenarios import Condition
 from policies.actor import InputSpec
 
-FAST = dict(suite="quick", terrains="flat,smooth_slope", levels="0", progress=False)
+FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progress": False}
 
 
 def test_teacher_is_exactly_one_and_the_default_pose_far_below(tmp_path):

@@ -2,17 +2,25 @@
 
 from __future__ import annotations
 
+import itertools
+
 import pytest
 
-from eval.scenarios import (SCENARIOS, SUITES, build_conditions, dead_joint_set, get_scenario,
-                            get_suite)
+from eval.scenarios import (
+    SCENARIOS,
+    SUITES,
+    build_conditions,
+    dead_joint_set,
+    get_scenario,
+    get_suite,
+)
 from msta_data.sensors import STUDENT_SENSORS
 
 
 def test_dead_joint_sets_are_seeded_and_nested():
     sets = [dead_joint_set(k, seed=0) for k in range(7)]
     assert [len(s) for s in sets] == list(range(7))
-    for small, big in zip(sets, sets[1:]):
+    for small, big in itertools.pairwise(sets):
         assert set(small) < set(big)
     assert sets == [dead_joint_set(k, seed=0) for k in range(7)]
     assert dead_joint_set(6, seed=1) != sets[6]
