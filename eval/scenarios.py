@@ -194,7 +194,7 @@ SUITES: dict[str, Suite] = {
                 "mask_matrix": (0.0, 0.25, 0.5)}),
     # `make demo`: a few minutes on two CPU cores with the cpu MSTA preset.
     "quick": Suite(
-        "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_s=4.0, max_envs=50,
+        "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_s=3.0, max_envs=50,
         values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
                 "dead_joints": (0, 3, 6), "history": (3, 7, 15, 20),
                 "mask_matrix": (0.0, 0.25, 0.5)}),
