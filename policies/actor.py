@@ -117,11 +117,12 @@ class StudentActor:
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """(N, 12) actions for this step's observations."""
         batch = self.window(obs)
-        kwargs: dict[str, Any] = {}
+        # The generator is passed even without test-time masking: padded steps are removed
+        # like masked tokens, and their order must not depend on the global torch RNG.
+        kwargs: dict[str, Any] = {"generator": self.generator}
         if self.channels:
             kwargs["channels"] = self.channels
         if self.spec.mask_ratio > 0:
             kwargs["mask_ratio"] = self.spec.mask_ratio
-            kwargs["generator"] = self.generator
         out = self.policy.act(batch, **kwargs)
         return out.detach().cpu().numpy().astype(np.float32)

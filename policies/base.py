@@ -120,18 +120,31 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None)
     """A local checkpoint directory for ``path_or_repo_id``.
 
     Args:
-        path_or_repo_id: a local directory (hub repo ids are not supported yet).
-        revision: hub revision; only meaningful for repo ids.
+        path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
+            (once per commit, hash-verified) through ``msta_data.hub.materialize`` from
+            ``HF_ENDPOINT``.
+        revision: hub revision (branch, tag or commit) when the id carries none.
     """
     path = Path(path_or_repo_id)
     if path.is_dir():
         return path
-    # Hub support is one line here:
-    # return Path(snapshot_download(str(path_or_repo_id), revision=revision))
-    raise FileNotFoundError(
-        f"checkpoint directory {str(path_or_repo_id)!r} does not exist (loading hub repo "
-        f"ids{' at revision ' + revision if revision else ''} is not supported yet)"
-    )
+    spec = str(path_or_repo_id)
+    from msta_data.hub import is_hub_id, materialize
+
+    if not is_hub_id(spec):
+        raise FileNotFoundError(f"checkpoint directory {spec!r} does not exist (and it is not "
+                                f"a hub id user/name[@revision])")
+    if revision and "@" not in spec:
+        spec = f"{spec}@{revision}"
+    try:
+        return materialize(spec, repo_type="model")
+    except Exception as exc:  # network, auth, missing repo: say both readings failed
+        import os
+
+        raise FileNotFoundError(
+            f"{spec!r} is neither an existing checkpoint directory nor a hub repo reachable at "
+            f"HF_ENDPOINT={os.environ.get('HF_ENDPOINT', '(huggingface_hub default)')}: "
+            f"{type(exc).__name__}: {exc}") from exc
 
 
 class StudentPolicy(nn.Module):

@@ -67,8 +67,15 @@ class CommandSampler:
         self.command[ids] = cmd
         self.heading[ids] = rng.uniform(*c.heading, n)
 
-    def update_yaw_rate(self, yaw: np.ndarray) -> None:
-        """Steer toward the target heading (no-op when ``use_heading`` is False)."""
-        if self.cfg.use_heading:
-            err = wrap_angle(self.heading - yaw)
-            self.command[:, 2] = np.clip(self.cfg.heading_gain * err, *self.cfg.ang_vel_yaw)
+    def update_yaw_rate(self, yaw: np.ndarray, ids: np.ndarray | None = None) -> None:
+        """Steer toward the target heading (no-op when ``use_heading`` is False).
+
+        Args:
+            yaw: (N,) current yaw of all environments, or (len(ids),) with ``ids``.
+            ids: update only these environments.
+        """
+        if not self.cfg.use_heading:
+            return
+        sel = slice(None) if ids is None else ids
+        err = wrap_angle(self.heading[sel] - yaw)
+        self.command[sel, 2] = np.clip(self.cfg.heading_gain * err, *self.cfg.ang_vel_yaw)

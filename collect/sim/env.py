@@ -373,7 +373,7 @@ class QuadrupedEnv:
         else:
             for k, v in fresh.items():
                 self.meas[k][ids] = v
-        self.commands.update_yaw_rate(self.meas["yaw"])
+        self.commands.update_yaw_rate(fresh["yaw"], ids)
         self._hist[ids] = self._proprio(fresh, ids)[:, None, :]
         self._hist_fresh = ids
 
