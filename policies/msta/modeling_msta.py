@@ -166,6 +166,9 @@ class MSTATransformer(nn.Module):
         self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
     ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking plus <S>: (B, K + 1, d), and a key mask (B, 1, 1, K + 1) or None."""
+        missing = None
+        if self.mask_token is not None:
+            inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
         names = list(inputs.bins)
         # (B, N): sensors in config order, time-major within each sensor
         bins = torch.cat([inputs.bins[n].flatten(1) for n in names], dim=1)
@@ -175,6 +178,9 @@ class MSTATransformer(nn.Module):
         sensor = torch.stack([self.sensor_embed[n] for n in names])  # (S, d)
         static = pos + sensor[sid]  # (N, d)
         pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N) True = padded token
+        if missing is not None:
+            miss = torch.cat([missing[n].repeat(T) for n in names])[None].expand(B, N)  # (B, N)
+            pad = miss if pad is None else pad | miss
         n_drop = N - num_kept(N, mask_ratio)
         if self.mask_token is not None:
             x = self._replace_masked(bins, static, pad, n_drop, generator)  # (B, N, d)
@@ -188,6 +194,27 @@ class MSTATransformer(nn.Module):
             keep = torch.cat([~key_pad, key_pad.new_ones(B, 1)], dim=1)
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + 1)
         return x, attn_mask
+
+    def _complete(self, inputs: MSTAInputs) -> tuple[MSTAInputs, dict[str, Tensor]]:
+        """Learnable-mask variant: every configured sensor and channel gets a token; the ones
+        absent from the input (a removed sensor, a dead joint encoder) are flagged missing and
+        later replaced by the mask token, as the paper's "w/ learnable mask" ablation does."""
+        from msta_data.sensors import get
+
+        any_bins = next(iter(inputs.bins.values()))  # (B, T, c)
+        B, T, dev = any_bins.shape[0], any_bins.shape[1], any_bins.device
+        bins, channels, missing = {}, {}, {}
+        for name in self.cfg.input_sensors:
+            dim = get(name).dim
+            full = torch.zeros(B, T, dim, dtype=torch.long, device=dev)
+            absent = torch.ones(dim, dtype=torch.bool, device=dev)
+            if name in inputs.bins:
+                ch = inputs.channels[name].to(dev)
+                full[:, :, ch] = inputs.bins[name]
+                absent[ch] = False
+            bins[name], channels[name] = full, torch.arange(dim)
+            missing[name] = absent  # (dim,) per channel, repeated over time by the caller
+        return MSTAInputs(bins, channels, inputs.pad), missing
 
     def _drop_scores(
         self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None

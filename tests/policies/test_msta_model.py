@@ -86,6 +86,21 @@ def test_learnable_mask_keeps_all_tokens() -> None:
     )
 
 
+def test_learnable_mask_fills_removed_sensors_and_dead_joints_with_mask_tokens() -> None:
+    """The paper's "w/ learnable mask" fallback: absent inputs become mask tokens."""
+    policy = make(learnable_mask=True)
+    n = 49 * T
+    full, _ = tokens(policy, make_batch(), 0.0)
+    keep = [j for j in range(12) if j not in (1, 5)]
+    batch = {k: v for k, v in make_batch().items() if k != "joint_vel"}
+    batch["joint_pos"] = batch["joint_pos"][..., keep]
+    x, attn_mask = tokens(policy, batch, 0.0, channels={"joint_pos": keep})
+    assert x.shape == (4, n + 1, 32) and attn_mask is None
+    replaced = (x[:, :-1] != full[:, :-1]).any(-1)  # (B, N)
+    # 12 joint_vel channels and 2 joint_pos channels at each of the T steps
+    assert replaced.sum(1).tolist() == [(12 + 2) * T] * 4
+
+
 def test_sensor_order_does_not_matter() -> None:
     policy = make().train()
     batch = make_batch()
