@@ -57,7 +57,7 @@ class LoopConfig:
     eval_every: int = 500
     save_every: int = 1000
     log_every: int = 10
-    val_samples: int = 4096
+    val_samples: int = 1024
     seed: int = 0
     progress: bool = True
 
