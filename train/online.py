@@ -398,10 +398,11 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     policy = load_policy(start, device=str(device))
     if cfg.eval.enabled and "teacher_eval" not in prog:
         prog["teacher_eval"] = evaluate(cfg.eval, build_teacher(cfg.teacher))
-        prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
-                               "episodes_after": int(load_info(root)["total_episodes"]),
-                               "policy_revision": policy_revision(policy),
-                               "eval": eval_student(cfg, policy)}
+        if not trained:  # round 0: the starting checkpoint
+            prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
+                                   "episodes_after": int(load_info(root)["total_episodes"]),
+                                   "policy_revision": policy_revision(policy),
+                                   "eval": eval_student(cfg, policy)}
         atomic_json(path, prog)
         print_table(prog)
     for r in range(1, cfg.rounds + 1):
@@ -433,9 +434,13 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
             total = append_episodes(root, episodes)
             hook("committed", r)
             rec.update(appended=True, episodes_after=total, rollout=stats)
+            print(f"round {r}: appended {len(episodes)} student episodes ({stats['frames']:,} "
+                  f"frames, {stats['env_steps_per_s']:,.0f} env steps/s) -> {root} ({total})")
         atomic_json(path, prog)
     if not rec.get("trained"):
         rec["train"] = retrain(cfg, policy, root, r, out)
+        print(f"round {r}: trained {cfg.steps} steps on {rec['train']['windows']:,} windows "
+              f"({rec['train']['train_samples_per_s']:.0f} samples/s)")
         policy.save_pretrained(out / f"round_{r}")
         rec.update(trained=True, checkpoint=str(out / f"round_{r}"),
                    trained_revision=policy_revision(policy))
