@@ -1,50 +1,147 @@
-"""``make demo`` / ``msta-demo``: the msta pipeline on built-in defaults, sized for a laptop CPU.
+"""``make demo`` / ``msta-demo``: the whole msta pipeline on built-in defaults, CPU-sized.
 
-Steps (each prints what it did and where the files are):
-  1. simulator + teacher: the default teacher walks every terrain type; summary table and
-     an image strip.
+  1. the default teacher walks every terrain type (summary table + image strip);
+  2. msta-collect records a small teacher dataset (LeRobot v3.0);
+  3. msta-train: stage 1 of the MSTA student (cpu preset) on it;
+  4. a local Hugging Face-compatible hub starts; the dataset and the stage-1 checkpoint
+     are pushed with tags;
+  5. msta-correct: one round of stage 2 (the student drives, the teacher labels, the
+     episodes are appended, the student is retrained); the round's checkpoint is pushed;
+  6. the stage-2 checkpoint is pulled back by tag and evaluated with msta-eval's quick
+     suite against the teacher (table printed, plots saved).
+
+Everything goes under ``--out`` (default ``outputs/demo``); a rerun starts afresh.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import time
 from pathlib import Path
 
-from collect.sim.cli import SimRunConfig, simulate
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
 
-
-def default_teacher() -> str:
-    """The gait controller when it is available, else the hold-the-pose baseline."""
-    import policies.teacher  # noqa: F401
-    from policies.teacher.base import TEACHERS
-
-    return "gait" if "gait" in TEACHERS else "zero"
+HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
 
 def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
+    from collect.sim.cli import SimRunConfig, simulate
+
     terrain = TerrainConfig(curriculum=False, max_init_level=2)
-    cfg = SimRunConfig(
-        env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0, terrain=terrain),
-        policy=default_teacher(), seconds=seconds, out=str(out / "teacher"))
-    print(f"\n== 1. teacher '{cfg.policy}' on every terrain type (levels 0-9, "
-          f"{envs_per_type} robots per type, {seconds:.0f} s) ==")
+    cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
+                                     terrain=terrain),
+                       policy="gait", seconds=seconds, out=str(out / "teacher"), progress=False)
+    print(f"\n== 1. the gait teacher on every terrain type ({envs_per_type} robots per type, "
+          f"levels 0-2, {seconds:.0f} s) ==")
     simulate(cfg)
 
 
+def step_collect(out: Path, episodes: int, seconds: float) -> Path:
+    from collect.record import CollectConfig, collect
+    from policies.teacher.config import TeacherConfig
+
+    print(f"\n== 2. msta-collect: {episodes} teacher episodes of up to {seconds:.0f} s ==")
+    return collect(CollectConfig(
+        teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
+        repo_id="demo/a1_teacher", root=str(out / "datasets" / "a1_teacher"),
+        episode_length_s=seconds, env=EnvConfig(terrain=TerrainConfig(max_init_level=2)),
+        progress=False))
+
+
+def step_train(out: Path, dataset: Path, steps: int) -> Path:
+    from policies.msta import MSTAConfig
+    from train.offline import TrainConfig, train
+
+    print(f"\n== 3. msta-train: stage 1, MSTA cpu preset, {steps} steps, mask ratio 0.75 ==")
+    return train(TrainConfig(
+        dataset=str(dataset), policy=MSTAConfig.from_preset("cpu"), output_dir=str(out / "stage1"),
+        steps=steps, batch_size=64, warmup_steps=min(50, steps // 5), eval_every=max(steps // 2, 1),
+        save_every=steps, progress=False))
+
+
+def start_hub(out: Path):
+    from msta_data.hub_server.server import HubServer, ServerConfig
+
+    server = HubServer(ServerConfig(root=str(out / "hub"), host="127.0.0.1", port=0,
+                                    tokens=[f"{HUB_USER}:{HUB_SECRET}"]))
+    server.start()
+    os.environ["HF_ENDPOINT"] = server.url
+    os.environ["HF_TOKEN"] = HUB_SECRET
+    return server
+
+
+def step_push(dataset: Path, stage1: Path) -> None:
+    from msta_data import hub
+
+    print("\n== 4. local hub: push the dataset and the stage-1 checkpoint ==")
+    sha = hub.push_dataset(dataset, f"{HUB_USER}/a1_teacher")
+    print(f"dataset  {HUB_USER}/a1_teacher  commit {sha[:12]} (tag v3.0)")
+    sha = hub.push(stage1, f"{HUB_USER}/msta_a1", tag="stage1")
+    print(f"stage 1  {HUB_USER}/msta_a1@stage1  commit {sha[:12]}")
+
+
+def step_correct(out: Path, stage1: Path, dataset: Path, steps: int, episodes: int) -> Path:
+    from msta_data import hub
+    from train.online import CorrectConfig, correct
+
+    print(f"\n== 5. msta-correct: one stage-2 round ({episodes} student episodes, "
+          f"teacher labels, retrain {steps} steps at mask ratio 0.5) ==")
+    cfg = CorrectConfig(policy=str(stage1), dataset=str(dataset), output_dir=str(out / "stage2"),
+                        rounds=1, episodes_per_round=episodes, num_envs=min(episodes, 32),
+                        episode_length_s=5.0, steps=steps, batch_size=64,
+                        warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
+                        progress=False)
+    cfg.eval.steps = 150
+    correct(cfg)
+    ckpt = out / "stage2" / "round_1"
+    if not ckpt.is_dir():
+        ckpt = sorted((out / "stage2").glob("round_*"))[-1]
+    sha = hub.push(ckpt, f"{HUB_USER}/msta_a1", tag="stage2-r1")
+    print(f"stage 2  {HUB_USER}/msta_a1@stage2-r1  commit {sha[:12]}")
+    return ckpt
+
+
+def step_eval(out: Path) -> None:
+    from eval.evaluate import EvalConfig, evaluate
+    from msta_data import hub
+
+    print("\n== 6. pull the stage-2 checkpoint by tag and evaluate it (msta-eval quick) ==")
+    pulled = hub.pull(f"{HUB_USER}/msta_a1@stage2-r1", out / "pulled" / "stage2-r1")
+    print(f"pulled to {pulled}")
+    evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick", out=str(out / "eval"),
+                        progress=False))
+    report = out / "eval" / "report.md"
+    if report.exists():
+        print(report.read_text())
+
+
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description="Run the msta demo pipeline on built-in defaults.")
+    p = argparse.ArgumentParser(description="Run the msta pipeline demo on built-in defaults.")
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder")
-    p.add_argument("--seconds", type=float, default=10.0, help="teacher walk per robot (s)")
-    p.add_argument("--envs_per_type", type=int, default=16)
+    p.add_argument("--episodes", type=int, default=48, help="teacher episodes to record")
+    p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
+    p.add_argument("--train_steps", type=int, default=800, help="stage-1 optimizer steps")
+    p.add_argument("--correct_steps", type=int, default=300, help="stage-2 retrain steps")
+    p.add_argument("--correct_episodes", type=int, default=16, help="stage-2 student episodes")
     args = p.parse_args(argv)
     os.environ.setdefault("MUJOCO_GL", "egl")
+    if args.out.exists():
+        shutil.rmtree(args.out)
     t0 = time.time()
-    step_teacher(args.out, args.seconds, args.envs_per_type)
-    print(f"\ndemo finished in {time.time() - t0:.0f} s; outputs in {args.out}/")
+    step_teacher(args.out, seconds=8.0, envs_per_type=8)
+    dataset = step_collect(args.out, args.episodes, args.episode_s)
+    stage1 = step_train(args.out, dataset, args.train_steps)
+    server = start_hub(args.out)
+    try:
+        step_push(dataset, stage1)
+        step_correct(args.out, stage1, dataset, args.correct_steps, args.correct_episodes)
+        step_eval(args.out)
+    finally:
+        server.stop()
+    print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min; outputs in {args.out}/")
 
 
 if __name__ == "__main__":
