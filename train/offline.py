@@ -48,6 +48,7 @@ from train.common import (
     seed_everything,
     select_device,
 )
+from train.push import PushError, check_push_to, push_stage1
 from train.step import train_step, validate
 
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
@@ -67,6 +68,9 @@ class TrainConfig(LoopConfig):
         val_fraction: share of episodes held out for validation (split by episode).
         device: ``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda``, ``cuda:1``...
         num_threads: torch intra-op threads (0 = torch's default).
+        push_to: hub model repo ``user/name``: push ``final/`` with tag ``stage1`` and a
+            model card (HF_ENDPOINT / HF_TOKEN); empty = no push. See ``train/push.py``.
+        push_private: create that repo as private.
     """
 
     dataset: str = ""
@@ -76,9 +80,12 @@ class TrainConfig(LoopConfig):
     val_fraction: float = 0.1
     device: str = "auto"
     num_threads: int = 0
+    push_to: str = ""
+    push_private: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        check_push_to(self.push_to)
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
         if self.num_threads < 0:
@@ -330,11 +337,16 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     print(f"trained {res.step} steps ({res.samples_per_s:.1f} samples/s this run); "
           f"train loss {res.train.get('loss', float('nan')):.4g}{'; ' + val if val else ''}"
           f"\nfinal policy: {final}")
+    if cfg.push_to:
+        push_stage1(cfg, root, out, final)
     return final
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    train(parse_cli(TrainConfig, argv, prog="msta-train"))
+    try:
+        train(parse_cli(TrainConfig, argv, prog="msta-train"))
+    except PushError as e:
+        raise SystemExit(f"msta-train: error: {e}") from None
 
 
 if __name__ == "__main__":

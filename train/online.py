@@ -54,6 +54,7 @@ from policies.actor import InputSpec, StudentActor
 from policies.base import StudentPolicy
 from policies.teacher.config import TeacherConfig
 from train.common import LoopConfig, atomic_json, parse_cli, seed_everything, select_device
+from train.push import PushError, check_push_to, dataset_source, push_round
 
 PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
@@ -102,6 +103,9 @@ class CorrectConfig(LoopConfig):
         resume: continue the run in output_dir.
         device: auto (CUDA when available), cpu, cuda, ...
         num_threads: torch threads (0 = default).
+        push_to: hub model repo ``user/name``: push each ``round_<r>`` with tag
+            ``stage2-r<r>`` and a model card after its evaluation; empty = no push.
+        push_private: create that repo as private.
     """
 
     steps: int = 500
@@ -124,9 +128,12 @@ class CorrectConfig(LoopConfig):
     resume: bool = False
     device: str = "auto"
     num_threads: int = 0
+    push_to: str = ""
+    push_private: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        check_push_to(self.push_to)
         for name in ("rounds", "episodes_per_round", "num_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
@@ -387,6 +394,8 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
                               "choose another --output_dir")
     ckpt, root = resolve_inputs(cfg, out)
     prog = load_progress(out, cfg, root)
+    if cfg.push_to and "dataset_source" not in prog:  # before a hub tag can move
+        prog["dataset_source"] = dataset_source(cfg.dataset, root)
     path = out / PROGRESS
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
@@ -407,9 +416,11 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
         print_table(prog)
     for r in range(1, cfg.rounds + 1):
         rec = prog["rounds"].setdefault(str(r), {})
-        if rec.get("evaluated"):
-            continue
-        run_round(cfg, policy, root, out, r, rec, prog, hook)
+        if not rec.get("evaluated"):
+            run_round(cfg, policy, root, out, r, rec, prog, hook)
+        if cfg.push_to and rec.get("pushed", {}).get("repo") != cfg.push_to:
+            rec["pushed"] = push_round(cfg, prog, r)
+            atomic_json(path, prog)
     return prog
 
 
@@ -490,7 +501,10 @@ def _ratio(a: float, b: float) -> float:
 
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(CorrectConfig, argv, prog="msta-correct")
-    prog = correct(cfg)
+    try:
+        prog = correct(cfg)
+    except PushError as e:
+        raise SystemExit(f"msta-correct: error: {e}") from None
     print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
           f"{prog['rounds'][str(cfg.rounds)].get('checkpoint')}")
 
