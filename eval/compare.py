@@ -1,0 +1,415 @@
+"""``msta-compare``: train MSTA and every baseline on one dataset with the same budgets, then
+evaluate them together and print the paper's Table I.
+
+    msta-compare --collect_episodes=48 --out=outputs/compare --preset=cpu \\
+        --stage1_steps=800 --stage2_rounds=1 --episodes_per_round=16 --stage2_steps=300
+    msta-compare --dataset=outputs/datasets/a1_teacher --policies=msta,gru --out=...
+
+For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered policy type):
+
+1. **stage 1** (``train.offline.train``) on the shared teacher dataset, ``--stage1_steps``;
+2. **stage 2** (``train.online.correct``) on the policy's **own copy** of the dataset
+   (``shutil.copytree`` before the first round), ``--stage2_rounds`` rounds of
+   ``--episodes_per_round`` student episodes and ``--stage2_steps`` steps: every policy
+   appends its own correction episodes, and the shared dataset is never written;
+3. the final checkpoint is copied to ``out/checkpoints/<policy>`` (the row name in the
+   table). A policy whose final checkpoint exists is skipped when the command is rerun;
+   a killed stage resumes (``--resume=true`` of msta-train / msta-correct).
+
+Then one ``msta-eval`` run (``eval.evaluate``) over the teacher and all final checkpoints on
+the same trials writes ``out/eval/`` and the table is printed and saved as
+``out/comparison.md``. See docs/baselines_comparison.md.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+
+from policies.teacher.config import TeacherConfig
+
+#: Comparison name -> (registered policy type, config overrides). Other registered policy
+#: types are accepted by name with no overrides.
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "msta": ("msta", {}),
+    "msta_mask": ("msta", {"learnable_mask": True}),  # the paper's "MSTA w/ learnable mask"
+    "tert_concat": ("tert_concat", {}),
+    "tert_separate": ("tert_separate", {}),
+    "tert_mask": ("tert_mask", {}),
+    "gru": ("gru", {}),
+    "rma_tcn": ("rma_tcn", {}),
+}
+#: The paper's Table I averages (normalized total reward at test masks 0 / 25 / 50 %).
+PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {
+    "msta": (0.97, 0.95, 0.94), "gru": (0.94, 0.92, 0.79), "tert_mask": (0.87, 0.90, 0.83),
+    "msta_mask": (0.30, 0.80, 0.82), "rma_tcn": (0.98, None, None),
+    "tert_concat": (1.01, None, None), "tert_separate": (1.00, None, None)}
+#: Fields that must match out/compare_config.json when a run is continued.
+RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_s", "collect_envs", "preset",
+              "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
+              "episodes_per_round", "stage2_episode_s", "stage2_envs", "stage2_mask_ratio",
+              "batch_size", "seed")
+
+
+@dataclass
+class CompareConfig:
+    """Args:
+        dataset: teacher dataset root (with ``collect_episodes`` > 0: where to record it;
+            default ``out/teacher_dataset``).
+        collect_episodes: record (or extend up to) this many teacher episodes first (0: use
+            ``dataset`` as it is).
+        collect_episode_s: episode length of the recorded teacher episodes (s).
+        collect_envs: environments simulated together while recording.
+        policies: comma-separated names: msta, msta_mask (MSTA w/ learnable mask),
+            tert_concat, tert_separate, tert_mask, gru, rma_tcn (or any registered type).
+        preset: policy preset for every policy (paper, cpu, tiny).
+        teacher: the teacher that records, labels stage 2 and is the eval reference.
+        stage1_steps: optimizer steps of stage 1 (every policy).
+        stage2_rounds: correction rounds (0: no stage 2).
+        stage2_steps: optimizer steps per correction round.
+        episodes_per_round: student episodes appended per round.
+        stage2_episode_s: time limit of the student episodes (s).
+        stage2_envs: environments rolled out together in stage 2 (0: episodes_per_round,
+            at most 32).
+        stage2_mask_ratio: training mask ratio in stage 2 for policies trained with masking
+            (config ``mask_ratio`` > 0; the paper: 0.5); the others keep 0.
+        batch_size: windows per optimizer step (both stages).
+        out: output directory (per-policy runs, checkpoints/, eval/, comparison.md).
+        seed: seeds training, rollouts and evaluation.
+        eval_suite: msta-eval suite (quick, paper).
+        eval_scenarios: msta-eval scenarios (token_removal = Table I).
+        trials: evaluation trials per (policy, condition); 0 = the suite's.
+        eval_terrains: comma-separated terrains; empty = the suite's.
+        eval_episode_s: evaluation episode length (s); 0 = the suite's.
+        num_threads: torch threads for training (0 = torch's default).
+        progress: progress bars.
+    """
+
+    dataset: str = ""
+    collect_episodes: int = 0
+    collect_episode_s: float = 10.0
+    collect_envs: int = 16
+    policies: str = "msta,msta_mask,tert_concat,tert_separate,tert_mask,gru,rma_tcn"
+    preset: str = "cpu"
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    stage1_steps: int = 800
+    stage2_rounds: int = 1
+    stage2_steps: int = 300
+    episodes_per_round: int = 16
+    stage2_episode_s: float = 10.0
+    stage2_envs: int = 0
+    stage2_mask_ratio: float = 0.5
+    batch_size: int = 64
+    out: str = "outputs/compare"
+    seed: int = 0
+    eval_suite: str = "quick"
+    eval_scenarios: str = "token_removal"
+    trials: int = 0
+    eval_terrains: str = ""
+    eval_episode_s: float = 0.0
+    num_threads: int = 0
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()]
+        if not self.policy_list:
+            raise ValueError("--policies is empty")
+        if len(set(self.policy_list)) != len(self.policy_list):
+            raise ValueError(f"--policies {self.policies!r} has duplicates")
+        for name in self.policy_list:
+            policy_config(name, self.preset)  # unknown names / presets fail before any work
+        for name in ("stage1_steps", "batch_size", "episodes_per_round", "collect_envs"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        for name in ("stage2_rounds", "stage2_steps", "collect_episodes", "stage2_envs",
+                     "trials", "num_threads"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+        if not 0.0 <= self.stage2_mask_ratio < 1.0:
+            raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
+        if not self.dataset and not self.collect_episodes:
+            raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
+
+    @property
+    def dataset_root(self) -> Path:
+        return Path(self.dataset or Path(self.out) / "teacher_dataset")
+
+
+def policy_config(name: str, preset: str) -> Any:
+    """The config of comparison entry ``name`` (:data:`VARIANTS`) at ``preset``.
+
+    Args:
+        name: a :data:`VARIANTS` key or a registered policy type.
+        preset: preset name of that policy type.
+    """
+    from policies.factory import get_config_class, known_policies
+
+    ptype, overrides = VARIANTS.get(name, (name, {}))
+    if ptype not in known_policies():
+        raise ValueError(f"unknown policy {name!r}; known: {sorted(set(VARIANTS) | set(known_policies()))}")
+    cls = get_config_class(ptype)
+    try:
+        return cls.from_preset(preset, **overrides)
+    except KeyError as e:
+        raise ValueError(f"policy {name!r}: {e.args[0]}") from None
+
+
+# ----- phases ----------------------------------------------------------------------------
+class Progress:
+    """One line per phase with the elapsed time; phase durations go to ``out/timing.json``."""
+
+    def __init__(self, out: Path) -> None:
+        self.path = out / "timing.json"
+        self.timing: dict[str, float] = json.loads(self.path.read_text()) \
+            if self.path.exists() else {}
+        self.t0 = time.perf_counter()
+
+    def start(self, phase: str, detail: str = "") -> float:
+        print(f"[msta-compare {self._clock()}] {phase}{': ' + detail if detail else ''}",
+              flush=True)
+        return time.perf_counter()
+
+    def done(self, phase: str, t_start: float) -> None:
+        dt = time.perf_counter() - t_start
+        self.timing[phase] = round(dt, 1)
+        self.path.write_text(json.dumps(self.timing, indent=1) + "\n")
+        print(f"[msta-compare {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
+
+    def _clock(self) -> str:
+        s = int(time.perf_counter() - self.t0)
+        return f"{s // 60:02d}:{s % 60:02d}"
+
+
+def check_run_config(cfg: CompareConfig, out: Path) -> None:
+    """Write ``compare_config.json``, or check that a continued run has the same budgets."""
+    encoded = draccus.encode(cfg)
+    path = out / "compare_config.json"
+    if path.exists():
+        saved = json.loads(path.read_text())
+        bad = [k for k in RUN_FIELDS if saved.get(k) != encoded.get(k)]
+        if bad:
+            raise ValueError(f"{out} holds a comparison with different {bad} "
+                             f"(see {path}); choose another --out")
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(encoded, indent=1) + "\n")
+
+
+def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
+    """The teacher dataset, recorded (or extended) first when ``collect_episodes`` > 0."""
+    root = cfg.dataset_root
+    if cfg.collect_episodes:
+        from collect.record import CollectConfig, collect
+
+        t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.type} episodes of "
+                       f"{cfg.collect_episode_s:g} s -> {root}")
+        collect(CollectConfig(teacher=cfg.teacher, episodes=cfg.collect_episodes,
+                              num_envs=cfg.collect_envs, root=str(root), resume=True,
+                              seed=cfg.seed, episode_length_s=cfg.collect_episode_s,
+                              progress=cfg.progress))
+        prog.done("collect", t)
+    if not (root / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"--dataset {str(root)!r}: {root / 'meta' / 'info.json'} "
+                                "missing (not a dataset; use --collect_episodes=N to record one)")
+    return root
+
+
+def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress) -> Path:
+    """Stage 1 of one policy (resumed when killed); returns its final checkpoint."""
+    from train.offline import TrainConfig, train
+
+    out = run / "stage1"
+    final = out / "final"
+    if (final / "config.json").is_file():
+        return final
+    resume = (out / "checkpoints" / "last").exists()
+    if not resume and out.exists():  # killed before the first checkpoint: start over
+        shutil.rmtree(out)
+    t = prog.start(f"{name} stage 1", f"{cfg.stage1_steps} steps, batch {cfg.batch_size}"
+                   f"{' (resumed)' if resume else ''}")
+    train(TrainConfig(
+        dataset=str(root), policy=policy_config(name, cfg.preset), output_dir=str(out),
+        resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
+        save_every=max(100, cfg.stage1_steps // 4), eval_every=cfg.stage1_steps,
+        num_threads=cfg.num_threads, progress=cfg.progress))
+    prog.done(f"{name} stage 1", t)
+    return final
+
+
+def copy_dataset(root: Path, dest: Path) -> Path:
+    """The policy's own copy of the teacher dataset (atomic: copied, then renamed)."""
+    if dest.is_dir():
+        return dest
+    tmp = dest.with_name(dest.name + ".tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    shutil.copytree(root, tmp, ignore=shutil.ignore_patterns(".msta.lock"))
+    tmp.rename(dest)
+    return dest
+
+
+def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
+           prog: Progress) -> Path:
+    """Stage 2 of one policy on its own dataset copy; returns the last round's checkpoint."""
+    from train.online import CorrectConfig, EvalConfig, correct
+
+    out = run / "stage2"
+    last = out / f"round_{cfg.stage2_rounds}"
+    if (last / "config.json").is_file():
+        return last
+    own = copy_dataset(root, run / "dataset")
+    resume = (out / "progress.json").exists()
+    mask = cfg.stage2_mask_ratio if policy_config(name, cfg.preset).mask_ratio > 0 else 0.0
+    envs = cfg.stage2_envs or min(cfg.episodes_per_round, 32)
+    t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
+                   f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"
+                   f"{' (resumed)' if resume else ''}")
+    correct(CorrectConfig(
+        policy=str(start), dataset=str(own), output_dir=str(out), rounds=cfg.stage2_rounds,
+        episodes_per_round=cfg.episodes_per_round, num_envs=envs,
+        episode_length_s=cfg.stage2_episode_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
+        batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed,
+        save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
+        eval=EvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
+        progress=cfg.progress))
+    prog.done(f"{name} stage 2", t)
+    return last
+
+
+def train_policy(cfg: CompareConfig, name: str, root: Path, prog: Progress) -> Path:
+    """Both stages of one policy; the result is copied to ``out/checkpoints/<name>``."""
+    out = Path(cfg.out)
+    ckpt = out / "checkpoints" / name
+    if (ckpt / "config.json").is_file():
+        print(f"[msta-compare] {name}: final checkpoint {ckpt} exists, skipped", flush=True)
+        return ckpt
+    run = out / "runs" / name
+    final = stage1(cfg, name, root, run, prog)
+    if cfg.stage2_rounds:
+        final = stage2(cfg, name, final, root, run, prog)
+    tmp = ckpt.with_name(name + ".tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    shutil.copytree(final, tmp)
+    tmp.rename(ckpt)
+    return ckpt
+
+
+def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str, Any]:
+    """One msta-eval run over the teacher and every final checkpoint (same trials)."""
+    from eval.evaluate import EvalConfig, evaluate
+
+    ecfg = EvalConfig(policies=",".join(["teacher", *map(str, ckpts)]), suite=cfg.eval_suite,
+                      out=str(Path(cfg.out) / "eval"), trials=cfg.trials,
+                      terrains=cfg.eval_terrains, scenarios=cfg.eval_scenarios,
+                      episode_s=cfg.eval_episode_s, seed=cfg.seed, teacher=cfg.teacher,
+                      progress=cfg.progress)
+    t = prog.start("eval", f"suite {cfg.eval_suite}, scenarios {cfg.eval_scenarios}, "
+                   f"{ecfg.num_trials} trials of {ecfg.episode:g} s, {len(ckpts)} policies "
+                   "+ teacher")
+    metrics = evaluate(ecfg)
+    prog.done("eval", t)
+    return metrics
+
+
+# ----- report ----------------------------------------------------------------------------
+def _average(metrics: dict[str, Any], policy: str, metric: str = "total") -> list[float | None]:
+    """Normalized terrain-average of ``policy`` per test mask (token_removal), None if n/a."""
+    vals = []
+    for r in metrics["runs"]:
+        if r["policy"] == policy and r["scenario"] == "token_removal":
+            ok = r["status"] == "ok"
+            vals.append(r["normalized"]["per_terrain"]["average"][metric] if ok else None)
+    return vals
+
+
+def paper_table(metrics: dict[str, Any]) -> str:
+    """Average normalized total reward per test mask, beside the paper's Table I."""
+    from eval.report import _fmt
+
+    rows = ["| policy | ours 0 % | ours 25 % | ours 50 % | paper 0 % | paper 25 % | paper 50 % |",
+            "|---|---|---|---|---|---|---|"]
+    for p in metrics["policies"]:
+        if p["kind"] != "student":
+            continue
+        ours = _average(metrics, p["name"])
+        paper = PAPER_TABLE_I.get(p["name"], (None,) * 3)
+        rows.append(f"| {p['name']} | " + " | ".join(_fmt(v) for v in ours) + " | "
+                    + " | ".join("-" if v is None else f"{v:.2f}" for v in paper) + " |")
+    return "\n".join(rows)
+
+
+def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: str,
+                        timing: dict[str, float]) -> str:
+    """``out/comparison.md``: the command, the budgets, Table I (three returns), timings."""
+    from eval.report import table_one
+
+    ec = metrics["config"]
+    lines = [
+        "# MSTA vs baselines (msta-compare)", "", "```bash", command, "```", "",
+        f"Teacher `{cfg.teacher.type}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
+        f"stage 1 {cfg.stage1_steps} steps; stage 2 {cfg.stage2_rounds} round(s) x "
+        f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_s:g} s + {cfg.stage2_steps} "
+        f"steps (mask {cfg.stage2_mask_ratio:g} for masked-trained policies); batch "
+        f"{cfg.batch_size}; seed {cfg.seed}. Evaluation: suite `{cfg.eval_suite}`, "
+        f"{ec['trials']} trials of {ec['episode_s']:g} s per (policy, test mask), terrains "
+        f"{', '.join(ec['terrains'])}, levels {ec['levels']}.", "",
+        "## Average normalized total reward vs the paper's Table I", "", paper_table(metrics), ""]
+    for metric in ("total", "lin_tracking", "ang_tracking"):
+        lines += [table_one(metrics, metric), ""]
+    lines += ["## Time per phase (s)", "", "| phase | s |", "|---|---|"]
+    lines += [f"| {k} | {v:.0f} |" for k, v in timing.items()]
+    return "\n".join(lines) + "\n"
+
+
+def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
+    """Train every policy (both stages, same budgets), evaluate them together, report.
+
+    Args:
+        cfg: the parsed configuration.
+        command: the command line recorded in ``comparison.md``.
+    Returns:
+        the content of ``out/eval/metrics.json``.
+    """
+    from eval.report import table_one
+
+    out = Path(cfg.out)
+    check_run_config(cfg, out)
+    prog = Progress(out)
+    root = ensure_dataset(cfg, prog)
+    ckpts = []
+    for i, name in enumerate(cfg.policy_list, 1):
+        print(f"[msta-compare] policy {i}/{len(cfg.policy_list)}: {name}", flush=True)
+        ckpts.append(train_policy(cfg, name, root, prog))
+    metrics = run_eval(cfg, ckpts, prog)
+    md = comparison_markdown(cfg, metrics, command or "msta-compare", prog.timing)
+    (out / "comparison.md").write_text(md)
+    print("\n" + paper_table(metrics) + "\n\n" + table_one(metrics, "total"))
+    print(f"\nmsta-compare: wrote {out / 'comparison.md'} and {out / 'eval'}/", flush=True)
+    return metrics
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point (``msta-compare``)."""
+    args = sys.argv[1:] if argv is None else argv
+    try:
+        cfg = draccus.parse(CompareConfig, args=args, prog="msta-compare")
+    except (draccus.utils.ParsingError, draccus.utils.DecodingError, ValueError) as e:
+        while e.__cause__ is not None and isinstance(e, (draccus.utils.ParsingError,
+                                                         draccus.utils.DecodingError)):
+            e = e.__cause__  # draccus wraps our validation errors
+        print(f"msta-compare: error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,97 @@
+"""msta-compare end to end at a tiny budget: record, train two policies (both stages, each on
+its own dataset copy), evaluate them with the teacher, print and save the Table I."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from eval.compare import CompareConfig, compare, main
+from msta_data.features import load_info
+
+TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_steps=2",
+        "--episodes_per_round=2", "--stage2_episode_s=0.3", "--stage2_envs=2",
+        "--batch_size=8", "--trials=2", "--eval_terrains=flat", "--eval_episode_s=1.0",
+        "--collect_envs=2", "--collect_episode_s=0.4", "--progress=false"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> tuple[Path, Path, str]:
+    """One tiny comparison (msta + gru), recorded by the command itself; its stdout."""
+    out = tmp_path_factory.mktemp("compare") / "out"
+    capsys_out = out.parent / "stdout.txt"
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        main([f"--out={out}", "--collect_episodes=3", "--teacher.type=gait",
+              "--policies=msta,gru", *TINY])
+    capsys_out.write_text(buf.getvalue())
+    return out, out / "teacher_dataset", buf.getvalue()
+
+
+def test_table_has_a_row_per_policy_and_metrics(run) -> None:
+    out, _, stdout = run
+    metrics = json.loads((out / "eval" / "metrics.json").read_text())
+    names = [p["name"] for p in metrics["policies"]]
+    assert names == ["teacher", "msta", "gru"]
+    assert [p.get("type") for p in metrics["policies"][1:]] == ["msta", "gru"]
+    ok = {(r["policy"], r["condition"]) for r in metrics["runs"] if r["status"] == "ok"}
+    masks = {"mask 0%", "mask 25%", "mask 50%"}
+    assert {(p, c) for p in ("msta", "gru") for c in masks} <= ok
+    assert ("teacher", "mask 0%") in ok
+    md = (out / "comparison.md").read_text()
+    assert metrics["reference"]["per_terrain"]["average"]["total"] > 0
+    for name in ("msta", "gru"):  # the row of normalized averages at 0 / 25 / 50 % test masks
+        avg = [r["normalized"]["per_terrain"]["average"]["total"] for r in metrics["runs"]
+               if r["policy"] == name]
+        assert len(avg) == 3 and all(v >= 0.0 for v in avg)
+        row = f"| {name} | " + " | ".join(f"{v:.2f}" for v in avg) + " | "
+        assert row in stdout and row in md
+    assert "msta-compare --out=" in md and "--policies=msta,gru" in md
+    timing = json.loads((out / "timing.json").read_text())
+    assert {"collect", "msta stage 1", "msta stage 2", "gru stage 1", "gru stage 2",
+            "eval"} <= set(timing)
+
+
+def test_each_policy_corrects_on_its_own_copy(run) -> None:
+    out, source, _ = run
+    assert load_info(source)["total_episodes"] == 3  # the shared dataset is untouched
+    for name in ("msta", "gru"):
+        copy = out / "runs" / name / "dataset"
+        assert load_info(copy)["total_episodes"] == 3 + 2
+        prog = json.loads((out / "runs" / name / "stage2" / "progress.json").read_text())
+        assert Path(prog["dataset"]) == copy
+        assert (out / "checkpoints" / name / "model.safetensors").is_file()
+
+
+def test_rerun_skips_trained_policies_and_checks_budgets(run, capsys) -> None:
+    out, _, _ = run
+    before = {n: (out / "checkpoints" / n / "model.safetensors").stat().st_mtime_ns
+              for n in ("msta", "gru")}
+    cfg_args = dict(out=str(out), collect_episodes=3, policies="msta,gru", preset="tiny",
+                    stage1_steps=3, stage2_rounds=1, stage2_steps=2, episodes_per_round=2,
+                    stage2_episode_s=0.3, stage2_envs=2, batch_size=8, trials=2,
+                    eval_terrains="flat", eval_episode_s=1.0, collect_envs=2,
+                    collect_episode_s=0.4, progress=False)
+    compare(CompareConfig(**cfg_args))
+    text = capsys.readouterr().out
+    assert "msta: final checkpoint" in text and "gru: final checkpoint" in text
+    assert "stage 1:" not in text and "stage 2:" not in text
+    after = {n: (out / "checkpoints" / n / "model.safetensors").stat().st_mtime_ns
+             for n in ("msta", "gru")}
+    assert after == before
+    with pytest.raises(ValueError, match="stage1_steps"):
+        compare(CompareConfig(**{**cfg_args, "stage1_steps": 4}))
+
+
+def test_bad_input_is_named() -> None:
+    with pytest.raises(ValueError, match="unknown policy 'lstm'"):
+        CompareConfig(dataset="x", policies="msta,lstm")
+    with pytest.raises(ValueError, match="--collect_episodes"):
+        CompareConfig(policies="msta")
+    with pytest.raises(SystemExit):
+        main(["--dataset=/nonexistent/ds", "--policies=msta", "--bogus=1"])
