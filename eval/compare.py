@@ -154,7 +154,8 @@ def policy_config(name: str, preset: str) -> Any:
 
     ptype, overrides = VARIANTS.get(name, (name, {}))
     if ptype not in known_policies():
-        raise ValueError(f"unknown policy {name!r}; known: {sorted(set(VARIANTS) | set(known_policies()))}")
+        known = sorted(set(VARIANTS) | set(known_policies()))
+        raise ValueError(f"unknown policy {name!r}; known: {known}")
     cls = get_config_class(ptype)
     try:
         return cls.from_preset(preset, **overrides)
@@ -216,10 +217,15 @@ def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
                               seed=cfg.seed, episode_length_s=cfg.collect_episode_s,
                               progress=cfg.progress))
         prog.done("collect", t)
+    check_dataset(root)
+    return root
+
+
+def check_dataset(root: Path) -> None:
+    """Raise, naming the path, unless ``root`` holds a dataset."""
     if not (root / "meta" / "info.json").is_file():
         raise FileNotFoundError(f"--dataset {str(root)!r}: {root / 'meta' / 'info.json'} "
                                 "missing (not a dataset; use --collect_episodes=N to record one)")
-    return root
 
 
 def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress) -> Path:
@@ -353,15 +359,16 @@ def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: st
     from eval.report import table_one
 
     ec = metrics["config"]
-    lines = [
-        "# MSTA vs baselines (msta-compare)", "", "```bash", command, "```", "",
+    setup = (
         f"Teacher `{cfg.teacher.type}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
         f"stage 1 {cfg.stage1_steps} steps; stage 2 {cfg.stage2_rounds} round(s) x "
         f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_s:g} s + {cfg.stage2_steps} "
         f"steps (mask {cfg.stage2_mask_ratio:g} for masked-trained policies); batch "
         f"{cfg.batch_size}; seed {cfg.seed}. Evaluation: suite `{cfg.eval_suite}`, "
         f"{ec['trials']} trials of {ec['episode_s']:g} s per (policy, test mask), terrains "
-        f"{', '.join(ec['terrains'])}, levels {ec['levels']}.", "",
+        f"{', '.join(ec['terrains'])}, levels {ec['levels']}.")
+    lines = [
+        "# MSTA vs baselines (msta-compare)", "", "```bash", command, "```", "", setup, "",
         "## Average normalized total reward vs the paper's Table I", "", paper_table(metrics), ""]
     for metric in ("total", "lin_tracking", "ang_tracking"):
         lines += [table_one(metrics, metric), ""]
@@ -382,6 +389,8 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     from eval.report import table_one
 
     out = Path(cfg.out)
+    if not cfg.collect_episodes:
+        check_dataset(cfg.dataset_root)  # before anything is written
     check_run_config(cfg, out)
     prog = Progress(out)
     root = ensure_dataset(cfg, prog)
@@ -398,17 +407,18 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Console entry point (``msta-compare``)."""
+    """Console entry point (``msta-compare``); bad flags and inputs exit with one line."""
     args = sys.argv[1:] if argv is None else argv
     try:
         cfg = draccus.parse(CompareConfig, args=args, prog="msta-compare")
-    except (draccus.utils.ParsingError, draccus.utils.DecodingError, ValueError) as e:
+        compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
+    except (draccus.utils.ParsingError, draccus.utils.DecodingError, ValueError,
+            FileNotFoundError) as e:
         while e.__cause__ is not None and isinstance(e, (draccus.utils.ParsingError,
                                                          draccus.utils.DecodingError)):
             e = e.__cause__  # draccus wraps our validation errors
         print(f"msta-compare: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
-    compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
 
 
 if __name__ == "__main__":

@@ -3,12 +3,14 @@ its own dataset copy), evaluate them with the teacher, print and save the Table 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 
 import pytest
 
-from eval.compare import CompareConfig, compare, main
+from eval.compare import CompareConfig, main
 from msta_data.features import load_info
 
 TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_steps=2",
@@ -21,16 +23,15 @@ TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_step
 def run(tmp_path_factory) -> tuple[Path, Path, str]:
     """One tiny comparison (msta + gru), recorded by the command itself; its stdout."""
     out = tmp_path_factory.mktemp("compare") / "out"
-    capsys_out = out.parent / "stdout.txt"
-    import contextlib
-    import io
-
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        main([f"--out={out}", "--collect_episodes=3", "--teacher.type=gait",
-              "--policies=msta,gru", *TINY])
-    capsys_out.write_text(buf.getvalue())
+        main(args(out))
     return out, out / "teacher_dataset", buf.getvalue()
+
+
+def args(out: Path, *extra: str) -> list[str]:
+    return [f"--out={out}", "--collect_episodes=3", "--teacher.type=gait",
+            "--policies=msta,gru", *TINY, *extra]
 
 
 def test_table_has_a_row_per_policy_and_metrics(run) -> None:
@@ -70,28 +71,29 @@ def test_each_policy_corrects_on_its_own_copy(run) -> None:
 
 def test_rerun_skips_trained_policies_and_checks_budgets(run, capsys) -> None:
     out, _, _ = run
+    names = ("msta", "gru")
     before = {n: (out / "checkpoints" / n / "model.safetensors").stat().st_mtime_ns
-              for n in ("msta", "gru")}
-    cfg_args = dict(out=str(out), collect_episodes=3, policies="msta,gru", preset="tiny",
-                    stage1_steps=3, stage2_rounds=1, stage2_steps=2, episodes_per_round=2,
-                    stage2_episode_s=0.3, stage2_envs=2, batch_size=8, trials=2,
-                    eval_terrains="flat", eval_episode_s=1.0, collect_envs=2,
-                    collect_episode_s=0.4, progress=False)
-    compare(CompareConfig(**cfg_args))
+              for n in names}
+    main(args(out))
     text = capsys.readouterr().out
     assert "msta: final checkpoint" in text and "gru: final checkpoint" in text
     assert "stage 1:" not in text and "stage 2:" not in text
     after = {n: (out / "checkpoints" / n / "model.safetensors").stat().st_mtime_ns
-             for n in ("msta", "gru")}
+             for n in names}
     assert after == before
-    with pytest.raises(ValueError, match="stage1_steps"):
-        compare(CompareConfig(**{**cfg_args, "stage1_steps": 4}))
+    with pytest.raises(SystemExit):
+        main(args(out, "--stage1_steps=4"))
+    assert "different ['stage1_steps']" in capsys.readouterr().err
 
 
-def test_bad_input_is_named() -> None:
+def test_bad_input_is_named(tmp_path, capsys) -> None:
     with pytest.raises(ValueError, match="unknown policy 'lstm'"):
         CompareConfig(dataset="x", policies="msta,lstm")
     with pytest.raises(ValueError, match="--collect_episodes"):
         CompareConfig(policies="msta")
     with pytest.raises(SystemExit):
         main(["--dataset=/nonexistent/ds", "--policies=msta", "--bogus=1"])
+    with pytest.raises(SystemExit):
+        main([f"--dataset={tmp_path / 'missing'}", "--policies=msta", f"--out={tmp_path / 'o'}"])
+    assert f"{tmp_path / 'missing'}" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
