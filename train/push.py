@@ -101,7 +101,7 @@ def push_checkpoint(ckpt: Path, repo_id: str, tag: str, card: Any, private: bool
 
     try:
         sha = hub.push(ckpt, repo_id, tag=tag, private=private, card=card, move_tag=True,
-                       message=f"{tag}: push {ckpt}")
+                       message=f"{tag}: {ckpt.parent.name}/{ckpt.name}")
     except Exception as e:  # any client / HTTP failure: the checkpoint is safe on disk
         raise PushError(f"the checkpoint is saved at {ckpt}, but pushing it to {repo_id}@{tag} "
                         f"failed ({type(e).__name__}: {e}); {retry_hint}") from e
