@@ -47,7 +47,8 @@ def _conditions(runs: list[dict]) -> list[tuple[str, Any]]:
 def _value(run: dict | None, metric: str, terrain: str = "average") -> float | None:
     if run is None or run["status"] != "ok":
         return None
-    return run["normalized"]["per_terrain"][terrain][metric]
+    per = run["normalized"]["per_terrain"].get(terrain)  # absent: no trial on that terrain
+    return None if per is None else per.get(metric)
 
 
 def _lookup(runs: list[dict]) -> dict[tuple[str, str], dict]:
@@ -115,8 +116,9 @@ def raw_table(metrics: dict) -> str:
     for name, agg in rows:
         cells = []
         for t in terrains:
-            v = agg["per_terrain"][t]
-            cells += [_fmt(v["survival"]), _fmt(v["vel_err"]), _fmt(v["yaw_err"])]
+            v = agg["per_terrain"].get(t)  # absent: no trial on that terrain
+            cells += ([_fmt(v["survival"]), _fmt(v["vel_err"]), _fmt(v["yaw_err"])] if v
+                      else [_fmt(None)] * 3)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

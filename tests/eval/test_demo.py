@@ -1,0 +1,29 @@
+"""The demo pipeline end to end at a tiny size (the real `make demo` only changes sizes)."""
+
+from __future__ import annotations
+
+import json
+
+from eval.demo import main
+
+
+def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
+    out = tmp_path / "demo"
+    main(["--out", str(out), "--episodes", "4", "--episode_s", "0.5", "--train_steps", "3",
+          "--correct_steps", "2", "--correct_episodes", "2", "--teacher_s", "0.4",
+          "--envs_per_type", "1", "--round_eval_steps", "10", "--eval_trials", "1",
+          "--eval_episode_s", "0.3"])
+    text = capsys.readouterr().out
+    for step in range(1, 7):
+        assert f"== {step}." in text
+    info = json.loads((out / "datasets" / "a1_teacher" / "meta" / "info.json").read_text())
+    assert info["total_episodes"] == 4              # the teacher dataset pushed to the hub
+    # stage 2 started from the hub dataset and appended its round to its own copy
+    info = json.loads((out / "stage2" / "dataset" / "meta" / "info.json").read_text())
+    assert info["total_episodes"] == 4 + 2
+    assert (out / "stage1" / "final" / "model.safetensors").is_file()
+    assert (out / "pulled" / "stage2-r1" / "model.safetensors").is_file()
+    metrics = json.loads((out / "eval" / "metrics.json").read_text())
+    assert metrics
+    assert "demo/msta_a1@stage2-r1" in text
+    assert "demo-secret-token" not in text
