@@ -22,6 +22,7 @@ from typing import Any, ClassVar, Protocol, Self, runtime_checkable
 
 import draccus
 import torch
+import torch.nn.functional as F
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
@@ -174,6 +175,51 @@ class StudentPolicy(nn.Module):
         """
         device = self.device
         return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in batch.items()}
+
+    @torch.no_grad()
+    def act(
+        self,
+        batch: Batch,
+        channels: Channels | None = None,
+        mask_ratio: float = 0.0,
+        generator: torch.Generator | None = None,
+    ) -> Tensor:
+        """Desired joint positions (B, 12) in raw units.
+
+        Args:
+            batch: sensor name -> (B, T, c) raw windows (any subset of required_sensors,
+                any T), optional "pad" (B, T).
+            channels: per-sensor channel subsets present, e.g. {"joint_pos": [0, 1, 3]}.
+            mask_ratio: test-time random input removal (the paper's 25 % / 50 % tests);
+                what "removal" means is the subclass's ``forward`` (MSTA drops tokens,
+                timestep baselines substitute placeholders).
+            generator: RNG for the test-time mask.
+        """
+        return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
+
+    def loss(
+        self,
+        batch: Batch,
+        channels: Channels | None = None,
+        mask_ratio: float | None = None,
+        generator: torch.Generator | None = None,
+    ) -> tuple[Tensor, dict[str, float]]:
+        """MSE between predicted and target actions in the processor's target space.
+
+        Args:
+            batch: as :meth:`act`, plus the target under ``config.action_key``: (B, 12).
+            channels, mask_ratio, generator: as the subclass's ``forward``.
+        """
+        key = self.config.action_key
+        if key not in batch:
+            raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
+        batch = self.as_tensors(batch)
+        target = self.processor.normalize_target(batch[key])  # (B, A)
+        pred = self(batch, channels, mask_ratio, generator)  # (B, A)
+        loss = F.mse_loss(pred, target)
+        with torch.no_grad():
+            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())
+        return loss, {"loss": float(loss.detach()), "action_mse": float(raw)}
 
     def save_pretrained(self, directory: str | Path) -> Path:
         """Write config.json, model.safetensors and processor.json into ``directory``.

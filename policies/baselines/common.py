@@ -26,7 +26,6 @@ from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Self
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
 from msta_data import sensors
@@ -314,46 +313,3 @@ class TimestepPolicy(StudentPolicy):
         hide |= inputs.missing
         x = torch.where(hide, self.placeholder, x)  # (B, T, C)
         return self.encode(x, inputs.pad)
-
-    @torch.no_grad()
-    def act(
-        self,
-        batch: Batch,
-        channels: Channels | None = None,
-        mask_ratio: float = 0.0,
-        generator: torch.Generator | None = None,
-    ) -> Tensor:
-        """Desired joint positions (B, 12) in raw units.
-
-        Args:
-            batch: sensor name -> (B, T, c) raw windows (missing sensors get placeholders),
-                optional "pad" (B, T).
-            channels: per-sensor channel subsets present, e.g. {"joint_pos": [0, 1, 3]}.
-            mask_ratio: test-time fraction of input scalars replaced by placeholders.
-            generator: RNG for the test-time mask.
-        """
-        return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
-
-    def loss(
-        self,
-        batch: Batch,
-        channels: Channels | None = None,
-        mask_ratio: float | None = None,
-        generator: torch.Generator | None = None,
-    ) -> tuple[Tensor, dict[str, float]]:
-        """MSE between predicted and target actions in the processor's target space.
-
-        Args:
-            batch: as :meth:`act`, plus the target under ``config.action_key``: (B, 12).
-            channels, mask_ratio, generator: as :meth:`forward`.
-        """
-        key = self.config.action_key
-        if key not in batch:
-            raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
-        batch = self.as_tensors(batch)
-        target = self.processor.normalize_target(batch[key])  # (B, A)
-        pred = self(batch, channels, mask_ratio, generator)  # (B, A)
-        loss = F.mse_loss(pred, target)
-        with torch.no_grad():
-            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())
-        return loss, {"loss": float(loss.detach()), "action_mse": float(raw)}
