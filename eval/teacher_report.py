@@ -2,8 +2,9 @@
 
     python -m eval.teacher_report --episodes 100 --out docs/teacher_quality.md
 
-Every (terrain type, level) tile gets ``--envs-per-tile`` environments pinned to it
-(terrain curriculum off); each environment runs the same number of 20 s episodes, so
+Every terrain type runs on its own grid (``columns`` columns of that type x the levels),
+and every (type, level) tile gets ``--envs-per-tile`` environments pinned to it (terrain
+curriculum off); each environment runs the same number of 20 s episodes, so
 falls do not bias the count. Commands come from the simulator's defaults (the paper's
 ranges: vx, vy in [-1, 1] m/s, yaw rate from a sampled heading capped to [-1, 1] rad/s);
 domain randomization and observation noise are on unless disabled. The image strip shows
@@ -62,6 +63,7 @@ class ReportConfig:
     noise: bool = True
     seed: int = 0
     nthread: int = 2
+    columns: int = 3
     extra: dict = field(default_factory=dict)
 
 
@@ -74,33 +76,44 @@ def _tracking_error(reward: np.ndarray, scale: float, dt: float, sigma: float) -
 def evaluate(cfg: ReportConfig, progress: bool = True) -> dict[tuple[str, int], TileStats]:
     """Roll the teacher on every (type, level) tile; see the module docstring.
 
+    Each terrain type runs on its own grid (``columns_per_type`` columns of that type
+    only), so a robot walking away along x stays on its type; walking along y moves it
+    between neighbouring levels of the same type.
+
     Args:
         cfg: what to run.
         progress: show a tqdm bar over control steps.
     Returns:
         stats per (type name, level).
     """
-    tiles = [(t, lv) for t in cfg.types for lv in cfg.levels]
+    stats: dict[tuple[str, int], TileStats] = {}
+    for t in cfg.types:
+        stats.update(_evaluate_type(cfg, t, progress))
+    return stats
+
+
+def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool
+                   ) -> dict[tuple[str, int], TileStats]:
     k = cfg.envs_per_tile
-    n = len(tiles) * k
+    n = len(cfg.levels) * k
     env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_s,
-                        nthread=cfg.nthread, terrain=TerrainConfig(curriculum=False),
+                        nthread=cfg.nthread,
+                        terrain=TerrainConfig(types=(terrain,), columns_per_type=cfg.columns,
+                                              curriculum=False),
                         randomization=RandomizationConfig(enabled=cfg.randomization),
                         noise=NoiseConfig(enabled=cfg.noise))
     env = QuadrupedEnv(env_cfg)
-    type_idx = np.repeat([env_cfg.terrain.types.index(t) for t, _ in tiles], k)
-    level = np.repeat([lv for _, lv in tiles], k)
-    obs = env.reset(type_idx=type_idx, level=level)
+    level = np.repeat(np.asarray(cfg.levels), k)
+    obs = env.reset(type_idx=np.zeros(n, dtype=np.int64), level=level)
     teacher = make_teacher(cfg.teacher)
     per_env = math.ceil(cfg.episodes / k)
     done_eps = np.zeros(n, dtype=np.int64)
-    stats = {tile: TileStats() for tile in tiles}
-    tile_of_env = np.repeat(np.arange(len(tiles)), k)
-    acc = np.zeros((len(tiles), 5))        # steps, lin_r, ang_r, lin_err, ang_err
-    ends = np.zeros((len(tiles), 2), dtype=np.int64)
+    tile_of_env = np.repeat(np.arange(len(cfg.levels)), k)
+    acc = np.zeros((len(cfg.levels), 5))        # steps, lin_r, ang_r, lin_err, ang_err
+    ends = np.zeros((len(cfg.levels), 2), dtype=np.int64)
     rs = env_cfg.rewards
     total = per_env * env.max_steps
-    bar = _bar(total, progress)
+    bar = _bar(total, progress, terrain)
     step = 0
     while (done_eps < per_env).any():
         res = env.step(teacher.act(obs))
@@ -123,18 +136,17 @@ def evaluate(cfg: ReportConfig, progress: bool = True) -> dict[tuple[str, int], 
             bar.refresh()
     if bar is not None:
         bar.close()
-    for i, tile in enumerate(tiles):
-        stats[tile] = TileStats(episodes=int(ends[i, 0]), survived=int(ends[i, 1]),
-                                steps=int(acc[i, 0]), lin_reward=acc[i, 1], ang_reward=acc[i, 2],
-                                lin_err=acc[i, 3], ang_err=acc[i, 4])
-    return stats
+    return {(terrain, lv): TileStats(episodes=int(ends[i, 0]), survived=int(ends[i, 1]),
+                                     steps=int(acc[i, 0]), lin_reward=acc[i, 1],
+                                     ang_reward=acc[i, 2], lin_err=acc[i, 3], ang_err=acc[i, 4])
+            for i, lv in enumerate(cfg.levels)}
 
 
-def _bar(total: int, progress: bool):
+def _bar(total: int, progress: bool, terrain: str):
     if not progress:
         return None
     from tqdm import tqdm
-    return tqdm(total=total, unit="step/env", desc="teacher report", smoothing=0.1)
+    return tqdm(total=total, unit="step/env", desc=f"teacher report {terrain}", smoothing=0.1)
 
 
 def highest_level(stats: dict[tuple[str, int], TileStats], terrain: str, levels: tuple[int, ...],
@@ -154,7 +166,10 @@ def render_markdown(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig, 
     lines = [f"# Teacher quality: `{cfg.teacher}`", "",
              f"Regenerate: `{command}`", "",
              f"{cfg.episodes} episodes of {cfg.episode_s:g} s per terrain type and level "
-             f"({cfg.envs_per_tile} environments per tile), terrain curriculum off, "
+             f"({cfg.envs_per_tile} environments per tile), each terrain type on its own grid "
+             f"({cfg.columns} columns of that type x 10 levels, so a robot walking along x "
+             f"stays on its type; walking along y moves it to neighbouring levels of the same "
+             f"type), terrain curriculum off, "
              f"randomization {'on' if cfg.randomization else 'off'}, observation noise "
              f"{'on' if cfg.noise else 'off'}, commands from the paper's ranges "
              f"(vx, vy in [-1, 1] m/s, yaw rate from a heading, capped to [-1, 1] rad/s), "

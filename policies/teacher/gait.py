@@ -84,10 +84,10 @@ class GaitConfig:
         dt: s, control period.
     """
 
-    period: float = 0.33
+    period: float = 0.24
     duty: float = 0.65
     phase_offsets: tuple[float, float, float, float] = TROT_OFFSETS
-    body_height: float = 0.30
+    body_height: float = 0.28
     swing_height: float = 0.07
     swing_lift_frac: float = 0.08
     swing_lead: float = 0.0
@@ -96,7 +96,7 @@ class GaitConfig:
     max_step: float = 0.2
     velocity_gain: tuple[float, float] = (1.0, 0.3)
     yaw_gain: float = 1.2
-    max_speed: tuple[float, float, float] = (0.8, 0.6, 1.0)
+    max_speed: tuple[float, float, float] = (1.0, 0.6, 1.0)
     max_accel: float = 2.4
     force_velocity_gain: tuple[float, float] = (100.0, 30.0)
     max_velocity_error: float = 0.25
