@@ -177,6 +177,7 @@ class GaitTeacher:
     def reset(self, ids: np.ndarray) -> None:
         """Restart the gait of environments ``ids`` (their next ``act`` re-initializes)."""
         ids = np.asarray(ids, dtype=np.int64)
+        ids = ids[ids < self._n]  # a new batch size re-initializes every env in act()
         if self._n and len(ids):
             self.fresh[ids] = True
 

@@ -117,3 +117,13 @@ def test_walks_flat_for_20s_under_8_commands():
     lin, yaw = np.mean(lin_err, axis=0), np.mean(yaw_err, axis=0)
     assert (lin < 0.3).all(), f"planar velocity error per command {lin.round(3)}"
     assert (yaw < 0.5).all(), f"yaw-rate error per command {yaw.round(3)}"
+
+
+def test_reset_accepts_ids_of_a_larger_batch_than_last_seen():
+    """A teacher reused with another env count: reset before the next act must not fail."""
+    teacher = make_teacher("gait")
+    small = QuadrupedEnv(EnvConfig(num_envs=2, nthread=1))
+    teacher.act(small.reset())
+    teacher.reset(np.arange(6))
+    big = QuadrupedEnv(EnvConfig(num_envs=6, nthread=1))
+    assert teacher.act(big.reset()).shape == (6, 12)
