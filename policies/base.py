@@ -176,6 +176,14 @@ class StudentPolicy(nn.Module):
         device = self.device
         return {k: torch.as_tensor(v).to(device, non_blocking=True) for k, v in batch.items()}
 
+    def resolve_mask_ratio(self, mask_ratio: float | None) -> float:
+        """``None`` -> the config's ratio in training mode, 0 in eval mode; checked range."""
+        if mask_ratio is None:
+            mask_ratio = self.config.mask_ratio if self.training else 0.0
+        if not 0.0 <= mask_ratio < 1.0:
+            raise ValueError(f"mask_ratio must be in [0, 1), got {mask_ratio}")
+        return mask_ratio
+
     @torch.no_grad()
     def act(
         self,

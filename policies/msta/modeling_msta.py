@@ -304,9 +304,6 @@ class MSTAPolicy(StudentPolicy):
     ) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode."""
-        if mask_ratio is None:
-            mask_ratio = self.config.mask_ratio if self.training else 0.0
-        if not 0.0 <= mask_ratio < 1.0:
-            raise ValueError(f"mask_ratio must be in [0, 1), got {mask_ratio}")
+        mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         return self.model(inputs, mask_ratio, generator)
