@@ -3,7 +3,7 @@
 Both run in the same process, interleaved in rounds, on the same states, thread count
 and environment count, so the printed ratio is robust to a busy machine.
 
-    python -m eval.bench_sim [--num_envs 1024] [--steps 50] [--rounds 3]
+    python -m eval.bench_sim [--num_envs 1024] [--steps 50] [--rounds 3] [--collision fast]
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import numpy as np
 from mujoco import rollout
 
 from collect.sim.env import EnvConfig, QuadrupedEnv
+from collect.sim import robot
 from collect.sim.robot import DEFAULT_POSE
 
 
@@ -52,8 +53,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--steps", type=int, default=50, help="control steps per measurement")
     p.add_argument("--rounds", type=int, default=3)
     p.add_argument("--nthread", type=int, default=2)
+    p.add_argument("--collision", default="fast", choices=robot.COLLISION_SETS,
+                   help="robot collision set (EnvConfig.collision)")
     args = p.parse_args(argv)
-    env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0))
+    env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0,
+                               collision=args.collision))
     env.reset()
     rng = np.random.default_rng(0)
     _env_rate(env, np.zeros((10, env.num_envs, 12)))  # warm-up: let robots land
@@ -66,7 +70,8 @@ def main(argv: list[str] | None = None) -> None:
         print(f"round {r}: env {env_rates[-1]:,.0f} steps/s | raw rollout {raw_rates[-1]:,.0f} "
               f"steps/s")
     env_r, raw_r = float(np.median(env_rates)), float(np.median(raw_rates))
-    print(f"num_envs={args.num_envs} nthread={args.nthread} terrain types={env.cfg.terrain.types}")
+    print(f"num_envs={args.num_envs} nthread={args.nthread} collision={args.collision} "
+          f"terrain types={env.cfg.terrain.types}")
     print(f"batched env (all sensors + privileged, rewards, resets): {env_r:,.0f} control steps/s")
     print(f"raw mujoco.rollout, same model and states:              {raw_r:,.0f} control steps/s")
     print(f"env/raw ratio: {env_r / raw_r:.2f}")
