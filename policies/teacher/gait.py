@@ -75,15 +75,6 @@ class GaitConfig:
         reach_rate: m/s, how fast a stance foot without ground contact extends downward.
         max_reach: m, cap on that extension.
         mass: kg, nominal robot mass (the privileged added mass is added).
-        weight_feedforward: fraction of the weight fed forward as stance forces on normal
-            ground; the rest is carried by the servos' position error.
-        slip_feedforward: the same fraction on slippery ground. A full feed-forward
-            over-drives the legs (the base rides ~3 cm high and the hip servos push the
-            feet sideways), which makes feet slip at low friction; 0.8 raised survival
-            at friction 0.5-0.7 from 58 % to 73 %, but walks worse at nominal friction.
-        slip_friction: (low, high) privileged friction coefficients: at or below ``low``
-            ``slip_feedforward`` applies, at or above ``high`` ``weight_feedforward``,
-            linear in between.
         kp: nominal position gain of the servo.
         kd: nominal damping gain of the servo plus the joints' passive damping; the
             damping torque of the planned joint velocity is pre-compensated.
@@ -120,9 +111,6 @@ class GaitConfig:
     reach_rate: float = 1.0
     max_reach: float = 0.08
     mass: float = 12.453
-    weight_feedforward: float = 1.0
-    slip_feedforward: float = 0.8
-    slip_friction: tuple[float, float] = (0.6, 0.8)
     kp: float = 30.0
     kd: float = 0.8
     damping_comp: float = 0.35
@@ -145,12 +133,6 @@ class GaitConfig:
             raise ValueError(f"phase_offsets={self.phase_offsets} needs one value per leg")
         if not 0.0 < self.duty < 1.0:
             raise ValueError(f"duty={self.duty} must be in (0, 1)")
-        for name in ("weight_feedforward", "slip_feedforward"):
-            if not 0.0 <= getattr(self, name) <= 1.5:
-                raise ValueError(f"{name}={getattr(self, name)} must be in [0, 1.5]")
-        self.slip_friction = tuple(float(v) for v in self.slip_friction)
-        if len(self.slip_friction) != 2 or self.slip_friction[0] > self.slip_friction[1]:
-            raise ValueError(f"slip_friction={self.slip_friction} needs (low, high), low <= high")
         for name in ("period", "body_height", "mass", "kp", "action_scale", "dt"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name}={getattr(self, name)} must be > 0")
@@ -353,10 +335,7 @@ class GaitTeacher:
         cfg = self.cfg
         share = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-6)       # (N, 4)
         mass = cfg.mass + st.dyn[:, _DYN["added_mass"]]
-        lo, hi = cfg.slip_friction
-        grip = np.clip((st.dyn[:, _DYN["friction"]] - lo) / max(hi - lo, 1e-6), 0.0, 1.0)
-        fz = (cfg.slip_feedforward + (cfg.weight_feedforward - cfg.slip_feedforward) * grip
-              ) * mass * GRAVITY
+        fz = mass * GRAVITY
         fz = fz + cfg.height_gain * (cfg.body_height - st.height) - cfg.height_damping * st.v[:, 2]
         f = np.zeros((st.n, 4, 3))
         f[..., 2] = share * fz[:, None]
