@@ -90,7 +90,7 @@ class GaitConfig:
     body_height: float = 0.28
     swing_height: float = 0.07
     swing_lift_frac: float = 0.08
-    swing_lead: float = 0.0
+    swing_lead: float = 0.02
     stance_width: float = 0.0
     raibert_gain: tuple[float, float] = (0.2, 0.2)
     max_step: float = 0.2
