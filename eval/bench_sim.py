@@ -15,8 +15,8 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim import robot
+from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.robot import DEFAULT_POSE
 
 

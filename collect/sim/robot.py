@@ -202,6 +202,6 @@ def foot_positions_body(q: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
-    "COLLISION_SETS", "DEFAULT_POSE", "LEGS", "TORQUE_LIMIT", "StateLayout", "build_model", "default_state",
-    "foot_positions_body", "joint_limits", "state_layout",
+    "COLLISION_SETS", "DEFAULT_POSE", "LEGS", "TORQUE_LIMIT", "StateLayout", "build_model",
+    "default_state", "foot_positions_body", "joint_limits", "state_layout",
 ]
