@@ -100,9 +100,7 @@ class EnvConfig:
         if self.episode_length_s <= 0:
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
         self.type_weights = tuple(self.type_weights)
-        if self.collision not in robot.COLLISION_SETS:
-            raise ValueError(f"collision={self.collision!r} is not one of "
-                             f"{robot.COLLISION_SETS}")
+        robot.check_collision_set(self.collision)
         if self.type_weights and len(self.type_weights) != len(self.terrain.types):
             raise ValueError(f"type_weights {self.type_weights} must have one weight per "
                              f"terrain type {self.terrain.types}")

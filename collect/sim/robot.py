@@ -81,6 +81,12 @@ def state_layout(model: mujoco.MjModel) -> StateLayout:
 COLLISION_SETS = ("fast", "full")
 
 
+def check_collision_set(name: str) -> None:
+    """ValueError naming ``name`` unless it is one of ``COLLISION_SETS``."""
+    if name not in COLLISION_SETS:
+        raise ValueError(f"collision={name!r} is not one of {COLLISION_SETS}")
+
+
 def build_model(hfield: dict | None, timestep: float = 0.005,
                 collision: str = "fast") -> mujoco.MjModel:
     """Compile the robot with a terrain heightfield (or a plane when ``hfield`` is None).
@@ -91,8 +97,7 @@ def build_model(hfield: dict | None, timestep: float = 0.005,
         timestep: physics step (s).
         collision: one of ``COLLISION_SETS``.
     """
-    if collision not in COLLISION_SETS:
-        raise ValueError(f"collision={collision!r} is not one of {COLLISION_SETS}")
+    check_collision_set(collision)
     xml = resources.files("collect.sim").joinpath("assets", ASSET).read_text()
     spec = mujoco.MjSpec.from_string(xml)
     spec.option.timestep = timestep
