@@ -71,6 +71,12 @@ class GaitConfig:
         velocity_gain: feedback of the velocity error into the stance sweep velocity (x, y).
         yaw_gain: feedback of the yaw-rate error into the stance sweep yaw rate.
         max_speed: (vx, vy, wz) caps of the internal velocity reference (m/s, rad/s).
+        rough_range: m, terrain roughness (largest second difference of the height scan
+            within 0.6 m x 0.4 m of the base; 0 on planes and slopes, the riser height on
+            stairs) over which the gait blends from its flat-ground settings to the rough
+            ones below.
+        rough_max_speed: (vx, vy, wz) caps of the velocity reference on rough ground.
+        rough_swing_height: m, swing clearance on rough ground.
         max_accel: m/s^2, the internal velocity reference follows the command at most
             this fast (and yaw rate at ``2 * max_accel`` rad/s^2).
         force_velocity_gain: N per m/s of planar velocity error, as stance forces (x, y).
@@ -115,6 +121,9 @@ class GaitConfig:
     velocity_gain: tuple[float, float] = (1.0, 0.3)
     yaw_gain: float = 1.2
     max_speed: tuple[float, float, float] = (1.0, 0.6, 1.0)
+    rough_range: tuple[float, float] = (0.02, 0.035)
+    rough_max_speed: tuple[float, float, float] = (0.6, 0.4, 1.0)
+    rough_swing_height: float = 0.1
     max_accel: float = 2.4
     force_velocity_gain: tuple[float, float] = (100.0, 30.0)
     max_velocity_error: float = 0.25
@@ -141,8 +150,11 @@ class GaitConfig:
         self.max_speed = tuple(float(v) for v in self.max_speed)
         if len(self.max_speed) != 3 or min(self.max_speed) <= 0:
             raise ValueError(f"max_speed={self.max_speed} needs three positive values")
+        self.rough_max_speed = tuple(float(v) for v in self.rough_max_speed)
+        if len(self.rough_max_speed) != 3 or min(self.rough_max_speed) <= 0:
+            raise ValueError(f"rough_max_speed={self.rough_max_speed} needs three positive values")
         for name in ("raibert_gain", "velocity_gain", "force_velocity_gain", "attitude_gain",
-                     "attitude_damping"):
+                     "attitude_damping", "rough_range"):
             value = tuple(float(v) for v in getattr(self, name))
             if len(value) != 2:
                 raise ValueError(f"{name}={value} needs two values")
@@ -213,7 +225,10 @@ class GaitTeacher:
             self._init_feet(np.flatnonzero(self.fresh), st)
             self.fresh[:] = False
         step = cfg.max_accel * cfg.dt * np.array([1.0, 1.0, 2.0])
-        lim = np.asarray(cfg.max_speed)
+        lo, hi = cfg.rough_range
+        self.caution = np.clip((st.roughness - lo) / max(hi - lo, 1e-9), 0.0, 1.0)[:, None]
+        lim = (1 - self.caution) * np.asarray(cfg.max_speed) + self.caution * np.asarray(
+            cfg.rough_max_speed)
         self.ref_cmd += np.clip(np.clip(st.cmd, -lim, lim) - self.ref_cmd, -step, step)
         self.zb += st.v[:, 2] * cfg.dt
         st.cmd = self.ref_cmd.copy()
@@ -281,6 +296,9 @@ class GaitTeacher:
             g = self.g_world - self.zb[:, None]
         elif cfg.stance_ground == "actual":
             g = ground_at(st.grid, st.feet_actual[..., :2])
+        elif cfg.stance_ground == "contact":
+            g = np.where(st.contact > 0.5, st.feet_actual[..., 2] - FOOT_RADIUS,
+                         ground_at(st.grid, st.feet_actual[..., :2]))
         else:
             g = ground_at(st.grid, new_xy)
         z = g - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
@@ -330,7 +348,8 @@ class GaitTeacher:
         g_td = ground_at(st.grid, td)
         self.g_world = np.where(stance, self.g_world, g_td + self.zb[:, None])
         # Rise over the highest ground ahead, come down onto the touchdown ground.
-        clear = np.maximum(g_here, g_ahead) + cfg.swing_height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
+        height = cfg.swing_height + self.caution * (cfg.rough_swing_height - cfg.swing_height)
+        clear = np.maximum(g_here, g_ahead) + height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
         landing = _smooth((s - 0.75) / 0.25)
         zg = (1 - landing) * clear + landing * g_td
         z = zg - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
@@ -420,6 +439,8 @@ class _State:
     dyn: np.ndarray        # (N, 8)
     rp_des: np.ndarray     # (N, 2) desired roll, pitch
     feet_actual: np.ndarray  # (N, 4, 3) measured foot positions in H (joint angles + attitude)
+    contact: np.ndarray    # (N, 4) foot contact flags
+    roughness: np.ndarray  # (N,) largest second difference of the scan near the base (m)
 
     @classmethod
     def from_obs(cls, obs: dict[str, np.ndarray], slope_follow: float = 0.0) -> "_State":
@@ -445,7 +466,18 @@ class _State:
                    slope=np.column_stack([gx, gy]), dyn=obs["dynamics"].astype(np.float64),
                    rp_des=slope_follow * np.column_stack([np.arctan(gy), -np.arctan(gx)]),
                    feet_actual=np.einsum("nij,nkj->nki", rot_rp, foot_positions_body(
-                       obs["joint_pos"].astype(np.float64)).reshape(len(quat), 4, 3)))
+                       obs["joint_pos"].astype(np.float64)).reshape(len(quat), 4, 3)),
+                   contact=np.asarray(obs["foot_contact"], dtype=np.float64),
+                   roughness=roughness(grid))
+
+
+def roughness(grid: np.ndarray) -> np.ndarray:
+    """(N,) largest |second difference| of the scan within |x| <= 0.6 m, |y| <= 0.4 m:
+    0 on planes, about the riser height at a step, a few cm on rough slopes."""
+    g = grid[:, 2:15, 1:10]
+    d2x = np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=(1, 2))
+    d2y = np.abs(g[:, :, 2:] - 2 * g[:, :, 1:-1] + g[:, :, :-2]).max(axis=(1, 2))
+    return np.maximum(d2x, d2y)
 
 
 def _rot_rp(rp: np.ndarray) -> np.ndarray:
