@@ -34,7 +34,7 @@ from collect.sim.robot import (DEFAULT_POSE, FOOT_RADIUS, HIP_OFFSETS, THIGH_OFF
 from msta_data.sensors import DYNAMICS_NAMES
 from policies.teacher.base import check_obs, register_teacher
 from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import (body_reference, dilate, erode, ground_at,
+from policies.teacher.gait_terrain import (body_reference, dilate, ground_at,
                                            ground_max_along, scan_grid)
 
 GRAVITY = 9.81
@@ -58,16 +58,10 @@ class GaitConfig:
         stance_width: m, extra lateral offset of the feet outward of the thigh joints.
         raibert_gain: s, touchdown shift per m/s of velocity error (v - v_cmd), (x, y).
         max_step: m, cap on the touchdown offset from the nominal foothold (per axis).
-        foothold_search: m, swing feet may land up to this far (per axis) from the Raibert
-            point to avoid edges (0 disables the search).
-        foothold_spacing: m, spacing of the candidate footholds in that window.
-        edge_cost: cost per m of ground-height variation within 0.1 m of a candidate,
-            against 1 per m of distance from the Raibert point.
-        edge_tolerance: m, height variation below this counts as flat.
         stance_ground: where a stance foot's ground height is read: "actual" (the scan
-            under the measured foot, from joint angles and attitude), "planned" (under
-            the planned foot, which near an edge can be a step away from the real one), or
-            "touchdown" (the planned touchdown point's ground, held fixed in the world).
+            under the measured foot, from joint angles and attitude) or "planned" (under
+            the planned foot, which near an edge can be a step away from the real one:
+            stairs up L0-2 survival 50 % instead of 74 %).
         velocity_gain: feedback of the velocity error into the stance sweep velocity (x, y).
         yaw_gain: feedback of the yaw-rate error into the stance sweep yaw rate.
         max_speed: (vx, vy, wz) caps of the internal velocity reference (m/s, rad/s).
@@ -113,10 +107,6 @@ class GaitConfig:
     stance_width: float = 0.0
     raibert_gain: tuple[float, float] = (0.2, 0.2)
     max_step: float = 0.2
-    foothold_search: float = 0.0
-    foothold_spacing: float = 0.025
-    edge_cost: float = 2.0
-    edge_tolerance: float = 0.01
     stance_ground: str = "actual"
     velocity_gain: tuple[float, float] = (1.0, 0.3)
     yaw_gain: float = 1.2
@@ -159,6 +149,8 @@ class GaitConfig:
             if len(value) != 2:
                 raise ValueError(f"{name}={value} needs two values")
             setattr(self, name, value)
+        if self.stance_ground not in ("actual", "planned"):
+            raise ValueError(f"stance_ground={self.stance_ground!r}: use 'actual' or 'planned'")
         if len(self.phase_offsets) != 4:
             raise ValueError(f"phase_offsets={self.phase_offsets} needs one value per leg")
         if not 0.0 < self.duty < 1.0:
@@ -198,8 +190,6 @@ class GaitTeacher:
         self.q_prev = np.zeros((0, 12))
         self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
-        self.zb = np.zeros(0)                # integrated base height (arbitrary origin)
-        self.g_world = np.zeros((0, 4))      # ground height at each foot's (planned) foothold, same origin
         nominal = np.column_stack([HIP_OFFSETS[:, 0],
                                    HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
                                    + np.sign(THIGH_OFFSET_Y) * self.cfg.stance_width])
@@ -230,7 +220,6 @@ class GaitTeacher:
         lim = (1 - self.caution) * np.asarray(cfg.max_speed) + self.caution * np.asarray(
             cfg.rough_max_speed)
         self.ref_cmd += np.clip(np.clip(st.cmd, -lim, lim) - self.ref_cmd, -step, step)
-        self.zb += st.v[:, 2] * cfg.dt
         st.cmd = self.ref_cmd.copy()
         leg_phase = (self.phase[:, None] + np.asarray(cfg.phase_offsets)[None]) % 1.0
         stance = leg_phase < cfg.duty
@@ -264,17 +253,13 @@ class GaitTeacher:
         self.q_prev = np.tile(DEFAULT_POSE, (n, 1))
         self.reach = np.zeros((n, 4))
         self.ref_cmd = np.zeros((n, 3))
-        self.zb = np.zeros(n)
-        self.g_world = np.zeros((n, 4))
 
     def _init_feet(self, ids: np.ndarray, st: "_State") -> None:
         self.phase[ids] = 0.0
         self.reach[ids] = 0.0
         self.ref_cmd[ids] = 0.0
         xy = np.broadcast_to(self.nominal_xy, (len(ids), 4, 2))
-        g = ground_at(st.grid[ids], xy)
-        self.g_world[ids] = g + self.zb[ids, None]
-        z = g - st.ref[ids, None] - self.cfg.body_height + FOOT_RADIUS
+        z = ground_at(st.grid[ids], xy) - st.ref[ids, None] - self.cfg.body_height + FOOT_RADIUS
         self.feet[ids] = np.concatenate([xy, z[..., None]], axis=-1)
         self.liftoff[ids] = self.feet[ids]
         self.stance[ids] = True
@@ -292,15 +277,7 @@ class GaitTeacher:
         p = self.feet[..., :2]
         dp = v[:, None, :] + wz[:, None, None] * np.stack([-p[..., 1], p[..., 0]], axis=-1)
         new_xy = p - cfg.dt * dp
-        if cfg.stance_ground == "touchdown":
-            g = self.g_world - self.zb[:, None]
-        elif cfg.stance_ground == "actual":
-            g = ground_at(st.grid, st.feet_actual[..., :2])
-        elif cfg.stance_ground == "contact":
-            g = np.where(st.contact > 0.5, st.feet_actual[..., 2] - FOOT_RADIUS,
-                         ground_at(st.grid, st.feet_actual[..., :2]))
-        else:
-            g = ground_at(st.grid, new_xy)
+        g = ground_at(st.grid, st.feet_actual[..., :2] if cfg.stance_ground == "actual" else new_xy)
         z = g - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
         upd = np.concatenate([new_xy, z[..., None]], axis=-1)
         self.feet = np.where(stance[..., None], upd, self.feet)
@@ -317,22 +294,7 @@ class GaitTeacher:
         err = st.v[:, None, :2] - st.cmd[:, None, :2]
         off = v_hip * t_stance / 2 + np.asarray(cfg.raibert_gain) * err
         off = np.clip(off, -cfg.max_step, cfg.max_step)
-        return self._steer(st, hips + off)
-
-    def _steer(self, st: "_State", td: np.ndarray) -> np.ndarray:
-        """Move touchdown points (N, 4, 2) to the nearby candidate with the lowest
-        distance + ``edge_cost`` x (height variation around it) (flat ground: no move)."""
-        cfg = self.cfg
-        k = int(round(cfg.foothold_search / cfg.foothold_spacing)) if cfg.foothold_search > 0 else 0
-        if k == 0:
-            return td
-        o = np.arange(-k, k + 1) * cfg.foothold_spacing
-        offs = np.stack(np.meshgrid(o, o, indexing="ij"), axis=-1).reshape(-1, 2)   # (K, 2)
-        cand = td[:, :, None, :] + offs[None, None]                                 # (N, 4, K, 2)
-        rough = np.maximum(ground_at(st.rough, cand) - cfg.edge_tolerance, 0.0)
-        cost = np.linalg.norm(offs, axis=1)[None, None] + cfg.edge_cost * rough
-        best = np.argmin(cost, axis=-1)                                             # (N, 4)
-        return td + offs[best]
+        return hips + off
 
     def _update_swing(self, st: "_State", stance: np.ndarray, leg_phase: np.ndarray) -> None:
         cfg = self.cfg
@@ -346,7 +308,6 @@ class GaitTeacher:
         g_here = ground_at(st.grid, xy)
         g_ahead = ground_max_along(st.dilated, xy, td)
         g_td = ground_at(st.grid, td)
-        self.g_world = np.where(stance, self.g_world, g_td + self.zb[:, None])
         # Rise over the highest ground ahead, come down onto the touchdown ground.
         height = cfg.swing_height + self.caution * (cfg.rough_swing_height - cfg.swing_height)
         clear = np.maximum(g_here, g_ahead) + height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
@@ -432,14 +393,12 @@ class _State:
     rp: np.ndarray         # (N, 2) roll, pitch (rad)
     grid: np.ndarray       # (N, 17, 11) height scan
     dilated: np.ndarray    # (N, 17, 11) height scan, 3 x 3 max filter
-    rough: np.ndarray      # (N, 17, 11) height variation within 0.1 m (max - min filter)
     ref: np.ndarray        # (N,) mean ground under the body, relative to the base
     height: np.ndarray     # (N,) base height above ref
     slope: np.ndarray      # (N, 2) ground gradient dz/dx, dz/dy in H
     dyn: np.ndarray        # (N, 8)
     rp_des: np.ndarray     # (N, 2) desired roll, pitch
     feet_actual: np.ndarray  # (N, 4, 3) measured foot positions in H (joint angles + attitude)
-    contact: np.ndarray    # (N, 4) foot contact flags
     roughness: np.ndarray  # (N,) largest second difference of the scan near the base (m)
 
     @classmethod
@@ -462,12 +421,11 @@ class _State:
         gx = (grid[:, 11:14].mean(axis=(1, 2)) - grid[:, 3:6].mean(axis=(1, 2))) / 0.8
         gy = (grid[:, :, 7:10].mean(axis=(1, 2)) - grid[:, :, 1:4].mean(axis=(1, 2))) / 0.6
         return cls(n=len(quat), cmd=obs["command"].astype(np.float64), v=v, w=w, rot_rp=rot_rp,
-                   rp=np.column_stack([roll, pitch]), grid=grid, dilated=(dil := dilate(grid)), rough=dil - erode(grid), ref=ref, height=-ref,
+                   rp=np.column_stack([roll, pitch]), grid=grid, dilated=dilate(grid), ref=ref, height=-ref,
                    slope=np.column_stack([gx, gy]), dyn=obs["dynamics"].astype(np.float64),
                    rp_des=slope_follow * np.column_stack([np.arctan(gy), -np.arctan(gx)]),
                    feet_actual=np.einsum("nij,nkj->nki", rot_rp, foot_positions_body(
                        obs["joint_pos"].astype(np.float64)).reshape(len(quat), 4, 3)),
-                   contact=np.asarray(obs["foot_contact"], dtype=np.float64),
                    roughness=roughness(grid))
 
 

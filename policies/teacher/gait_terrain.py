@@ -55,11 +55,6 @@ def dilate(grid: np.ndarray) -> np.ndarray:
     return out
 
 
-def erode(grid: np.ndarray) -> np.ndarray:
-    """3 x 3 min filter of the scan grid (each cell: lowest ground within 0.1 m)."""
-    return -dilate(-grid)
-
-
 def ground_max_along(dilated: np.ndarray, start: np.ndarray, end: np.ndarray,
                      samples: int = 5) -> np.ndarray:
     """Highest ground near the segments ``start -> end`` (both (N, K, 2)): (N, K).
@@ -81,4 +76,4 @@ def body_reference(grid: np.ndarray, half_x: float = 0.3, half_y: float = 0.2) -
     return grid[:, xs][:, :, ys].mean(axis=(1, 2))
 
 
-__all__ = ["body_reference", "dilate", "erode", "ground_at", "ground_max_along", "scan_grid"]
+__all__ = ["body_reference", "dilate", "ground_at", "ground_max_along", "scan_grid"]
