@@ -9,7 +9,12 @@ No training. Every control step, per environment (batched in numpy):
    body (from the privileged height scan). Swing feet go from lift-off to a Raibert
    touchdown point ``hip + v T_stance / 2 + k (v - v_cmd)`` (privileged true velocity),
    lifted ``swing_height`` above the highest ground on the way (height scan); stance
-   feet that find no ground keep extending (foot contact).
+   feet that find no ground keep extending (foot contact). A stance foot's ground height
+   is read under the *measured* foot (forward kinematics of ``joint_pos`` and the
+   attitude), not under the planned one, which near a step edge can be on the other step.
+   On rough ground (the scan's largest second difference near the base: steps, obstacles,
+   rough slopes; zero on planes and slopes) the velocity reference is capped lower and
+   swing feet lift higher.
 3. H-frame targets go to the base frame through a roll/pitch rotation: for stance feet the
    desired attitude pushed against the measured error (so the legs torque the body
    level), for swing feet the true attitude (so they land where planned); analytic
