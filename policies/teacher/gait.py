@@ -197,6 +197,7 @@ class GaitTeacher:
         self.q_prev = np.zeros((0, 12))
         self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
+        self.caution = np.zeros((0, 1))      # 0 flat-ground gait .. 1 rough-ground gait
         nominal = np.column_stack([HIP_OFFSETS[:, 0],
                                    HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
                                    + np.sign(THIGH_OFFSET_Y) * self.cfg.stance_width])
