@@ -31,7 +31,8 @@ HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
     from collect.sim.cli import SimRunConfig, simulate
 
-    terrain = TerrainConfig(curriculum=False, max_init_level=2)
+    # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
+    terrain = TerrainConfig(curriculum=True, max_init_level=2)
     cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
                                      terrain=terrain),
                        policy="gait", seconds=seconds, out=str(out / "teacher"), progress=False)
