@@ -299,8 +299,8 @@ class Evaluator:
         try:
             if entry.kind == "teacher":
                 if not _is_null(cond.spec):
-                    raise NotApplicable("a teacher reads fixed (privileged) inputs; test-time "
-                                        "input changes do not apply")
+                    raise NotApplicable("the teacher is the privileged reference; test-time "
+                                        "sensor changes apply to students only")
                 key: tuple = (entry.name,)
                 make = (lambda r, n: entry.obj)
             else:
