@@ -101,7 +101,7 @@ def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
     by = {(r["policy"], r["condition"]): r for r in students}
     assert by[("a75_50", "mask 0%")]["raw"] != by[("a75_50", "mask 50%")]["raw"]
     report = (tmp_path / "a" / "report.md").read_text()
-    assert "## Table I" in report and "| teacher | sensor_removal/-joint_pos | a teacher" in report
+    assert "## Table I" in report and "| teacher | sensor_removal/-joint_pos | the teacher is the privileged" in report
     for name in ("sensor_removal", "dead_joints", "history", "mask_matrix"):
         img = matplotlib.image.imread(tmp_path / "a" / f"{name}.png")
         assert img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img) > 0.5, name
