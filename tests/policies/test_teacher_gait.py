@@ -147,17 +147,22 @@ def test_climbs_and_descends_stairs():
     obs = env.reset(type_idx=np.zeros(len(cmds), dtype=np.int64),
                     level=np.ones(len(cmds), dtype=np.int64))
     teacher = GaitTeacher()
-    start = env.meas["base_pos"].copy()
-    climbed = np.zeros(len(cmds))
+    start = env.meas["base_pos"][:, 2].copy()
+    z = []
     for t in range(env.max_steps - 1):
         env.commands.command[:] = cmds
         obs["command"][:] = cmds
         res = env.step(teacher.act(obs))
         obs = res.obs
         assert not res.terminated.any(), f"env(s) {np.flatnonzero(res.terminated)} fell at {t}"
-        climbed = np.maximum(climbed, env.meas["base_pos"][:, 2] - start[:, 2])
-    # Everyone left the pit: at least three 8.5 cm steps up.
+        z.append(env.meas["base_pos"][:, 2] - start)
+    z = np.array(z)
+    climbed = z.max(axis=0)
+    descended = climbed - np.array([z[z[:, i].argmax():, i].min() for i in range(len(cmds))])
+    # Everyone left the pit (at least three 8.5 cm steps up), and at least half walked on
+    # over the rim and down the next tile's stairs (at least two steps down).
     assert (climbed > 0.25).all(), climbed.round(2)
+    assert (descended > 0.17).sum() >= len(cmds) // 2, descended.round(2)
 
 
 COMMANDS = np.array([[0.6, 0, 0], [-0.6, 0, 0], [0, 0.5, 0], [0, -0.5, 0],
