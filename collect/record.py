@@ -12,9 +12,10 @@ Parquet files atomically, so a killed collector loses at most the episodes in fl
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import draccus
 import numpy as np

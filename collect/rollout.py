@@ -6,8 +6,9 @@ and students through their adapters), or a plain callable ``obs -> actions``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm

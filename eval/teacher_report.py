@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+import policies.teacher.gait  # noqa: F401  (registers "gait")
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-import policies.teacher.gait  # noqa: F401  (registers "gait")
 from policies.teacher.base import TEACHERS, make_teacher
 
 MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival

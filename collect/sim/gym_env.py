@@ -8,7 +8,7 @@ the finished episode is in ``infos["final_obs"]`` (masked by ``infos["_final_obs
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -27,7 +27,7 @@ class MstaVectorEnv(VectorEnv):
         sensors: registry sensors to expose (default: all, privileged included).
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata: ClassVar[dict] = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, cfg: EnvConfig | None = None, sensors: tuple[str, ...] | None = None):
         self.sim = QuadrupedEnv(cfg)

@@ -79,7 +79,7 @@ def sample_params(cfg: RandomizationConfig, n: int, rng: np.random.Generator) ->
     """(n, 8) parameter vectors in ``DYNAMICS_NAMES`` order."""
     if not cfg.enabled:
         return np.tile(nominal_params(), (n, 1))
-    u = lambda r, size=n: rng.uniform(r[0], r[1], size)  # noqa: E731
+    u = lambda r, size=n: rng.uniform(r[0], r[1], size)
     return np.column_stack([
         u(cfg.friction), u(cfg.added_mass), u(cfg.com_offset), u(cfg.com_offset),
         u(cfg.com_offset), u(cfg.motor_strength), u(cfg.kp_factor), u(cfg.kd_factor)])

@@ -34,13 +34,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from collect.sim.math3d import quat_to_mat, yaw_of
-from collect.sim.robot import (DEFAULT_POSE, FOOT_RADIUS, HIP_OFFSETS, THIGH_OFFSET_Y,
-                               foot_positions_body)
+from collect.sim.robot import (
+    DEFAULT_POSE,
+    FOOT_RADIUS,
+    HIP_OFFSETS,
+    THIGH_OFFSET_Y,
+    foot_positions_body,
+)
 from msta_data.sensors import DYNAMICS_NAMES
 from policies.teacher.base import check_obs, register_teacher
 from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import (body_reference, dilate, ground_at,
-                                           ground_max_along, scan_grid)
+from policies.teacher.gait_terrain import (
+    body_reference,
+    dilate,
+    ground_at,
+    ground_max_along,
+    scan_grid,
+)
 
 GRAVITY = 9.81
 #: Trot: diagonal pairs FL+RR and FR+RL half a cycle apart.
@@ -262,7 +272,7 @@ class GaitTeacher:
         self.reach = np.zeros((n, 4))
         self.ref_cmd = np.zeros((n, 3))
 
-    def _init_feet(self, ids: np.ndarray, st: "_State") -> None:
+    def _init_feet(self, ids: np.ndarray, st: _State) -> None:
         self.phase[ids] = 0.0
         self.reach[ids] = 0.0
         self.ref_cmd[ids] = 0.0
@@ -272,14 +282,14 @@ class GaitTeacher:
         self.liftoff[ids] = self.feet[ids]
         self.stance[ids] = True
 
-    def _sweep_velocity(self, st: "_State") -> tuple[np.ndarray, np.ndarray]:
+    def _sweep_velocity(self, st: _State) -> tuple[np.ndarray, np.ndarray]:
         """Planar velocity (N, 2) and yaw rate (N,) the stance feet move the body at."""
         cfg = self.cfg
         err = np.clip(st.cmd[:, :2] - st.v[:, :2], -cfg.max_velocity_error, cfg.max_velocity_error)
         v = st.cmd[:, :2] + np.asarray(cfg.velocity_gain) * err
         return v, st.cmd[:, 2] + cfg.yaw_gain * (st.cmd[:, 2] - st.w[:, 2])
 
-    def _update_stance(self, st: "_State", stance: np.ndarray) -> None:
+    def _update_stance(self, st: _State, stance: np.ndarray) -> None:
         cfg = self.cfg
         v, wz = self._sweep_velocity(st)
         p = self.feet[..., :2]
@@ -292,7 +302,7 @@ class GaitTeacher:
         lifting = ~stance & self.stance
         self.liftoff = np.where(lifting[..., None], self.feet, self.liftoff)
 
-    def _touchdown(self, st: "_State") -> np.ndarray:
+    def _touchdown(self, st: _State) -> np.ndarray:
         """Raibert touchdown points (N, 4, 2) in the H frame."""
         cfg = self.cfg
         t_stance = cfg.duty * cfg.period
@@ -304,7 +314,7 @@ class GaitTeacher:
         off = np.clip(off, -cfg.max_step, cfg.max_step)
         return hips + off
 
-    def _update_swing(self, st: "_State", stance: np.ndarray, leg_phase: np.ndarray) -> None:
+    def _update_swing(self, st: _State, stance: np.ndarray, leg_phase: np.ndarray) -> None:
         cfg = self.cfg
         t_swing = cfg.period * (1.0 - cfg.duty)
         s = np.clip((leg_phase - cfg.duty) / (1.0 - cfg.duty) + (cfg.dt + cfg.swing_lead) / t_swing,
@@ -342,7 +352,7 @@ class GaitTeacher:
         w = np.where(stance, np.minimum(_smooth(sph / ramp), _smooth((1 - sph) / ramp)), 0.0)
         return np.maximum(w, 1e-3 * stance)
 
-    def _joint_targets(self, st: "_State", weight: np.ndarray
+    def _joint_targets(self, st: _State, weight: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint angles (N, 12), foot Jacobians and the joint angles without attitude
         feedback (N, 12) for the H-frame feet.
@@ -364,7 +374,7 @@ class GaitTeacher:
         feet_plan = np.einsum("nji,nkj->nki", _rot_rp(st.rp_des), self.feet)
         return q, foot_jacobian(q), leg_ik(feet_plan)
 
-    def _feedforward(self, st: "_State", w: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    def _feedforward(self, st: _State, w: np.ndarray, jac: np.ndarray) -> np.ndarray:
         """Joint torques (N, 12) for the stance forces of a virtual-model balance law."""
         cfg = self.cfg
         share = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-6)       # (N, 4)
@@ -410,7 +420,7 @@ class _State:
     roughness: np.ndarray  # (N,) largest second difference of the scan near the base (m)
 
     @classmethod
-    def from_obs(cls, obs: dict[str, np.ndarray], slope_follow: float = 0.0) -> "_State":
+    def from_obs(cls, obs: dict[str, np.ndarray], slope_follow: float = 0.0) -> _State:
         quat = np.asarray(obs["orientation"], dtype=np.float64)
         quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
         rot = quat_to_mat(quat)

@@ -10,8 +10,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from collect.sim.robot import (CALF_LENGTH, HIP_OFFSETS, THIGH_LENGTH, THIGH_OFFSET_Y,
-                               foot_positions_body)
+from collect.sim.robot import (
+    CALF_LENGTH,
+    HIP_OFFSETS,
+    THIGH_LENGTH,
+    THIGH_OFFSET_Y,
+    foot_positions_body,
+)
 
 #: Closest and farthest hip-to-foot distance (in the leg plane) the IK allows.
 MIN_REACH = 0.12

@@ -16,10 +16,11 @@ from msta_data.sensors import SENSORS
 
 def flat_cfg(n: int = 4, **kw) -> EnvConfig:
     """Flat ground, no randomization or noise: a clean physics check."""
-    base = dict(num_envs=n, seed=0, nthread=1,
-                terrain=TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
-                     curriculum=False),
-                randomization=RandomizationConfig(enabled=False), noise=NoiseConfig(enabled=False))
+    base = {"num_envs": n, "seed": 0, "nthread": 1,
+            "terrain": TerrainConfig(types=("flat",), num_levels=1, max_init_level=0,
+                                     border=2.0, curriculum=False),
+            "randomization": RandomizationConfig(enabled=False),
+            "noise": NoiseConfig(enabled=False)}
     base.update(kw)
     return EnvConfig(**base)
 

@@ -19,7 +19,7 @@ FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0
 def test_vector_env_follows_the_gymnasium_api():
     env = MstaVectorEnv(EnvConfig(num_envs=3, nthread=1, terrain=FLAT, episode_length_s=0.1),
                         sensors=("joint_pos", "gravity", "command", "height_scan"))
-    obs, info = env.reset(seed=1)
+    obs, _info = env.reset(seed=1)
     assert env.observation_space.contains(obs)
     assert set(obs) == {"joint_pos", "gravity", "command", "height_scan"}
     for i in range(5):

@@ -8,8 +8,7 @@ import pytest
 
 from collect.sim import robot
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import (RandomizationConfig, apply_params, build_pool,
-                                       nominal_params)
+from collect.sim.randomization import RandomizationConfig, apply_params, build_pool, nominal_params
 from collect.sim.terrain import TerrainConfig
 from msta_data.sensors import DYNAMICS_NAMES
 

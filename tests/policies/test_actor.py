@@ -12,7 +12,7 @@ from policies.actor import InputSpec, StudentActor
 class Recorder:
     """A stand-in student that records what it is given (the actor is under test)."""
 
-    class config:  # noqa: N801
+    class config:
         history = 4
 
     required_sensors = ("joint_pos", "joint_vel", "command")
