@@ -49,6 +49,7 @@ from policies.teacher.gait_terrain import (
     dilate,
     ground_at,
     ground_max_along,
+    roughness,
     scan_grid,
 )
 
@@ -56,6 +57,8 @@ GRAVITY = 9.81
 #: Trot: diagonal pairs FL+RR and FR+RL half a cycle apart.
 TROT_OFFSETS = (0.0, 0.5, 0.5, 0.0)
 _DYN = {name: i for i, name in enumerate(DYNAMICS_NAMES)}
+#: Where stance feet read their ground height (GaitConfig.stance_ground).
+STANCE_GROUNDS = ("actual", "planned")
 
 
 @dataclass
@@ -154,20 +157,19 @@ class GaitConfig:
 
     def __post_init__(self) -> None:
         self.phase_offsets = tuple(float(v) for v in self.phase_offsets)
-        self.max_speed = tuple(float(v) for v in self.max_speed)
-        if len(self.max_speed) != 3 or min(self.max_speed) <= 0:
-            raise ValueError(f"max_speed={self.max_speed} needs three positive values")
-        self.rough_max_speed = tuple(float(v) for v in self.rough_max_speed)
-        if len(self.rough_max_speed) != 3 or min(self.rough_max_speed) <= 0:
-            raise ValueError(f"rough_max_speed={self.rough_max_speed} needs three positive values")
+        for name in ("max_speed", "rough_max_speed"):
+            value = tuple(float(v) for v in getattr(self, name))
+            if len(value) != 3 or min(value) <= 0:
+                raise ValueError(f"{name}={value} needs three positive values")
+            setattr(self, name, value)
         for name in ("raibert_gain", "velocity_gain", "force_velocity_gain", "attitude_gain",
                      "attitude_damping", "rough_range"):
             value = tuple(float(v) for v in getattr(self, name))
             if len(value) != 2:
                 raise ValueError(f"{name}={value} needs two values")
             setattr(self, name, value)
-        if self.stance_ground not in ("actual", "planned"):
-            raise ValueError(f"stance_ground={self.stance_ground!r}: use 'actual' or 'planned'")
+        if self.stance_ground not in STANCE_GROUNDS:
+            raise ValueError(f"stance_ground={self.stance_ground!r}: use one of {STANCE_GROUNDS}")
         if len(self.phase_offsets) != 4:
             raise ValueError(f"phase_offsets={self.phase_offsets} needs one value per leg")
         if not 0.0 < self.duty < 1.0:
@@ -328,7 +330,7 @@ class GaitTeacher:
         g_td = ground_at(st.grid, td)
         # Rise over the highest ground ahead, come down onto the touchdown ground.
         height = cfg.swing_height + self.caution * (cfg.rough_swing_height - cfg.swing_height)
-        clear = np.maximum(g_here, g_ahead) + height * np.sin(np.pi * np.minimum(s * 1.0, 1.0)) ** 0.5
+        clear = np.maximum(g_here, g_ahead) + height * np.sin(np.pi * s) ** 0.5   # s in [0, 1]
         landing = _smooth((s - 0.75) / 0.25)
         zg = (1 - landing) * clear + landing * g_td
         z = zg - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
@@ -445,15 +447,6 @@ class _State:
                    feet_actual=np.einsum("nij,nkj->nki", rot_rp, foot_positions_body(
                        obs["joint_pos"].astype(np.float64)).reshape(len(quat), 4, 3)),
                    roughness=roughness(grid))
-
-
-def roughness(grid: np.ndarray) -> np.ndarray:
-    """(N,) largest |second difference| of the scan within |x| <= 0.6 m, |y| <= 0.4 m:
-    0 on planes, about the riser height at a step, a few cm on rough slopes."""
-    g = grid[:, 2:15, 1:10]
-    d2x = np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=(1, 2))
-    d2y = np.abs(g[:, :, 2:] - 2 * g[:, :, 1:-1] + g[:, :, :-2]).max(axis=(1, 2))
-    return np.maximum(d2x, d2y)
 
 
 def _rot_rp(rp: np.ndarray) -> np.ndarray:

@@ -69,11 +69,26 @@ def ground_max_along(dilated: np.ndarray, start: np.ndarray, end: np.ndarray,
     return ground_at(dilated, pts).max(axis=-1)
 
 
-def body_reference(grid: np.ndarray, half_x: float = 0.3, half_y: float = 0.2) -> np.ndarray:
-    """Mean ground height under the body footprint (|x| <= half_x, |y| <= half_y): (N,)."""
+def _window(grid: np.ndarray, half_x: float, half_y: float) -> np.ndarray:
+    """The scan points with |x| <= half_x and |y| <= half_y: (N, nx, ny)."""
     xs = np.abs(np.asarray(HEIGHT_SCAN_X)) <= half_x + 1e-9
     ys = np.abs(np.asarray(HEIGHT_SCAN_Y)) <= half_y + 1e-9
-    return grid[:, xs][:, :, ys].mean(axis=(1, 2))
+    return grid[:, xs][:, :, ys]
 
 
-__all__ = ["body_reference", "dilate", "ground_at", "ground_max_along", "scan_grid"]
+def body_reference(grid: np.ndarray, half_x: float = 0.3, half_y: float = 0.2) -> np.ndarray:
+    """Mean ground height under the body footprint (|x| <= half_x, |y| <= half_y): (N,)."""
+    return _window(grid, half_x, half_y).mean(axis=(1, 2))
+
+
+def roughness(grid: np.ndarray, half_x: float = 0.6, half_y: float = 0.4) -> np.ndarray:
+    """Largest |second difference| of the scan within |x| <= half_x, |y| <= half_y: (N,).
+    0 on planes and slopes, about the riser height at a step, a few cm on rough slopes."""
+    g = _window(grid, half_x, half_y)
+    d2x = np.abs(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]).max(axis=(1, 2))
+    d2y = np.abs(g[:, :, 2:] - 2 * g[:, :, 1:-1] + g[:, :, :-2]).max(axis=(1, 2))
+    return np.maximum(d2x, d2y)
+
+
+__all__ = ["body_reference", "dilate", "ground_at", "ground_max_along", "roughness",
+           "scan_grid"]

@@ -14,9 +14,9 @@ from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 from policies.teacher.base import Teacher, make_teacher
-from policies.teacher.gait import GaitConfig, GaitTeacher, roughness
+from policies.teacher.gait import GaitConfig, GaitTeacher
 from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import dilate, ground_at, ground_max_along, scan_grid
+from policies.teacher.gait_terrain import dilate, ground_at, ground_max_along, roughness, scan_grid
 
 
 def _env(n: int, seed: int = 0, terrain: str = "flat") -> QuadrupedEnv:
