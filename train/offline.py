@@ -236,7 +236,9 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
         desc: progress-bar label.
     """
     out.mkdir(parents=True, exist_ok=True)
-    mask_ratio = cfg.mask_ratio
+    mask_ratio = _mask(policy, cfg.mask_ratio)
+    if hasattr(policy.config, "mask_ratio"):  # the saved config.json says what was used
+        policy.config.mask_ratio = mask_ratio
     optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay)
     scheduler = make_scheduler(optimizer, cfg)
     sampler = WindowSampler(len(train_ds), cfg.batch_size, cfg.seed, weights)
@@ -266,7 +268,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             if val_ds is not None and ((cfg.eval_every and step % cfg.eval_every == 0)
                                        or step == cfg.steps):
                 val = validate(policy, val_ds, cfg.batch_size, cfg.val_samples,
-                               _mask(policy, mask_ratio), seed=cfg.seed)
+                               mask_ratio, seed=cfg.seed)
                 row.update({f"val_{k}": v for k, v in val.items()})
             if row:
                 logger.log(step, row)

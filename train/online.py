@@ -2,7 +2,7 @@
 
     msta-correct --policy=outputs/train/msta_cpu/final --dataset=outputs/datasets/a1_teacher \\
         --output_dir=outputs/correct/msta_cpu --rounds=3 --episodes_per_round=64 \\
-        --teacher.type=gait --mask_ratio=0.5 --beta=0.0 --steps=500
+        --teacher.type=gait --beta=0.0 --steps=500
     msta-correct ... --resume=true        # after a kill: continue at the unfinished round
 
 Each round r = 1..R:
@@ -16,7 +16,8 @@ Each round r = 1..R:
 3. **append** the round's episodes in one writer session (provenance source=student,
    round=r, policy=<type>, policy_revision=hash of the weights that drove);
 4. **retrain** from the current weights on all episodes (``--recent_weight`` < 1 favours
-   recent rounds), with :func:`train.offline.fit` (mask ratio 0.5 by default);
+   recent rounds), with :func:`train.offline.fit` (mask ratio: the paper's 0.5, capped at
+   the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it on fixed seeds and terrains against
    the teacher on the same seeds (normalized total reward); a table is printed per round.
 
@@ -84,6 +85,9 @@ class EvalConfig:
 @dataclass
 class CorrectConfig(LoopConfig):
     """Args:
+        mask_ratio: retraining token-removal ratio; null = the paper's stage-2 ratio 0.5,
+            capped at the ratio the student was trained with (a student trained without
+            masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
         policy: the starting student checkpoint (stage-1 ``final/``) or a hub id.
         dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
         output_dir: round checkpoints, training runs and progress.json.
@@ -109,7 +113,7 @@ class CorrectConfig(LoopConfig):
     """
 
     steps: int = 500
-    mask_ratio: float | None = 0.5
+    mask_ratio: float | None = None
     policy: str = ""
     dataset: str = ""
     output_dir: str = "outputs/correct/msta"
@@ -202,6 +206,18 @@ def policy_revision(policy: StudentPolicy) -> str:
     return f"{policy.config.type}-{h.hexdigest()[:12]}"
 
 
+#: The paper's stage-2 training mask ratio (stage 1 uses 0.75).
+STAGE2_MASK_RATIO = 0.5
+
+
+def stage2_mask_ratio(requested: float | None, policy: StudentPolicy) -> float:
+    """The retraining mask ratio: ``requested``, or the paper's 0.5 capped at the ratio the
+    policy was trained with (retraining a never-masked GRU at 0.5 wrecks it: FACTS §5)."""
+    if requested is not None:
+        return float(requested)
+    return min(STAGE2_MASK_RATIO, float(getattr(policy.config, "mask_ratio", 0.0)))
+
+
 def student_actor(policy: StudentPolicy, n: int, spec: InputSpec) -> StudentActor:
     return StudentActor(policy, n, spec, name=policy.config.type)
 
@@ -290,7 +306,8 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
         rounds = load_episode_table(root).set_index("episode_index")["provenance/round"]
         per_ep = cfg.recent_weight ** (r - rounds.loc[train_ds.episodes].to_numpy())
         weights = np.repeat(per_ep, train_ds.lengths)
-    loop = replace(cfg.loop_part(), seed=cfg.seed + r)
+    loop = replace(cfg.loop_part(), seed=cfg.seed + r,
+                   mask_ratio=stage2_mask_ratio(cfg.mask_ratio, policy))
     res = fit(policy, train_ds, val_ds, loop, out / "train" / f"round_{r}", resume=True,
               weights=weights, desc=f"round {r} train")
     return {"windows": len(train_ds), "train_samples_per_s": res.samples_per_s,

@@ -34,6 +34,10 @@ class MSTAConfig(PolicyConfig):
         learnable_mask: ablation: replace masked tokens by a learnable embedding
             (the sequence keeps all N tokens) instead of removing them.
         pos_base: base of the sin-cos frequencies.
+        value_embedding: which scalars share a bin-embedding table: ``shared`` (one table
+            for every scalar), ``sensor`` (one per sensor type) or ``channel`` (one per
+            sensor channel, so a token's value embedding already says whose value it is).
+        sensor_embed_std: initial std of the learnable sensor-type embeddings.
         action_key: dataset column of the target action.
         action_dim: number of joint targets.
         normalize_action: train on z-scored actions (the processor maps back).
@@ -52,6 +56,8 @@ class MSTAConfig(PolicyConfig):
     mask_ratio: float = 0.75
     learnable_mask: bool = False
     pos_base: float = 10000.0
+    value_embedding: str = "shared"
+    sensor_embed_std: float = 0.02
     action_key: str = "action"
     action_dim: int = sensors.ACTION_DIM
     normalize_action: bool = True
@@ -89,6 +95,11 @@ class MSTAConfig(PolicyConfig):
             raise ValueError(f"head_hidden_dim must be >= 0, got {self.head_hidden_dim}")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if self.value_embedding not in VALUE_EMBEDDINGS:
+            raise ValueError(f"value_embedding must be one of {VALUE_EMBEDDINGS}, "
+                             f"got {self.value_embedding!r}")
+        if self.sensor_embed_std < 0:
+            raise ValueError(f"sensor_embed_std must be >= 0, got {self.sensor_embed_std}")
         if not 0.0 <= self.mask_ratio < 1.0:
             raise ValueError(f"mask_ratio must be in [0, 1), got {self.mask_ratio}")
 
@@ -103,6 +114,10 @@ class MSTAConfig(PolicyConfig):
         if name not in PRESETS:
             raise KeyError(f"unknown msta preset {name!r}; known presets: {sorted(PRESETS)}")
         return replace(cls(**PRESETS[name]), **overrides)
+
+
+#: Choices of ``value_embedding``.
+VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
 
 
 def _positive(**values: float) -> None:

@@ -95,7 +95,7 @@ class MSTATransformer(nn.Module):
         super().__init__()
         self.cfg = cfg
         d = cfg.dim
-        self.bin_embed = nn.Embedding(cfg.num_bins, d)
+        self.bin_embed = nn.Embedding(cfg.num_bins * self._num_tables(), d)
         self.sensor_embed = nn.ParameterDict(
             {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors}
         )
@@ -114,6 +114,34 @@ class MSTATransformer(nn.Module):
         self._pos_cache: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
         self._init_weights()
 
+    def _num_tables(self) -> int:
+        from msta_data.sensors import get
+
+        if self.cfg.value_embedding == "sensor":
+            return len(self.cfg.input_sensors)
+        if self.cfg.value_embedding == "channel":
+            return sum(get(n).dim for n in self.cfg.input_sensors)
+        return 1
+
+    def _table_offsets(self, names: list[str], channels: dict[str, Tensor], T: int) -> Tensor:
+        """(N,) first row of each token's bin table in ``bin_embed`` (0 when shared)."""
+        from msta_data.sensors import get
+
+        mode, nb, out = self.cfg.value_embedding, self.cfg.num_bins, []
+        first = 0
+        for name in self.cfg.input_sensors:
+            if name in names:
+                ch = channels[name]
+                if mode == "channel":
+                    table = first + ch
+                elif mode == "sensor":
+                    table = torch.full_like(ch, self.cfg.input_sensors.index(name))
+                else:
+                    table = torch.zeros_like(ch)
+                out.append((table * nb).repeat(T))  # (T*c,) time-major like the layout
+            first += get(name).dim
+        return torch.cat(out)
+
     def _init_weights(self) -> None:
         for m in self.modules():
             if isinstance(m, nn.Linear):
@@ -125,11 +153,12 @@ class MSTATransformer(nn.Module):
         # Neighbouring bins start similar (a 1-D sin-cos code of the bin index); trained after.
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
-            self.bin_embed.weight.copy_(sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins)))
-        for p in [*self.sensor_embed.values(), self.state_token] + (
-            [self.mask_token] if self.mask_token is not None else []
-        ):
+            code = sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins))  # (nb, d)
+            self.bin_embed.weight.copy_(code.repeat(self._num_tables(), 1))
+        for p in [self.state_token] + ([self.mask_token] if self.mask_token is not None else []):
             nn.init.normal_(p, std=0.02)
+        for p in self.sensor_embed.values():
+            nn.init.normal_(p, std=self.cfg.sensor_embed_std)
 
     def layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, Tensor, Tensor]:
         """Token layout of one sample, sensors in config order, time-major within a sensor.
@@ -175,6 +204,9 @@ class MSTATransformer(nn.Module):
         B, N = bins.shape
         T = inputs.bins[names[0]].shape[1]
         pos, sid, step = self.layout(inputs.channels, T)  # (N, d), (N,), (N,)
+        if self.cfg.value_embedding != "shared":
+            offsets = self._table_offsets(names, inputs.channels, T).to(bins.device)  # (N,)
+            bins = bins + offsets[None, :]  # (B, N) rows of each token's own table
         sensor = torch.stack([self.sensor_embed[n] for n in names])  # (S, d)
         static = pos + sensor[sid]  # (N, d)
         pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N) True = padded token
