@@ -21,6 +21,8 @@ import hashlib
 import json
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -34,116 +36,76 @@ import policies.teacher.gait  # noqa: F401  (registers "gait", the default teach
 from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, NoiseConfig
 from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from collect.sim.terrain import TerrainConfig
 from eval import report
-from eval.metrics import EvalEnv, NotApplicable, TrialLayout, aggregate, normalize, run_trials
-from eval.scenarios import Condition, build_conditions, get_scenario, get_suite
+from eval.metrics import (
+    EvalEnv,
+    NotApplicable,
+    TrialResults,
+    aggregate,
+    normalize,
+    run_trials,
+)
+from eval.scenarios import (
+    Condition,
+    TrialConfig,
+    build_conditions,
+    get_scenario,
+    get_suite,
+    split_csv,
+)
 from policies.actor import InputSpec, StudentActor
 from policies.teacher.base import TEACHERS
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
-METRICS_VERSION = 1
+METRICS_VERSION = 2  # 2: trials and 95 % intervals per cell, per-level averages, run inputs
 
 
 @dataclass
-class EvalConfig:
-    """Args:
-        policies: comma-separated entries: teacher, teacher:<type>, checkpoint dirs, hub ids.
-        suite: quick (``make demo``) or paper (5000 trials, every sweep value).
-        out: output directory.
-        trials: episodes per (policy, condition); 0 = the suite's.
-        terrains: comma-separated terrain types; empty = the suite's (the paper's five).
-        levels: comma-separated levels (0-9); empty = the suite's.
-        scenarios: comma-separated scenario names; empty = the suite's.
-        episode_s: episode time limit (s); 0 = the suite's.
-        max_envs: environments simulated together; 0 = the suite's.
-        seed: seeds trials (tiles are pinned; spawns, commands, noise, pushes, masks).
-        matrix: checkpoint -> train mask ratios for the heatmaps: ``CKPT=a1:a2,...`` (CKPT as
-            written in --policies).
-        teacher: the reference teacher (``--teacher.type=gait``).
-        noise: observation noise on.
-        randomization: domain randomization (dynamics, pushes, latency) on.
-        heading_commands: yaw-rate command steers to a sampled heading (paper); False samples
-            the yaw rate directly (then command sequences do not depend on the policy at all).
-        threads: torch threads (results are bit-identical for the same value).
-        nthread: MuJoCo rollout threads.
-        video: ``POLICY:TERRAIN[:LEVEL]`` renders a short MP4 of that policy (needs EGL).
-        video_s: video length (s).
-        progress: show progress bars.
-    """
+class EvalConfig(TrialConfig):
+    """``msta-eval``: the paper's experiments on any checkpoints (docs/eval.md)."""
 
     policies: str = "teacher"
-    suite: str = "quick"
+    """comma-separated entries: teacher, teacher:<type>, checkpoint dirs, hub ids
+    user/name[@revision]."""
     out: str = "outputs/eval"
-    trials: int = 0
-    terrains: str = ""
-    levels: str = ""
+    """output directory."""
     scenarios: str = ""
-    episode_s: float = 0.0
-    max_envs: int = 0
-    seed: int = 0
+    """comma-separated scenario names; empty = the suite's."""
     matrix: str = ""
+    """checkpoint -> train mask ratios for the heatmaps: ``CKPT=a1:a2,...`` (CKPT as
+    written in --policies)."""
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
-    noise: bool = True
-    randomization: bool = True
-    heading_commands: bool = True
-    threads: int = 1
-    nthread: int = 2
+    """the reference teacher (``--teacher.type=gait``)."""
     video: str = ""
+    """``POLICY:TERRAIN[:LEVEL]`` renders a short MP4 of that policy (needs EGL)."""
     video_s: float = 4.0
+    """video length (s)."""
     progress: bool = True
+    """show progress bars."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         suite = get_suite(self.suite)
-        self.policy_list = _split(self.policies)
+        self.policy_list = split_csv(self.policies)
         if not self.policy_list:
             raise ValueError("--policies is empty")
-        self.scenario_list = _split(self.scenarios) or list(suite.scenarios)
+        self.scenario_list = split_csv(self.scenarios) or list(suite.scenarios)
         for s in self.scenario_list:
             get_scenario(s)
-        self.terrain_list = _split(self.terrains) or list(suite.terrains)
-        for t in self.terrain_list:
-            if t not in TERRAIN_TYPES:
-                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
-        try:
-            self.level_list = [int(v) for v in _split(self.levels)] or list(suite.levels)
-        except ValueError:
-            raise ValueError(f"--levels {self.levels!r} must be comma-separated integers") \
-                from None
-        bad = [lv for lv in self.level_list if not 0 <= lv < TerrainConfig().num_levels]
-        if bad:
-            raise ValueError(f"level {bad[0]} out of range [0, {TerrainConfig().num_levels})")
-        self.num_trials = self.trials or suite.trials
-        self.episode = self.episode_s or suite.episode_s
-        self.envs = self.max_envs or suite.max_envs
-        for name in ("num_trials", "envs", "threads"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
-        if self.episode <= 0:
-            raise ValueError(f"episode_s={self.episode} must be > 0")
         self.matrix_map = _parse_matrix(self.matrix, self.policy_list)
 
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
-        d = {k: v for k, v in asdict(self).items() if k not in _NOT_RESULTS}
-        d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
-                 scenarios=self.scenario_list, episode_s=self.episode, max_envs=self.envs,
-                 policies=self.policy_list, matrix={k: list(v) for k, v in
-                                                    self.matrix_map.items()})
+        d = super().resolved()
+        d.update(scenarios=self.scenario_list, policies=self.policy_list,
+                 matrix={k: list(v) for k, v in self.matrix_map.items()})
         return d
-
-
-#: config fields that do not change any number (left out of metrics.json)
-_NOT_RESULTS = ("out", "progress", "video", "video_s", "nthread")
-
-
-def _split(text: str) -> list[str]:
-    return [p.strip() for p in str(text).split(",") if p.strip()]
 
 
 def _parse_matrix(text: str, policies: list[str]) -> dict[str, tuple[float, float]]:
     out = {}
-    for item in _split(text):
+    for item in split_csv(text):
         key, sep, ratios = item.rpartition("=")
         parts = ratios.split(":")
         try:
@@ -207,7 +169,6 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
         return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg),
                            build_teacher(tcfg))
     from msta_data.hub import is_hub_id, materialize
-    from policies.factory import load_policy
 
     if not Path(source).exists() and not is_hub_id(source):
         raise FileNotFoundError(f"checkpoint {source!r} not found: not a directory and not a "
@@ -215,8 +176,23 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
                                 f"'teacher:<type>' with type in {sorted(TEACHERS)})")
     path = materialize(source)
     name = source if is_hub_id(source) else Path(source).resolve().name
+    return student_entry(Path(path), name, source, cfg.matrix_map.get(source))
+
+
+def student_entry(path: Path, name: str, source: str,
+                  train_masks: tuple[float, float] | None = None) -> PolicyEntry:
+    """A student checkpoint directory as a row, loaded on the CPU as msta-eval loads it.
+
+    Args:
+        path: the local checkpoint directory.
+        name: row label.
+        source: how the user named it (directory or hub id).
+        train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
+    """
+    from policies.factory import load_policy
+
     return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
-                       load_policy(path), cfg.matrix_map.get(source))
+                       load_policy(path), train_masks)
 
 
 def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
@@ -231,7 +207,7 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
     return entries
 
 
-def make_env(cfg: EvalConfig, num_envs: int) -> EvalEnv:
+def make_env(cfg: TrialConfig, num_envs: int) -> EvalEnv:
     """The evaluation simulator: tiles pinned, only the evaluated terrain columns built."""
     return EvalEnv(EnvConfig(
         num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
@@ -253,45 +229,79 @@ def _is_null(spec: InputSpec) -> bool:
         and spec.mask_ratio == 0
 
 
+@contextmanager
+def torch_eval_settings(threads: int) -> Iterator[None]:
+    """torch as an evaluation needs it (``threads`` threads, deterministic algorithms), and
+    afterwards as it was, global RNG state included (evaluation seeds it per run)."""
+    before = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
+              torch.get_rng_state())
+    torch.set_num_threads(threads)
+    torch.use_deterministic_algorithms(True)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before[0])
+        torch.use_deterministic_algorithms(before[1])
+        torch.set_rng_state(before[2])
+
+
+def _digest(key: tuple) -> str:
+    return hashlib.sha256(repr(key).encode()).hexdigest()[:12]
+
+
 class Evaluator:
     """Runs conditions on one shared evaluation env and caches identical student inputs.
 
+    msta-eval and msta-correct's per-round evaluation both use it: the same checkpoint
+    and :class:`TrialConfig` give the same figures in both.
+
     Args:
-        cfg: the evaluation configuration.
+        cfg: which trials to run.
+        teacher: the reference teacher every return is normalized by.
+        progress: show progress bars.
     """
 
-    def __init__(self, cfg: EvalConfig) -> None:
-        self.cfg = cfg
-        self.layout = TrialLayout(tuple(cfg.terrain_list), tuple(cfg.level_list),
-                                  cfg.num_trials)
+    def __init__(self, cfg: TrialConfig, teacher: TeacherConfig, progress: bool = True) -> None:
+        self.cfg, self.teacher, self.progress = cfg, teacher, progress
+        self.layout = cfg.layout()
         self.env = make_env(cfg, len(self.layout.rounds(cfg.envs)[0]))
         self.reference: dict[str, Any] | None = None
+        self.reference_trials: TrialResults | None = None
         self.timing: dict[str, float] = {}
-        self._cache: dict[tuple, dict[str, Any]] = {}
+        self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
 
-    def _run(self, label: str, make_actor) -> dict[str, Any]:
+    def _run(self, label: str, make_actor) -> TrialResults:
         # MSTA draws token order from the global torch RNG when no generator is passed
         # (StudentActor passes one only for mask_ratio > 0): seed it per run.
         torch.manual_seed(self.cfg.seed)
         t0 = time.perf_counter()
         res = run_trials(self.env, make_actor, self.layout, desc=label,
-                         progress=self.cfg.progress)
+                         progress=self.progress)
         self.timing[label] = round(time.perf_counter() - t0, 3)
-        return aggregate(res, self.layout)
+        return res
 
     def run_reference(self) -> dict[str, Any]:
-        """Roll the reference teacher (``cfg.teacher``) over every trial."""
-        teacher = build_teacher(self.cfg.teacher)
-        self.reference = self._run("reference teacher", lambda r, n: teacher)
+        """Roll the reference teacher over every trial."""
+        teacher = build_teacher(self.teacher)
+        self.reference_trials = self._run("reference teacher", lambda r, n: teacher)
+        self.reference = aggregate(self.reference_trials, self.layout)
         return self.reference
 
     def _student_key(self, entry: PolicyEntry, spec: InputSpec) -> tuple:
         actor = StudentActor(entry.obj, 1, spec)
         channels = tuple(sorted((k, tuple(v)) for k, v in actor.channels.items()))
-        return (entry.name, actor.T, actor.sensors, channels, spec.mask_ratio)
+        return (entry.name, entry.revision, actor.T, actor.sensors, channels, spec.mask_ratio)
 
     def condition(self, entry: PolicyEntry, cond: Condition) -> dict[str, Any]:
-        """Metrics of one policy under one condition (or n/a with the reason)."""
+        """Metrics of one policy under one condition (or n/a with the reason).
+
+        Returns:
+            the run record of metrics.json: policy, scenario, condition, value, spec,
+            ``inputs`` (a digest of what the policy really sees: equal digests mean equal
+            inputs), status, and ``raw`` and ``normalized`` (eval.metrics) or ``reason``.
+        """
+        if self.reference_trials is None:
+            raise RuntimeError("run_reference() first: every figure is normalized by it")
         rec: dict[str, Any] = {"policy": entry.name, "scenario": cond.scenario,
                                "condition": cond.label, "value": cond.value,
                                "spec": spec_dict(cond.spec)}
@@ -301,7 +311,7 @@ class Evaluator:
                 if not _is_null(cond.spec):
                     raise NotApplicable("the teacher is the privileged reference; test-time "
                                         "sensor changes apply to students only")
-                key: tuple = (entry.name,)
+                key: tuple = (entry.name, entry.revision)
                 make = (lambda r, n: entry.obj)
             else:
                 try:
@@ -310,11 +320,13 @@ class Evaluator:
                     raise NotApplicable(f"{type(e).__name__}: {e}") from e
                 make = self._student_factory(entry, cond.spec)
             if key not in self._cache:
-                self._cache[key] = self._run(label, make)
+                res = self._run(label, make)
+                self._cache[key] = (res, aggregate(res, self.layout))
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}
-        raw = self._cache[key]
-        return {**rec, "status": "ok", "raw": raw, "normalized": normalize(raw, self.reference)}
+        res, raw = self._cache[key]
+        return {**rec, "inputs": _digest(key[2:]), "status": "ok", "raw": raw,
+                "normalized": normalize(res, self.reference_trials, self.layout)}
 
     @staticmethod
     def _student_factory(entry: PolicyEntry, spec: InputSpec):
@@ -346,15 +358,13 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
         the content of metrics.json.
     """
     entries = entries if entries is not None else load_entries(cfg)
-    torch.set_num_threads(cfg.threads)
-    torch.use_deterministic_algorithms(True)
-    ev = Evaluator(cfg)
+    ev = Evaluator(cfg, cfg.teacher, cfg.progress)
     pairs = plan(cfg, entries)
     t0 = time.perf_counter()
-    ev.run_reference()
-    runs = []
-    for e, c in tqdm(pairs, desc="msta-eval", unit="run", disable=not cfg.progress):
-        runs.append(ev.condition(e, c))
+    with torch_eval_settings(cfg.threads):
+        ev.run_reference()
+        runs = [ev.condition(e, c) for e, c in tqdm(pairs, desc="msta-eval", unit="run",
+                                                     disable=not cfg.progress)]
     metrics = {
         "msta_eval_version": METRICS_VERSION,
         "config": cfg.resolved(),
@@ -371,6 +381,8 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     ev.timing["total"] = round(time.perf_counter() - t0, 3)
     (out / "timing.json").write_text(json.dumps(ev.timing, indent=1) + "\n")
     report.write_report(metrics, out)
+    for line in report.identical_warnings(metrics):
+        print(f"msta-eval: warning: {line}", flush=True)
     if cfg.video:
         save_policy_video(cfg, entries, out)
     return metrics

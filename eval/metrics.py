@@ -19,9 +19,16 @@ Metrics per trial (rewards are the simulator's, already scaled by dt):
 - ``length``: steps lived / time limit.
 
 Per terrain type the metrics are means over that terrain's trials (errors weighted by
-steps); the ``average`` row is the mean over terrain types; ``normalized`` divides the
-three returns by the teacher's on the same trials (for ``average``: the student's
-terrain-averaged return over the teacher's).
+steps); the ``average`` row is the mean over terrain types (per level likewise: the
+``average`` of ``per_level`` is the mean over the terrains at that level); ``normalized``
+divides the three returns by the teacher's on the same trials (for ``average``: the
+student's terrain-averaged return over the teacher's). Every cell records its number of
+trials and a 95 % confidence interval per figure (:mod:`eval.intervals`: Student t over
+trials, the delta method on paired trials for ratios, Wilson for survival).
+
+``msta-eval`` (:mod:`eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
+through :class:`eval.evaluate.Evaluator`, so the same checkpoint on the same trials gets
+the same figures in both (and on the stage-2 model card).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ from tqdm import tqdm
 
 from collect.rollout import as_policy
 from collect.sim.env import PROPRIO, REASONS, EnvConfig, QuadrupedEnv
+from eval.intervals import mean_interval, proportion_interval, ratio_interval
 from msta_data.sensors import SENSORS
 
 #: Returns normalized by the teacher's (the paper's three metrics).
@@ -186,19 +194,6 @@ class TrialResults:
                             self.fell[idx], self.vel_err[idx], self.yaw_err[idx],
                             self.max_steps)
 
-    def summary(self) -> dict[str, float]:
-        """Means over these trials (see the module docstring)."""
-        steps = max(float(self.steps.sum()), 1.0)
-        m = float(self.max_steps)
-        return {"lin_tracking": float(self.lin.mean() / m),
-                "ang_tracking": float(self.ang.mean() / m),
-                "total": float(self.total.mean() / m),
-                "survival": float(1.0 - self.fell.mean()),
-                "vel_err": float(self.vel_err.sum() / steps),
-                "yaw_err": float(self.yaw_err.sum() / steps),
-                "length": float(self.steps.mean() / m),
-                "trials": len(self.lin)}
-
 
 #: round index, number of envs -> an actor with act(obs) / reset(ids)
 ActorFactory = Callable[[int, int], Any]
@@ -277,55 +272,118 @@ def _episode(env: EvalEnv, act: Callable, obs: dict, action: np.ndarray, out: Tr
         obs = res.obs
 
 
+def _cells(layout: TrialLayout) -> dict[str, Any]:
+    """Every reported cell as its strata (index arrays of trials, one per terrain).
+
+    ``{"per_terrain": {terrain: [idx], "average": [idx per terrain]}, "per_level":
+    {terrain: {level: [idx]}, "average": {level: [idx per terrain]}}}``; terrains or levels
+    without trials are left out.
+    """
+    trials = np.arange(layout.trials)
+    t_of, l_of = layout.terrain_of(trials), layout.level_of(trials)
+    per_terrain: dict[str, Any] = {}
+    per_level: dict[str, Any] = {}
+    for i, name in enumerate(layout.terrains):
+        if not (t_of == i).any():
+            continue
+        per_terrain[name] = [np.flatnonzero(t_of == i)]
+        per_level[name] = {str(lv): [np.flatnonzero((t_of == i) & (l_of == lv))]
+                           for lv in layout.levels if ((t_of == i) & (l_of == lv)).any()}
+    per_terrain["average"] = [s for name in list(per_terrain) for s in per_terrain[name]]
+    per_level["average"] = {
+        str(lv): [np.flatnonzero((t_of == i) & (l_of == lv)) for i in range(len(layout.terrains))
+                  if ((t_of == i) & (l_of == lv)).any()]
+        for lv in layout.levels if (l_of == lv).any()}
+    return {"per_terrain": per_terrain, "per_level": per_level}
+
+
+def _map_cells(cells: dict[str, Any], fn: Callable[[list[np.ndarray]], dict]) -> dict[str, Any]:
+    return {"per_terrain": {k: fn(v) for k, v in cells["per_terrain"].items()},
+            "per_level": {t: {lv: fn(v) for lv, v in by.items()}
+                          for t, by in cells["per_level"].items()}}
+
+
+def _weights(strata: list[np.ndarray], mass: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """(trial indices, weights summing to 1): every stratum weighs 1/K, split over its
+    trials equally or in proportion to ``mass`` (steps lived)."""
+    parts = []
+    for s in strata:
+        v = np.ones(len(s)) if mass is None else mass[s].astype(np.float64)
+        parts.append(v / v.sum() / len(strata))
+    return np.concatenate(strata), np.concatenate(parts)
+
+
+def _ci(interval: tuple[float, float] | None) -> list[float] | None:
+    return None if interval is None else [float(interval[0]), float(interval[1])]
+
+
+def summarize(res: TrialResults, strata: list[np.ndarray]) -> dict[str, Any]:
+    """One cell's metrics: the mean over its strata of each stratum's mean (module
+    docstring), the cell's trial count and a 95 % interval per metric (eval.intervals).
+
+    Args:
+        res: per-trial results.
+        strata: index arrays into ``res`` (one per terrain of the cell).
+    Returns:
+        ``{metric: value, ..., "trials": n, "ci": {metric: [low, high] or None}}``.
+    """
+    idx, w = _weights(strata)
+    steps = np.maximum(res.steps, 1.0)
+    _, w_steps = _weights(strata, steps)
+    m = float(res.max_steps)
+    out: dict[str, Any] = {}
+    ci: dict[str, list[float] | None] = {}
+    for key, x, wk in (("lin_tracking", res.lin / m, w), ("ang_tracking", res.ang / m, w),
+                       ("total", res.total / m, w), ("vel_err", res.vel_err / steps, w_steps),
+                       ("yaw_err", res.yaw_err / steps, w_steps), ("length", res.steps / m, w)):
+        value, interval = mean_interval(x[idx], wk)
+        out[key], ci[key] = value, _ci(interval)
+    value, interval = proportion_interval((~res.fell[idx]).astype(np.float64), w)
+    out["survival"], ci["survival"] = value, _ci(interval)
+    out = {k: out[k] for k in METRICS}
+    return {**out, "trials": len(idx), "ci": {k: ci[k] for k in METRICS}}
+
+
 def aggregate(res: TrialResults, layout: TrialLayout) -> dict[str, Any]:
-    """Per-terrain and per-(terrain, level) summaries, plus the average over terrains.
+    """Per-terrain and per-(terrain, level) summaries, plus the averages over terrains.
 
     Args:
         res: per-trial results (``layout.trials`` of them).
         layout: which tile each trial ran on.
     Returns:
-        ``{"per_terrain": {terrain: summary, ..., "average": means}, "per_level":
-        {terrain: {level: summary}}}``.
+        ``{"per_terrain": {terrain: summary, ..., "average": summary}, "per_level":
+        {terrain: {level: summary}, "average": {level: summary}}}`` (:func:`summarize`).
     """
-    trials = np.arange(layout.trials)
-    t_of, l_of = layout.terrain_of(trials), layout.level_of(trials)
-    per_terrain: dict[str, dict] = {}
-    per_level: dict[str, dict] = {}
-    for i, name in enumerate(layout.terrains):
-        sel = t_of == i
-        if not sel.any():
-            continue
-        per_terrain[name] = res.take(np.flatnonzero(sel)).summary()
-        per_level[name] = {str(lv): res.take(np.flatnonzero(sel & (l_of == lv))).summary()
-                           for lv in layout.levels if (sel & (l_of == lv)).any()}
-    rows = list(per_terrain.values())
-    per_terrain["average"] = {k: float(np.mean([r[k] for r in rows])) for k in METRICS}
-    per_terrain["average"]["trials"] = int(sum(r["trials"] for r in rows))
-    return {"per_terrain": per_terrain, "per_level": per_level}
+    return _map_cells(_cells(layout), lambda strata: summarize(res, strata))
 
 
-def _ratio(a: float, b: float) -> float | None:
-    return a / b if b != 0 else None
-
-
-def normalize(student: dict[str, Any], teacher: dict[str, Any]) -> dict[str, Any]:
-    """The three returns divided by the teacher's on the same trials.
+def normalize(student: TrialResults, teacher: TrialResults, layout: TrialLayout
+              ) -> dict[str, Any]:
+    """The three returns divided by the teacher's on the same trials, with 95 % intervals
+    (delta method on the paired trials, eval.intervals).
 
     Args:
-        student, teacher: :func:`aggregate` outputs over the same layout.
+        student, teacher: per-trial results over the same ``layout``.
+        layout: which tile each trial ran on.
     Returns:
-        ``{"per_terrain": {terrain: {metric: ratio}}, "per_level": ...}``; the average row
-        divides the student's terrain-averaged return by the teacher's (defined even when
-        the teacher scores 0 on one terrain); a ratio over a zero teacher value is None.
+        ``{"per_terrain": {terrain: {metric: ratio, "trials": n, "ci": {metric: [low,
+        high]}}}, "per_level": ...}`` in :func:`aggregate`'s layout; the average divides
+        the student's terrain-averaged return by the teacher's (defined even when the
+        teacher scores 0 on one terrain); a ratio over a zero teacher value is None.
     """
-    out: dict[str, Any] = {"per_terrain": {}, "per_level": {}}
-    terrains = [t for t in student["per_terrain"] if t != "average"]
-    for t in terrains:
-        s, r = student["per_terrain"][t], teacher["per_terrain"][t]
-        out["per_terrain"][t] = {k: _ratio(s[k], r[k]) for k in RETURNS}
-        out["per_level"][t] = {
-            lv: {k: _ratio(v[k], teacher["per_level"][t][lv][k]) for k in RETURNS}
-            for lv, v in student["per_level"][t].items()}
-    s, r = student["per_terrain"]["average"], teacher["per_terrain"]["average"]
-    out["per_terrain"]["average"] = {k: _ratio(s[k], r[k]) for k in RETURNS}
-    return out
+    m = float(student.max_steps)
+    pairs = {"lin_tracking": (student.lin, teacher.lin), "ang_tracking": (student.ang,
+             teacher.ang), "total": (student.total, teacher.total)}
+
+    def cell(strata: list[np.ndarray]) -> dict[str, Any]:
+        idx, w = _weights(strata)
+        out: dict[str, Any] = {}
+        ci: dict[str, list[float] | None] = {}
+        for key in RETURNS:
+            s, t = pairs[key]
+            out[key], interval = ratio_interval(s[idx] / m, t[idx] / m, w)
+            ci[key] = _ci(interval)
+        return {**out, "trials": len(idx), "ci": ci}
+
+    return _map_cells(_cells(layout), cell)

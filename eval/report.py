@@ -5,6 +5,13 @@
 Everything here reads only the metrics dictionary, so reports can be regenerated (or
 restyled) without rerunning the simulator. n/a runs stay visible: "n/a" in tables, an
 "n/a" mark in plots.
+
+Every table cell shows its figure with the 95 % confidence interval stored in metrics.json
+(:mod:`eval.intervals`: ``±`` half-width of a Student-t / delta-method interval, or
+``(low–high)`` Wilson bounds for survival), and every table ends with a *trials per cell*
+row; the header says how the trials spread over terrain cells. A student whose figures are
+identical across conditions that change its inputs (test masks, removed sensors, ...) gets
+a warning line (:func:`identical_warnings`), also printed by msta-eval.
 """
 
 from __future__ import annotations
@@ -28,6 +35,87 @@ def _fmt(v: float | None, digits: int = 2) -> str:
     return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
 
 
+def fmt_ci(v: float | None, ci: list[float] | None, digits: int = 2) -> str:
+    """``0.85 ±0.10`` (symmetric 95 % interval), ``0.80 (0.49–0.94)`` (Wilson), ``0.85``
+    (one trial: no interval) or ``n/a``."""
+    text = _fmt(v, digits)
+    if v is None or not ci or text == "n/a":
+        return text
+    lo, hi = ci
+    if math.isclose(hi - v, v - lo, rel_tol=1e-6, abs_tol=1e-9):
+        return f"{text} ±{(hi - lo) / 2:.{digits}f}"
+    return f"{text} ({lo:.{digits}f}–{hi:.{digits}f})"
+
+
+def fmt_cell(cell: dict | None, metric: str, digits: int = 2) -> str:
+    """One figure of an eval.metrics cell (``{metric: value, "ci": {metric: [lo, hi]}}``)
+    with its interval."""
+    if cell is None:
+        return "n/a"
+    return fmt_ci(cell.get(metric), (cell.get("ci") or {}).get(metric), digits)
+
+
+def trials_note(metrics: dict) -> str:
+    """How many trials stand behind each cell (the header of report.md)."""
+    cfg, per = metrics["config"], metrics["reference"]["per_terrain"]
+    counts = {t: per[t]["trials"] for t in metrics["terrains"] if t in per}
+    low, high = min(counts.values()), max(counts.values())
+    each = f"{low}" if low == high else f"{low}-{high}"
+    text = (f"{cfg['trials']} trials per policy and condition, spread over {len(counts)} "
+            f"terrain(s) x {len(metrics['levels'])} level(s): **{each} trial(s) per terrain "
+            f"cell**")
+    if low != high:
+        text += " (" + ", ".join(f"{SHORT_TERRAIN.get(t, t)} {n}" for t, n in counts.items()) + ")"
+    missing = [t for t in metrics["terrains"] if t not in counts]
+    if missing:
+        text += f"; no trial on {', '.join(missing)}"
+    return text + f", {per['average']['trials']} in the average"
+
+
+CI_NOTE = ("Each figure is the mean over its cell's trials with a 95 % confidence interval: "
+           "`± half-width` (Student t over trials; for ratios to the teacher the delta method "
+           "on the paired trials) or `(low–high)` for survival (Wilson); a cell with one trial "
+           "has no interval. Cells mixing terrains (avg) count the spread between terrains as "
+           "noise, so their intervals are conservative (eval/intervals.py).")
+
+
+def identical_groups(runs: list[dict]) -> list[list[str]]:
+    """Condition labels whose figures are identical although the inputs differ.
+
+    Args:
+        runs: run records of one policy and scenario (metrics.json ``runs`` entries or
+            msta-correct's per-mask records).
+    Returns:
+        one list of labels per group of >= 2 identical ``raw`` figures over >= 2 different
+        inputs (``inputs`` digest, else the spec).
+    """
+    same: dict[str, list[dict]] = {}
+    for r in runs:
+        if r.get("status") == "ok":
+            same.setdefault(json.dumps(r["raw"], sort_keys=True), []).append(r)
+    return [[r["condition"] for r in rs] for rs in same.values()
+            if len({r.get("inputs") or json.dumps(r["spec"], sort_keys=True) for r in rs}) > 1]
+
+
+def identical_line(policy: str, what: str, labels: list[str]) -> str:
+    """The warning for :func:`identical_groups`."""
+    return (f"{policy}: the student's figures are identical across {what} "
+            f"{', '.join(labels)}: it may ignore its inputs")
+
+
+def identical_warnings(metrics: dict) -> list[str]:
+    """One warning per student and scenario whose figures do not change across conditions
+    that change its inputs (e.g. test masks 0/25/50 %, or removing different sensors)."""
+    kinds = {p["name"]: p["kind"] for p in metrics["policies"]}
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in metrics["runs"]:
+        if kinds.get(r["policy"]) == "student":
+            groups.setdefault((r["policy"], r["scenario"]), []).append(r)
+    return [identical_line(policy, f"{scenario} conditions", labels)
+            for (policy, scenario), runs in groups.items()
+            for labels in identical_groups(runs)]
+
+
 def _runs(metrics: dict, scenario: str) -> list[dict]:
     return [r for r in metrics["runs"] if r["scenario"] == scenario]
 
@@ -44,11 +132,24 @@ def _conditions(runs: list[dict]) -> list[tuple[str, Any]]:
     return list(seen.items())
 
 
-def _value(run: dict | None, metric: str, terrain: str = "average") -> float | None:
+def _norm_cell(run: dict | None, terrain: str = "average") -> dict | None:
     if run is None or run["status"] != "ok":
         return None
-    per = run["normalized"]["per_terrain"].get(terrain)  # absent: no trial on that terrain
-    return None if per is None else per.get(metric)
+    return run["normalized"]["per_terrain"].get(terrain)  # absent: no trial on that terrain
+
+
+def _value(run: dict | None, metric: str, terrain: str = "average") -> float | None:
+    cell = _norm_cell(run, terrain)
+    return None if cell is None else cell.get(metric)
+
+
+def _trials_row(label: str, counts: list[int | None]) -> str:
+    return f"| *{label}* | " + " | ".join("-" if n is None else str(n) for n in counts) + " |"
+
+
+def _ref_trials(metrics: dict, terrain: str) -> int | None:
+    cell = metrics["reference"]["per_terrain"].get(terrain)
+    return None if cell is None else cell.get("trials")
 
 
 def _lookup(runs: list[dict]) -> dict[tuple[str, str], dict]:
@@ -74,8 +175,11 @@ def table_one(metrics: dict, metric: str = "total") -> str:
                          for t in terrains for c, _ in conds]
     lines = [title, "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for p in _policy_names(metrics):
-        cells = [_fmt(_value(look.get((p, c)), metric, t)) for t in terrains for c, _ in conds]
+        cells = [fmt_cell(_norm_cell(look.get((p, c)), t), metric)
+                 for t in terrains for c, _ in conds]
         lines.append(f"| {p} | " + " | ".join(cells) + " |")
+    lines.append(_trials_row("trials per cell", [_ref_trials(metrics, t) for t in terrains
+                                                 for _ in conds]))
     return "\n".join(lines)
 
 
@@ -87,8 +191,9 @@ def scenario_table(metrics: dict, scenario: str, metric: str = "total") -> str:
     head = ["policy"] + [c for c, _ in conds]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for p in _policy_names(metrics):
-        lines.append(f"| {p} | " + " | ".join(_fmt(_value(look.get((p, c)), metric))
+        lines.append(f"| {p} | " + " | ".join(fmt_cell(_norm_cell(look.get((p, c))), metric)
                                                for c, _ in conds) + " |")
+    lines.append(_trials_row("trials per cell", [_ref_trials(metrics, "average")] * len(conds)))
     return "\n".join(lines)
 
 
@@ -117,14 +222,16 @@ def raw_table(metrics: dict) -> str:
         cells = []
         for t in terrains:
             v = agg["per_terrain"].get(t)  # absent: no trial on that terrain
-            cells += ([_fmt(v["survival"]), _fmt(v["vel_err"]), _fmt(v["yaw_err"])] if v
-                      else [_fmt(None)] * 3)
+            cells += [fmt_cell(v, k) for k in ("survival", "vel_err", "yaw_err")]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines.append(_trials_row("trials per cell", [_ref_trials(metrics, t) for t in terrains
+                                                 for _ in range(3)]))
     return "\n".join(lines)
 
 
 def level_table(metrics: dict, metric: str = "total") -> str:
-    """Normalized metric per level (mean over terrains), no input changes."""
+    """Normalized metric per level, no input changes: the student's terrain-averaged
+    return at that level over the teacher's (as the avg column of the other tables)."""
     base = _baseline_runs(metrics)
     levels = [str(lv) for lv in metrics["levels"]]
     lines = ["| policy | " + " | ".join(f"level {lv}" for lv in levels) + " |",
@@ -132,13 +239,12 @@ def level_table(metrics: dict, metric: str = "total") -> str:
     for p in _policy_names(metrics):
         if p not in base:
             continue
-        per = base[p]["normalized"]["per_level"]
-        cells = []
-        for lv in levels:
-            vals = [per[t][lv][metric] for t in per if lv in per[t]]
-            ok = vals and all(v is not None for v in vals)
-            cells.append(_fmt(sum(vals) / len(vals) if ok else None))
-        lines.append(f"| {p} | " + " | ".join(cells) + " |")
+        per = base[p]["normalized"]["per_level"]["average"]
+        lines.append(f"| {p} | " + " | ".join(fmt_cell(per.get(lv), metric) for lv in levels)
+                     + " |")
+    ref = metrics["reference"]["per_level"]["average"]
+    lines.append(_trials_row("trials per cell", [ref[lv]["trials"] if lv in ref else None
+                                                 for lv in levels]))
     return "\n".join(lines)
 
 
@@ -147,12 +253,13 @@ def markdown(metrics: dict) -> str:
     from eval.scenarios import SCENARIOS
 
     cfg = metrics["config"]
-    intro = (f"{cfg['trials']} trials per policy and condition over "
-             f"{', '.join(cfg['terrains'])} at levels {', '.join(map(str, cfg['levels']))}; "
-             f"{cfg['episode_s']:g} s episodes; seed {cfg['seed']}; reference teacher "
-             f"`{cfg['teacher']['type']}` ({metrics['reference']['revision']}). Returns are "
-             "per-step means normalized by the teacher's on identical trials; see docs/eval.md.")
-    parts = [f"# msta-eval report ({cfg['suite']} suite)", "", intro, ""]
+    intro = (f"{trials_note(metrics)} (terrains {', '.join(cfg['terrains'])}; levels "
+             f"{', '.join(map(str, cfg['levels']))}; one trial = one {cfg['episode_s']:g} s "
+             f"episode); seed {cfg['seed']}; reference teacher `{cfg['teacher']['type']}` "
+             f"({metrics['reference']['revision']}). Returns are per-step means normalized by "
+             "the teacher's on identical trials; see docs/eval.md.")
+    parts = [f"# msta-eval report ({cfg['suite']} suite)", "", intro, "", CI_NOTE, ""]
+    parts += [f"> **Warning**: {w}\n" for w in identical_warnings(metrics)]
     parts += ["## Policies", "", "| name | kind | source | revision |", "|---|---|---|---|"]
     parts += [f"| {p['name']} | {p['kind']} | `{p['source']}` | {p['revision']} |"
               for p in metrics["policies"]]
@@ -162,7 +269,7 @@ def markdown(metrics: dict) -> str:
         parts += [table_one(metrics, m) + "\n" for m in ("total", "lin_tracking", "ang_tracking")]
     parts += ["## Survival and velocity errors (no input changes)", "", raw_table(metrics), ""]
     if len(metrics["levels"]) > 1:
-        parts += ["## Total reward per level (normalized, mean over terrains)", "",
+        parts += ["## Total reward per level (normalized, terrain average)", "",
                   level_table(metrics), ""]
     for name in ("sensor_removal", "dead_joints", "history"):
         if not _runs(metrics, name):
@@ -308,6 +415,8 @@ def main(argv: list[str] | None = None) -> None:
     metrics = json.loads(args.metrics.read_text())
     for f in write_report(metrics, args.out or args.metrics.parent):
         print(f)
+    for line in identical_warnings(metrics):
+        print(f"warning: {line}")
 
 
 if __name__ == "__main__":

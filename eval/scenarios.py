@@ -17,17 +17,24 @@ Scenarios (registry :data:`SCENARIOS`):
    in the checkpoints).
 
 A *suite* (registry :data:`SUITES`) fixes trials, terrains, levels, episode length and the
-values each scenario sweeps.
+values each scenario sweeps. :class:`TrialConfig` picks a suite and overrides its budget;
+msta-eval's and msta-correct's ``--eval.*`` options are this one dataclass, so both run the
+same trials for the same options.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from policies.actor import InputSpec
+
+if TYPE_CHECKING:
+    from eval.metrics import TrialLayout
 
 #: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
 PAPER_TERRAINS: tuple[str, ...] = (
@@ -226,3 +233,89 @@ def build_conditions(scenarios: Sequence[str], suite: Suite, sensors: Sequence[s
         for cond in scenario.build(ScenarioContext(tuple(sensors), tuple(values), seed)):
             out.setdefault(cond.key, cond)  # mask_matrix reuses the token_removal conditions
     return list(out.values())
+
+
+#: config fields that do not change any number (left out of metrics.json)
+_NOT_RESULTS = ("out", "progress", "video", "video_s", "nthread")
+
+
+def split_csv(text: str) -> list[str]:
+    """The non-empty, stripped items of a comma-separated option."""
+    return [p.strip() for p in str(text).split(",") if p.strip()]
+
+
+@dataclass
+class TrialConfig:
+    """Which trials an evaluation runs: msta-eval's and msta-correct's shared options.
+
+    A *trial* is one episode of one robot on a pinned (terrain, level) tile; trial i runs
+    on terrain ``i mod n_terrains`` at level ``levels[(i // n_terrains) mod n_levels]``
+    (eval.metrics.TrialLayout). Options left at 0 / empty take the suite's value.
+    """
+
+    suite: str = "quick"
+    """budget that fills the options left at 0 / empty: quick (5 trials = one 3 s episode
+    per paper terrain at level 1) or paper (5000 trials of 20 s over the five terrains and
+    levels 0-9); see docs/eval.md."""
+    trials: int = 0
+    """episodes per (policy, condition), spread evenly over terrains x levels; 0 = the
+    suite's."""
+    terrains: str = ""
+    """comma-separated terrain types; empty = the suite's (the paper's five)."""
+    levels: str = ""
+    """comma-separated terrain levels (0-9); empty = the suite's."""
+    episode_s: float = 0.0
+    """episode time limit (s); 0 = the suite's."""
+    max_envs: int = 0
+    """robots simulated together (trials run in rounds of this many); 0 = the suite's."""
+    seed: int = 0
+    """seeds the trials (tiles are pinned; spawns, commands, noise, pushes) and the
+    students' test-time masks."""
+    noise: bool = True
+    """observation noise on."""
+    randomization: bool = True
+    """domain randomization (dynamics, pushes, latency) on."""
+    heading_commands: bool = True
+    """yaw-rate command steers to a sampled heading (paper); false samples the yaw rate
+    directly (then command sequences do not depend on the policy at all)."""
+    threads: int = 1
+    """torch threads while evaluating (figures are bit-identical for the same value)."""
+    nthread: int = 2
+    """MuJoCo rollout threads (do not change any figure)."""
+
+    def __post_init__(self) -> None:
+        suite = get_suite(self.suite)
+        self.terrain_list = split_csv(self.terrains) or list(suite.terrains)
+        for t in self.terrain_list:
+            if t not in TERRAIN_TYPES:
+                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
+        try:
+            self.level_list = [int(v) for v in split_csv(self.levels)] or list(suite.levels)
+        except ValueError:
+            raise ValueError(f"--levels {self.levels!r} must be comma-separated integers") \
+                from None
+        bad = [lv for lv in self.level_list if not 0 <= lv < TerrainConfig().num_levels]
+        if bad:
+            raise ValueError(f"level {bad[0]} out of range [0, {TerrainConfig().num_levels})")
+        self.num_trials = self.trials or suite.trials
+        self.episode = self.episode_s or suite.episode_s
+        self.envs = self.max_envs or suite.max_envs
+        for name in ("num_trials", "envs", "threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.episode <= 0:
+            raise ValueError(f"episode_s={self.episode} must be > 0")
+
+    def layout(self) -> TrialLayout:
+        """The trial layout these options describe."""
+        from eval.metrics import TrialLayout
+
+        return TrialLayout(tuple(self.terrain_list), tuple(self.level_list), self.num_trials)
+
+    def resolved(self) -> dict[str, Any]:
+        """The effective configuration as stored with the figures (fields that change no
+        number left out)."""
+        d = {k: v for k, v in asdict(self).items() if k not in _NOT_RESULTS}
+        d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
+                 episode_s=self.episode, max_envs=self.envs)
+        return d

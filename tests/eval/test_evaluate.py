@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
+from eval.metrics import RETURNS
 from eval.scenarios import Condition
 from policies.actor import InputSpec
 
@@ -22,14 +23,25 @@ def test_teacher_is_exactly_one_and_the_default_pose_far_below(tmp_path):
     runs = {(r["policy"], r["condition"]): r for r in metrics["runs"]}
     teacher = runs[("teacher", "mask 0%")]
     for terrain in ("flat", "smooth_slope", "average"):
-        assert teacher["normalized"]["per_terrain"][terrain] == \
-            {"lin_tracking": 1.0, "ang_tracking": 1.0, "total": 1.0}
+        cell = teacher["normalized"]["per_terrain"][terrain]
+        assert {k: cell[k] for k in RETURNS} == {k: 1.0 for k in RETURNS}
+        assert cell["ci"] == {k: [1.0, 1.0] for k in RETURNS}      # paired: no noise
     zero = runs[("zero", "mask 0%")]["normalized"]["per_terrain"]["average"]
     assert zero["lin_tracking"] < 0.5 and zero["total"] < 0.85, zero
     # no input change applies to a teacher: marked n/a with the reason, not skipped
     masked = runs[("teacher", "mask 25%")]
     assert masked["status"] == "n/a" and "teacher" in masked["reason"]
     assert metrics["reference"]["per_terrain"]["flat"]["survival"] > 0
+    # every cell says how many trials it holds, and the report header tells the truth
+    ref = metrics["reference"]["per_terrain"]
+    assert [ref[t]["trials"] for t in ("flat", "smooth_slope", "average")] == [2, 2, 4]
+    assert zero["trials"] == 4 and zero["ci"]["lin_tracking"][0] < zero["lin_tracking"]
+    report = (tmp_path / "report.md").read_text()
+    assert ("4 trials per policy and condition, spread over 2 terrain(s) x 1 level(s): "
+            "**2 trial(s) per terrain cell**, 4 in the average") in report
+    assert "| *trials per cell* | 2 | 2 | 2 | 2 | 2 | 2 | 4 | 4 | 4 |" in report
+    z = runs[("zero", "mask 0%")]["normalized"]["per_terrain"]["flat"]
+    assert f"| zero | {z['lin_tracking']:.2f} ±" in report.split("linear-velocity")[1]
 
 
 def _token_counts(ev: Evaluator, entry, spec: InputSpec) -> int:
@@ -61,7 +73,7 @@ def test_removed_sensors_and_joints_remove_tokens(tiny_ckpt, tmp_path):
     cfg = EvalConfig(policies=str(tiny_ckpt), trials=2, episode_s=0.5, out=str(tmp_path),
                      **FAST)
     [entry] = load_entries(cfg)
-    ev = Evaluator(cfg)
+    ev = Evaluator(cfg, cfg.teacher, progress=False)
     ev.run_reference()
     T = 15
     assert _token_counts(ev, entry, InputSpec()) == 49 * T + 1          # + the state token
@@ -107,6 +119,30 @@ def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
         assert img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img) > 0.5, name
     video = next((tmp_path / "a").glob("video_a75_50_stairs_up_L0.mp4"))
     assert video.stat().st_size > 1000
+
+
+def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, capsys):
+    """A student with zeroed weights acts the same whatever it sees: identical figures for
+    test masks 0/25/50 % are flagged; the random-weight student's figures differ: no flag."""
+    import torch
+
+    from policies.factory import load_policy
+
+    deaf = load_policy(tiny_ckpt)
+    with torch.no_grad():
+        for p in deaf.parameters():
+            p.zero_()
+    deaf_dir = deaf.save_pretrained(tmp_path / "deaf")
+    cfg = EvalConfig(policies=f"teacher,{deaf_dir},{tiny_ckpt}", scenarios="token_removal",
+                     trials=2, episode_s=0.5, out=str(tmp_path / "out"), **FAST)
+    metrics = evaluate(cfg)
+    line = ("deaf: the student's figures are identical across token_removal conditions "
+            "mask 0%, mask 25%, mask 50%: it may ignore its inputs")
+    assert line in (tmp_path / "out" / "report.md").read_text()
+    printed = capsys.readouterr().out
+    assert line in printed and tiny_ckpt.name not in printed.split("warning")[-1]
+    from eval.report import identical_warnings
+    assert identical_warnings(metrics) == [line]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -88,9 +88,19 @@ def test_aggregate_and_normalize_by_hand():
     assert agg["per_terrain"]["b"]["survival"] == 0.5
     assert agg["per_terrain"]["b"]["vel_err"] == pytest.approx(3.0 / 15)
     assert agg["per_terrain"]["average"]["lin_tracking"] == pytest.approx(0.25)
+    assert agg["per_level"]["average"]["0"]["lin_tracking"] == pytest.approx(0.25)
+    # trial counts and intervals per cell: lin on a = (0.1, 0.3): mean 0.2, s = 0.1414
+    assert [agg["per_terrain"][k]["trials"] for k in ("a", "b", "average")] == [2, 2, 4]
+    lo, hi = agg["per_terrain"]["a"]["ci"]["lin_tracking"]
+    assert (hi - lo) / 2 == pytest.approx(12.7062 * 0.1414214 / 2 ** 0.5, rel=1e-4)
+    s_lo, s_hi = agg["per_terrain"]["b"]["ci"]["survival"]          # Wilson, 1 of 2
+    assert 0 < s_lo < 0.5 < s_hi < 1
     half = TrialResults(r.lin / 2, r.ang, r.total / 2, r.steps, r.fell, r.vel_err, r.yaw_err, 10)
-    norm = normalize(aggregate(half, lay), agg)
+    norm = normalize(half, r, lay)
     assert norm["per_terrain"]["a"]["lin_tracking"] == pytest.approx(0.5)
+    assert norm["per_terrain"]["a"]["ci"]["lin_tracking"] == pytest.approx([0.5, 0.5])  # paired
     assert norm["per_terrain"]["b"]["total"] is None        # teacher scored 0 there
+    assert norm["per_terrain"]["b"]["ci"]["total"] is None
     assert norm["per_terrain"]["average"]["total"] == pytest.approx(0.5)
     assert norm["per_level"]["a"]["0"]["lin_tracking"] == pytest.approx(0.5)
+    assert norm["per_terrain"]["average"]["trials"] == 4
