@@ -10,8 +10,9 @@ Every table cell shows its figure with the 95 % confidence interval stored in me
 (:mod:`eval.intervals`: ``±`` half-width of a Student-t / delta-method interval, or
 ``(low–high)`` Wilson bounds for survival), and every table ends with a *trials per cell*
 row; the header says how the trials spread over terrain cells. A student whose figures are
-identical across conditions that change its inputs (test masks, removed sensors, ...) gets
-a warning line (:func:`identical_warnings`), also printed by msta-eval.
+identical (to 4 significant digits, every cell) across conditions that change its inputs
+(test masks, removed sensors, ...) gets a warning line (:func:`identical_warnings`), also
+printed by msta-eval.
 """
 
 from __future__ import annotations
@@ -21,6 +22,8 @@ import json
 import math
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from eval.metrics import RETURNS
 
@@ -79,21 +82,57 @@ CI_NOTE = ("Each figure is the mean over its cell's trials with a 95 % confidenc
            "noise, so their intervals are conservative (eval/intervals.py).")
 
 
+#: Figures closer than this (relative) count as identical in :func:`identical_groups`.
+IDENTICAL_RTOL = 1e-4
+
+
+def _figures(run: dict) -> np.ndarray:
+    """Every number of a run's raw figures (all cells, metrics and bounds), in key order."""
+    out: list[float] = []
+
+    def walk(x: Any) -> None:
+        if isinstance(x, dict):
+            for k in sorted(x):
+                walk(x[k])
+        elif isinstance(x, (list, tuple)):
+            for v in x:
+                walk(v)
+        elif isinstance(x, (int, float)):
+            out.append(float(x))
+        else:  # None: no interval
+            out.append(math.nan)
+
+    walk(run["raw"])
+    return np.asarray(out)
+
+
 def identical_groups(runs: list[dict]) -> list[list[str]]:
     """Condition labels whose figures are identical although the inputs differ.
+
+    "Identical": every raw figure of every cell (per terrain and per level, intervals
+    included) agrees to a relative :data:`IDENTICAL_RTOL`; a student whose actions change
+    with its inputs drives the robots elsewhere and changes them far more.
 
     Args:
         runs: run records of one policy and scenario (metrics.json ``runs`` entries or
             msta-correct's per-mask records).
     Returns:
-        one list of labels per group of >= 2 identical ``raw`` figures over >= 2 different
-        inputs (``inputs`` digest, else the spec).
+        one list of labels per group of >= 2 identical runs over >= 2 different inputs
+        (``inputs`` digest, else the spec).
     """
-    same: dict[str, list[dict]] = {}
+    groups: list[tuple[np.ndarray, list[dict]]] = []
     for r in runs:
-        if r.get("status") == "ok":
-            same.setdefault(json.dumps(r["raw"], sort_keys=True), []).append(r)
-    return [[r["condition"] for r in rs] for rs in same.values()
+        if r.get("status") != "ok":
+            continue
+        x = _figures(r)
+        for ref, members in groups:
+            if ref.shape == x.shape and np.allclose(x, ref, rtol=IDENTICAL_RTOL, atol=1e-12,
+                                                    equal_nan=True):
+                members.append(r)
+                break
+        else:
+            groups.append((x, [r]))
+    return [[r["condition"] for r in rs] for _, rs in groups
             if len({r.get("inputs") or json.dumps(r["spec"], sort_keys=True) for r in rs}) > 1]
 
 

@@ -70,7 +70,7 @@ def test_wilson_covers_a_proportion_and_stays_in_bounds():
     hits = 0
     for _ in range(REPEATS):
         x = (rng.random(30) < 0.8).astype(float)
-        p, (lo, hi) = proportion_interval(x)
+        _, (lo, hi) = proportion_interval(x)
         hits += lo <= 0.8 <= hi
     assert 0.92 <= hits / REPEATS <= 0.98, hits / REPEATS
     assert wilson_interval(1.0, 1)[1] == 1.0 and 0.0 < wilson_interval(1.0, 1)[0] < 0.5
@@ -82,7 +82,7 @@ def test_one_trial_has_no_interval_and_a_zero_teacher_no_ratio():
     assert mean_interval(np.array([0.4]))[1] is None
     assert ratio_interval(np.array([0.4]), np.array([0.5]))[1] is None
     assert ratio_interval(np.array([0.4, 0.1]), np.zeros(2)) == (None, None)
-    mean, (lo, hi) = mean_interval(np.array([0.3, 0.3, 0.3]))
+    _, (lo, hi) = mean_interval(np.array([0.3, 0.3, 0.3]))
     assert lo == hi == pytest.approx(0.3)
 
 

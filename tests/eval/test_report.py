@@ -1,0 +1,43 @@
+"""report.md helpers: interval formatting and the identical-figures warning."""
+
+from __future__ import annotations
+
+import copy
+
+from eval.report import fmt_ci, identical_groups, identical_warnings
+
+
+def _run(condition: str, inputs: str, lin: float, policy: str = "s") -> dict:
+    cell = {"lin_tracking": lin, "survival": 1.0, "trials": 4,
+            "ci": {"lin_tracking": [lin - 0.1, lin + 0.1], "survival": [0.5, 1.0]}}
+    return {"policy": policy, "scenario": "token_removal", "condition": condition,
+            "inputs": inputs, "spec": {}, "status": "ok",
+            "raw": {"per_terrain": {"flat": cell, "average": copy.deepcopy(cell)}}}
+
+
+def test_identical_figures_over_different_inputs_are_flagged():
+    runs = [_run("mask 0%", "a", 0.5), _run("mask 25%", "b", 0.5), _run("mask 50%", "c", 0.5)]
+    assert identical_groups(runs) == [["mask 0%", "mask 25%", "mask 50%"]]
+    metrics = {"policies": [{"name": "s", "kind": "student"}], "runs": runs}
+    assert identical_warnings(metrics) == [
+        "s: the student's figures are identical across token_removal conditions mask 0%, "
+        "mask 25%, mask 50%: it may ignore its inputs"]
+
+
+def test_differing_figures_or_equal_inputs_are_not_flagged():
+    differing = [_run("mask 0%", "a", 0.5), _run("mask 50%", "b", 0.501)]
+    assert identical_groups(differing) == []
+    same_inputs = [_run("T=15", "a", 0.5), _run("T=20", "a", 0.5)]  # the same run, shared
+    assert identical_groups(same_inputs) == []
+    na = [_run("mask 0%", "a", 0.5), {**_run("mask 50%", "b", 0.5), "status": "n/a"}]
+    assert identical_groups(na) == []
+    teacher = {"policies": [{"name": "s", "kind": "teacher"}],
+               "runs": [_run("mask 0%", "a", 0.5), _run("mask 50%", "b", 0.5)]}
+    assert identical_warnings(teacher) == []
+
+
+def test_interval_formatting():
+    assert fmt_ci(0.85, [0.75, 0.95]) == "0.85 ±0.10"
+    assert fmt_ci(0.8, [0.49, 0.94]) == "0.80 (0.49–0.94)"
+    assert fmt_ci(0.85, None) == "0.85"
+    assert fmt_ci(None, [0.1, 0.2]) == "n/a"
