@@ -315,7 +315,8 @@ class TrialConfig:
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored with the figures (fields that change no
         number left out)."""
-        d = {k: v for k, v in asdict(self).items() if k not in _NOT_RESULTS}
+        d = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
+             if k not in _NOT_RESULTS}  # JSON-shaped: equal to itself read back
         d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
                  episode_s=self.episode, max_envs=self.envs)
         return d
