@@ -18,8 +18,13 @@ Each round r = 1..R:
 4. **retrain** from the current weights on all episodes (``--recent_weight`` < 1 favours
    recent rounds), with :func:`train.offline.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
-5. **save** ``output_dir/round_<r>/`` and **evaluate** it on fixed seeds and terrains against
-   the teacher on the same seeds (normalized total reward); a table is printed per round.
+5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
+   (:class:`RoundEvaluator`: ``eval.evaluate.Evaluator`` on the trials of ``--eval.*``, the
+   ``token_removal`` conditions at ``--eval.mask_ratios``): linear-velocity tracking and
+   total reward normalized by the teacher's on the same trials, and survival, with 95 %
+   intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
+   --scenarios token_removal`` with the same suite / trials / terrains / levels /
+   episode_s / seed reports the same figures, and so does the model card (``--push_to``).
 
 Resume and crash windows (``progress.json``, written atomically after every phase):
 the round's episodes are kept in memory until all are collected, then appended by a single
@@ -50,7 +55,7 @@ import torch
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
+from eval.scenarios import TrialConfig
 from policies.actor import InputSpec, StudentActor
 from policies.base import StudentPolicy
 from policies.teacher.config import TeacherConfig
@@ -65,21 +70,29 @@ RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs
 
 
 @dataclass
-class EvalConfig:
-    """Args:
-        env: the fixed evaluation environments (seed, terrains, levels, number of robots).
-        steps: control steps per evaluation (every environment steps this many times).
-        mask_ratios: test-time token-removal ratios evaluated for the student.
-        seed: seeds the student's test-time masks.
-        enabled: evaluate at all (off: no per-round table).
+class EvalConfig(TrialConfig):
+    """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
+    on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
+    random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
+    figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
+    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_s and
+    seed; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
+    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
+    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
     """
 
-    env: EnvConfig = field(default_factory=lambda: EnvConfig(
-        num_envs=20, seed=10_000, terrain=TerrainConfig(curriculum=False, max_init_level=4)))
-    steps: int = 500
-    mask_ratios: tuple[float, ...] = (0.0, 0.5)
-    seed: int = 0
     enabled: bool = True
+    """evaluate the starting checkpoint (round 0) and every round (false: no per-round table
+    and no figures on the model card)."""
+    mask_ratios: tuple[float, ...] = (0.0, 0.5)
+    """test-time token-removal ratios evaluated for the student (0.5 = msta-eval's
+    "mask 50" condition)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.mask_ratios = tuple(float(m) for m in self.mask_ratios)
+        if not self.mask_ratios or not all(0.0 <= m < 1.0 for m in self.mask_ratios):
+            raise ValueError(f"eval.mask_ratios={self.mask_ratios} must be values in [0, 1)")
 
 
 @dataclass
@@ -315,27 +328,43 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
             **{f"val_{k}": v for k, v in res.val.items()}}
 
 
-def evaluate(cfg: EvalConfig, actor: Any) -> dict[str, Any]:
-    """Phase 5: ``collect.rollout.run`` on the fixed evaluation environments."""
-    from collect.rollout import run
-    from collect.sim.env import QuadrupedEnv
+class RoundEvaluator:
+    """Phase 5 through msta-eval's :class:`~eval.evaluate.Evaluator` on ``cfg.eval``'s
+    trials. The reference teacher runs once per process, on first use; a checkpoint is
+    evaluated from its directory, loaded on the CPU as msta-eval loads it.
 
-    env = QuadrupedEnv(replace(cfg.env))
-    env.reset()
-    summary = run(env, actor, cfg.steps, progress=False)
-    per = {name: st.row() for name, st in summary.per_type.items()}
-    steps = sum(st.steps for st in summary.per_type.values())
-    total = sum(st.total for st in summary.per_type.values())
-    return {"reward_per_step": total / max(steps, 1), "terrains": per}
+    Args:
+        cfg: the msta-correct configuration (``eval`` and ``teacher``).
+    """
 
+    def __init__(self, cfg: CorrectConfig) -> None:
+        self.cfg = cfg
+        self.ev: Any = None
 
-def eval_student(cfg: CorrectConfig, policy: StudentPolicy) -> dict[str, Any]:
-    policy.eval()
-    out = {}
-    for m in cfg.eval.mask_ratios:
-        spec = replace(cfg.rollout, mask_ratio=m, seed=cfg.eval.seed)
-        out[f"{m:g}"] = evaluate(cfg.eval, student_actor(policy, cfg.eval.env.num_envs, spec))
-    return out
+    def teacher(self) -> dict[str, Any]:
+        """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
+        from eval.evaluate import Evaluator, torch_eval_settings
+
+        if self.ev is None:
+            ev = Evaluator(self.cfg.eval, self.cfg.teacher, progress=False)
+            with torch_eval_settings(self.cfg.eval.threads):
+                ev.run_reference()
+            self.ev = ev
+        return {"config": self.cfg.eval.resolved(), **self.ev.reference}
+
+    def student(self, ckpt: Path) -> dict[str, Any]:
+        """msta-eval's run record (raw and normalized figures, intervals, trials) of the
+        checkpoint ``ckpt`` per test mask, keyed ``f"{mask:g}"``."""
+        from eval.evaluate import student_entry, torch_eval_settings
+        from eval.scenarios import ScenarioContext, get_scenario
+
+        self.teacher()
+        entry = student_entry(ckpt, ckpt.name, str(ckpt))
+        ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.eval.mask_ratios,
+                              self.cfg.eval.seed)
+        with torch_eval_settings(self.cfg.eval.threads):
+            return {f"{c.value:g}": self.ev.condition(entry, c)
+                    for c in get_scenario("token_removal").build(ctx)}
 
 
 # ----- progress and the round loop -------------------------------------------------------
@@ -402,7 +431,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     """
     from msta_data.features import load_info
     from policies.factory import load_policy
-    from policies.teacher.config import build_teacher, teacher_revision
+    from policies.teacher.config import teacher_revision
 
     hook = on_phase or (lambda phase, r: None)
     out = Path(cfg.output_dir)
@@ -422,19 +451,20 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
     start = out / f"round_{max(trained)}" if trained else ckpt
     policy = load_policy(start, device=str(device))
-    if cfg.eval.enabled and "teacher_eval" not in prog:
-        prog["teacher_eval"] = evaluate(cfg.eval, build_teacher(cfg.teacher))
-        if not trained:  # round 0: the starting checkpoint
-            prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
-                                   "episodes_after": int(load_info(root)["total_episodes"]),
-                                   "policy_revision": policy_revision(policy),
-                                   "eval": eval_student(cfg, policy)}
+    evaluator = RoundEvaluator(cfg) if cfg.eval.enabled else None
+    if evaluator and not trained and not prog["rounds"].get("0", {}).get("evaluated"):
+        prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
+                               "episodes_after": int(load_info(root)["total_episodes"]),
+                               "policy_revision": policy_revision(policy),
+                               "eval": evaluator.student(ckpt),
+                               "eval_config": cfg.eval.resolved()}
+        prog["teacher_eval"] = evaluator.teacher()
         atomic_json(path, prog)
         print_table(prog)
     for r in range(1, cfg.rounds + 1):
         rec = prog["rounds"].setdefault(str(r), {})
         if not rec.get("evaluated"):
-            run_round(cfg, policy, root, out, r, rec, prog, hook)
+            run_round(cfg, policy, root, out, r, rec, prog, hook, evaluator)
         if cfg.push_to and rec.get("pushed", {}).get("repo") != cfg.push_to:
             rec["pushed"] = push_round(cfg, prog, r)
             atomic_json(path, prog)
@@ -442,7 +472,8 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
 
 
 def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
-              r: int, rec: dict[str, Any], prog: dict[str, Any], hook: PhaseHook) -> None:
+              r: int, rec: dict[str, Any], prog: dict[str, Any], hook: PhaseHook,
+              evaluator: RoundEvaluator | None) -> None:
     """One round's phases, each skipped when progress.json marks it done."""
     path = out / PROGRESS
     revision = policy_revision(policy)
@@ -474,19 +505,30 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
                    trained_revision=policy_revision(policy))
         atomic_json(path, prog)
         hook("trained", r)
-    if cfg.eval.enabled:
-        rec["eval"] = eval_student(cfg, policy)
+    if evaluator is not None:
+        rec.update(eval=evaluator.student(out / f"round_{r}"), eval_config=cfg.eval.resolved())
+        prog["teacher_eval"] = evaluator.teacher()
     rec["evaluated"] = True
     atomic_json(path, prog)
     hook("evaluated", r)
     print_table(prog)
 
 
+#: (column, figure, metric): normalized returns are ``normalized`` figures, survival ``raw``.
+ROUND_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
+                 ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
+
+
 def print_table(prog: dict[str, Any]) -> None:
-    """Per-round table: speeds and normalized total reward vs the teacher (same seeds)."""
-    ref = prog.get("teacher_eval")
-    lines = [("| round | episodes | env steps/s | train samples/s | val loss | mask "
-              "| reward/step | vs teacher | per terrain vs teacher |"), "|" + "---|" * 9]
+    """Per-round table: speeds, then per test mask the trials and msta-eval's figures
+    (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
+    total reward normalized by the teacher on the same trials, and survival."""
+    from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
+
+    lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
+             "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
+             "tracking vs teacher / survival |", "|" + "---|" * 11]
+    warnings = []
     for k in sorted(prog["rounds"], key=int):
         rec = prog["rounds"][k]
         ro, tr = rec.get("rollout", {}), rec.get("train", {})
@@ -494,26 +536,39 @@ def print_table(prog: dict[str, Any]) -> None:
                 f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
                 f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
                 f"{_fmt(tr.get('val_loss'), '.4f')}")
-        for m, ev in rec.get("eval", {}).items():
-            norm = _ratio(ev["reward_per_step"], ref["reward_per_step"]) if ref else float("nan")
-            terr = " ".join(f"{t}:{_ratio(row['total'], ref['terrains'][t]['total']):.2f}"
-                            for t, row in ev["terrains"].items()
-                            if ref and t in ref["terrains"])
-            lines.append(f"{head} | {float(m):.0%} | {ev['reward_per_step']:.4f} | {norm:.2f} "
-                         f"| {terr} |")
-        if not rec.get("eval"):
-            lines.append(f"{head} | - | - | - | - |")
+        runs = rec.get("eval") or {}
+        for m, run in runs.items():
+            if run.get("status") != "ok":
+                reason = run.get("reason", "evaluated by an older msta-correct")
+                lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
+                continue
+            per = {f: run[f]["per_terrain"] for _, f, _ in ROUND_FIGURES}
+            avg = [fmt_cell(per[f]["average"], key) for _, f, key in ROUND_FIGURES]
+            terr = " ".join(
+                f"{SHORT_TERRAIN.get(t, t)} {_fmt(per['normalized'][t]['lin_tracking'], '.2f')}"
+                f"/{row['survival']:.2f}" for t, row in per["raw"].items() if t != "average")
+            lines.append(f"{head} | {float(m):.0%} | {per['raw']['average']['trials']} | "
+                         + " | ".join(avg) + f" | {terr} |")
+        warnings += [identical_line(f"round {k}", "test masks", labels)
+                     for labels in identical_groups(list(runs.values()))]
+        if not runs:
+            lines.append(f"{head} | - | - | - | - | - | - |")
+    ref = prog.get("teacher_eval")
     if ref:
-        print(f"teacher reward/step on the evaluation seeds: {ref['reward_per_step']:.4f}")
+        c, a = ref["config"], ref["per_terrain"]["average"]
+        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_s']:g} s "
+              f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
+              f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
+              f"{a['survival']:.2f}, total {a['total']:.3f}/step")
     print("\n".join(lines), flush=True)
+    if ref:
+        print(CI_NOTE)
+    for w in warnings:
+        print(f"msta-correct: warning: {w}", flush=True)
 
 
 def _fmt(value: float | None, spec: str) -> str:
     return "-" if value is None else format(value, spec)
-
-
-def _ratio(a: float, b: float) -> float:
-    return a / b if b else float("nan")
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -13,9 +13,11 @@ earlier versions stay in the history.
 The model card records the training dataset (hub id and the commit sha it resolved to, or
 for a local dataset the ``repo_id`` of its ``meta/msta.json``, with the local path in the
 notes and the config), the training configuration, stage, round, summary metrics (stage 1:
-the last train and validation losses of ``metrics.csv``; stage 2: total reward per step
-normalized by the teacher's on the same seeds at each evaluated mask ratio) and, in stage 2,
-the per-terrain evaluation table.
+the last train and validation losses of ``metrics.csv``; stage 2: msta-correct's per-round
+figures, which are msta-eval's on the same trials: linear-velocity tracking and total
+reward normalized by the teacher's, survival, their 95 % intervals and the trial count, at
+each evaluated test mask) and, in stage 2, the per-terrain evaluation table and the
+msta-eval command that reproduces it.
 
 A failed push never touches the checkpoint on disk: :class:`PushError` names the directory
 and how to retry: rerun with ``--resume=true`` (msta-train: a finished run is not trained
@@ -162,33 +164,60 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
 
 
 # ----- stage 2 -----------------------------------------------------------------------------
+#: (card name, msta-eval figure, metric): returns normalized by the teacher, survival raw.
+CARD_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
+                ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
+
+
 def round_eval(prog: dict[str, Any], r: int) -> tuple[dict[str, float], dict | None]:
     """(metrics, per-terrain table) of round ``r`` from msta-correct's progress.json content.
 
-    Metrics: ``vs_teacher@mask<m>`` (total reward per step / the teacher's on the same
-    seeds), ``reward_per_step@mask<m>``, the round's train and validation losses and its
-    episode count. Table rows are terrains (and ``all``), columns ``vs_teacher@mask<m>`` and
-    ``survival@mask<m>``.
+    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluate.Evaluator``):
+    per test mask m, ``lin_tracking_vs_teacher@mask<m>`` and ``total_vs_teacher@mask<m>``
+    (per-step returns over the teacher's on the same trials), ``survival@mask<m>`` (share
+    of trials without a fall), each with ``<name>_ci95_low@mask<m>`` / ``_high`` (95 %
+    interval; absent with one trial), and ``eval_trials``; plus the round's train and
+    validation losses and its episode count. Table rows are the terrains and ``average``;
+    columns ``<name>@mask<m>`` and ``trials``.
     """
-    rec, ref = prog["rounds"][str(r)], prog.get("teacher_eval")
+    rec = prog["rounds"][str(r)]
     tr = rec.get("train", {})
     metrics = {"train_loss": tr.get("train_loss"), "val_loss": tr.get("val_loss"),
                "episodes": rec.get("episodes_after")}
     table: dict[str, dict[str, float]] = {}
-    for m, ev in (rec.get("eval") or {}).items():
-        metrics[f"reward_per_step@mask{m}"] = ev["reward_per_step"]
-        if not ref or not ref["reward_per_step"]:
+    for m, run in (rec.get("eval") or {}).items():
+        if run.get("status") != "ok":
             continue
-        metrics[f"vs_teacher@mask{m}"] = ev["reward_per_step"] / ref["reward_per_step"]
-        table.setdefault("all", {})[f"vs_teacher@mask{m}"] = metrics[f"vs_teacher@mask{m}"]
-        for t, row in ev["terrains"].items():
-            base = ref["terrains"].get(t, {}).get("total")
-            if base:
-                table.setdefault(t, {})[f"vs_teacher@mask{m}"] = row["total"] / base
-            table.setdefault(t, {})[f"survival@mask{m}"] = row["survival"]
-    if ref:
-        metrics["teacher_reward_per_step"] = ref["reward_per_step"]
+        metrics["eval_trials"] = run["raw"]["per_terrain"]["average"]["trials"]
+        for name, figure, key in CARD_FIGURES:
+            per = run[figure]["per_terrain"]
+            avg = per["average"]
+            metrics[f"{name}@mask{m}"] = avg[key]
+            if avg["ci"][key]:
+                low, high = avg["ci"][key]
+                metrics[f"{name}_ci95_low@mask{m}"] = low
+                metrics[f"{name}_ci95_high@mask{m}"] = high
+            for t, cell in per.items():
+                row = table.setdefault(t, {})
+                row[f"{name}@mask{m}"] = cell[key]
+                row["trials"] = cell["trials"]
     return _finite(metrics), ({k: _finite(v) for k, v in table.items()} or None)
+
+
+def eval_note(prog: dict[str, Any], r: int, ckpt: str) -> str:
+    """How the card's figures were measured, and the msta-eval command that reproduces them."""
+    c = prog["rounds"][str(r)].get("eval_config")
+    if not c:
+        return ""
+    masks = ", ".join(f"{float(m):.0%}" for m in prog["rounds"][str(r)].get("eval", {}))
+    return (f"Evaluation (test masks {masks}): msta-eval's trials, {c['trials']} episodes of "
+            f"{c['episode_s']:g} s over {', '.join(c['terrains'])} at levels "
+            f"{', '.join(map(str, c['levels']))}, seed {c['seed']}; returns normalized by the "
+            "teacher's on the same trials, 95 % intervals in the `_ci95_` metrics. "
+            f"`msta-eval --policies teacher,{ckpt} --scenarios token_removal --suite "
+            f"{c['suite']} --trials {c['trials']} --terrains {','.join(c['terrains'])} --levels "
+            f"{','.join(map(str, c['levels']))} --episode_s {c['episode_s']:g} --seed "
+            f"{c['seed']}` reports the same figures.")
 
 
 def push_round(cfg: Any, prog: dict[str, Any], r: int) -> dict[str, str]:
@@ -207,7 +236,7 @@ def push_round(cfg: Any, prog: dict[str, Any], r: int) -> dict[str, str]:
     notes = (f"Stage 2: online correction round {r}, retrained on the dataset plus the "
              f"student episodes of rounds 1-{r} labelled by the teacher "
              f"({prog['rounds'][str(r)].get('episodes_after')} episodes); started from "
-             f"`{cfg.policy}`.")
+             f"`{cfg.policy}`. {eval_note(prog, r, f'{cfg.push_to}@stage2-r{r}')}")
     card = _card(src, draccus.encode(cfg), 2, r, metrics, table, notes)
     return push_checkpoint(ckpt, cfg.push_to, f"stage2-r{r}", card, cfg.push_private,
                            "the round is finished; rerun with --resume=true to push it")

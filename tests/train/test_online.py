@@ -28,6 +28,11 @@ E = 4  # episodes per round
 EPISODE_S = 0.3
 
 
+#: the per-round evaluation of the two-round run: 4 trials of 1 s on two terrains
+EVAL = EvalConfig(trials=4, episode_s=1.0, terrains="flat,stairs_up", levels="0",
+                  mask_ratios=(0.0, 0.5))
+
+
 def small_env(**kw) -> EnvConfig:
     return EnvConfig(nthread=1, terrain=TERRAIN, randomization=RandomizationConfig(pool_size=2),
                      **kw)
@@ -66,8 +71,7 @@ def file_hashes(root: Path) -> dict[str, str]:
 def two_rounds(base, tmp_path_factory) -> tuple[CorrectConfig, dict, dict[str, str]]:
     """An uninterrupted two-round run: (config, progress, teacher data file hashes)."""
     tmp = tmp_path_factory.mktemp("two_rounds")
-    cfg = make_cfg(base, tmp, eval=EvalConfig(env=small_env(num_envs=2, seed=7), steps=5,
-                                              mask_ratios=(0.0, 0.5)))
+    cfg = make_cfg(base, tmp, eval=EVAL)
     before = file_hashes(Path(cfg.dataset))
     return cfg, correct(cfg), before
 
@@ -93,10 +97,16 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
         assert prog["rounds"][str(r)]["policy_revision"] == rev
     assert (eps.iloc[:4]["provenance/source"] == "teacher").all()
     MSTAPolicy.from_pretrained(out / "round_2")
-    # per-round evaluation against the teacher on the same seeds, both test masks
+    # per-round evaluation against the teacher on the same trials, both test masks
     assert set(prog["rounds"]) == {"0", "1", "2"}
     assert set(prog["rounds"]["2"]["eval"]) == {"0", "0.5"}
-    assert prog["teacher_eval"]["reward_per_step"] > 0
+    assert prog["teacher_eval"]["per_terrain"]["average"]["lin_tracking"] > 0
+    assert prog["teacher_eval"]["per_terrain"]["average"]["trials"] == 4
+    for r in ("0", "1", "2"):
+        run = prog["rounds"][r]["eval"]["0.5"]
+        assert run["status"] == "ok" and run["spec"]["mask_ratio"] == 0.5
+        assert run["normalized"]["per_terrain"]["average"]["trials"] == 4
+        assert prog["rounds"][r]["eval_config"]["episode_s"] == 1.0
     assert prog["rounds"]["1"]["rollout"]["env_steps_per_s"] > 0
     assert prog["rounds"]["1"]["train"]["train_samples_per_s"] > 0
     # labels: the teacher's action on the recorded (privileged) observation, replayed
@@ -112,6 +122,42 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
             np.testing.assert_allclose(a[0], b["action"][t], rtol=1e-4, atol=1e-4)
     # the student drove (beta = 0): executed actions are not the labels
     assert not np.allclose(b["executed_action"], b["action"], atol=1e-3)
+
+
+def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys):
+    """One metric: msta-eval on round 2's checkpoint, over the trials msta-correct evaluated
+    it on, reports the figures of msta-correct's round table and of its model card."""
+    from eval.evaluate import main as msta_eval
+    from eval.report import fmt_cell
+    from train.online import print_table
+    from train.push import round_eval
+
+    cfg, prog, _ = two_rounds
+    ckpt = Path(cfg.output_dir) / "round_2"
+    msta_eval(["--policies", f"teacher,{ckpt}", "--scenarios", "token_removal", "--trials", "4",
+               "--episode_s", "1", "--terrains", "flat,stairs_up", "--levels", "0", "--seed",
+               "0", "--progress", "false", "--out", str(tmp_path / "eval")])
+    metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
+    runs = {r["condition"]: r for r in metrics["runs"] if r["policy"] == "round_2"}
+    card, _ = round_eval(prog, 2)
+    print_table(prog)
+    table = capsys.readouterr().out.split("| 2 |")[-1]
+    report = (tmp_path / "eval" / "report.md").read_text()
+    assert {k: metrics["reference"][k] for k in ("per_terrain", "per_level")} == \
+        {k: prog["teacher_eval"][k] for k in ("per_terrain", "per_level")}
+    for mask, label in (("0", "mask 0%"), ("0.5", "mask 50%")):
+        ours, theirs = prog["rounds"]["2"]["eval"][mask], runs[label]
+        assert ours["raw"] == theirs["raw"] and ours["normalized"] == theirs["normalized"]
+        norm = theirs["normalized"]["per_terrain"]["average"]
+        raw = theirs["raw"]["per_terrain"]["average"]
+        assert card[f"lin_tracking_vs_teacher@mask{mask}"] == norm["lin_tracking"]
+        assert card[f"survival@mask{mask}"] == raw["survival"]
+        assert card[f"total_vs_teacher@mask{mask}"] == norm["total"]
+        assert card.get(f"total_vs_teacher_ci95_low@mask{mask}") == norm["ci"]["total"][0]
+        assert card["eval_trials"] == raw["trials"] == 4
+        for text in (fmt_cell(norm, "lin_tracking"), fmt_cell(norm, "total"),
+                     fmt_cell(raw, "survival")):
+            assert text in table and text in report, text
 
 
 def test_beta_one_reproduces_teacher_rollouts(base, tmp_path):
@@ -186,6 +232,25 @@ def test_resume_after_a_kill_between_rollout_and_retrain(base, two_rounds, tmp_p
                                b.get_batch(idx)["executed_action"], atol=1e-3)
 
 
+def test_resume_after_a_kill_during_evaluation_only_evaluates(base, tmp_path):
+    def kill(p: str, r: int) -> None:
+        if p == "trained":
+            raise Kill
+
+    cfg = make_cfg(base, tmp_path, rounds=1, eval=EVAL)
+    with pytest.raises(Kill):
+        correct(cfg, on_phase=kill)
+    before = json.loads((Path(cfg.output_dir) / "progress.json").read_text())
+    assert before["rounds"]["0"]["evaluated"] and "eval" not in before["rounds"]["1"]
+    prog = correct(replace(cfg, resume=True))
+    rec = prog["rounds"]["1"]
+    assert rec["evaluated"] and rec["eval"]["0"]["status"] == "ok"
+    assert rec["rollout"] == before["rounds"]["1"]["rollout"]     # not rolled out again
+    assert prog["rounds"]["0"] == before["rounds"]["0"]
+    assert prog["teacher_eval"] == before["teacher_eval"]         # same trials, same teacher
+    assert len(load_episode_table(Path(cfg.dataset))) == 4 + E
+
+
 def test_bad_inputs(base, tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing to resume"):
         correct(make_cfg(base, tmp_path, resume=True))
@@ -198,3 +263,7 @@ def test_bad_inputs(base, tmp_path):
         make_cfg(base, tmp_path, beta=1.5)
     with pytest.raises(SystemExit, match="unknown teacher type 'nope'"):
         main(["--teacher.type=nope"])
+    with pytest.raises(SystemExit, match="mask_ratios"):
+        main(["--eval.mask_ratios=[0.0,1.5]"])
+    with pytest.raises(SystemExit, match="unknown terrain 'lava'"):
+        main(["--eval.terrains=flat,lava"])

@@ -53,7 +53,8 @@ def correct_cfg(tmp_path: Path, **kw) -> CorrectConfig:
         output_dir=str(tmp_path / "stage2"), rounds=1, episodes_per_round=2, num_envs=2,
         episode_length_s=0.3, env=small_env(), teacher=TeacherConfig(type="gait"), steps=3,
         batch_size=8, warmup_steps=1, progress=False, device="cpu", push_to="alice/msta",
-        eval=EvalConfig(env=small_env(num_envs=2, seed=7), steps=5, mask_ratios=(0.0, 0.5)),
+        eval=EvalConfig(trials=2, episode_s=0.3, terrains="flat,stairs_up", levels="0",
+                        mask_ratios=(0.0, 0.5)),
         **kw)
 
 
@@ -95,20 +96,33 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert (msta["stage"], msta["round"]) == (2, 1)
     assert msta["dataset"] == {"repo": "alice/ds", "revision": ds_sha}
     assert msta["config"]["policy"] == "alice/msta@stage1" and msta["config"]["rounds"] == 1
-    ref = prog["teacher_eval"]["reward_per_step"]
+    # the card shows msta-correct's figures, which are msta-eval's on the same trials
     for m in ("0", "0.5"):
-        assert msta["metrics"][f"vs_teacher@mask{m}"] == pytest.approx(
-            rec["eval"][m]["reward_per_step"] / ref)
-    assert set(msta["eval_table"]) == {"all", *rec["eval"]["0"]["terrains"]}
-    assert "vs_teacher@mask0.5" in msta["eval_table"]["all"]
+        norm = rec["eval"][m]["normalized"]["per_terrain"]
+        raw = rec["eval"][m]["raw"]["per_terrain"]
+        assert msta["metrics"][f"lin_tracking_vs_teacher@mask{m}"] == \
+            pytest.approx(norm["average"]["lin_tracking"])
+        assert msta["metrics"][f"total_vs_teacher@mask{m}"] == pytest.approx(norm["average"]["total"])
+        assert msta["metrics"][f"survival@mask{m}"] == raw["average"]["survival"]
+        assert msta["metrics"][f"lin_tracking_vs_teacher_ci95_low@mask{m}"] == \
+            pytest.approx(norm["average"]["ci"]["lin_tracking"][0])
+    assert msta["metrics"]["eval_trials"] == 2
+    assert set(msta["eval_table"]) == {"flat", "stairs_up", "average"}
+    assert msta["eval_table"]["average"]["trials"] == 2
+    assert "total_vs_teacher@mask0.5" in msta["eval_table"]["average"]
+    readme = Path(hub.hub_api().hf_hub_download("alice/msta", "README.md", revision="stage2-r1"))
+    assert ("msta-eval --policies teacher,alice/msta@stage2-r1 --scenarios token_removal --suite "
+            "quick --trials 2 --terrains flat,stairs_up --levels 0 --episode_s 0.3 --seed 0"
+            ) in readme.read_text().replace("\n", " ")
 
     # versions: both tags with their metrics; the tagged commits are the pushed ones
     v = hub.versions("alice/msta")
     assert set(v.tags) == {"stage1", "stage2-r1"} and v.tags["stage2-r1"] == rec["pushed"]["commit"]
     by_tag = {t: c for c in v.commits for t in c.tags}
     assert by_tag["stage1"].metrics["train_loss"] > 0
-    assert by_tag["stage2-r1"].metrics["vs_teacher@mask0"] == msta["metrics"]["vs_teacher@mask0"]
-    assert "all/vs_teacher@mask0.5" in by_tag["stage2-r1"].metrics
+    assert by_tag["stage2-r1"].metrics["total_vs_teacher@mask0"] == \
+        msta["metrics"]["total_vs_teacher@mask0"]
+    assert "average/total_vs_teacher@mask0.5" in by_tag["stage2-r1"].metrics
     captured = capsys.readouterr()
     assert ALICE not in captured.out + captured.err and BOB not in captured.out + captured.err
 
