@@ -9,8 +9,10 @@ again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input
 ``teacher:zero`` holds the default pose), a checkpoint directory, or a hub id
 ``user/name[@revision]`` (pulled through ``msta_data.hub.materialize``).
 
-Writes into ``--out``: ``metrics.json`` (every number, the configuration, each policy's
-source and revision), ``report.md`` (Table I layout and one table per scenario), PNG
+Writes into ``--out``: ``metrics.json`` (every number with its trial count and 95 %
+interval per cell, the configuration, each policy's source and revision), ``report.md``
+(Table I layout and one table per scenario, trials per cell, intervals, a warning for a
+student whose figures do not change with its inputs), PNG
 plots for scenarios 2-5, ``timing.json``, and optionally a video (``--video``). See
 docs/eval.md for the metric definitions.
 """
