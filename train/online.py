@@ -19,7 +19,7 @@ Each round r = 1..R:
    recent rounds), with :func:`train.offline.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
-   (:class:`RoundEvaluator`: ``eval.evaluate.Evaluator`` on the trials of ``--eval.*``, the
+   (:mod:`train.evaluation`: ``eval.evaluate.Evaluator`` on the trials of ``--eval.*``, the
    ``token_removal`` conditions at ``--eval.mask_ratios``): linear-velocity tracking and
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
@@ -55,11 +55,11 @@ import torch
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.sim.env import EnvConfig
-from eval.scenarios import TrialConfig
 from policies.actor import InputSpec, StudentActor
 from policies.base import StudentPolicy
 from policies.teacher.config import TeacherConfig
 from train.common import LoopConfig, atomic_json, parse_cli, seed_everything, select_device
+from train.evaluation import EvalConfig, RoundEvaluator, print_table
 from train.push import PushError, check_push_to, dataset_source, push_round
 
 PROGRESS = "progress.json"
@@ -67,32 +67,6 @@ PROGRESS_FORMAT = "msta-correct/1"
 #: Fields that must match progress.json when resuming (they define the data).
 RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
                  "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed")
-
-
-@dataclass
-class EvalConfig(TrialConfig):
-    """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
-    on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
-    random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
-    figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
-    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_s and
-    seed; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
-    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
-    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
-    """
-
-    enabled: bool = True
-    """evaluate the starting checkpoint (round 0) and every round (false: no per-round table
-    and no figures on the model card)."""
-    mask_ratios: tuple[float, ...] = (0.0, 0.5)
-    """test-time token-removal ratios evaluated for the student (0.5 = msta-eval's
-    "mask 50" condition)."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.mask_ratios = tuple(float(m) for m in self.mask_ratios)
-        if not self.mask_ratios or not all(0.0 <= m < 1.0 for m in self.mask_ratios):
-            raise ValueError(f"eval.mask_ratios={self.mask_ratios} must be values in [0, 1)")
 
 
 @dataclass
@@ -328,45 +302,6 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
             **{f"val_{k}": v for k, v in res.val.items()}}
 
 
-class RoundEvaluator:
-    """Phase 5 through msta-eval's :class:`~eval.evaluate.Evaluator` on ``cfg.eval``'s
-    trials. The reference teacher runs once per process, on first use; a checkpoint is
-    evaluated from its directory, loaded on the CPU as msta-eval loads it.
-
-    Args:
-        cfg: the msta-correct configuration (``eval`` and ``teacher``).
-    """
-
-    def __init__(self, cfg: CorrectConfig) -> None:
-        self.cfg = cfg
-        self.ev: Any = None
-
-    def teacher(self) -> dict[str, Any]:
-        """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
-        from eval.evaluate import Evaluator, torch_eval_settings
-
-        if self.ev is None:
-            ev = Evaluator(self.cfg.eval, self.cfg.teacher, progress=False)
-            with torch_eval_settings(self.cfg.eval.threads):
-                ev.run_reference()
-            self.ev = ev
-        return {"config": self.cfg.eval.resolved(), **self.ev.reference}
-
-    def student(self, ckpt: Path) -> dict[str, Any]:
-        """msta-eval's run record (raw and normalized figures, intervals, trials) of the
-        checkpoint ``ckpt`` per test mask, keyed ``f"{mask:g}"``."""
-        from eval.evaluate import student_entry, torch_eval_settings
-        from eval.scenarios import ScenarioContext, get_scenario
-
-        self.teacher()
-        entry = student_entry(ckpt, ckpt.name, str(ckpt))
-        ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.eval.mask_ratios,
-                              self.cfg.eval.seed)
-        with torch_eval_settings(self.cfg.eval.threads):
-            return {f"{c.value:g}": self.ev.condition(entry, c)
-                    for c in get_scenario("token_removal").build(ctx)}
-
-
 # ----- progress and the round loop -------------------------------------------------------
 def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
     path = out / PROGRESS
@@ -451,7 +386,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
     start = out / f"round_{max(trained)}" if trained else ckpt
     policy = load_policy(start, device=str(device))
-    evaluator = RoundEvaluator(cfg) if cfg.eval.enabled else None
+    evaluator = RoundEvaluator(cfg.eval, cfg.teacher) if cfg.eval.enabled else None
     if evaluator and not trained and not prog["rounds"].get("0", {}).get("evaluated"):
         prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
                                "episodes_after": int(load_info(root)["total_episodes"]),
@@ -512,63 +447,6 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     atomic_json(path, prog)
     hook("evaluated", r)
     print_table(prog)
-
-
-#: (column, figure, metric): normalized returns are ``normalized`` figures, survival ``raw``.
-ROUND_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
-                 ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
-
-
-def print_table(prog: dict[str, Any]) -> None:
-    """Per-round table: speeds, then per test mask the trials and msta-eval's figures
-    (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
-    total reward normalized by the teacher on the same trials, and survival."""
-    from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
-
-    lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
-             "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
-             "tracking vs teacher / survival |", "|" + "---|" * 11]
-    warnings = []
-    for k in sorted(prog["rounds"], key=int):
-        rec = prog["rounds"][k]
-        ro, tr = rec.get("rollout", {}), rec.get("train", {})
-        head = (f"| {k} | {rec.get('episodes_after', '-')} | "
-                f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
-                f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
-                f"{_fmt(tr.get('val_loss'), '.4f')}")
-        runs = rec.get("eval") or {}
-        for m, run in runs.items():
-            if run.get("status") != "ok":
-                reason = run.get("reason", "evaluated by an older msta-correct")
-                lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
-                continue
-            per = {f: run[f]["per_terrain"] for _, f, _ in ROUND_FIGURES}
-            avg = [fmt_cell(per[f]["average"], key) for _, f, key in ROUND_FIGURES]
-            terr = " ".join(
-                f"{SHORT_TERRAIN.get(t, t)} {_fmt(per['normalized'][t]['lin_tracking'], '.2f')}"
-                f"/{row['survival']:.2f}" for t, row in per["raw"].items() if t != "average")
-            lines.append(f"{head} | {float(m):.0%} | {per['raw']['average']['trials']} | "
-                         + " | ".join(avg) + f" | {terr} |")
-        warnings += [identical_line(f"round {k}", "test masks", labels)
-                     for labels in identical_groups(list(runs.values()))]
-        if not runs:
-            lines.append(f"{head} | - | - | - | - | - | - |")
-    ref = prog.get("teacher_eval")
-    if ref:
-        c, a = ref["config"], ref["per_terrain"]["average"]
-        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_s']:g} s "
-              f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
-              f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
-              f"{a['survival']:.2f}, total {a['total']:.3f}/step")
-    print("\n".join(lines), flush=True)
-    if ref:
-        print(CI_NOTE)
-    for w in warnings:
-        print(f"msta-correct: warning: {w}", flush=True)
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "-" if value is None else format(value, spec)
 
 
 def main(argv: Sequence[str] | None = None) -> None:

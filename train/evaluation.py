@@ -1,0 +1,143 @@
+"""``msta-correct``'s per-round evaluation: msta-eval's figures for each round's checkpoint.
+
+A round's checkpoint runs msta-eval's ``token_removal`` conditions at ``--eval.mask_ratios``
+through :class:`eval.evaluate.Evaluator` on the trials of ``--eval.*``
+(:class:`eval.scenarios.TrialConfig`, msta-eval's own options), against the reference
+teacher on the same trials. The records stored in progress.json are msta-eval's run
+records (``raw``, ``normalized``, trials and 95 % intervals per cell), so msta-correct's
+table (:func:`print_table`), the model card (``train.push.round_eval``) and
+``msta-eval --policies teacher,<round_r> --scenarios token_removal`` with the same options
+report the same figures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from eval.scenarios import TrialConfig
+from policies.teacher.config import TeacherConfig
+
+
+@dataclass
+class EvalConfig(TrialConfig):
+    """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
+    on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
+    random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
+    figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
+    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_s and
+    seed; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
+    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
+    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
+    """
+
+    enabled: bool = True
+    """evaluate the starting checkpoint (round 0) and every round (false: no per-round table
+    and no figures on the model card)."""
+    mask_ratios: tuple[float, ...] = (0.0, 0.5)
+    """test-time token-removal ratios evaluated for the student (0.5 = msta-eval's
+    "mask 50" condition)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.mask_ratios = tuple(float(m) for m in self.mask_ratios)
+        if not self.mask_ratios or not all(0.0 <= m < 1.0 for m in self.mask_ratios):
+            raise ValueError(f"eval.mask_ratios={self.mask_ratios} must be values in [0, 1)")
+
+
+class RoundEvaluator:
+    """Phase 5 of msta-correct through msta-eval's :class:`~eval.evaluate.Evaluator` on
+    ``cfg``'s trials. The reference teacher runs once per process, on first use; a
+    checkpoint is evaluated from its directory, loaded on the CPU as msta-eval loads it.
+
+    Args:
+        cfg: ``--eval.*``: which trials and test masks.
+        teacher: the reference teacher (msta-correct's labelling teacher).
+    """
+
+    def __init__(self, cfg: EvalConfig, teacher: TeacherConfig) -> None:
+        self.cfg, self.teacher_cfg = cfg, teacher
+        self.ev: Any = None
+
+    def teacher(self) -> dict[str, Any]:
+        """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
+        from eval.evaluate import Evaluator, torch_eval_settings
+
+        if self.ev is None:
+            ev = Evaluator(self.cfg, self.teacher_cfg, progress=False)
+            with torch_eval_settings(self.cfg.threads):
+                ev.run_reference()
+            self.ev = ev
+        return {"config": self.cfg.resolved(), **self.ev.reference}
+
+    def student(self, ckpt: Path) -> dict[str, Any]:
+        """msta-eval's run record (raw and normalized figures, intervals, trials) of the
+        checkpoint ``ckpt`` per test mask, keyed ``f"{mask:g}"``."""
+        from eval.evaluate import student_entry, torch_eval_settings
+        from eval.scenarios import ScenarioContext, get_scenario
+
+        self.teacher()
+        entry = student_entry(ckpt, ckpt.name, str(ckpt))
+        ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.mask_ratios,
+                              self.cfg.seed)
+        with torch_eval_settings(self.cfg.threads):
+            return {f"{c.value:g}": self.ev.condition(entry, c)
+                    for c in get_scenario("token_removal").build(ctx)}
+
+
+#: (column, figure, metric): normalized returns are ``normalized`` figures, survival ``raw``.
+ROUND_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
+                 ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
+
+
+def print_table(prog: dict[str, Any]) -> None:
+    """Per-round table: speeds, then per test mask the trials and msta-eval's figures
+    (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
+    total reward normalized by the teacher on the same trials, and survival."""
+    from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
+
+    lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
+             "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
+             "tracking vs teacher / survival |", "|" + "---|" * 11]
+    warnings = []
+    for k in sorted(prog["rounds"], key=int):
+        rec = prog["rounds"][k]
+        ro, tr = rec.get("rollout", {}), rec.get("train", {})
+        head = (f"| {k} | {rec.get('episodes_after', '-')} | "
+                f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('val_loss'), '.4f')}")
+        runs = rec.get("eval") or {}
+        for m, run in runs.items():
+            if run.get("status") != "ok":
+                reason = run.get("reason", "evaluated by an older msta-correct")
+                lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
+                continue
+            per = {f: run[f]["per_terrain"] for _, f, _ in ROUND_FIGURES}
+            avg = [fmt_cell(per[f]["average"], key) for _, f, key in ROUND_FIGURES]
+            terr = " ".join(
+                f"{SHORT_TERRAIN.get(t, t)} {_fmt(per['normalized'][t]['lin_tracking'], '.2f')}"
+                f"/{row['survival']:.2f}" for t, row in per["raw"].items() if t != "average")
+            lines.append(f"{head} | {float(m):.0%} | {per['raw']['average']['trials']} | "
+                         + " | ".join(avg) + f" | {terr} |")
+        warnings += [identical_line(f"round {k}", "test masks", labels)
+                     for labels in identical_groups(list(runs.values()))]
+        if not runs:
+            lines.append(f"{head} | - | - | - | - | - | - |")
+    ref = prog.get("teacher_eval")
+    if ref:
+        c, a = ref["config"], ref["per_terrain"]["average"]
+        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_s']:g} s "
+              f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
+              f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
+              f"{a['survival']:.2f}, total {a['total']:.3f}/step")
+    print("\n".join(lines), flush=True)
+    if ref:
+        print(CI_NOTE)
+    for w in warnings:
+        print(f"msta-correct: warning: {w}", flush=True)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
