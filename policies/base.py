@@ -65,8 +65,11 @@ class PolicyConfig(draccus.ChoiceRegistry):
             raise ValueError(
                 f"unknown policy type {data['type']!r}; known: {sorted(cls.get_known_choices())}"
             )
+        data = dict(data)
+        legacy = getattr(cls.get_choice_class(data["type"]), "LEGACY_DEFAULTS", {})
+        data.update({k: v for k, v in legacy.items() if k not in data})
         try:
-            return draccus.decode(PolicyConfig, dict(data))
+            return draccus.decode(PolicyConfig, data)
         except draccus.utils.DecodingError as e:
             raise ValueError(f"invalid {data['type']!r} policy config: {e}") from None
 

@@ -8,7 +8,7 @@ ratio 2.0; it does not state layer or head counts: we use 4 layers and 4 heads
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, ClassVar
 
 from msta_data import sensors
 from policies.base import PolicyConfig
@@ -38,6 +38,11 @@ class MSTAConfig(PolicyConfig):
             for every scalar), ``sensor`` (one per sensor type) or ``channel`` (one per
             sensor channel, so a token's value embedding already says whose value it is).
         sensor_embed_std: initial std of the learnable sensor-type embeddings.
+        value_init: initial bin embeddings: ``arc`` (bin centre z-score z mapped to
+            cos(z/2) u + sin(z/2) v with random directions u, v per table: constant norm,
+            monotone, bound to its table), ``linear`` (z times a random direction per table)
+            or ``sincos`` (a 1-D sin-cos code of the bin index, the same in every table).
+        init_std: std of the initial weights of every linear layer (0: 1/sqrt(fan-in)).
         action_key: dataset column of the target action.
         action_dim: number of joint targets.
         normalize_action: train on z-scored actions (the processor maps back).
@@ -56,8 +61,15 @@ class MSTAConfig(PolicyConfig):
     mask_ratio: float = 0.75
     learnable_mask: bool = False
     pos_base: float = 10000.0
-    value_embedding: str = "shared"
+    value_embedding: str = "channel"
     sensor_embed_std: float = 0.02
+    value_init: str = "arc"
+    init_std: float = 0.0
+
+    #: A config.json written before a field existed means that field's first-design value
+    #: (checkpoints saved then keep loading with the shapes and init they were trained with).
+    LEGACY_DEFAULTS: ClassVar[dict[str, Any]] = {
+        "value_embedding": "shared", "value_init": "sincos", "init_std": 0.02}
     action_key: str = "action"
     action_dim: int = sensors.ACTION_DIM
     normalize_action: bool = True
@@ -98,6 +110,10 @@ class MSTAConfig(PolicyConfig):
         if self.value_embedding not in VALUE_EMBEDDINGS:
             raise ValueError(f"value_embedding must be one of {VALUE_EMBEDDINGS}, "
                              f"got {self.value_embedding!r}")
+        if self.value_init not in VALUE_INITS:
+            raise ValueError(f"value_init must be one of {VALUE_INITS}, got {self.value_init!r}")
+        if self.init_std < 0:
+            raise ValueError(f"init_std must be >= 0, got {self.init_std}")
         if self.sensor_embed_std < 0:
             raise ValueError(f"sensor_embed_std must be >= 0, got {self.sensor_embed_std}")
         if not 0.0 <= self.mask_ratio < 1.0:
@@ -118,6 +134,8 @@ class MSTAConfig(PolicyConfig):
 
 #: Choices of ``value_embedding``.
 VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
+#: Choices of ``value_init``.
+VALUE_INITS = ("sincos", "linear", "arc")
 
 
 def _positive(**values: float) -> None:

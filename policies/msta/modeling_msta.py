@@ -2,7 +2,14 @@
 
 Every scalar (channel i of sensor a at step t) is one token:
 
-    token = bin_embed[bin] + sincos2d(i, age_t) + sensor_embed[a]        # (d,)
+    token = value_embed[a, i][bin] + sincos2d(i, age_t) + sensor_embed[a]        # (d,)
+
+The value embedding is a 256-row table per sensor channel by default (``value_embedding``:
+``channel``; ``sensor`` or ``shared`` tables are the ablations), initialised as a
+constant-norm arc ``cos(z/2) u + sin(z/2) v`` of the bin centre's z-score z with random
+directions u, v per table (``value_init``). With one shared table, values of different
+channels averaged by attention cannot be told apart, and a sin-cos code of the bin index
+is not linearly readable: the first design sat on a plateau (docs/msta_model.md, ablation).
 
 with age_t = T - 1 - t (0 = newest step), so a longer window (T = 20 after training at
 T = 15) only adds older ages and the recent steps keep their embeddings. Training removes a
@@ -143,18 +150,34 @@ class MSTATransformer(nn.Module):
         return torch.cat(out)
 
     def _init_weights(self) -> None:
+        def std(lin: nn.Linear) -> float:
+            return self.cfg.init_std or 1.0 / math.sqrt(lin.in_features)
+
         for m in self.modules():
             if isinstance(m, nn.Linear):
-                nn.init.normal_(m.weight, std=0.02)
+                nn.init.normal_(m.weight, std=std(m))
                 nn.init.zeros_(m.bias)
         for block in self.blocks:  # GPT-2: scale residual projections by depth
             for lin in (block.attn.proj, block.mlp[2]):
-                nn.init.normal_(lin.weight, std=0.02 / math.sqrt(2 * self.cfg.num_layers))
+                nn.init.normal_(lin.weight, std=std(lin) / math.sqrt(2 * self.cfg.num_layers))
         # Neighbouring bins start similar (a 1-D sin-cos code of the bin index); trained after.
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
-            code = sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins))  # (nb, d)
-            self.bin_embed.weight.copy_(code.repeat(self._num_tables(), 1))
+            if self.cfg.value_init == "linear":  # bin centre's z-score x a direction per table
+                nb, clip = self.cfg.num_bins, self.cfg.clip_std
+                z = -clip + (bins + 0.5) * (2 * clip / nb)  # (nb,)
+                w = torch.randn(self._num_tables(), 1, self.cfg.dim)  # (tables, 1, d)
+                code = (z[None, :, None] * w).reshape(-1, self.cfg.dim)  # (tables * nb, d)
+            elif self.cfg.value_init == "arc":  # constant norm: cos/sin of 0.5 z on 2 directions
+                nb, clip = self.cfg.num_bins, self.cfg.clip_std
+                z = -clip + (bins + 0.5) * (2 * clip / nb)  # (nb,)
+                u, v = torch.randn(2, self._num_tables(), 1, self.cfg.dim)  # (tables, 1, d) each
+                code = ((0.5 * z).cos()[None, :, None] * u + (0.5 * z).sin()[None, :, None] * v)
+                code = code.reshape(-1, self.cfg.dim)  # (tables * nb, d)
+            else:
+                code = sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins))  # (nb, d)
+                code = code.repeat(self._num_tables(), 1)  # (tables * nb, d)
+            self.bin_embed.weight.copy_(code)
         for p in [self.state_token] + ([self.mask_token] if self.mask_token is not None else []):
             nn.init.normal_(p, std=0.02)
         for p in self.sensor_embed.values():
@@ -199,14 +222,10 @@ class MSTATransformer(nn.Module):
         if self.mask_token is not None:
             inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
         names = list(inputs.bins)
-        # (B, N): sensors in config order, time-major within each sensor
-        bins = torch.cat([inputs.bins[n].flatten(1) for n in names], dim=1)
+        bins = self.rows(inputs)  # (B, N)
         B, N = bins.shape
         T = inputs.bins[names[0]].shape[1]
         pos, sid, step = self.layout(inputs.channels, T)  # (N, d), (N,), (N,)
-        if self.cfg.value_embedding != "shared":
-            offsets = self._table_offsets(names, inputs.channels, T).to(bins.device)  # (N,)
-            bins = bins + offsets[None, :]  # (B, N) rows of each token's own table
         sensor = torch.stack([self.sensor_embed[n] for n in names])  # (S, d)
         static = pos + sensor[sid]  # (N, d)
         pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N) True = padded token
@@ -226,6 +245,17 @@ class MSTATransformer(nn.Module):
             keep = torch.cat([~key_pad, key_pad.new_ones(B, 1)], dim=1)
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + 1)
         return x, attn_mask
+
+    def rows(self, inputs: MSTAInputs) -> Tensor:
+        """Each token's row in ``bin_embed`` (its table's offset + its bin): (B, N), sensors
+        in config order, time-major within each sensor (the order of :meth:`layout`)."""
+        names = list(inputs.bins)
+        bins = torch.cat([inputs.bins[n].flatten(1) for n in names], dim=1)  # (B, N)
+        if self.cfg.value_embedding == "shared":
+            return bins
+        T = inputs.bins[names[0]].shape[1]
+        offsets = self._table_offsets(names, inputs.channels, T).to(bins.device)  # (N,)
+        return bins + offsets[None, :]  # (B, N)
 
     def _complete(self, inputs: MSTAInputs) -> tuple[MSTAInputs, dict[str, Tensor]]:
         """Learnable-mask variant: every configured sensor and channel gets a token; the ones

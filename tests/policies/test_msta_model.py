@@ -78,8 +78,7 @@ def test_learnable_mask_keeps_all_tokens() -> None:
     replaced = (x[:, :-1] != unmasked[:, :-1]).any(-1)  # (B, N) tokens whose value was replaced
     assert replaced.sum(1).tolist() == [round(alpha * n)] * 4
     inputs = policy.processor.discretize(make_batch())
-    all_bins = torch.cat([b.flatten(1) for b in inputs.bins.values()], dim=1)  # (B, N)
-    static = unmasked[:, :-1] - policy.model.bin_embed(all_bins)  # position + sensor type
+    static = unmasked[:, :-1] - policy.model.bin_embed(policy.model.rows(inputs))  # pos + type
     torch.testing.assert_close(
         x[:, :-1][replaced] - static[replaced],
         policy.model.mask_token.expand(int(replaced.sum()), -1),

@@ -1,0 +1,265 @@
+"""Learning benchmark: ``make bench-learn`` / ``python -m eval.bench_learn``.
+
+Does the MSTA student imitate the teacher as well as a GRU does? On one fixed, seeded
+teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10 s, terrain
+levels 0-2, split by episode 43 / 5 as ``msta-train`` splits it), every learner trains for
+the same wall-clock budget (``--seconds``, default 120 s each, ``--threads`` 2) with AdamW
+at its learning rate, batch 64, 100 warm-up steps then a constant rate, and is validated
+every ``--eval_every`` s (validation time is not charged to the budget):
+
+- ``msta_cpu`` and ``msta_paper``: the MSTA student, ``cpu`` and ``paper`` presets, trained at
+  its default mask ratio (0.75); validated unmasked and at test mask 0.5;
+- ``gru``: the GRU baseline, ``cpu`` preset (trained without masking, as its default);
+- ``mlp``: a plain 2 x 256 ELU MLP on the flattened, z-scored 15-step window (the cheapest
+  honest baseline).
+
+The figure is the validation MSE of the z-scored actions (1.0 = predicting the mean). It
+prints a table, writes ``learning_curves.png`` and ``results.json`` under ``--out`` and ends
+with the line ``msta/gru val-mse ratio: <x>`` (cpu preset, unmasked; the issue's goal is
+<= 1.5). Both are measured in the same run, so the ratio holds on a slower or busier machine
+better than either absolute figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+SEED = 0
+LEARNERS = ("msta_cpu", "msta_paper", "gru", "mlp")
+
+
+def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
+    """The benchmark's teacher dataset (seeded: the same frames on every machine)."""
+    from collect.record import CollectConfig, collect
+    from collect.sim.env import EnvConfig
+    from collect.sim.terrain import TerrainConfig
+    from policies.teacher.config import TeacherConfig
+
+    if (root / "meta" / "info.json").is_file():
+        import shutil
+
+        shutil.rmtree(root)
+    return collect(CollectConfig(
+        teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
+        repo_id="bench/a1_teacher", root=str(root), episode_length_s=seconds, seed=SEED,
+        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
+
+
+@dataclass
+class Curve:
+    """Validation figures of one learner against training seconds and steps."""
+
+    name: str
+    seconds: list[float] = field(default_factory=list)
+    steps: list[int] = field(default_factory=list)
+    val: list[float] = field(default_factory=list)
+    val_masked: list[float] = field(default_factory=list)
+    samples_per_s: float = 0.0
+
+
+class WindowMLP(nn.Module):
+    """2 x 256 ELU MLP on the flattened window of z-scored inputs -> z-scored action."""
+
+    def __init__(self, num_inputs: int, action_dim: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(num_inputs, 256), nn.ELU(), nn.Linear(256, 256),
+                                 nn.ELU(), nn.Linear(256, action_dim))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)  # (B, A)
+
+
+def _mlp_learner(root: Path, train_eps: list[int], val_eps: list[int], T: int):
+    """(step, validate) closures of the window MLP, on its own z-scoring."""
+    from msta_data import sensors
+    from msta_data.stats import load_stats
+    from msta_data.windows import WindowDataset
+
+    names = sensors.STUDENT_SENSORS
+    stats = load_stats(root)
+
+    def zscore(col: str) -> tuple[np.ndarray, np.ndarray]:
+        mean = np.asarray(stats[col]["mean"], np.float32).reshape(-1)
+        std = np.maximum(np.asarray(stats[col]["std"], np.float32).reshape(-1), 1e-6)
+        return mean, std
+
+    norms = {n: zscore(sensors.get(n).column) for n in names if not sensors.get(n).binary}
+    a_mean, a_std = zscore("action")
+    train = WindowDataset(root, names, T, extra_columns=("action",), episodes=train_eps)
+    val = WindowDataset(root, names, T, extra_columns=("action",), episodes=val_eps)
+
+    def tensors(batch: dict[str, np.ndarray]) -> tuple[torch.Tensor, torch.Tensor]:
+        parts = []
+        for n in names:
+            x = batch[n]  # (B, T, c)
+            if n in norms:
+                x = np.clip((x - norms[n][0]) / norms[n][1], -4, 4)
+            parts.append(x.reshape(len(x), -1))
+        y = (batch["action"] - a_mean) / a_std
+        return torch.from_numpy(np.concatenate(parts, 1)).float(), torch.from_numpy(y).float()
+
+    torch.manual_seed(SEED)
+    x0, _ = tensors(train.get_batch(np.arange(2)))
+    model = WindowMLP(x0.shape[1], len(a_mean))
+    return model, train, val, tensors
+
+
+def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
+                lr: float, batch_size: int) -> Curve:
+    """Train one learner for ``budget_s`` seconds of optimizer steps; validate as it goes."""
+    from msta_data.stats import load_stats
+    from msta_data.windows import WindowDataset, episode_split
+    from policies.factory import make_policy
+    from train.common import WarmupCosine, make_optimizer
+    from train.step import train_step, validate
+
+    train_eps, val_eps = episode_split(root, 0.1, SEED)
+    curve = Curve(name)
+    rng = np.random.default_rng(SEED)
+    torch.manual_seed(SEED)
+    if name == "mlp":
+        model, train, val, tensors = _mlp_learner(root, train_eps, val_eps, 15)
+        opt = make_optimizer(model, lr, 0.01)
+
+        def step(idx: np.ndarray) -> None:
+            x, y = tensors(train.get_batch(idx))
+            loss = nn.functional.mse_loss(model(x), y)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+
+        def check() -> tuple[float, float]:
+            idx = np.unique(np.linspace(0, len(val) - 1, min(len(val), 1024)).round().astype(int))
+            with torch.no_grad():
+                x, y = tensors(val.get_batch(idx))
+                return float(nn.functional.mse_loss(model(x), y)), math.nan
+        n_train = len(train)
+        do_step: Callable[[np.ndarray], None] = step
+    else:
+        policy = make_policy(policy_config(name), load_stats(root))
+        T = policy.config.history
+        train = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
+                              episodes=train_eps)
+        val = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
+                            episodes=val_eps)
+        opt = make_optimizer(policy, lr, 0.01)
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(100, 10**9, 1.0))
+        gen = torch.Generator().manual_seed(SEED)
+        masked = name.startswith("msta")
+
+        def do_step(idx: np.ndarray) -> None:
+            train_step(policy, opt, sched, train.get_batch(idx), 1.0, None, gen)
+
+        def check() -> tuple[float, float]:
+            v0 = validate(policy, val, 256, 1024, 0.5 if masked else 0.0, seed=SEED)
+            return v0["loss_unmasked"], (v0["loss"] if masked else math.nan)
+        n_train = len(train)
+    spent, steps, next_eval = 0.0, 0, eval_every_s
+    while spent < budget_s:
+        idx = rng.integers(0, n_train, batch_size)
+        t0 = time.perf_counter()
+        do_step(idx)
+        spent += time.perf_counter() - t0
+        steps += 1
+        if spent >= next_eval or spent >= budget_s:
+            v, vm = check()
+            curve.seconds.append(round(spent, 2))
+            curve.steps.append(steps)
+            curve.val.append(v)
+            curve.val_masked.append(vm)
+            next_eval += eval_every_s
+    curve.samples_per_s = steps * batch_size / spent
+    return curve
+
+
+def policy_config(name: str) -> Any:
+    """The student config a learner name stands for (each at its own defaults)."""
+    if name.startswith("msta"):
+        from policies.msta import MSTAConfig
+
+        return MSTAConfig.from_preset(name.split("_", 1)[1])
+    from policies.baselines import GRUConfig
+
+    return GRUConfig.from_preset("cpu")
+
+
+def plot(curves: list[Curve], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for c in curves:
+        ax.plot(c.seconds, c.val, marker="o", ms=3, label=f"{c.name} (unmasked)")
+        if not all(math.isnan(v) for v in c.val_masked):
+            ax.plot(c.seconds, c.val_masked, ls="--", label=f"{c.name} (test mask 0.5)")
+    ax.set_yscale("log")
+    ax.set_xlabel("training seconds (validation not counted)")
+    ax.set_ylabel("val MSE, z-scored actions (1 = the mean)")
+    ax.set_title("imitating the gait teacher: equal wall-clock budgets")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--out", type=Path, default=Path("outputs/bench_learn"),
+                   help="folder for the dataset, results.json and learning_curves.png")
+    p.add_argument("--seconds", type=float, default=120.0,
+                   help="training wall-clock budget per learner (s)")
+    p.add_argument("--eval_every", type=float, default=15.0,
+                   help="validate every this many training seconds")
+    p.add_argument("--threads", type=int, default=2, help="torch threads")
+    p.add_argument("--episodes", type=int, default=48, help="teacher episodes to record (>= 40)")
+    p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
+    p.add_argument("--learners", default=",".join(LEARNERS),
+                   help=f"comma-separated subset of {','.join(LEARNERS)}")
+    p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (every learner)")
+    args = p.parse_args(argv)
+    learners = [s for s in args.learners.split(",") if s]
+    bad = sorted(set(learners) - set(LEARNERS))
+    if bad:
+        p.error(f"unknown learners {bad}; choose from {list(LEARNERS)}")
+    if args.seconds <= 0 or args.eval_every <= 0 or args.threads < 1 or args.episodes < 2:
+        p.error("--seconds and --eval_every must be > 0, --threads >= 1, --episodes >= 2")
+    torch.set_num_threads(args.threads)
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    root = record_dataset(args.out / "dataset", args.episodes, args.episode_s)
+    print(f"dataset: {args.episodes} teacher episodes recorded in {time.time() - t0:.0f} s; "
+          f"{len(learners)} learners x {args.seconds:.0f} s on {args.threads} threads", flush=True)
+    curves = []
+    for name in learners:
+        c = run_learner(name, root, args.seconds, args.eval_every, args.lr, 64)
+        curves.append(c)
+        tail = "" if math.isnan(c.val_masked[-1]) else f", at test mask 0.5 {c.val_masked[-1]:.4f}"
+        print(f"{name:<11} {c.steps[-1]:>6} steps ({c.samples_per_s:.0f} samples/s): "
+              f"val MSE {c.val[-1]:.4f}{tail}", flush=True)
+    plot(curves, args.out / "learning_curves.png")
+    (args.out / "results.json").write_text(json.dumps(
+        {"seconds_per_learner": args.seconds, "threads": args.threads, "lr": args.lr,
+         "curves": [c.__dict__ for c in curves]}, indent=1) + "\n")
+    print(f"curves: {args.out / 'learning_curves.png'}; figures: {args.out / 'results.json'}")
+    final = {c.name: c.val[-1] for c in curves}
+    if "msta_cpu" in final and "gru" in final:
+        print(f"msta/gru val-mse ratio: {final['msta_cpu'] / final['gru']:.2f}")
+
+
+if __name__ == "__main__":
+    main()
