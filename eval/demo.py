@@ -1,15 +1,18 @@
 """``make demo`` / ``msta-demo``: the whole msta pipeline on built-in defaults, CPU-sized.
 
   1. the default teacher walks every terrain type (summary table + image strip);
-  2. msta-collect records a small teacher dataset (LeRobot v3.0);
+  2. msta-collect records a teacher dataset (LeRobot v3.0);
   3. a local Hugging Face-compatible hub starts and the dataset is pushed (tag v3.0);
-  4. msta-train: stage 1 of the MSTA student (cpu preset) on the hub dataset; --push_to
-     pushes the final checkpoint with tag stage1 and a model card;
-  5. msta-correct: one round of stage 2 (the student drives, the teacher labels, the
-     episodes are appended, the student is retrained); --push_to pushes the round's
-     checkpoint with tag stage2-r1 and its evaluation in the model card;
-  6. the stage-2 checkpoint is pulled back by tag and evaluated with msta-eval's quick
-     suite against the teacher (table printed, plots saved).
+  4. msta-train: stage 1 of the MSTA student (cpu preset, mask ratio 0.75) on the hub
+     dataset; --push_to pushes the final checkpoint with tag stage1 and a model card;
+  5. msta-correct: stage-2 rounds (the student drives, the teacher labels, the episodes are
+     appended, the student is retrained at mask ratio 0.5); --push_to pushes each round's
+     checkpoint with tag stage2-r<r> and its evaluation in the model card;
+  6. the last stage-2 checkpoint is pulled back by tag and evaluated with msta-eval
+     (test masks 0 / 25 / 50 %, every paper terrain at levels 0-2, 20 trials per terrain)
+     against the teacher (table printed, plots saved);
+  7. a one-line verdict: does the student walk like its teacher (normalized linear-velocity
+     tracking >= 0.80 at test mask 0 and >= 0.75 at 50 %, survival >= 0.90)?
 
 Everything goes under ``--out`` (default ``outputs/demo``); a rerun starts afresh.
 """
@@ -53,16 +56,16 @@ def step_collect(out: Path, episodes: int, seconds: float) -> Path:
         progress=False))
 
 
-def step_train(out: Path, dataset: str, steps: int) -> Path:
+def step_train(out: Path, dataset: str, steps: int, threads: int) -> Path:
     from policies.msta import MSTAConfig
     from train.offline import TrainConfig, train
 
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset, {steps} steps, mask ratio 0.75 ==")
     return train(TrainConfig(
         dataset=dataset, policy=MSTAConfig.from_preset("cpu"), output_dir=str(out / "stage1"),
-        push_to=f"{HUB_USER}/msta_a1",
-        steps=steps, batch_size=64, warmup_steps=min(50, steps // 5), eval_every=max(steps // 2, 1),
-        save_every=steps, progress=False))
+        push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
+        steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
+        eval_every=max(steps // 2, 1), save_every=steps, progress=False))
 
 
 def start_hub(out: Path):
@@ -86,53 +89,106 @@ def step_push(dataset: Path) -> str:
     return f"datasets/{HUB_USER}/a1_teacher@{sha}"
 
 
-def step_correct(out: Path, stage1: Path, dataset: str, steps: int, episodes: int,
-                 eval_steps: int) -> Path:
+def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
+                 episodes: int, threads: int) -> Path:
     from train.online import CorrectConfig, correct
 
-    print(f"\n== 5. msta-correct: one stage-2 round ({episodes} student episodes, "
+    print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} student episodes each, "
           f"teacher labels, retrain {steps} steps at mask ratio 0.5) ==")
     cfg = CorrectConfig(policy=str(stage1), dataset=dataset, output_dir=str(out / "stage2"),
-                        push_to=f"{HUB_USER}/msta_a1",
-                        rounds=1, episodes_per_round=episodes, num_envs=min(episodes, 32),
-                        episode_length_s=5.0, steps=steps, batch_size=64,
+                        push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
+                        rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
+                        episode_length_s=10.0, steps=steps, batch_size=64,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
                         progress=False)
-    cfg.eval.steps = eval_steps
     correct(cfg)
-    return out / "stage2" / "round_1"
+    return out / "stage2" / f"round_{rounds}"
 
 
-def step_eval(out: Path, trials: int, episode_s: float) -> None:
+def step_eval(out: Path, rounds: int, trials: int, episode_s: float) -> dict:
     from eval.evaluate import EvalConfig, evaluate
     from msta_data import hub
 
-    print("\n== 6. pull the stage-2 checkpoint by tag and evaluate it (msta-eval quick) ==")
-    pulled = hub.pull(f"{HUB_USER}/msta_a1@stage2-r1", out / "pulled" / "stage2-r1")
+    tag = f"stage2-r{rounds}" if rounds else "stage1"
+    print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
+          f"0 / 25 / 50 %, {trials} trials of {episode_s:g} s over the five terrains at levels "
+          "0-2) ==")
+    pulled = hub.pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
     print(f"pulled to {pulled}")
-    evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick", out=str(out / "eval"),
-                        trials=trials, episode_s=episode_s, progress=False))
+    metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
+                                  scenarios="token_removal", out=str(out / "eval"),
+                                  trials=trials, levels="0,1,2", episode_s=episode_s,
+                                  progress=False))
     report = out / "eval" / "report.md"
     if report.exists():
         print(report.read_text())
+    return metrics
+
+
+#: The walking-student bar of the verdict (normalized to the teacher on the same trials).
+WALKS = {"lin_mask0": 0.80, "lin_mask50": 0.75, "survival": 0.90}
+
+
+def verdict(metrics: dict) -> tuple[bool, str]:
+    """(walks?, one line) from msta-eval's metrics: the student's terrain-averaged
+    normalized linear-velocity tracking at test masks 0 and 50 % and its survival."""
+    got: dict[float, tuple[float, list | None, float, int]] = {}
+    for run in metrics["runs"]:
+        if run["policy"] == "teacher" or run.get("status") != "ok":
+            continue
+        if run["scenario"] != "token_removal":
+            continue
+        avg_n = run["normalized"]["per_terrain"]["average"]
+        avg_r = run["raw"]["per_terrain"]["average"]
+        got[float(run["spec"]["mask_ratio"])] = (
+            avg_n["lin_tracking"], avg_n["ci"]["lin_tracking"], avg_r["survival"],
+            avg_r["trials"])
+    if 0.0 not in got or 0.5 not in got:
+        return False, "VERDICT: no student figures at test masks 0 and 50 % (evaluation failed)"
+    lin0, ci0, surv0, n = got[0.0]
+    lin50, ci50, surv50, _ = got[0.5]
+    walks = (lin0 is not None and lin50 is not None and lin0 >= WALKS["lin_mask0"]
+             and lin50 >= WALKS["lin_mask50"] and min(surv0, surv50) >= WALKS["survival"])
+
+    def fig(v: float | None, ci: list | None) -> str:
+        if v is None:
+            return "n/a"
+        return f"{v:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else "")
+
+    line = (f"VERDICT: the student {'WALKS' if walks else 'does NOT walk yet'} like its teacher: "
+            f"linear tracking vs teacher {fig(lin0, ci0)} at test mask 0 and {fig(lin50, ci50)} "
+            f"at 50 % (bar {WALKS['lin_mask0']:.2f} / {WALKS['lin_mask50']:.2f}), survival "
+            f"{surv0:.2f} / {surv50:.2f} (bar {WALKS['survival']:.2f}); {n} trials per test "
+            "mask, 95 % intervals in brackets")
+    return walks, line
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description="Run the msta pipeline demo on built-in defaults.")
+    p = argparse.ArgumentParser(description="Run the msta pipeline demo on built-in defaults.",
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder")
-    p.add_argument("--episodes", type=int, default=48, help="teacher episodes to record")
+    p.add_argument("--episodes", type=int, default=96, help="teacher episodes to record")
     p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
-    p.add_argument("--train_steps", type=int, default=800, help="stage-1 optimizer steps")
-    p.add_argument("--correct_steps", type=int, default=300, help="stage-2 retrain steps")
-    p.add_argument("--correct_episodes", type=int, default=16, help="stage-2 student episodes")
+    p.add_argument("--train_steps", type=int, default=2000, help="stage-1 optimizer steps")
+    p.add_argument("--rounds", type=int, default=3, help="stage-2 rounds (0: stage 1 only)")
+    p.add_argument("--correct_steps", type=int, default=600,
+                   help="stage-2 retraining steps per round")
+    p.add_argument("--correct_episodes", type=int, default=32,
+                   help="stage-2 student episodes (10 s) per round")
     p.add_argument("--teacher_s", type=float, default=8.0, help="step 1 walk per robot (s)")
     p.add_argument("--envs_per_type", type=int, default=8, help="step 1 robots per terrain")
-    p.add_argument("--round_eval_steps", type=int, default=150,
-                   help="control steps of the per-round evaluation in stage 2")
-    p.add_argument("--eval_trials", type=int, default=0, help="msta-eval trials (0: suite's)")
-    p.add_argument("--eval_episode_s", type=float, default=0.0,
-                   help="msta-eval episode length (0: suite's)")
+    p.add_argument("--eval_trials", type=int, default=100,
+                   help="msta-eval trials per test mask (spread over 5 terrains x levels 0-2)")
+    p.add_argument("--eval_episode_s", type=float, default=5.0,
+                   help="msta-eval episode length (s)")
+    p.add_argument("--threads", type=int, default=2, help="torch threads for training")
     args = p.parse_args(argv)
+    for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
+                 "envs_per_type", "eval_trials", "threads"):
+        if getattr(args, name) < 1:
+            p.error(f"--{name} must be >= 1")
+    if args.rounds < 0:
+        p.error("--rounds must be >= 0")
     os.environ.setdefault("MUJOCO_GL", "egl")
     if args.out.exists():
         shutil.rmtree(args.out)
@@ -142,13 +198,17 @@ def main(argv: list[str] | None = None) -> None:
     server = start_hub(args.out)
     try:
         hub_dataset = step_push(dataset)
-        stage1 = step_train(args.out, hub_dataset, args.train_steps)
-        step_correct(args.out, stage1, hub_dataset, args.correct_steps, args.correct_episodes,
-                     args.round_eval_steps)
-        step_eval(args.out, args.eval_trials, args.eval_episode_s)
+        stage1 = step_train(args.out, hub_dataset, args.train_steps, args.threads)
+        if args.rounds:
+            step_correct(args.out, stage1, hub_dataset, args.rounds, args.correct_steps,
+                         args.correct_episodes, args.threads)
+        metrics = step_eval(args.out, args.rounds, args.eval_trials, args.eval_episode_s)
     finally:
         server.stop()
+    _, line = verdict(metrics)
+    (args.out / "verdict.txt").write_text(line + "\n")
     print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min; outputs in {args.out}/")
+    print(line)
 
 
 if __name__ == "__main__":

@@ -48,7 +48,7 @@ class LoopConfig:
 
     steps: int = 2000
     batch_size: int = 64
-    lr: float = 3e-4
+    lr: float = 1e-3
     weight_decay: float = 0.01
     warmup_steps: int = 100
     min_lr_ratio: float = 0.1

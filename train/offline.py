@@ -339,9 +339,27 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     print(f"trained {res.step} steps ({res.samples_per_s:.1f} samples/s this run); "
           f"train loss {res.train.get('loss', float('nan')):.4g}{'; ' + val if val else ''}"
           f"\nfinal policy: {final}")
+    warn_if_not_learned(res.val)
     if cfg.push_to:
         push_stage1(cfg, root, out, final)
     return final
+
+
+#: Final validation loss (z-scored actions, unmasked) above which msta-train warns; the
+#: mean action scores ~1.0, a GRU or the MSTA defaults reach < 0.1 on the demo's data.
+NOT_LEARNED_LOSS = 0.5
+
+
+def warn_if_not_learned(val: dict[str, float]) -> bool:
+    """Print a warning when the final unmasked validation loss says the student has not
+    learned to use its inputs; returns whether it warned."""
+    loss = val.get("loss_unmasked")
+    if loss is None or not loss > NOT_LEARNED_LOSS:
+        return False
+    print(f"WARNING: final val loss_unmasked {loss:.3g} > {NOT_LEARNED_LOSS} (predicting the mean "
+          "action scores ~1.0): the student has not learned to use its inputs. Train longer "
+          "(--steps), check --lr, or see docs/msta_model.md.", flush=True)
+    return True
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -10,12 +10,16 @@ from eval.demo import main
 def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     out = tmp_path / "demo"
     main(["--out", str(out), "--episodes", "4", "--episode_s", "0.5", "--train_steps", "3",
-          "--correct_steps", "2", "--correct_episodes", "2", "--teacher_s", "0.4",
-          "--envs_per_type", "1", "--round_eval_steps", "10", "--eval_trials", "1",
-          "--eval_episode_s", "0.3"])
+          "--rounds", "1", "--correct_steps", "2", "--correct_episodes", "2",
+          "--teacher_s", "0.4", "--envs_per_type", "1", "--eval_trials", "5",
+          "--eval_episode_s", "0.3", "--threads", "1"])
     text = capsys.readouterr().out
     for step in range(1, 7):
         assert f"== {step}." in text
+    # the last line is the verdict; three training steps do not make a walking student
+    last = text.strip().splitlines()[-1]
+    assert last.startswith("VERDICT: the student does NOT walk yet") and "test mask 0" in last
+    assert (out / "verdict.txt").read_text().strip() == last
     info = json.loads((out / "datasets" / "a1_teacher" / "meta" / "info.json").read_text())
     assert info["total_episodes"] == 4              # the teacher dataset pushed to the hub
     # stage 2 started from the hub dataset and appended its round to its own copy
