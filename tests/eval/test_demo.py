@@ -31,3 +31,28 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     assert metrics
     assert "demo/msta_a1@stage2-r1" in text
     assert "demo-secret-token" not in text
+
+
+def _metrics(lin0: float, lin50: float, surv: float) -> dict:
+    def run(mask: float, lin: float) -> dict:
+        return {"policy": "student", "scenario": "token_removal", "status": "ok",
+                "spec": {"mask_ratio": mask},
+                "normalized": {"per_terrain": {"average": {
+                    "lin_tracking": lin, "ci": {"lin_tracking": [lin - 0.05, lin + 0.05]}}}},
+                "raw": {"per_terrain": {"average": {"survival": surv, "trials": 100}}}}
+    teacher = {"policy": "teacher", "scenario": "token_removal", "status": "ok"}
+    return {"runs": [teacher, run(0.0, lin0), run(0.25, 0.0), run(0.5, lin50)]}
+
+
+def test_verdict_applies_the_walking_bar():
+    from eval.demo import verdict
+
+    walks, line = verdict(_metrics(0.85, 0.78, 0.95))
+    assert walks and line.startswith("VERDICT: the student WALKS")
+    assert "0.85 [0.80, 0.90]" in line and "0.78" in line and "100 trials" in line
+    for bad in (_metrics(0.79, 0.78, 0.95), _metrics(0.85, 0.74, 0.95),
+                _metrics(0.85, 0.78, 0.89)):
+        walks, line = verdict(bad)
+        assert not walks and "does NOT walk yet" in line
+    walks, line = verdict({"runs": []})
+    assert not walks and "evaluation failed" in line

@@ -127,3 +127,21 @@ def test_bad_inputs_give_clear_errors(synthetic_dataset, tmp_path, capsys):
         cfg_for(synthetic_dataset, tmp_path / "o", "--policy.input_sensors=[bogus]")
     with pytest.raises(SystemExit, match="mask_ratio=1.5"):
         cfg_for(synthetic_dataset, tmp_path / "o", "--mask_ratio=1.5")
+
+
+def test_warns_when_the_student_has_not_learned(synthetic_dataset, tmp_path, capsys):
+    from train.offline import warn_if_not_learned
+
+    # six steps leave the tiny student near the mean: the warning says so
+    train(cfg_for(synthetic_dataset, tmp_path / "short", "--steps=6", "--eval_every=0"))
+    out = capsys.readouterr().out
+    loss = float(csv_rows(tmp_path / "short" / "metrics.csv")[-1]["val_loss_unmasked"])
+    assert loss > 0.5 and "has not learned to use its inputs" in out
+    assert warn_if_not_learned({"loss_unmasked": 0.9})
+    assert not warn_if_not_learned({"loss_unmasked": 0.2})
+    assert not warn_if_not_learned({})
+
+
+def test_mask_ratio_flag_is_what_the_saved_config_says(synthetic_dataset, tmp_path):
+    final = train(cfg_for(synthetic_dataset, tmp_path / "m", "--steps=2", "--mask_ratio=0.25"))
+    assert MSTAPolicy.from_pretrained(final).config.mask_ratio == 0.25
