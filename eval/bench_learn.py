@@ -5,7 +5,8 @@ teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10
 levels 0-2, split by episode 43 / 5 as ``msta-train`` splits it), every learner trains for
 the same wall-clock budget (``--seconds``, default 120 s each, ``--threads`` 2) with AdamW
 at its learning rate, batch 64, 100 warm-up steps then a constant rate, and is validated
-every ``--eval_every`` s (validation time is not charged to the budget):
+every ``--eval_every`` s on the same 512 validation windows (validation time is not charged
+to the budget):
 
 - ``msta_cpu`` and ``msta_paper``: the MSTA student, ``cpu`` and ``paper`` presets, trained at
   its default mask ratio (0.75); validated unmasked and at test mask 0.5;
@@ -36,6 +37,8 @@ import torch
 from torch import nn
 
 SEED = 0
+#: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
+VAL = 512
 LEARNERS = ("msta_cpu", "msta_paper", "gru", "mlp")
 
 
@@ -140,7 +143,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
             opt.step()
 
         def check() -> tuple[float, float]:
-            idx = np.unique(np.linspace(0, len(val) - 1, min(len(val), 1024)).round().astype(int))
+            idx = np.unique(np.linspace(0, len(val) - 1, min(len(val), VAL)).round().astype(int))
             with torch.no_grad():
                 x, y = tensors(val.get_batch(idx))
                 return float(nn.functional.mse_loss(model(x), y)), math.nan
@@ -162,7 +165,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
             train_step(policy, opt, sched, train.get_batch(idx), 1.0, None, gen)
 
         def check() -> tuple[float, float]:
-            v0 = validate(policy, val, 256, 1024, 0.5 if masked else 0.0, seed=SEED)
+            v0 = validate(policy, val, 256, VAL, 0.5 if masked else 0.0, seed=SEED)
             return v0["loss_unmasked"], (v0["loss"] if masked else math.nan)
         n_train = len(train)
     spent, steps, next_eval = 0.0, 0, eval_every_s
@@ -223,7 +226,7 @@ def main(argv: list[str] | None = None) -> None:
                    help="folder for the dataset, results.json and learning_curves.png")
     p.add_argument("--seconds", type=float, default=120.0,
                    help="training wall-clock budget per learner (s)")
-    p.add_argument("--eval_every", type=float, default=15.0,
+    p.add_argument("--eval_every", type=float, default=30.0,
                    help="validate every this many training seconds")
     p.add_argument("--threads", type=int, default=2, help="torch threads")
     p.add_argument("--episodes", type=int, default=48, help="teacher episodes to record (>= 40)")

@@ -72,6 +72,8 @@ RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs
 @dataclass
 class CorrectConfig(LoopConfig):
     """Args:
+        lr: peak learning rate of each round's retraining (lower than stage 1's 1e-3: the
+            round fine-tunes trained weights; measured, see docs/training.md).
         mask_ratio: retraining token-removal ratio; null = the paper's stage-2 ratio 0.5,
             capped at the ratio the student was trained with (a student trained without
             masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
@@ -84,7 +86,9 @@ class CorrectConfig(LoopConfig):
         episode_length_s: time limit of the student episodes (s).
         env: simulator options of the rollouts (its seed is shifted by the round).
         teacher: the labelling teacher (``--teacher.type=gait``).
-        beta: DAgger mixing: probability that an env executes the teacher's action in a step.
+        beta: DAgger mixing: probability that an env executes the teacher's action in a step
+            (0.5 by default: the student's episodes stay long enough to label; 0 = the
+            student alone drives).
         beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
         rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
         recent_weight: sampling weight of an episode from round k in round r is
@@ -100,6 +104,7 @@ class CorrectConfig(LoopConfig):
     """
 
     steps: int = 500
+    lr: float = 3e-4
     mask_ratio: float | None = None
     policy: str = ""
     dataset: str = ""
@@ -110,7 +115,7 @@ class CorrectConfig(LoopConfig):
     episode_length_s: float = 10.0
     env: EnvConfig = field(default_factory=EnvConfig)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
-    beta: float = 0.0
+    beta: float = 0.5
     beta_decay: float = 1.0
     rollout: InputSpec = field(default_factory=InputSpec)
     recent_weight: float = 1.0
