@@ -93,8 +93,9 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, threads: int) -> Path:
     from train.online import CorrectConfig, correct
 
-    print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} student episodes each, "
-          f"teacher labels, retrain {steps} steps at mask ratio 0.5) ==")
+    print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
+          "student drives, the teacher acts in half of the steps (DAgger beta 0.5) and labels "
+          f"all; retrain {steps} steps at lr 3e-4, mask ratio 0.5) ==")
     cfg = CorrectConfig(policy=str(stage1), dataset=dataset, output_dir=str(out / "stage2"),
                         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
@@ -169,9 +170,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder")
     p.add_argument("--episodes", type=int, default=96, help="teacher episodes to record")
     p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
-    p.add_argument("--train_steps", type=int, default=2000, help="stage-1 optimizer steps")
-    p.add_argument("--rounds", type=int, default=3, help="stage-2 rounds (0: stage 1 only)")
-    p.add_argument("--correct_steps", type=int, default=600,
+    p.add_argument("--train_steps", type=int, default=1500, help="stage-1 optimizer steps")
+    p.add_argument("--rounds", type=int, default=2, help="stage-2 rounds (0: stage 1 only)")
+    p.add_argument("--correct_steps", type=int, default=400,
                    help="stage-2 retraining steps per round")
     p.add_argument("--correct_episodes", type=int, default=32,
                    help="stage-2 student episodes (10 s) per round")
