@@ -4,7 +4,6 @@ plus the placeholder behaviour for missing inputs."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,13 +25,7 @@ IDS = [n + ("-mean" if o else "") for n, o in CASES]
 ANY_T = [c for c in CASES if c != ("rma_tcn", {})]
 
 
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    """Tiny models run fastest on one thread (and do not fight other processes)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def stats_for(names=sensors.STUDENT_SENSORS) -> dict[str, dict[str, list[float]]]:

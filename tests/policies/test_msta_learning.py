@@ -12,8 +12,6 @@ learn it.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import pytest
 import torch
 
@@ -27,12 +25,7 @@ SENSORS = ("joint_pos", "joint_vel", "last_action")
 T, LAG, CHANNEL, SOURCE = 8, 4, 5, "joint_vel"
 
 
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def unit_stats() -> dict[str, dict[str, list[float]]]:
