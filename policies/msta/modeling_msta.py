@@ -160,7 +160,7 @@ class MSTATransformer(nn.Module):
         for block in self.blocks:  # GPT-2: scale residual projections by depth
             for lin in (block.attn.proj, block.mlp[2]):
                 nn.init.normal_(lin.weight, std=std(lin) / math.sqrt(2 * self.cfg.num_layers))
-        # Neighbouring bins start similar (a 1-D sin-cos code of the bin index); trained after.
+        # Value tables start smooth in the bin (neighbouring bins similar); trained after.
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
             if self.cfg.value_init == "linear":  # bin centre's z-score x a direction per table
