@@ -2,7 +2,7 @@
 
     msta-correct --policy=outputs/train/msta_cpu/final --dataset=outputs/datasets/a1_teacher \\
         --output_dir=outputs/correct/msta_cpu --rounds=3 --episodes_per_round=64 \\
-        --teacher.type=gait --beta=0.0 --steps=500
+        --teacher.type=gait --steps=500
     msta-correct ... --resume=true        # after a kill: continue at the unfinished round
 
 Each round r = 1..R:
