@@ -118,7 +118,7 @@ class MSTATransformer(nn.Module):
             if h
             else nn.Linear(d, cfg.action_dim)
         )
-        self._pos_cache: dict[tuple, tuple[Tensor, Tensor, Tensor]] = {}
+        self._pos_cache: dict[tuple, tuple[Tensor, ...]] = {}
         self._init_weights()
 
     def _num_tables(self) -> int:
@@ -130,24 +130,16 @@ class MSTATransformer(nn.Module):
             return sum(get(n).dim for n in self.cfg.input_sensors)
         return 1
 
-    def _table_offsets(self, names: list[str], channels: dict[str, Tensor], T: int) -> Tensor:
-        """(N,) first row of each token's bin table in ``bin_embed`` (0 when shared)."""
+    def _table_of(self, name: str, ch: Tensor) -> Tensor:
+        """Value-table index of channels ``ch`` of sensor ``name`` (0 when shared)."""
         from msta_data.sensors import get
 
-        mode, nb, out = self.cfg.value_embedding, self.cfg.num_bins, []
-        first = 0
-        for name in self.cfg.input_sensors:
-            if name in names:
-                ch = channels[name]
-                if mode == "channel":
-                    table = first + ch
-                elif mode == "sensor":
-                    table = torch.full_like(ch, self.cfg.input_sensors.index(name))
-                else:
-                    table = torch.zeros_like(ch)
-                out.append((table * nb).repeat(T))  # (T*c,) time-major like the layout
-            first += get(name).dim
-        return torch.cat(out)
+        sensors_ = self.cfg.input_sensors
+        if self.cfg.value_embedding == "channel":
+            return sum(get(n).dim for n in sensors_[:sensors_.index(name)]) + ch
+        if self.cfg.value_embedding == "sensor":
+            return torch.full_like(ch, sensors_.index(name))
+        return torch.zeros_like(ch)
 
     def _init_weights(self) -> None:
         def std(lin: nn.Linear) -> float:
@@ -188,6 +180,13 @@ class MSTATransformer(nn.Module):
 
         Returns pos (N, d) fixed embedding, sensor_id (N,) into the present sensors, step (N,).
         """
+        return self._cached_layout(channels, T)[:3]
+
+    def _row_offsets(self, channels: dict[str, Tensor], T: int) -> Tensor:
+        """(N,) first row of each token's value table in ``bin_embed``, in layout order."""
+        return self._cached_layout(channels, T)[3]
+
+    def _cached_layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, ...]:
         key = (
             T,
             tuple((n, tuple(c.tolist())) for n, c in channels.items()),
@@ -200,10 +199,11 @@ class MSTATransformer(nn.Module):
         return self._pos_cache[key]
 
     @torch.inference_mode(False)  # cached: must stay usable by training after an act()
-    def _build_layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, Tensor, Tensor]:
+    def _build_layout(self, channels: dict[str, Tensor], T: int
+                      ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         with torch.no_grad():
             dev = self.bin_embed.weight.device
-            pos, sid, step = [], [], []
+            pos, sid, step, offset = [], [], [], []
             for s, (name, ch) in enumerate(channels.items()):
                 t = torch.arange(T, device=dev).repeat_interleave(len(ch))  # (T*c,) oldest first
                 c = ch.to(dev).repeat(T)  # (T*c,)
@@ -212,7 +212,8 @@ class MSTATransformer(nn.Module):
                 )
                 sid.append(torch.full_like(t, s))
                 step.append(t)
-            return torch.cat(pos), torch.cat(sid), torch.cat(step)
+                offset.append(self._table_of(name, c) * self.cfg.num_bins)  # (T*c,)
+            return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
 
     def embed(
         self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
@@ -254,8 +255,7 @@ class MSTATransformer(nn.Module):
         if self.cfg.value_embedding == "shared":
             return bins
         T = inputs.bins[names[0]].shape[1]
-        offsets = self._table_offsets(names, inputs.channels, T).to(bins.device)  # (N,)
-        return bins + offsets[None, :]  # (B, N)
+        return bins + self._row_offsets(inputs.channels, T)[None, :].to(bins.device)  # (B, N)
 
     def _complete(self, inputs: MSTAInputs) -> tuple[MSTAInputs, dict[str, Tensor]]:
         """Learnable-mask variant: every configured sensor and channel gets a token; the ones
