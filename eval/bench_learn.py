@@ -44,19 +44,13 @@ LEARNERS = ("msta_cpu", "msta_paper", "gru", "mlp")
 
 def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
     """The benchmark's teacher dataset (seeded: the same frames on every machine)."""
-    from collect.record import CollectConfig, collect
-    from collect.sim.env import EnvConfig
-    from collect.sim.terrain import TerrainConfig
-    from policies.teacher.config import TeacherConfig
+    import shutil
+
+    from collect.record import easy_terrain_dataset
 
     if (root / "meta" / "info.json").is_file():
-        import shutil
-
         shutil.rmtree(root)
-    return collect(CollectConfig(
-        teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
-        repo_id="bench/a1_teacher", root=str(root), episode_length_s=seconds, seed=SEED,
-        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
+    return easy_terrain_dataset(root, episodes, seconds, "bench/a1_teacher")
 
 
 @dataclass

@@ -45,15 +45,11 @@ def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
 
 
 def step_collect(out: Path, episodes: int, seconds: float) -> Path:
-    from collect.record import CollectConfig, collect
-    from policies.teacher.config import TeacherConfig
+    from collect.record import easy_terrain_dataset
 
     print(f"\n== 2. msta-collect: {episodes} teacher episodes of up to {seconds:.0f} s ==")
-    return collect(CollectConfig(
-        teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
-        repo_id="demo/a1_teacher", root=str(out / "datasets" / "a1_teacher"),
-        episode_length_s=seconds, env=EnvConfig(terrain=TerrainConfig(max_init_level=2)),
-        progress=False))
+    return easy_terrain_dataset(out / "datasets" / "a1_teacher", episodes, seconds,
+                                "demo/a1_teacher")
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int) -> Path:

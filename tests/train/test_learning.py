@@ -22,12 +22,11 @@ import numpy as np
 import pytest
 import torch
 
-from collect.record import CollectConfig, collect
+from collect.record import easy_terrain_dataset
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
 from policies.factory import load_policy
 from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
 from train.offline import TrainConfig, train
 from train.online import CorrectConfig, EvalConfig, append_episodes, correct, roll_out
 
@@ -46,10 +45,7 @@ def two_threads() -> Iterator[None]:
 def teacher_data(tmp_path_factory) -> Path:
     """48 gait-teacher episodes of 10 s on terrain levels 0-2 (the demo's recipe)."""
     root = tmp_path_factory.mktemp("learn") / "teacher"
-    return collect(CollectConfig(
-        teacher=TeacherConfig(type="gait"), episodes=48, num_envs=48, repo_id="test/teacher",
-        root=str(root), episode_length_s=10.0, seed=0,
-        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
+    return easy_terrain_dataset(root, 48, 10.0, "test/teacher")
 
 
 @pytest.fixture(scope="module")
