@@ -7,20 +7,18 @@ parses (see docs/hub.md for the list of covered calls).
 
 from __future__ import annotations
 
-import base64
-import binascii
 import hashlib
-import json
 from typing import TYPE_CHECKING
 
-from msta_data.hub_server.cards import front_matter
+from msta_data.hub_server import boundary
+from msta_data.hub_server.boundary import field
+from msta_data.hub_server.cards import card_tags, front_matter
 from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
 from msta_data.hub_server.storage import (
-    Commit,
+    CommitInfo,
     FileEntry,
     RepoMeta,
     StoreError,
-    git_blob_sha1,
     lfs_pointer,
 )
 
@@ -62,14 +60,6 @@ def repo_url(base: str, meta: RepoMeta) -> str:
     return f"{base}/{prefix}{meta.repo_id}"
 
 
-def validate_path(path: str) -> str:
-    """A repo-relative file path without empty, '.' or '..' segments."""
-    parts = path.split("/")
-    if not path or any(p in ("", ".", "..") for p in parts) or parts[0] == ".git":
-        raise HttpError(400, f"invalid path in repo: '{path}'")
-    return path
-
-
 # ------------------------------------------------------------------ user and repos
 def whoami(app: HubApp, req: Request) -> Response:
     if req.user is None:
@@ -80,21 +70,33 @@ def whoami(app: HubApp, req: Request) -> Response:
                                                  "accessToken": {"displayName": req.user, "role": "write"}}})
 
 
-def _repo_type_of(value: str | None) -> str:
-    repo_type = value or "model"
+def _repo_type_of(data: dict) -> str:
+    repo_type = field(data, "type", str, "model")
     if repo_type not in ("model", "dataset"):
-        raise HttpError(400, f"repo type '{repo_type}' is not supported by this server (model, dataset)")
+        raise HttpError(400, f"repo type '{boundary._shown(repo_type)}' is not supported by this server "
+                             "(model, dataset)")
     return repo_type
 
 
+def _private_of(data: dict) -> bool | None:
+    """The requested visibility (``visibility``: public|private, or ``private``: bool), or None."""
+    visibility = field(data, "visibility", str, None)
+    if visibility is not None:
+        if visibility not in ("public", "private"):
+            raise HttpError(400, "'visibility' must be 'public' or 'private'")
+        return visibility == "private"
+    return field(data, "private", bool, None)
+
+
 def create_repo(app: HubApp, req: Request) -> Response:
-    data = req.json()
     if req.user is None:
         raise HttpError(401, "Authentication required: pass a token (HF_TOKEN) to create a repo")
-    repo_type = _repo_type_of(data.get("type"))
-    namespace = data.get("organization") or req.user
-    name = data.get("name") or ""
-    private = data.get("visibility") == "private" if "visibility" in data else bool(data.get("private"))
+    data = req.json_object()
+    repo_type = _repo_type_of(data)
+    namespace = field(data, "organization", str, "") or req.user
+    name = field(data, "name", str, "")
+    private = bool(_private_of(data))
+    boundary.repo_name(namespace, name)
     if not app.auth.can_write(req.user, namespace):
         raise HttpError(403, f"You don't have the rights to create a {repo_type} under the namespace '{namespace}'")
     existing = app.storage.get_repo(repo_type, f"{namespace}/{name}")
@@ -106,9 +108,11 @@ def create_repo(app: HubApp, req: Request) -> Response:
 
 
 def delete_repo(app: HubApp, req: Request) -> Response:
-    data = req.json()
-    repo_type = _repo_type_of(data.get("type"))
-    req.groups.update(ns=data.get("organization") or req.user or "", name=data.get("name") or "")
+    if req.user is None:
+        raise HttpError(401, "Authentication required: pass a token (HF_TOKEN) to delete a repo")
+    data = req.json_object()
+    repo_type = _repo_type_of(data)
+    req.groups.update(ns=field(data, "organization", str, "") or req.user, name=field(data, "name", str, ""))
     meta = write_repo(app, req, repo_type)
     app.storage.delete_repo(meta.repo_type, meta.repo_id)
     return Response(body={})
@@ -116,13 +120,12 @@ def delete_repo(app: HubApp, req: Request) -> Response:
 
 def update_settings(app: HubApp, req: Request) -> Response:
     meta = write_repo(app, req)
-    data = req.json()
+    data = req.json_object()
     if data.get("gated") not in (None, False):
         raise HttpError(400, "gated repos are not supported by this server")
-    if "visibility" in data:
-        app.storage.set_private(meta, data["visibility"] == "private")
-    elif "private" in data:
-        app.storage.set_private(meta, bool(data["private"]))
+    private = _private_of(data)
+    if private is not None:
+        app.storage.set_private(meta, private)
     return Response(body={})
 
 
@@ -137,13 +140,11 @@ def repo_info(app: HubApp, req: Request) -> Response:
             sib["lfs"] = {"size": entry.size, "sha256": entry.sha256,
                           "pointerSize": len(lfs_pointer(entry.sha256, entry.size))}
         siblings.append(sib)
-    card = None
-    if "README.md" in commit.files:
-        card = front_matter(app.storage.blob_path(commit.files["README.md"].sha256).read_text(errors="replace"))
+    card = _card(app, commit.files.get("README.md"))
     body = {"_id": meta.repo_id, "id": meta.repo_id, "author": meta.namespace, "sha": sha,
             "lastModified": commit.date, "createdAt": meta.created_at, "private": meta.private,
             "disabled": False, "gated": False, "downloads": 0, "likes": 0,
-            "tags": list((card or {}).get("tags") or []), "siblings": siblings,
+            "tags": card_tags(card), "siblings": siblings,
             "usedStorage": sum(e.size for e in commit.files.values())}
     if card is not None:
         body["cardData"] = card
@@ -152,6 +153,16 @@ def repo_info(app: HubApp, req: Request) -> Response:
         if card and isinstance(card.get("library_name"), str):
             body["library_name"] = card["library_name"]
     return Response(body=body)
+
+
+def _card(app: HubApp, entry: FileEntry | None) -> dict | None:
+    """The README's front matter (read from its first bytes only), or None."""
+    if entry is None:
+        return None
+    limit = app.limits.max_card_bytes
+    with open(app.storage.blob_path(entry.sha256), "rb") as f:
+        head = f.read(limit + 64 * 1024)
+    return front_matter(head.decode("utf-8", errors="replace"), max_bytes=limit)
 
 
 # ------------------------------------------------------------------ refs
@@ -168,10 +179,8 @@ def list_refs(app: HubApp, req: Request) -> Response:
 
 def create_tag(app: HubApp, req: Request) -> Response:
     meta = write_repo(app, req)
-    data = req.json()
-    tag = data.get("tag")
-    if not isinstance(tag, str) or not tag:
-        raise HttpError(400, "missing 'tag' in request body")
+    data = req.json_object()
+    tag = boundary.ref_name(field(data, "tag", str))
     sha = app.storage.resolve(meta, req.groups["rev"])
     app.storage.create_ref(meta, "tags", tag, sha)
     return Response(body={"name": tag, "ref": f"refs/tags/{tag}", "targetCommit": sha})
@@ -185,12 +194,12 @@ def delete_tag(app: HubApp, req: Request) -> Response:
 
 def create_branch(app: HubApp, req: Request) -> Response:
     meta = write_repo(app, req)
-    data = req.json()
-    branch = req.groups["rev"]
-    if data.get("emptyBranch"):
+    data = req.json_object()
+    branch = boundary.ref_name(req.groups["rev"])
+    if field(data, "emptyBranch", bool, False):
         sha = app.storage.empty_commit(meta, author=req.user or "")
     else:
-        sha = app.storage.resolve(meta, data.get("startingPoint") or "main")
+        sha = app.storage.resolve(meta, field(data, "startingPoint", str, "") or "main")
     app.storage.create_ref(meta, "branches", branch, sha)
     return Response(body={})
 
@@ -201,90 +210,6 @@ def delete_branch(app: HubApp, req: Request) -> Response:
         raise HttpError(403, "Cannot delete the default branch 'main'")
     app.storage.delete_ref(meta, "branches", req.groups["rev"])
     return Response(body={})
-
-
-# ------------------------------------------------------------------ commits
-def preupload(app: HubApp, req: Request) -> Response:
-    meta = write_repo(app, req)
-    if req.flag("create_pr"):
-        raise HttpError(400, "pull requests are not supported by this server")
-    data = req.json()
-    head = app.storage.resolve(meta, req.groups["rev"])
-    tree = app.storage.get_commit(meta, head).files
-    out = []
-    for f in data.get("files") or []:
-        path, size = f.get("path"), f.get("size")
-        if not isinstance(path, str) or not isinstance(size, int):
-            raise HttpError(400, "each file needs 'path' and 'size'")
-        lfs = app.lfs_threshold is not None and size >= app.lfs_threshold and size > 0
-        item = {"path": path, "uploadMode": "lfs" if lfs else "regular", "shouldIgnore": False}
-        entry = tree.get(path)
-        if entry is not None and entry.lfs == lfs:
-            item["oid"] = entry.sha256 if lfs else entry.oid
-        out.append(item)
-    return Response(body={"files": out, "commitOid": head})
-
-
-def _parse_commit_line(app: HubApp, item: dict, ops: dict) -> None:
-    key, value = item.get("key"), item.get("value") or {}
-    if key == "header":
-        ops["header"] = value
-        return
-    path = validate_path(str(value.get("path", "")).lstrip("/"))
-    if key == "file":
-        try:
-            content = (base64.b64decode(value.get("content", ""), validate=True)
-                       if value.get("encoding", "base64") == "base64" else str(value["content"]).encode())
-        except (binascii.Error, ValueError):
-            raise HttpError(400, f"content of '{path}' is not valid base64") from None
-        sha, size = app.storage.put_blob_bytes(content)
-        ops["files"][path] = FileEntry(sha, size, git_blob_sha1(content), False)
-    elif key == "lfsFile":
-        oid, size = value.get("oid"), value.get("size")
-        if value.get("algo", "sha256") != "sha256" or not app.storage.has_blob(str(oid), size):
-            raise HttpError(400, f"LFS object {oid} for '{path}' was not uploaded to this server")
-        size = app.storage.blob_path(oid).stat().st_size
-        ops["files"][path] = FileEntry(oid, size, git_blob_sha1(lfs_pointer(oid, size)), True)
-    elif key == "deletedFile":
-        ops["deleted"].append(path)
-    elif key == "deletedFolder":
-        ops["deleted_folders"].append(path)
-    else:
-        raise HttpError(400, f"unknown commit operation '{key}'")
-
-
-def commit(app: HubApp, req: Request) -> Response:
-    meta = write_repo(app, req)
-    if req.flag("create_pr"):
-        raise HttpError(400, "pull requests are not supported by this server")
-    ops: dict = {"header": None, "files": {}, "deleted": [], "deleted_folders": []}
-    for line in req.body:
-        if line.strip():
-            try:
-                item = json.loads(line)
-            except ValueError:
-                raise HttpError(400, "commit body is not valid NDJSON") from None
-            _parse_commit_line(app, item, ops)
-    header = ops["header"]
-    if not isinstance(header, dict) or not header.get("summary"):
-        raise HttpError(400, "commit needs a header line with a non-empty 'summary'")
-    branch = req.groups["rev"].removeprefix("refs/heads/")
-    if branch not in app.storage.refs(meta)["branches"]:
-        app.storage.resolve(meta, branch)  # RevisionNotFound for unknown names
-        raise HttpError(400, f"Invalid rev id: {branch} is not a branch; commits go to branches")
-    new = app.storage.commit(meta, branch, ops["files"], ops["deleted"], ops["deleted_folders"],
-                             header["summary"], header.get("description") or "", req.user or "",
-                             header.get("parentCommit"))
-    return Response(body={"commitUrl": f"{repo_url(req.base_url, meta)}/commit/{new.id}",
-                          "commitOid": new.id, "success": True, "pullRequestUrl": None})
-
-
-def list_commits(app: HubApp, req: Request) -> Response:
-    meta = read_repo(app, req)
-    sha = app.storage.resolve(meta, req.groups["rev"])
-    return Response(body=[{"id": c.id, "title": c.title, "message": c.message, "date": c.date,
-                           "authors": [{"user": c.author, "avatar": None}]}
-                          for c in app.storage.history(meta, sha)])
 
 
 # ------------------------------------------------------------------ trees
@@ -302,16 +227,14 @@ def _dir_json(path: str, files: dict[str, FileEntry]) -> dict:
     return {"type": "directory", "oid": hashlib.sha1(listing.encode()).hexdigest(), "size": 0, "path": path}
 
 
-def _last_commits(history: list[Commit], paths: list[str]) -> dict[str, dict]:
-    """For each path, the commit that last changed it (walking first parents)."""
-    out = {}
-    for path in paths:
-        entry, i = history[0].files.get(path), 0
-        while i + 1 < len(history) and history[i + 1].files.get(path) == entry:
-            i += 1
-        c = history[i]
-        out[path] = {"id": c.id, "title": c.title, "date": c.date}
-    return out
+def _add_last_commits(app: HubApp, meta: RepoMeta, sha: str, entries: list[dict]) -> None:
+    """Set ``lastCommit`` of each file entry: the newest commit that changed it."""
+    last: dict[str, CommitInfo] = app.storage.last_commits(
+        meta, sha, [e["path"] for e in entries if e["type"] == "file"])
+    for e in entries:
+        c = last.get(e["path"])
+        if c is not None:
+            e["lastCommit"] = {"id": c.id, "title": c.title, "date": c.date}
 
 
 def tree_entries(files: dict[str, FileEntry], path: str, recursive: bool) -> list[dict]:
@@ -338,13 +261,13 @@ def tree_entries(files: dict[str, FileEntry], path: str, recursive: bool) -> lis
 def list_tree(app: HubApp, req: Request) -> Response:
     meta = read_repo(app, req)
     sha = app.storage.resolve(meta, req.groups["rev"])
+    path = req.groups.get("path", "").strip("/")
+    if path:
+        boundary.repo_path(path, missing_is_404=True)
     commit_ = app.storage.get_commit(meta, sha)
-    entries = tree_entries(commit_.files, req.groups.get("path", ""), req.flag("recursive"))
+    entries = tree_entries(commit_.files, path, req.flag("recursive"))
     if req.flag("expand"):
-        last = _last_commits(app.storage.history(meta, sha), [e["path"] for e in entries if e["type"] == "file"])
-        for e in entries:
-            if e["path"] in last:
-                e["lastCommit"] = last[e["path"]]
+        _add_last_commits(app, meta, sha, entries)
     return Response(body=entries)
 
 
@@ -354,16 +277,14 @@ def paths_info(app: HubApp, req: Request) -> Response:
     commit_ = app.storage.get_commit(meta, sha)
     form = req.form()
     out = []
+    dirs = {p.rsplit("/", k)[0] for p in commit_.files for k in range(1, p.count("/") + 1)}
     for path in dict.fromkeys(p.strip("/") for p in form.get("paths", [])):
         if path in commit_.files:
             out.append(_file_json(path, commit_.files[path]))
-        elif any(p.startswith(path + "/") for p in commit_.files):
+        elif path in dirs:
             out.append(_dir_json(path, commit_.files))
     if str((form.get("expand") or ["false"])[-1]).lower() == "true":
-        last = _last_commits(app.storage.history(meta, sha), [e["path"] for e in out if e["type"] == "file"])
-        for e in out:
-            if e["path"] in last:
-                e["lastCommit"] = last[e["path"]]
+        _add_last_commits(app, meta, sha, out)
     return Response(body=out)
 
 
@@ -379,9 +300,6 @@ ROUTES: list[Route] = [
     route("DELETE", REPO + r"/tag/" + REV, delete_tag),
     route("POST", REPO + r"/branch/" + REV, create_branch),
     route("DELETE", REPO + r"/branch/" + REV, delete_branch),
-    route("POST", REPO + r"/preupload/" + REV, preupload),
-    route("POST", REPO + r"/commit/" + REV, commit),
-    route("GET", REPO + r"/commits/" + REV, list_commits),
     route("GET", REPO + r"/tree/" + REV + r"(?:/(?P<path>.*))?", list_tree),
     route("POST", REPO + r"/paths-info/" + REV, paths_info),
 ]

@@ -1,47 +1,126 @@
-"""YAML front matter of README.md cards, as the hub server reads and validates it."""
+"""YAML front matter of README.md cards, as the hub server reads and validates it.
+
+Cards come from anyone who may write a repo and are answered to anyone who may read it, so the
+YAML is loaded with limits: the front matter is at most ``max_bytes`` long (default 1 MiB),
+loaded with PyYAML's safe loader (libyaml when present: nesting deeper than 1000 levels is
+refused), and the loaded value must stay small once aliases are expanded (at most
+``EXPANSION_FACTOR`` times the front matter's size, no alias cycles): a few hundred bytes of
+nested aliases can otherwise expand to gigabytes of JSON ("billion laughs"). Values YAML
+builds that JSON cannot hold (dates, binary, sets) are turned into strings or lists.
+"""
 
 from __future__ import annotations
 
+import base64
+import datetime
+import math
 import re
+from typing import Any
 
 import yaml
 
-_FRONT_MATTER = re.compile(r"\A---\s*\n(.*?)\n---\s*(?:\n|\Z)", re.DOTALL)
+_FRONT_MATTER = re.compile(r"\A---[ \t]*\r?\n(.*?)\r?\n---[ \t]*(?:\r?\n|\Z)", re.DOTALL)
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+MAX_CARD_BYTES = 1 << 20
+EXPANSION_FACTOR = 4
+MAX_DEPTH = 100
 
 
 class CardError(ValueError):
-    """The card's YAML front matter is malformed."""
+    """The card's YAML front matter is malformed or too large."""
 
 
-def front_matter(text: str, strict: bool = False) -> dict | None:
-    """The YAML mapping at the top of a card, or None when there is none.
+def front_matter(text: str, strict: bool = False, max_bytes: int = MAX_CARD_BYTES) -> dict | None:
+    """The YAML mapping at the top of a card as JSON-ready data, or None when there is none.
 
     Args:
-        text: full README.md content.
-        strict: raise CardError on malformed YAML instead of returning None.
+        text: README.md content (its first ``max_bytes`` bytes and a little more suffice).
+        strict: raise CardError on malformed or oversized YAML instead of returning None.
+        max_bytes: longest front matter accepted, in bytes of UTF-8.
     """
+    try:
+        return _front_matter(text, max_bytes)
+    except CardError:
+        if strict:
+            raise
+        return None
+
+
+def _front_matter(text: str, max_bytes: int) -> dict | None:
     m = _FRONT_MATTER.match(text.lstrip("\ufeff"))
     if m is None:
         return None
+    source = m.group(1)
+    size = len(source.encode("utf-8", "surrogatepass"))
+    if size > max_bytes:
+        raise CardError(f"YAML front matter is {size} bytes; this server accepts at most {max_bytes}")
     try:
-        data = yaml.safe_load(m.group(1))
-    except yaml.YAMLError as err:
-        if strict:
-            raise CardError(f"YAML front matter does not parse: {err}") from None
-        return None
+        data = yaml.load(source, Loader=_LOADER)
+    except (yaml.YAMLError, ValueError, TypeError, RecursionError) as err:
+        raise CardError(f"YAML front matter does not parse: {str(err)[:300]}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
-        if strict:
-            raise CardError(f"YAML front matter must be a mapping, got {type(data).__name__}")
-        return None
-    return data
+        raise CardError(f"YAML front matter must be a mapping, got {type(data).__name__}")
+    budget = _Budget(max(EXPANSION_FACTOR * max(size, 1024), 1024))
+    return budget.convert(data)
 
 
-def validate_card(text: str, repo_type: str) -> list[str]:
+class _Budget:
+    """Converts loaded YAML to JSON-ready data while counting its expanded size."""
+
+    def __init__(self, limit: int):
+        self.limit = limit
+        self.used = 0
+        self._active: list[int] = []
+
+    def _spend(self, n: int) -> None:
+        self.used += n
+        if self.used > self.limit:
+            raise CardError(f"YAML front matter expands to more than {self.limit} bytes (aliases?)")
+
+    def convert(self, value: Any) -> Any:
+        if isinstance(value, (dict, list, set, tuple)):
+            if id(value) in self._active:
+                raise CardError("YAML front matter refers to itself (alias cycle)")
+            if len(self._active) >= MAX_DEPTH:
+                raise CardError(f"YAML front matter nests deeper than {MAX_DEPTH} levels")
+            self._active.append(id(value))
+            try:
+                return self._container(value)
+            finally:
+                self._active.pop()
+        return self._scalar(value)
+
+    def _container(self, value: dict | list | set | tuple) -> Any:
+        self._spend(2)
+        if isinstance(value, dict):
+            out = {}
+            for k, v in value.items():
+                key = k if isinstance(k, str) else str(self._scalar(k))
+                self._spend(len(key) + 4)
+                out[key] = self.convert(v)
+            return out
+        items = sorted(value, key=str) if isinstance(value, set) else value
+        return [self.convert(v) for v in items]
+
+    def _scalar(self, value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            value = None
+        elif isinstance(value, (datetime.date, datetime.datetime)):
+            value = value.isoformat()
+        elif isinstance(value, bytes):
+            value = base64.b64encode(value).decode()
+        elif not isinstance(value, (str, int, float, bool, type(None))):
+            value = str(value)
+        self._spend(len(value) + 2 if isinstance(value, str) else 8)
+        return value
+
+
+def validate_card(text: str, repo_type: str, max_bytes: int = MAX_CARD_BYTES) -> list[str]:
     """Errors found in a card's metadata (empty list when valid)."""
     try:
-        data = front_matter(text, strict=True)
+        data = front_matter(text, strict=True, max_bytes=max_bytes)
     except CardError as err:
         return [str(err)]
     errors = []
@@ -50,3 +129,13 @@ def validate_card(text: str, repo_type: str) -> list[str]:
         if value is not None and not isinstance(value, (str, list)):
             errors.append(f"'{key}' must be a string or a list of strings in a {repo_type} card")
     return errors
+
+
+def card_tags(card: dict | None) -> list[str]:
+    """The card's ``tags`` as a list of strings (a single string becomes a one-item list)."""
+    tags = (card or {}).get("tags")
+    if isinstance(tags, str):
+        return [tags]
+    if isinstance(tags, list):
+        return [t for t in tags if isinstance(t, str)]
+    return []

@@ -2,7 +2,11 @@
 
 LFS uploads follow the Git LFS batch API with the "basic" transfer: the batch answer carries an
 upload URL holding a one-time ticket (the client sends no token with the PUT, as with a
-presigned URL), and a verify URL the client calls with its token afterwards.
+presigned URL), and a verify URL the client calls with its token afterwards. A ticket is bound
+to the repo it was issued for; the uploaded bytes are always hashed, and only then may that
+repo's commits reference the object. The batch answer says "already stored" only for objects
+of the same repo, so it reveals nothing about other repos. Tickets never reach a log (the
+handler logs ``/lfs/upload/<ticket>``).
 """
 
 from __future__ import annotations
@@ -14,15 +18,17 @@ import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from msta_data.hub_server import boundary
 from msta_data.hub_server.api import read_repo, write_repo
+from msta_data.hub_server.boundary import InputError, field
 from msta_data.hub_server.cards import validate_card
 from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
 
 if TYPE_CHECKING:
     from msta_data.hub_server.server import HubApp
+    from msta_data.hub_server.storage import RepoMeta
 
-_SHA256_RE = re.compile(r"^[0-9a-f]{64}$")
-_RANGE_RE = re.compile(r"^bytes=(\d*)-(\d*)$")
+_RANGE_RE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
 TICKET_TTL_S = 3600.0
 LFS_CONTENT_TYPE = "application/vnd.git-lfs+json"
 
@@ -50,7 +56,8 @@ def resolve_file(app: HubApp, req: Request) -> Response:
     """GET/HEAD /[datasets/]ns/name/resolve/rev/path: the file with the hub's metadata headers."""
     meta = read_repo(app, req, "dataset" if req.groups.get("type") else "model")
     sha = app.storage.resolve(meta, req.groups["rev"])
-    entry = app.storage.get_commit(meta, sha).files.get(req.groups["path"])
+    path = boundary.repo_path(req.groups["path"], missing_is_404=True)
+    entry = app.storage.get_commit(meta, sha).files.get(path)
     if entry is None:
         raise HttpError(404, f"Entry not found: {req.groups['path']}", "EntryNotFound",
                         headers={"X-Repo-Commit": sha})
@@ -71,8 +78,12 @@ def resolve_file(app: HubApp, req: Request) -> Response:
 # ------------------------------------------------------------------ LFS
 @dataclass(frozen=True)
 class Ticket:
+    """An upload the batch endpoint allowed: object, size and the repo it is for."""
+
     oid: str
     size: int
+    repo_type: str
+    repo_id: str
     expires: float
 
 
@@ -83,15 +94,16 @@ class TicketBook:
         self._tickets: dict[str, Ticket] = {}
         self._lock = threading.Lock()
 
-    def issue(self, oid: str, size: int) -> str:
+    def issue(self, oid: str, size: int, repo_type: str, repo_id: str) -> str:
         key = secrets.token_urlsafe(32)
         with self._lock:
             now = time.monotonic()
             self._tickets = {k: t for k, t in self._tickets.items() if t.expires > now}
-            self._tickets[key] = Ticket(oid, size, now + TICKET_TTL_S)
+            self._tickets[key] = Ticket(oid, size, repo_type, repo_id, now + TICKET_TTL_S)
         return key
 
     def get(self, key: str) -> Ticket:
+        key = boundary.ticket(key)
         with self._lock:
             ticket = self._tickets.get(key)
         if ticket is None or ticket.expires < time.monotonic():
@@ -106,24 +118,27 @@ class TicketBook:
 def lfs_batch(app: HubApp, req: Request) -> Response:
     """POST /[datasets/]ns/name.git/info/lfs/objects/batch (upload operation, basic transfer)."""
     repo_type = "dataset" if req.groups.get("type") else "model"
-    data = req.json()
-    if data.get("operation") != "upload":
-        read_repo(app, req, repo_type)
+    meta = write_repo(app, req, repo_type)
+    data = req.json_object()
+    if field(data, "operation", str, "") != "upload":
         raise HttpError(400, "only the LFS 'upload' operation is supported; download with /resolve/")
-    write_repo(app, req, repo_type)
-    if "basic" not in (data.get("transfers") or ["basic"]):
+    if "basic" not in field(data, "transfers", list, ["basic"]):
         raise HttpError(400, "only the 'basic' LFS transfer is supported")
+    known = app.storage.repo_blobs(meta)
     objects = []
-    for obj in data.get("objects") or []:
-        oid, size = obj.get("oid"), obj.get("size")
-        if not isinstance(oid, str) or not _SHA256_RE.match(oid) or not isinstance(size, int) or size < 0:
-            objects.append({"oid": str(oid), "size": size if isinstance(size, int) else 0,
-                            "error": {"code": 422, "message": "oid must be a sha256 and size an integer"}})
+    for obj in field(data, "objects", list, []):
+        try:
+            obj = boundary.json_object(obj, "each LFS object")
+            oid = boundary.sha256_oid(obj.get("oid"))
+            size = boundary.byte_size(obj.get("size"))
+        except InputError as err:
+            objects.append({"oid": boundary._shown(obj.get("oid") if isinstance(obj, dict) else obj),
+                            "size": 0, "error": {"code": 422, "message": err.message}})
             continue
-        if app.storage.has_blob(oid, size):
-            objects.append({"oid": oid, "size": size})  # already here: no actions
+        if oid in known and app.storage.has_blob(oid, size):
+            objects.append({"oid": oid, "size": size})  # already in this repo: no actions
             continue
-        key = app.tickets.issue(oid, size)
+        key = app.tickets.issue(oid, size, meta.repo_type, meta.repo_id)
         objects.append({"oid": oid, "size": size, "authenticated": True, "actions": {
             "upload": {"href": f"{req.base_url}/lfs/upload/{key}", "header": {}, "expires_in": int(TICKET_TTL_S)},
             "verify": {"href": f"{req.base_url}/lfs/verify/{key}", "header": {}}}})
@@ -131,26 +146,35 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
                     content_type=LFS_CONTENT_TYPE)
 
 
+def _ticket_repo(app: HubApp, ticket: Ticket) -> RepoMeta:
+    meta = app.storage.get_repo(ticket.repo_type, ticket.repo_id)
+    if meta is None:
+        raise HttpError(404, "the repo of this upload ticket no longer exists")
+    return meta
+
+
 def lfs_upload(app: HubApp, req: Request) -> Response:
-    """PUT /lfs/upload/<ticket>: the object's bytes; stored only if size and sha256 match."""
+    """PUT /lfs/upload/<ticket>: the object's bytes; kept only if size and sha256 match."""
     key = req.groups["ticket"]
     ticket = app.tickets.get(key)
+    meta = _ticket_repo(app, ticket)
     declared = req.headers.get("Content-Length")
     if declared is not None and int(declared) != ticket.size:
         raise HttpError(400, f"upload is {declared} bytes but the batch request announced {ticket.size}")
-    if not app.storage.has_blob(ticket.oid, ticket.size):
-        app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
+    app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
     if req.body.read(1):
         raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
+    app.storage.grant_blob(meta, ticket.oid)
     return Response(body={})
 
 
 def lfs_verify(app: HubApp, req: Request) -> Response:
-    """POST /lfs/verify/<ticket>: confirms the object is stored."""
+    """POST /lfs/verify/<ticket>: confirms the object is stored for the ticket's repo."""
     key = req.groups["ticket"]
     ticket = app.tickets.get(key)
-    data = req.json()
-    if data.get("oid") != ticket.oid or not app.storage.has_blob(ticket.oid, ticket.size):
+    meta = _ticket_repo(app, ticket)
+    data = req.json_object()
+    if data.get("oid") != ticket.oid or not app.storage.repo_has_blob(meta, ticket.oid, ticket.size):
         raise HttpError(404, f"LFS object {ticket.oid} is not stored")
     app.tickets.close(key)
     return Response(body={"message": "ok"})
@@ -159,8 +183,9 @@ def lfs_verify(app: HubApp, req: Request) -> Response:
 # ------------------------------------------------------------------ validate-yaml
 def validate_yaml(app: HubApp, req: Request) -> Response:
     """POST /api/validate-yaml {content, repoType}: 400 with ``errors`` when the metadata is bad."""
-    data = req.json()
-    errors = validate_card(str(data.get("content") or ""), str(data.get("repoType") or "model"))
+    data = req.json_object()
+    errors = validate_card(field(data, "content", str, ""), field(data, "repoType", str, "model"),
+                           app.limits.max_card_bytes)
     if errors:
         raise HttpError(400, "Invalid metadata in README.md", extra={"errors": [{"message": e} for e in errors]})
     return Response(body={"warnings": []})
@@ -169,7 +194,7 @@ def validate_yaml(app: HubApp, req: Request) -> Response:
 _NS = r"(?P<ns>[^/]+)/(?P<name>[^/]+?)"
 ROUTES: list[Route] = [
     route("POST", r"/api/validate-yaml", validate_yaml),
-    route("PUT", r"/lfs/upload/(?P<ticket>[A-Za-z0-9_-]+)", lfs_upload),
+    route("PUT", r"/lfs/upload/(?P<ticket>[A-Za-z0-9_-]+)", lfs_upload, body="upload"),
     route("POST", r"/lfs/verify/(?P<ticket>[A-Za-z0-9_-]+)", lfs_verify),
     route("POST", r"(?:/(?P<type>datasets))?/" + _NS + r"\.git/info/lfs/objects/batch", lfs_batch),
     route("GET", r"(?:/(?P<type>datasets))?/" + _NS + r"/resolve/(?P<rev>[^/]+)/(?P<path>.+)", resolve_file),

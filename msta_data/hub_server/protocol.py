@@ -1,30 +1,55 @@
-"""HTTP plumbing of the hub server: request bodies, responses, errors, routing and logging.
-
-The handler always consumes the whole request body (also when it answers with an error), so
-clients that keep connections alive (httpx, requests) never see a reset. Logged lines carry the
-method, the path without its query string and the status: never headers, query strings or
-bodies, so tokens and upload tickets never reach a log.
+"""HTTP building blocks of the hub server: limits, errors, request bodies, requests, responses
+and routes. The request handler that uses them lives in handler.py.
 """
 
 from __future__ import annotations
 
 import io
-import json
-import logging
 import re
-from collections.abc import Callable, Iterator
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from http.server import BaseHTTPRequestHandler
 from typing import IO, TYPE_CHECKING, Any
-from urllib.parse import parse_qs, unquote, urlsplit
+from urllib.parse import parse_qs
 
+from msta_data.hub_server import boundary
+from msta_data.hub_server.boundary import InputError
 from msta_data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
     from msta_data.hub_server.server import HubApp
 
-logger = logging.getLogger("msta_data.hub_server")
-_CHUNK = 1 << 20
+CHUNK = 1 << 20
+MIN_UPLOAD_RATE = 1024  # bytes/s a body must average once its first read_timeout_s is over
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Request limits of the server (``msta-hub serve --max-body-bytes`` ...).
+
+    Args:
+        max_body_bytes: largest body of a JSON request (everything but commits and LFS uploads);
+            checked against Content-Length before anything is read or authenticated (413).
+        max_commit_bytes: largest commit body (NDJSON; inline files travel base64-encoded in it,
+            and one file is held in memory at a time).
+        read_timeout_s: a client that sends nothing for this long is disconnected (408 while a
+            body is expected); a body must also average 1 KiB/s after this time.
+        max_card_bytes: largest YAML front matter of a README.md the server parses.
+        max_connections: connections served at once; more are answered 503 and closed.
+    """
+
+    max_body_bytes: int = 8 << 20
+    max_commit_bytes: int = 2 << 30
+    read_timeout_s: float = 60.0
+    max_card_bytes: int = 1 << 20
+    max_connections: int = 64
+
+    def __post_init__(self) -> None:
+        for name in ("max_body_bytes", "max_commit_bytes", "max_card_bytes", "max_connections"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        if not self.read_timeout_s > 0:
+            raise ValueError(f"read_timeout_s must be positive, got {self.read_timeout_s}")
 
 
 class HttpError(Exception):
@@ -57,26 +82,48 @@ def http_error_from_store(err: StoreError, user: str | None) -> HttpError:
     return HttpError(status, err.message, code)
 
 
-class BodyReader(io.RawIOBase):
-    """The request body as a stream: Content-Length or chunked transfer encoding."""
+def http_error_from_input(err: InputError) -> HttpError:
+    return HttpError(err.status, err.message, err.code)
 
-    def __init__(self, rfile: IO[bytes], length: int | None, chunked: bool):
+
+class BodyReader(io.RawIOBase):
+    """The request body as a stream (Content-Length or chunked), bounded in size and time.
+
+    Args:
+        rfile: the connection's input.
+        length: Content-Length, or None (chunked or no body).
+        chunked: Transfer-Encoding: chunked.
+        limit: most bytes accepted (413 beyond).
+        timeout_s: see ``Limits.read_timeout_s``; the socket itself times out single reads.
+    """
+
+    def __init__(self, rfile: IO[bytes], length: int | None, chunked: bool, limit: int, timeout_s: float):
         super().__init__()
         self._rfile = rfile
         self._chunked = chunked
         self._remaining = 0 if chunked else (length or 0)
         self._eof = not chunked and not length
-        self.length = None if chunked else (length or 0)
+        self._limit = limit
+        self._timeout_s = timeout_s
+        self._started = time.monotonic()
+        self.received = 0
+        self.broken = False  # the stream is unusable: do not drain, close the connection
 
     def readable(self) -> bool:
         return True
+
+    def _fail(self, status: int, message: str) -> HttpError:
+        self.broken = True
+        return HttpError(status, message)
 
     def _next_chunk(self) -> None:
         line = self._rfile.readline(1024)
         try:
             size = int(line.split(b";")[0].strip(), 16)
         except ValueError:
-            raise HttpError(400, "malformed chunked request body") from None
+            raise self._fail(400, "malformed chunked request body") from None
+        if size < 0:
+            raise self._fail(400, "malformed chunked request body")
         if size == 0:
             while self._rfile.readline(1024) not in (b"\r\n", b"\n", b""):
                 pass  # trailers
@@ -84,8 +131,19 @@ class BodyReader(io.RawIOBase):
         self._remaining = size
 
     def readinto(self, buffer: Any) -> int:
+        try:
+            return self._readinto(buffer)
+        except TimeoutError:
+            raise self._fail(408, "request body not received in time") from None
+        except OSError:
+            raise self._fail(400, "connection failed while reading the request body") from None
+
+    def _readinto(self, buffer: Any) -> int:
         if self._eof:
             return 0
+        elapsed = time.monotonic() - self._started
+        if elapsed > self._timeout_s + self.received / MIN_UPLOAD_RATE:
+            raise self._fail(408, "request body arrives too slowly")
         if self._remaining == 0:
             if not self._chunked:
                 self._eof = True
@@ -93,19 +151,35 @@ class BodyReader(io.RawIOBase):
             self._next_chunk()
             if self._eof:
                 return 0
-        data = self._rfile.read(min(len(buffer), self._remaining, _CHUNK))
+        if self.received + min(len(buffer), self._remaining) > self._limit:
+            raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
+        data = self._rfile.read(min(len(buffer), self._remaining, CHUNK))
         if not data:
-            raise HttpError(400, "request body ended early")
+            raise self._fail(400, "request body ended early")
         buffer[: len(data)] = data
         self._remaining -= len(data)
+        self.received += len(data)
         if self._chunked and self._remaining == 0:
             self._rfile.readline(16)  # CRLF after each chunk
         return len(data)
 
-    def drain(self) -> None:
-        """Read and discard what is left of the body."""
-        while self.read(_CHUNK):
-            pass
+    def drain(self, max_bytes: int) -> bool:
+        """Read and discard what is left if that is at most ``max_bytes``; False when the
+        connection must be closed instead (broken stream, or too much left)."""
+        if self.broken:
+            return False
+        if not self._chunked and self._remaining > max_bytes:
+            return False
+        budget = max_bytes
+        try:
+            while budget >= 0:
+                n = len(self.read(CHUNK))
+                if n == 0:
+                    return True
+                budget -= n
+        except HttpError:
+            return False
+        return False
 
 
 @dataclass
@@ -122,19 +196,27 @@ class Request:
     groups: dict[str, str] = field(default_factory=dict)
 
     def json(self) -> Any:
-        raw = self.body.read()
-        try:
-            return json.loads(raw or b"{}")
-        except ValueError:
-            raise HttpError(400, "request body is not valid JSON") from None
+        """The body as JSON (an empty body reads as ``{}``); 400 when malformed."""
+        return boundary.parse_json(self.body.read())
+
+    def json_object(self) -> dict[str, Any]:
+        """The body as a JSON object; 400 for any other shape."""
+        return boundary.json_object(self.json())
 
     def form(self) -> dict[str, list[str]]:
-        """Body as form fields (x-www-form-urlencoded) or as a JSON object."""
+        """Body as form fields (x-www-form-urlencoded) or as a JSON object; only string values."""
         raw = self.body.read()
         if "json" in (self.headers.get("Content-Type") or ""):
-            data = json.loads(raw or b"{}")
-            return {k: v if isinstance(v, list) else [v] for k, v in data.items()}
-        return parse_qs(raw.decode(), keep_blank_values=True)
+            data = boundary.json_object(boundary.parse_json(raw))
+            out: dict[str, list[str]] = {}
+            for k, v in data.items():
+                values = v if isinstance(v, list) else [v]
+                out[k] = [str(x).lower() if isinstance(x, bool) else x for x in values if isinstance(x, (str, bool))]
+            return out
+        try:
+            return parse_qs(raw.decode(), keep_blank_values=True, max_num_fields=100_000)
+        except (UnicodeDecodeError, ValueError):
+            raise HttpError(400, "request body is not a valid form") from None
 
     def flag(self, name: str) -> bool:
         return self.params.get(name, "").lower() in ("1", "true", "yes")
@@ -152,145 +234,25 @@ class Response:
 
 
 Endpoint = Callable[["HubApp", Request], Response]
+BODY_KINDS = ("json", "commit", "upload")
 
 
 @dataclass(frozen=True)
 class Route:
+    """A method and path pattern mapped to an endpoint.
+
+    ``body`` picks the size limit checked before the request is read or authenticated:
+    "json" (``max_body_bytes``), "commit" (``max_commit_bytes``) or "upload" (an LFS upload,
+    bounded by its ticket's size inside the endpoint).
+    """
+
     method: str
     pattern: re.Pattern
     endpoint: Endpoint
+    body: str = "json"
 
 
-def route(method: str, regex: str, endpoint: Endpoint) -> Route:
-    return Route(method, re.compile("^" + regex + "$"), endpoint)
-
-
-class HubHandler(BaseHTTPRequestHandler):
-    """Parses a request, authenticates it, dispatches it to a route and answers."""
-
-    protocol_version = "HTTP/1.1"
-    server_version = "msta-hub/1"
-    app: HubApp  # set on the subclass made by the server
-
-    def do_GET(self) -> None:
-        self._handle()
-
-    do_HEAD = do_POST = do_PUT = do_DELETE = do_GET
-
-    def _handle(self) -> None:
-        length_header = self.headers.get("Content-Length")
-        chunked = "chunked" in (self.headers.get("Transfer-Encoding") or "").lower()
-        try:
-            length = int(length_header) if length_header else None
-        except ValueError:
-            length = None
-            self.close_connection = True
-        raw_body = BodyReader(self.rfile, length, chunked)
-        body = io.BufferedReader(raw_body, buffer_size=_CHUNK)
-        try:
-            response = self._dispatch(body)
-        except HttpError as err:
-            response = self._error_response(err)
-        except StoreError as err:
-            response = self._error_response(http_error_from_store(err, None))
-        except Exception:
-            logger.exception("internal error on %s %s", self.command, urlsplit(self.path).path)
-            response = self._error_response(HttpError(500, "internal server error"))
-        try:
-            raw_body.drain()
-        except HttpError:
-            self.close_connection = True
-        self._send(response)
-
-    def _dispatch(self, body: io.BufferedReader) -> Response:
-        parts = urlsplit(self.path)
-        params = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-        user = self._authenticate()
-        method = "GET" if self.command == "HEAD" else self.command
-        path_matched = False
-        for r in self.app.routes:
-            m = r.pattern.match(parts.path)
-            if m is None:
-                continue
-            path_matched = True
-            if r.method != method:
-                continue
-            groups = {k: unquote(v) for k, v in m.groupdict().items() if v is not None}
-            req = Request(self.command, parts.path, params, self.headers, body, user,
-                          self.app.base_url(self.headers.get("Host")), groups)
-            try:
-                return r.endpoint(self.app, req)
-            except StoreError as err:
-                raise http_error_from_store(err, user) from None
-        if path_matched:
-            raise HttpError(405, f"method {self.command} not allowed here")
-        raise HttpError(404, "not found")
-
-    def _authenticate(self) -> str | None:
-        header = self.headers.get("Authorization")
-        if not header:
-            return None
-        scheme, _, secret = header.partition(" ")
-        user = self.app.auth.user_for(secret.strip()) if scheme.lower() == "bearer" else None
-        if user is None:
-            raise HttpError(401, "Invalid credentials in Authorization header")
-        return user
-
-    def _error_response(self, err: HttpError) -> Response:
-        headers = {"X-Error-Message": err.message.replace("\n", " ")[:500], **err.headers}
-        if err.code:
-            headers["X-Error-Code"] = err.code
-        return Response(err.status, {"error": err.message, **err.extra}, headers)
-
-    def _send(self, response: Response) -> None:
-        if response.stream is not None:
-            payload = b""
-            length = response.stream[2]
-        elif isinstance(response.body, bytes):
-            payload, length = response.body, len(response.body)
-        elif response.body is None:
-            payload, length = b"", 0
-        else:
-            payload = json.dumps(response.body).encode()
-            length = len(payload)
-        self.send_response(response.status)
-        self.send_header("Content-Type", response.content_type)
-        self.send_header("Content-Length", str(length))
-        for k, v in response.headers.items():
-            self.send_header(k, v)
-        self.end_headers()
-        if self.command == "HEAD":
-            return
-        if response.stream is None:
-            self.wfile.write(payload)
-            return
-        sent = 0
-        for chunk in _file_chunks(*response.stream):
-            self.wfile.write(chunk)
-            sent += len(chunk)
-        if sent < length:  # the stored blob is shorter than recorded: make the client notice
-            logger.error("blob %s is truncated on disk", response.stream[0])
-            self.close_connection = True
-
-    # Logging: method, path (no query string) and status only.
-    def log_request(self, code: Any = "-", size: Any = "-") -> None:
-        path = urlsplit(self.path).path if hasattr(self, "path") else "?"
-        logger.info("%s %s -> %s", getattr(self, "command", "?"), path, code)
-
-    def log_error(self, format: str, *args: Any) -> None:
-        logger.warning("bad request from %s", self.client_address[0])
-
-    def log_message(self, format: str, *args: Any) -> None:
-        pass
-
-
-def _file_chunks(path: str, offset: int, length: int) -> Iterator[bytes]:
-    with open(path, "rb") as f:
-        f.seek(offset)
-        remaining = length
-        while remaining > 0:
-            chunk = f.read(min(remaining, _CHUNK))
-            if not chunk:
-                return
-            remaining -= len(chunk)
-            yield chunk
+def route(method: str, regex: str, endpoint: Endpoint, body: str = "json") -> Route:
+    if body not in BODY_KINDS:
+        raise ValueError(f"body must be one of {BODY_KINDS}, got '{body}'")
+    return Route(method, re.compile("^" + regex + "$"), endpoint, body)

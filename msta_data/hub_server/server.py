@@ -7,11 +7,12 @@ import threading
 from dataclasses import dataclass, field
 from http.server import ThreadingHTTPServer
 from pathlib import Path
-from typing import Self
+from typing import Any, Self
 
-from msta_data.hub_server import api, files
+from msta_data.hub_server import api, commit_routes, files
 from msta_data.hub_server.auth import AuthConfig, read_token_file
-from msta_data.hub_server.protocol import HubHandler, Route
+from msta_data.hub_server.handler import HubHandler
+from msta_data.hub_server.protocol import Limits, Route
 from msta_data.hub_server.storage import Storage
 
 logger = logging.getLogger("msta_data.hub_server")
@@ -33,6 +34,7 @@ class ServerConfig:
             setting. LFS needs clients started with HF_HUB_DISABLE_XET=1.
         public_url: base URL written into links (repo URLs, LFS upload URLs); by default the
             Host header of each request.
+        limits: request size, time and connection limits (see ``Limits``; docs/security.md).
     """
 
     root: Path
@@ -43,6 +45,7 @@ class ServerConfig:
     orgs: list[str] = field(default_factory=list)
     lfs_threshold: int | None = None
     public_url: str | None = None
+    limits: Limits = field(default_factory=Limits)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
@@ -62,15 +65,54 @@ class HubApp:
         self.auth = AuthConfig.from_specs(specs, config.orgs)
         self.storage = Storage(config.root)
         self.tickets = files.TicketBook()
+        self.limits = config.limits
         self.lfs_threshold = config.lfs_threshold
         self.public_url = config.public_url.rstrip("/") if config.public_url else None
-        self.routes: list[Route] = api.ROUTES + files.ROUTES
+        self.routes: list[Route] = api.ROUTES + commit_routes.ROUTES + files.ROUTES
         self.fallback_url = f"http://{config.host}:{config.port}"
 
     def base_url(self, host_header: str | None) -> str:
         if self.public_url:
             return self.public_url
         return f"http://{host_header}" if host_header else self.fallback_url
+
+
+_BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
+         b"Content-Length: 38\r\nConnection: close\r\n\r\n"
+         b'{"error": "too many open connections"}')
+
+
+class _HttpServer(ThreadingHTTPServer):
+    """A threading HTTP server that caps open connections and logs broken ones in one line."""
+
+    daemon_threads = True
+
+    def __init__(self, address: tuple[str, int], handler: type, max_connections: int):
+        self._slots = threading.BoundedSemaphore(max_connections)
+        super().__init__(address, handler)
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._slots.acquire(blocking=False):
+            try:
+                request.sendall(_BUSY)
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        logger.warning("connection from %s ended with an error", client_address[0])
 
 
 class HubServer:
@@ -83,13 +125,13 @@ class HubServer:
     def __init__(self, config: ServerConfig):
         self.config = config
         self.app = HubApp(config)
-        handler = type("BoundHubHandler", (HubHandler,), {"app": self.app})
+        handler = type("BoundHubHandler", (HubHandler,),
+                       {"app": self.app, "timeout": config.limits.read_timeout_s})
         try:
-            self.httpd = ThreadingHTTPServer((config.host, config.port), handler)
+            self.httpd = _HttpServer((config.host, config.port), handler, config.limits.max_connections)
         except OSError:
             self.app.storage.close()
             raise
-        self.httpd.daemon_threads = True
         host, port = self.httpd.server_address[:2]
         self.app.fallback_url = f"http://{host}:{port}"
         self._thread: threading.Thread | None = None

@@ -8,11 +8,16 @@ Layout under ``root``::
     repos/<models|datasets>/<namespace>/<name>/
         repo.json                  id, type, private flag, creation date
         refs.json                  {"branches": {name: sha}, "tags": {name: sha}}
-        commits/<sha>.json         one commit: parents, message, author, date, full file table
+        commits/<sha>.json         one commit: parents, message, author, date, diff to its parent
+        trees/<sha>.json           full file table of some commits (see commits.py)
+        blobs.txt                  sha256 of every blob this repo's commits and uploads brought in
 
-Every file is written to a temporary name and renamed into place, so a crash never leaves a
-half-written blob, commit or ref. A commit records the complete file table of its tree, so
-reading any revision needs one JSON file.
+Blobs are shared on disk but not across repos: a commit may reference an LFS object by hash
+only if ``blobs.txt`` of its own repo lists it (an upload to this repo, or a file committed to
+it), so knowing a hash never opens another repo's file. Every file is written to a temporary
+name and renamed into place, so a crash never leaves a half-written blob, commit or ref.
+Roots written by format 1 (full file table in every commit, no ``blobs.txt``) are read as
+they are; ``blobs.txt`` is rebuilt from a repo's commits the first time it is needed.
 """
 
 from __future__ import annotations
@@ -20,9 +25,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
-import json
 import os
-import re
 import secrets
 import shutil
 import threading
@@ -30,15 +33,18 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import IO
 
-FORMAT = "msta-hub-storage 1"
+from msta_data.hub_server import boundary
+from msta_data.hub_server.commits import Commit, CommitInfo, CommitStore, FileEntry
+from msta_data.hub_server.fsio import append_line, atomic_write, read_json, write_json
+
+__all__ = ["Commit", "CommitInfo", "FileEntry", "RepoMeta", "Storage", "StoreError", "git_blob_sha1",
+           "lfs_pointer"]
+
+FORMAT = "msta-hub-storage 2"
+_READABLE_FORMATS = ("msta-hub-storage 1", FORMAT)
 REPO_TYPES = ("model", "dataset")
-_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,95}$")
-_RESERVED_NAMESPACES = {"api", "datasets", "spaces", "models", "lfs", "resolve"}
-SHA_RE = re.compile(r"^[0-9a-f]{40}$")
-_SHORT_SHA_RE = re.compile(r"^[0-9a-f]{7,39}$")
-_REF_RE = re.compile(r"^(?!.*\.\.)(?!/)(?!.*//)[A-Za-z0-9._/-]{1,200}(?<!/)$")
 
 
 class StoreError(Exception):
@@ -63,69 +69,6 @@ def git_blob_sha1(data: bytes) -> str:
 def lfs_pointer(sha256: str, size: int) -> bytes:
     """The Git LFS pointer file git would store for an LFS object."""
     return f"version https://git-lfs.github.com/spec/v1\noid sha256:{sha256}\nsize {size}\n".encode()
-
-
-def validate_repo_name(namespace: str, name: str) -> None:
-    """Raise StoreError("bad_request") unless ``namespace/name`` is a valid repo id."""
-    for part in (namespace, name):
-        if not _NAME_RE.match(part) or part.endswith(".git") or ".." in part:
-            raise StoreError("bad_request", f"invalid repo id '{namespace}/{name}'")
-    if namespace in _RESERVED_NAMESPACES:
-        raise StoreError("bad_request", f"namespace '{namespace}' is reserved")
-
-
-def validate_ref_name(name: str) -> None:
-    """Raise StoreError("bad_request") for names git would refuse or that look like a sha."""
-    if not _REF_RE.match(name) or SHA_RE.match(name) or name.endswith(".lock"):
-        raise StoreError("bad_request", f"invalid branch or tag name '{name}'")
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-def _write_json(path: Path, obj: Any) -> None:
-    _atomic_write(path, json.dumps(obj, indent=1, sort_keys=True).encode())
-
-
-def _read_json(path: Path) -> Any:
-    with open(path, "rb") as f:
-        return json.load(f)
-
-
-@dataclass(frozen=True)
-class FileEntry:
-    """One file of a commit's tree."""
-
-    sha256: str
-    size: int
-    oid: str  # git blob id: of the content (regular) or of the LFS pointer (lfs)
-    lfs: bool
-
-    def to_json(self) -> dict:
-        return {"sha256": self.sha256, "size": self.size, "oid": self.oid, "lfs": self.lfs}
-
-    @staticmethod
-    def from_json(d: dict) -> FileEntry:
-        return FileEntry(sha256=d["sha256"], size=d["size"], oid=d["oid"], lfs=d["lfs"])
-
-
-@dataclass(frozen=True)
-class Commit:
-    """A commit: the complete file table plus metadata."""
-
-    id: str
-    parents: list[str]
-    title: str
-    message: str
-    author: str
-    date: str
-    files: dict[str, FileEntry]
 
 
 @dataclass(frozen=True)
@@ -154,22 +97,23 @@ class Storage:
         marker = self.root / "FORMAT"
         if marker.exists():
             found = marker.read_text().strip()
-            if found != FORMAT:
+            if found not in _READABLE_FORMATS:
                 raise ValueError(f"{self.root}: unknown storage format '{found}' (expected '{FORMAT}')")
         elif any(p.name not in {".lock"} for p in self.root.iterdir()):
             raise ValueError(f"{self.root} is not empty and is not a msta-hub root (no FORMAT file)")
-        for sub in ("blobs", "tmp", "repos"):
-            (self.root / sub).mkdir(exist_ok=True)
-        if not marker.exists():
-            _atomic_write(marker, (FORMAT + "\n").encode())
         self._lock_file = open(self.root / ".lock", "a+")  # noqa: SIM115 (held for the lifetime)
         try:
             fcntl.flock(self._lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             self._lock_file.close()
             raise ValueError(f"{self.root} is in use by another msta-hub server") from None
-        self._locks: dict[tuple[str, str], threading.Lock] = {}
+        for sub in ("blobs", "tmp", "repos"):
+            (self.root / sub).mkdir(exist_ok=True)
+        if not marker.exists() or marker.read_text().strip() != FORMAT:
+            atomic_write(marker, (FORMAT + "\n").encode())  # format 1 roots are read as they are
+        self._locks: dict[tuple[str, str], threading.RLock] = {}
         self._locks_guard = threading.Lock()
+        self.commits = CommitStore()
 
     def close(self) -> None:
         """Release the root's file lock."""
@@ -179,6 +123,8 @@ class Storage:
 
     # ---------------------------------------------------------------- blobs
     def blob_path(self, sha256: str) -> Path:
+        """Where the blob ``sha256`` lives; the id is checked, so the path stays under the root."""
+        sha256 = boundary.sha256_oid(sha256)
         return self.root / "blobs" / sha256[:2] / sha256
 
     def has_blob(self, sha256: str, size: int | None = None) -> bool:
@@ -191,11 +137,16 @@ class Storage:
         if not self.has_blob(sha, len(data)):
             path = self.blob_path(sha)
             path.parent.mkdir(exist_ok=True)
-            _atomic_write(path, data)
+            atomic_write(path, data)
         return sha, len(data)
 
     def put_blob_stream(self, stream: IO[bytes], size: int, expected_sha256: str) -> None:
-        """Copy exactly ``size`` bytes from ``stream`` and store them if their sha256 matches."""
+        """Copy exactly ``size`` bytes from ``stream``; keep them if their sha256 matches.
+
+        The bytes are always read and hashed, also when the blob is already stored, so an
+        upload proves its sender holds the content.
+        """
+        path = self.blob_path(expected_sha256)
         tmp = self.root / "tmp" / f"upload-{secrets.token_hex(8)}"
         digest = hashlib.sha256()
         remaining = size
@@ -212,40 +163,75 @@ class Storage:
                 os.fsync(f.fileno())
             if digest.hexdigest() != expected_sha256:
                 raise StoreError("bad_request", f"uploaded content does not match sha256 {expected_sha256}")
-            path = self.blob_path(expected_sha256)
-            path.parent.mkdir(exist_ok=True)
-            os.replace(tmp, path)
+            if not self.has_blob(expected_sha256, size):
+                path.parent.mkdir(exist_ok=True)
+                os.replace(tmp, path)
         finally:
             tmp.unlink(missing_ok=True)
 
-    def blob_sha1(self, sha256: str) -> str:
-        return git_blob_sha1(self.blob_path(sha256).read_bytes())
+    # ---------------------------------------------------------------- blobs of one repo
+    def _grants_path(self, meta: RepoMeta) -> Path:
+        return self._repo_dir(meta.repo_type, meta.namespace, meta.name) / "blobs.txt"
+
+    def repo_blobs(self, meta: RepoMeta) -> set[str]:
+        """sha256 of every blob this repo may reference (rebuilt from commits for old roots)."""
+        path = self._grants_path(meta)
+        if not path.is_file():
+            with self.repo_lock(meta.repo_type, meta.repo_id):
+                if not path.is_file():
+                    atomic_write(path, "".join(f"{s}\n" for s in sorted(self._blobs_in_commits(meta))).encode())
+        return {ln for ln in path.read_text().split() if boundary.SHA256_RE.match(ln)}
+
+    def _blobs_in_commits(self, meta: RepoMeta) -> set[str]:
+        repo_dir = self._repo_dir(meta.repo_type, meta.namespace, meta.name)
+        found: set[str] = set()
+        for p in (repo_dir / "commits").glob("*.json"):
+            found.update(e.sha256 for e in self.commits.tree(repo_dir, p.stem).values())
+        return {s for s in found if boundary.SHA256_RE.match(s)}
+
+    def grant_blob(self, meta: RepoMeta, sha256: str) -> None:
+        """Record that ``meta``'s repo may reference blob ``sha256`` (after an upload to it)."""
+        sha256 = boundary.sha256_oid(sha256)
+        if sha256 not in self.repo_blobs(meta):
+            append_line(self._grants_path(meta), sha256)
+
+    def repo_has_blob(self, meta: RepoMeta, sha256: str, size: int | None = None) -> bool:
+        """Whether the blob is stored *and* reachable from this repo (never says more)."""
+        return sha256 in self.repo_blobs(meta) and self.has_blob(sha256, size)
 
     # ---------------------------------------------------------------- repos
     def _repo_dir(self, repo_type: str, namespace: str, name: str) -> Path:
+        boundary.repo_name(namespace, name)
+        if repo_type not in REPO_TYPES:
+            raise StoreError("bad_request", f"unknown repo type '{repo_type}'")
         return self.root / "repos" / f"{repo_type}s" / namespace / name
+
+    def repo_dir(self, meta: RepoMeta) -> Path:
+        return self._repo_dir(meta.repo_type, meta.namespace, meta.name)
 
     @contextlib.contextmanager
     def repo_lock(self, repo_type: str, repo_id: str) -> Iterator[None]:
         with self._locks_guard:
-            lock = self._locks.setdefault((repo_type, repo_id), threading.Lock())
+            lock = self._locks.setdefault((repo_type, repo_id), threading.RLock())
         with lock:
             yield
 
     def get_repo(self, repo_type: str, repo_id: str) -> RepoMeta | None:
-        """The repo's metadata, or None when it does not exist."""
+        """The repo's metadata, or None when it does not exist (or cannot be named)."""
         if repo_type not in REPO_TYPES or repo_id.count("/") != 1:
             return None
         namespace, name = repo_id.split("/")
-        path = self._repo_dir(repo_type, namespace, name) / "repo.json"
-        if not _NAME_RE.match(namespace) or not _NAME_RE.match(name) or not path.is_file():
+        if not boundary.is_repo_name(namespace, name):
             return None
-        d = _read_json(path)
+        path = self._repo_dir(repo_type, namespace, name) / "repo.json"
+        if not path.is_file():
+            return None
+        d = read_json(path)
         return RepoMeta(repo_type, namespace, name, bool(d["private"]), d["createdAt"])
 
     def create_repo(self, repo_type: str, namespace: str, name: str, private: bool, author: str) -> RepoMeta:
         """Create a repo with an empty initial commit on ``main``; StoreError("conflict") if it exists."""
-        validate_repo_name(namespace, name)
+        boundary.repo_name(namespace, name)
         repo_id = f"{namespace}/{name}"
         with self.repo_lock(repo_type, repo_id):
             if self.get_repo(repo_type, repo_id) is not None:
@@ -254,11 +240,11 @@ class Storage:
             staging = self.root / "tmp" / f"repo-{secrets.token_hex(8)}"
             (staging / "commits").mkdir(parents=True)
             created = now_iso()
-            commit = self._make_commit([], {}, "initial commit", "", author, created)
-            self._write_commit(staging, commit)
-            _write_json(staging / "refs.json", {"branches": {"main": commit.id}, "tags": {}})
-            _write_json(staging / "repo.json", {"id": repo_id, "type": repo_type, "private": private,
-                                                "createdAt": created})
+            commit = self.commits.write(staging, [], {}, "initial commit", "", author, created)
+            write_json(staging / "refs.json", {"branches": {"main": commit.id}, "tags": {}})
+            write_json(staging / "repo.json", {"id": repo_id, "type": repo_type, "private": private,
+                                               "createdAt": created})
+            atomic_write(staging / "blobs.txt", b"")
             final.parent.mkdir(parents=True, exist_ok=True)
             os.rename(staging, final)
         return RepoMeta(repo_type, namespace, name, private, created)
@@ -269,70 +255,55 @@ class Storage:
             if meta is None:
                 raise StoreError("repo_not_found", f"Repository {repo_id} not found")
             trash = self.root / "tmp" / f"deleted-{secrets.token_hex(8)}"
-            os.rename(self._repo_dir(repo_type, meta.namespace, meta.name), trash)
+            os.rename(self.repo_dir(meta), trash)
         shutil.rmtree(trash, ignore_errors=True)
 
     def set_private(self, meta: RepoMeta, private: bool) -> None:
         with self.repo_lock(meta.repo_type, meta.repo_id):
-            path = self._repo_dir(meta.repo_type, meta.namespace, meta.name) / "repo.json"
-            d = _read_json(path)
+            path = self.repo_dir(meta) / "repo.json"
+            d = read_json(path)
             d["private"] = private
-            _write_json(path, d)
+            write_json(path, d)
 
     # ---------------------------------------------------------------- refs and commits
     def refs(self, meta: RepoMeta) -> dict[str, dict[str, str]]:
-        return _read_json(self._repo_dir(meta.repo_type, meta.namespace, meta.name) / "refs.json")
+        return read_json(self.repo_dir(meta) / "refs.json")
 
     def _write_refs(self, meta: RepoMeta, refs: dict) -> None:
-        _write_json(self._repo_dir(meta.repo_type, meta.namespace, meta.name) / "refs.json", refs)
-
-    def _commit_dir(self, meta: RepoMeta) -> Path:
-        return self._repo_dir(meta.repo_type, meta.namespace, meta.name) / "commits"
+        write_json(self.repo_dir(meta) / "refs.json", refs)
 
     def get_commit(self, meta: RepoMeta, sha: str) -> Commit:
-        d = _read_json(self._commit_dir(meta) / f"{sha}.json")
-        files = {p: FileEntry.from_json(e) for p, e in d["files"].items()}
-        return Commit(d["id"], d["parents"], d["title"], d["message"], d["author"], d["date"], files)
+        """The commit with its complete file table."""
+        return self.commits.commit(self.repo_dir(meta), boundary.commit_sha(sha))
 
     def resolve(self, meta: RepoMeta, revision: str) -> str:
         """Commit sha of a branch, tag, full sha or unique short sha; StoreError otherwise."""
+        revision = boundary.revision(revision)
         refs = self.refs(meta)
-        rev = revision.removeprefix("refs/heads/") if revision.startswith("refs/heads/") else revision
+        rev = revision.removeprefix("refs/heads/")
         if rev in refs["branches"]:
             return refs["branches"][rev]
         rev = revision.removeprefix("refs/tags/")
         if rev in refs["tags"]:
             return refs["tags"][rev]
-        commit_dir = self._commit_dir(meta)
-        if SHA_RE.match(revision) and (commit_dir / f"{revision}.json").is_file():
+        repo_dir = self.repo_dir(meta)
+        if boundary.SHA1_RE.match(revision) and self.commits.exists(repo_dir, revision):
             return revision
-        if _SHORT_SHA_RE.match(revision):
-            matches = [p.stem for p in commit_dir.glob(f"{revision}*.json")]
+        if boundary.SHORT_SHA_RE.match(revision):
+            matches = [p.stem for p in (repo_dir / "commits").glob(f"{revision}*.json")]
             if len(matches) == 1:
                 return matches[0]
             if len(matches) > 1:
                 raise StoreError("bad_request", f"short sha '{revision}' is ambiguous in {meta.repo_id}")
         raise StoreError("revision_not_found", f"Invalid rev id: {revision}")
 
-    @staticmethod
-    def _make_commit(parents: list[str], files: dict[str, FileEntry], title: str, message: str,
-                     author: str, date: str) -> Commit:
-        body = {"parents": parents, "title": title, "message": message, "author": author, "date": date,
-                "files": {p: e.to_json() for p, e in sorted(files.items())}, "nonce": secrets.token_hex(8)}
-        sha = hashlib.sha1(json.dumps(body, sort_keys=True).encode()).hexdigest()
-        return Commit(sha, parents, title, message, author, date, files)
-
-    @staticmethod
-    def _write_commit(repo_dir: Path, commit: Commit) -> None:
-        _write_json(repo_dir / "commits" / f"{commit.id}.json", {
-            "id": commit.id, "parents": commit.parents, "title": commit.title, "message": commit.message,
-            "author": commit.author, "date": commit.date,
-            "files": {p: e.to_json() for p, e in sorted(commit.files.items())}})
-
     def commit(self, meta: RepoMeta, branch: str, files: dict[str, FileEntry], deleted: list[str],
                deleted_folders: list[str], title: str, message: str, author: str,
                parent_commit: str | None = None) -> Commit:
-        """Apply additions and deletions to the head of ``branch`` and advance it atomically."""
+        """Apply additions and deletions to the head of ``branch`` and advance it atomically.
+
+        Every blob of ``files`` is granted to the repo before the commit is written.
+        """
         with self.repo_lock(meta.repo_type, meta.repo_id):
             refs = self.refs(meta)
             if branch not in refs["branches"]:
@@ -340,7 +311,8 @@ class Storage:
             head = refs["branches"][branch]
             if parent_commit is not None and parent_commit != head:
                 raise StoreError("precondition", f"parentCommit {parent_commit} is not the head of {branch}")
-            tree = dict(self.get_commit(meta, head).files)
+            repo_dir = self.repo_dir(meta)
+            tree = self.commits.tree(repo_dir, head)
             for path in deleted:
                 if tree.pop(path, None) is None:
                     raise StoreError("bad_request", f"cannot delete '{path}': no such file")
@@ -349,8 +321,10 @@ class Storage:
                 for path in [p for p in tree if p.startswith(prefix)]:
                     del tree[path]
             tree.update(files)
-            commit = self._make_commit([head], tree, title, message, author, now_iso())
-            self._write_commit(self._repo_dir(meta.repo_type, meta.namespace, meta.name), commit)
+            known = self.repo_blobs(meta)
+            for sha in sorted({e.sha256 for e in files.values()} - known):
+                append_line(self._grants_path(meta), sha)
+            commit = self.commits.write(repo_dir, [head], tree, title, message, author, now_iso())
             refs["branches"][branch] = commit.id
             self._write_refs(meta, refs)
             return commit
@@ -358,23 +332,34 @@ class Storage:
     def empty_commit(self, meta: RepoMeta, author: str) -> str:
         """Write a parentless commit without files (for ``create_branch(emptyBranch=True)``)."""
         with self.repo_lock(meta.repo_type, meta.repo_id):
-            commit = self._make_commit([], {}, "empty branch", "", author, now_iso())
-            self._write_commit(self._repo_dir(meta.repo_type, meta.namespace, meta.name), commit)
+            commit = self.commits.write(self.repo_dir(meta), [], {}, "empty branch", "", author, now_iso())
         return commit.id
 
-    def history(self, meta: RepoMeta, sha: str) -> list[Commit]:
-        """Commits reachable from ``sha`` along first parents, newest first."""
-        out = []
+    def history(self, meta: RepoMeta, sha: str) -> list[CommitInfo]:
+        """Commits reachable from ``sha`` along first parents, newest first (no file tables)."""
+        repo_dir, out = self.repo_dir(meta), []
         while True:
-            commit = self.get_commit(meta, sha)
-            out.append(commit)
-            if not commit.parents:
+            info = self.commits.info(repo_dir, sha)
+            out.append(info)
+            if not info.parents:
                 return out
-            sha = commit.parents[0]
+            sha = info.parents[0]
+
+    def last_commits(self, meta: RepoMeta, sha: str, paths: list[str]) -> dict[str, CommitInfo]:
+        """For each path, the newest commit (along first parents from ``sha``) that changed it."""
+        repo_dir, out = self.repo_dir(meta), {}
+        wanted = set(paths)
+        for info in self.history(meta, sha):
+            if not wanted:
+                break
+            hit = wanted & self.commits.changed_paths(repo_dir, info.id)
+            out.update((p, info) for p in hit)
+            wanted -= hit
+        return out
 
     def create_ref(self, meta: RepoMeta, kind: str, name: str, sha: str) -> None:
         """Create a branch or tag (``kind``: branches|tags); StoreError("conflict") if it exists."""
-        validate_ref_name(name)
+        boundary.ref_name(name)
         with self.repo_lock(meta.repo_type, meta.repo_id):
             refs = self.refs(meta)
             if name in refs[kind]:
