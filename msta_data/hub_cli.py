@@ -28,13 +28,16 @@ _EPILOG = """examples:
 
 
 def _serve(args: argparse.Namespace) -> int:
-    from msta_data.hub_server import HubServer, ServerConfig
+    from msta_data.hub_server import HubServer, Limits, ServerConfig
 
     if not args.token and args.token_file is None:
         print("warning: no tokens given: the server is read-only (nobody can push)", file=sys.stderr)
+    limits = Limits(max_body_bytes=args.max_body_bytes, max_commit_bytes=args.max_commit_bytes,
+                    read_timeout_s=args.read_timeout, max_card_bytes=args.max_card_bytes,
+                    max_connections=args.max_connections)
     config = ServerConfig(root=args.root, host=args.host, port=args.port, tokens=args.token,
                           token_file=args.token_file, orgs=args.org, lfs_threshold=args.lfs_threshold,
-                          public_url=args.public_url)
+                          public_url=args.public_url, limits=limits)
     server = HubServer(config)
     print(f"msta-hub serving {config.root} at {server.url}", flush=True)
     if args.port_file is not None:
@@ -104,6 +107,26 @@ def _card_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--eval-json", type=Path, help="metrics JSON: {metric: value} or {row: {metric: value}}")
 
 
+def _limit_arguments(g: argparse._ArgumentGroup) -> None:
+    """The request limits of ``msta-hub serve`` (defaults: msta_data.hub_server.Limits)."""
+    from msta_data.hub_server.protocol import Limits
+
+    d = Limits()
+    g.add_argument("--max-body-bytes", type=int, default=d.max_body_bytes, metavar="BYTES",
+                   help=f"largest JSON request body; larger ones get 413 before they are read "
+                        f"(default {d.max_body_bytes})")
+    g.add_argument("--max-commit-bytes", type=int, default=d.max_commit_bytes, metavar="BYTES",
+                   help=f"largest commit body, inline files base64-encoded (default {d.max_commit_bytes}; "
+                        "use --lfs-threshold for bigger files)")
+    g.add_argument("--read-timeout", type=float, default=d.read_timeout_s, metavar="SECONDS",
+                   help=f"drop a client silent this long; a body must also average 1 KiB/s after it "
+                        f"(default {d.read_timeout_s:g})")
+    g.add_argument("--max-card-bytes", type=int, default=d.max_card_bytes, metavar="BYTES",
+                   help=f"largest README.md YAML front matter parsed (default {d.max_card_bytes})")
+    g.add_argument("--max-connections", type=int, default=d.max_connections, metavar="N",
+                   help=f"connections served at once; more get 503 (default {d.max_connections})")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``msta-hub`` argument parser."""
     parser = argparse.ArgumentParser(prog="msta-hub", description=__doc__, epilog=_EPILOG,
@@ -124,6 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="upload files >= BYTES through Git LFS (clients need HF_HUB_DISABLE_XET=1)")
     p.add_argument("--public-url", help="base URL for links when behind a proxy")
     p.add_argument("--port-file", type=Path, help="write the bound port to this file")
+    _limit_arguments(p.add_argument_group("limits (docs/security.md)"))
     p.set_defaults(func=_serve)
 
     def client(name: str, help_: str) -> argparse.ArgumentParser:
