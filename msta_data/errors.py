@@ -19,5 +19,14 @@ class EpisodeValidationError(DatasetError, ValueError):
     """An episode handed to the writer is malformed (column named)."""
 
 
-class DatasetLockedError(DatasetError, RuntimeError):
+class DatasetIntegrityError(DatasetFormatError):
+    """A committed file is missing or differs from the size / sha256 recorded at commit
+    (``meta/msta_checksums.json``), or ``meta/info.json`` matches no recorded commit."""
+
+
+class DirectoryLockedError(RuntimeError):
+    """Another process holds a directory's lock file (a dataset writer, a training run)."""
+
+
+class DatasetLockedError(DatasetError, DirectoryLockedError):
     """Another writer holds the dataset's lock file."""

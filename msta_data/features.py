@@ -315,7 +315,7 @@ def read_parquet(path: Path, columns: list[str] | None = None) -> pa.Table:
             for col in columns:
                 if col not in names:
                     raise DatasetFormatError(f"{path}: column {col!r} missing (has {names})")
-        return pq.read_table(path, columns=columns)
+        return pq.read_table(path, columns=columns, page_checksum_verification=True)
     except FileNotFoundError:
         raise DatasetFormatError(f"{path}: no such file") from None
     except (pa.ArrowException, OSError) as e:
@@ -372,3 +372,57 @@ def read_parquet_schema(path: Path) -> pa.Schema:
     except (pa.ArrowException, OSError) as e:
         raise DatasetFormatError(f"{path}: cannot read Parquet (truncated or corrupt?): {e}") \
             from e
+
+
+def validate_episode(frames: dict[str, np.ndarray],
+                     features: dict[str, dict[str, Any]]) -> tuple[int, dict[str, np.ndarray]]:
+    """Check one episode against the schema and return ``(length, copied columns)``.
+
+    Scalar columns may be ``(L,)`` or ``(L, 1)`` and come back as ``(L,)``.
+
+    Raises:
+        EpisodeValidationError: missing/unknown column, wrong type, dtype or shape,
+            inconsistent lengths, or a NaN/Inf value (column, frame and channel named).
+    """
+    if not isinstance(frames, dict):
+        raise EpisodeValidationError(f"frames must be a dict column -> array, got {type(frames)}")
+    expected = input_columns(features)
+    missing = [c for c in expected if c not in frames]
+    extra = sorted(set(frames) - set(expected))
+    if missing or extra:
+        auto = [c for c in extra if c in LEROBOT_DEFAULT_FEATURES]
+        raise EpisodeValidationError(
+            f"episode columns do not match the dataset: missing {missing}, unknown {extra}"
+            + (f" ({auto} are filled by the writer)" if auto else ""))
+    length: int | None = None
+    out: dict[str, np.ndarray] = {}
+    for col in expected:
+        arr, ft = frames[col], features[col]
+        if not isinstance(arr, np.ndarray):
+            raise EpisodeValidationError(f"column {col!r}: expected np.ndarray, got {type(arr)}")
+        want = np.dtype(ft["dtype"])
+        if arr.dtype != want:
+            raise EpisodeValidationError(f"column {col!r}: dtype {arr.dtype}, expected {want}")
+        dim = ft["shape"][0]
+        if tuple(ft["shape"]) == (1,) and arr.ndim == 2 and arr.shape[1] == 1:
+            arr = arr[:, 0]
+        ok = arr.ndim == 1 if tuple(ft["shape"]) == (1,) else (arr.ndim == 2
+                                                                and arr.shape[1] == dim)
+        if not ok:
+            shape = "(L,)" if tuple(ft["shape"]) == (1,) else f"(L, {dim})"
+            raise EpisodeValidationError(f"column {col!r}: shape {arr.shape}, expected {shape}")
+        if length is None:
+            length = arr.shape[0]
+        if arr.shape[0] != length or length == 0:
+            raise EpisodeValidationError(
+                f"column {col!r}: {arr.shape[0]} frames, expected {length} (> 0) like "
+                f"{expected[0]!r}")
+        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+            bad = np.argwhere(~np.isfinite(arr.reshape(length, -1)))[0]
+            names = ft["names"] or [col]
+            raise EpisodeValidationError(
+                f"column {col!r}: non-finite value {arr.reshape(length, -1)[tuple(bad)]} at "
+                f"frame {bad[0]}, channel {names[bad[1]]!r}")
+        out[col] = arr.copy()
+    assert length is not None
+    return length, out

@@ -10,8 +10,10 @@ are *filled by repeating the episode's first frame* and flagged ``pad[t] = True`
 model should mask them; lerobot clamps the same way and calls the flag ``*_is_pad``).
 
 Everything is validated when the dataset is opened (schema version, fps, column presence,
-Arrow type and width, nulls, NaN/Inf, index consistency); errors name the file and column.
-Nothing is skipped or filled silently.
+Arrow type and width, nulls, NaN/Inf, index consistency, Parquet page checksums), then every
+committed file is checked against the size and sha256 recorded at commit
+(:mod:`msta_data.integrity`; a changed byte that still decodes is caught there); errors name
+the file and column. Nothing is skipped or filled silently.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import pandas as pd
 import pyarrow as pa
 
 from msta_data import features as F
+from msta_data import integrity as I
 from msta_data import sensors as registry
 from msta_data.errors import DatasetFormatError
 
@@ -91,6 +94,8 @@ class WindowDataset:
             ``"executed_action"``, ``"next.reward"``, ...).
         episodes: episode indices to load; ``None`` = all committed episodes.
         fps: expected dataset fps (checked against ``info.json`` and the timestamps).
+        verify: check the committed files against ``meta/msta_checksums.json`` after
+            loading: ``"full"`` (sha256, cached per process), ``"sizes"``, or ``None``.
 
     ``get_batch(indices)`` returns ``{sensor: (B, T, dim) float32, extra: (B, dim) or (B,),
     "pad": (B, T) bool}``.
@@ -98,7 +103,8 @@ class WindowDataset:
 
     def __init__(self, root: str | Path, sensors: Sequence[str], T: int = 15,
                  extra_columns: Sequence[str] = ("action",),
-                 episodes: Sequence[int] | None = None, fps: int = F.DEFAULT_FPS) -> None:
+                 episodes: Sequence[int] | None = None, fps: int = F.DEFAULT_FPS,
+                 verify: I.VerifyMode | None = "full") -> None:
         if isinstance(sensors, str) or not sensors:
             raise ValueError(f"sensors must be a non-empty sequence of names, got {sensors!r}")
         if T < 1:
@@ -132,6 +138,8 @@ class WindowDataset:
         self._load(meta, n)
         self._ep_start = np.repeat(self.starts, self.lengths)
         self._offsets = np.arange(-self.T + 1, 1, dtype=np.int64)
+        if verify is not None:  # after the structural checks, whose errors name the column
+            I.verify_dataset(self.root, verify)
 
     def _select(self, table: pa.Table, episodes: Sequence[int] | None) -> list[int]:
         total = int(self.info["total_episodes"])

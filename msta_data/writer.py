@@ -12,20 +12,27 @@ Durability protocol (one writer at a time, enforced by ``flock`` on ``root/.msta
    ``max_frames_per_file`` rows each, whole episodes only) plus one matching
    ``meta/episodes/chunk-C/file-F.parquet`` per data file. Existing files are never
    modified, so earlier episodes stay byte-identical on append.
-3. Then ``meta/tasks.parquet``, ``meta/stats.json`` and finally ``meta/info.json`` are
-   rewritten; ``info.json`` (``total_episodes``/``total_frames``) is the commit point.
+3. Then ``meta/tasks.parquet`` and ``meta/stats.json`` are rewritten, the checksum
+   manifest ``meta/msta_checksums.json`` records the new generation as *pending*
+   (size and sha256 of every file, :mod:`msta_data.integrity`), ``meta/info.json``
+   (``total_episodes``/``total_frames``) is rewritten — the commit point — and the manifest
+   records the generation as *committed*.
+
+Parquet files are written with page checksums (CRC32, verified by msta's reader).
 
 Every file is written to ``<name>.tmp``, fsync-ed and ``os.replace``-d into place, so a
 process killed at any instant leaves only complete files. A kill loses at most the
 buffered (unflushed) episodes; a kill during step 2-3 can leave the new files of one
 flush uncommitted (lerobot still loads the dataset: its frame count comes from
-``info.json``). :meth:`DatasetWriter.open` deletes such uncommitted files and ``.tmp``
-leftovers and recomputes ``stats.json`` from the committed per-episode stats.
+``info.json``). :meth:`DatasetWriter.open` first verifies every committed file against the
+manifest (and refuses, naming the file, when one is missing, truncated or changed, or when
+``info.json`` matches no recorded commit), then deletes the files of an unfinished commit
+and ``.tmp`` leftovers — never a file the manifest lists as committed — and recomputes
+``stats.json`` from the committed per-episode stats when it is not the committed one.
 """
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 from collections.abc import Callable, Sequence
@@ -39,10 +46,14 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from msta_data import features as F
+from msta_data import integrity as I
 from msta_data import stats as S
-from msta_data.errors import DatasetFormatError, DatasetLockedError, EpisodeValidationError
+from msta_data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
+from msta_data.features import validate_episode
+from msta_data.locking import LOCK_NAME, lock_directory
 
-LOCK_NAME = ".msta.lock"
+__all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
+
 DEFAULT_FLUSH_EVERY_FRAMES = 50_000
 
 
@@ -66,86 +77,24 @@ def _fsync_replace(tmp: Path, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    """Write ``path`` via ``write(tmp)``, fsync, then rename over ``path``."""
+def _atomic_write(path: Path, write: Callable[[Path], None]) -> I.FileRecord:
+    """Write ``path`` via ``write(tmp)``, fsync, then rename over ``path``; returns the
+    size and sha256 of what was written."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     write(tmp)
+    record = I.digest_file(tmp, use_cache=False)
     _fsync_replace(tmp, path)
+    return record
 
 
-def _atomic_json(path: Path, obj: Any) -> None:
-    _atomic_write(path, lambda p: p.write_text(json.dumps(obj, indent=4, ensure_ascii=False)))
+def _atomic_json(path: Path, obj: Any) -> I.FileRecord:
+    data = json.dumps(obj, indent=4, ensure_ascii=False).encode()
+    return _atomic_write(path, lambda p: p.write_bytes(data))
 
 
 def _take_lock(root: Path) -> int:
-    path = root / LOCK_NAME
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        holder = path.read_text().strip() or "?"
-        os.close(fd)
-        raise DatasetLockedError(
-            f"{root}: another writer (pid {holder}) holds {path}; only one writer at a time"
-        ) from None
-    os.ftruncate(fd, 0)
-    os.write(fd, str(os.getpid()).encode())
-    return fd
-
-
-def validate_episode(frames: dict[str, np.ndarray],
-                     features: dict[str, dict[str, Any]]) -> tuple[int, dict[str, np.ndarray]]:
-    """Check one episode against the schema and return ``(length, copied columns)``.
-
-    Scalar columns may be ``(L,)`` or ``(L, 1)`` and come back as ``(L,)``.
-
-    Raises:
-        EpisodeValidationError: missing/unknown column, wrong type, dtype or shape,
-            inconsistent lengths, or a NaN/Inf value (column, frame and channel named).
-    """
-    if not isinstance(frames, dict):
-        raise EpisodeValidationError(f"frames must be a dict column -> array, got {type(frames)}")
-    expected = F.input_columns(features)
-    missing = [c for c in expected if c not in frames]
-    extra = sorted(set(frames) - set(expected))
-    if missing or extra:
-        auto = [c for c in extra if c in F.LEROBOT_DEFAULT_FEATURES]
-        raise EpisodeValidationError(
-            f"episode columns do not match the dataset: missing {missing}, unknown {extra}"
-            + (f" ({auto} are filled by the writer)" if auto else ""))
-    length: int | None = None
-    out: dict[str, np.ndarray] = {}
-    for col in expected:
-        arr, ft = frames[col], features[col]
-        if not isinstance(arr, np.ndarray):
-            raise EpisodeValidationError(f"column {col!r}: expected np.ndarray, got {type(arr)}")
-        want = np.dtype(ft["dtype"])
-        if arr.dtype != want:
-            raise EpisodeValidationError(f"column {col!r}: dtype {arr.dtype}, expected {want}")
-        dim = ft["shape"][0]
-        if tuple(ft["shape"]) == (1,) and arr.ndim == 2 and arr.shape[1] == 1:
-            arr = arr[:, 0]
-        ok = arr.ndim == 1 if tuple(ft["shape"]) == (1,) else (arr.ndim == 2
-                                                                and arr.shape[1] == dim)
-        if not ok:
-            shape = "(L,)" if tuple(ft["shape"]) == (1,) else f"(L, {dim})"
-            raise EpisodeValidationError(f"column {col!r}: shape {arr.shape}, expected {shape}")
-        if length is None:
-            length = arr.shape[0]
-        if arr.shape[0] != length or length == 0:
-            raise EpisodeValidationError(
-                f"column {col!r}: {arr.shape[0]} frames, expected {length} (> 0) like "
-                f"{expected[0]!r}")
-        if arr.dtype.kind == "f" and not np.isfinite(arr).all():
-            bad = np.argwhere(~np.isfinite(arr.reshape(length, -1)))[0]
-            names = ft["names"] or [col]
-            raise EpisodeValidationError(
-                f"column {col!r}: non-finite value {arr.reshape(length, -1)[tuple(bad)]} at "
-                f"frame {bad[0]}, channel {names[bad[1]]!r}")
-        out[col] = arr.copy()
-    assert length is not None
-    return length, out
+    return lock_directory(root, "another writer", DatasetLockedError)
 
 
 class DatasetWriter:
@@ -173,6 +122,8 @@ class DatasetWriter:
         self._tasks_dirty = False
         self._stats: S.Stats = {}
         self._next_file = 0
+        self._committed: I.Generation | None = None  # the generation on disk
+        self._new_files: dict[str, I.FileRecord] = {}  # written since, not yet committed
 
     # ----- construction ----------------------------------------------------------------
     @classmethod
@@ -213,8 +164,8 @@ class DatasetWriter:
                          "sensors": list(F.resolve_sensors(sensors)),
                          "provenance_columns": list(F.PROVENANCE_COLUMNS)}
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
-            _atomic_json(root / F.MSTA_META_PATH, msta_meta)
-            self._write_info()
+            self._new_files[F.MSTA_META_PATH] = _atomic_json(root / F.MSTA_META_PATH, msta_meta)
+            self._commit()
             return self
         except BaseException:
             os.close(lock_fd)
@@ -222,10 +173,22 @@ class DatasetWriter:
 
     @classmethod
     def open(cls, root: str | Path, flush_every_frames: int = DEFAULT_FLUSH_EVERY_FRAMES,
-             max_frames_per_file: int | None = None) -> DatasetWriter:
+             max_frames_per_file: int | None = None,
+             verify: I.VerifyMode = "full") -> DatasetWriter:
         """Re-open a dataset written by msta to append episodes (stage 2, ``--resume``).
 
-        Files left uncommitted by a killed writer are removed (see module docstring).
+        Everything committed is verified first (see module docstring); files of an
+        unfinished commit are then removed.
+
+        Args:
+            root: dataset root.
+            flush_every_frames, max_frames_per_file: as :meth:`create`.
+            verify: ``full`` hashes every committed file, ``sizes`` checks sizes only.
+
+        Raises:
+            DatasetIntegrityError: a committed file is missing, truncated or changed, or
+                ``info.json`` matches no recorded commit (nothing is modified).
+            DatasetFormatError: the schema or the metadata is wrong (file named).
         """
         root = Path(root)
         if not (root / F.INFO_PATH).exists():
@@ -233,29 +196,23 @@ class DatasetWriter:
         lock_fd = _take_lock(root)
         try:
             info = F.load_info(root)
-            msta_path = root / F.MSTA_META_PATH
-            try:
-                msta_meta = json.loads(msta_path.read_text())
-            except (OSError, json.JSONDecodeError) as e:
-                raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
-            if msta_meta.get("msta_schema_version") != F.MSTA_SCHEMA_VERSION:
-                raise DatasetFormatError(
-                    f"{msta_path}: msta_schema_version {msta_meta.get('msta_schema_version')!r}"
-                    f", expected {F.MSTA_SCHEMA_VERSION}")
-            expected = F.build_features(msta_meta["sensors"])
-            if info["features"] != expected:
-                bad = sorted(k for k in set(expected) | set(info["features"])
-                             if expected.get(k) != info["features"].get(k))
-                raise DatasetFormatError(f"{root / F.INFO_PATH}: features differ from the msta "
-                                         f"schema in columns {bad}")
+            msta_meta = _read_msta_meta(root, info)
+            manifest = I.Manifest.load(root)
+            gen = None
+            if manifest is None:  # written before manifests: read every column once
+                I.check_structure(root)
+            else:
+                gen = I.current_generation(root, manifest)
+                I.check_generation(root, manifest, gen, verify, skip=(F.STATS_PATH,))
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
-            self._recover()
+            self._committed = gen
+            self._recover(manifest)
             return self
         except BaseException:
             os.close(lock_fd)
             raise
 
-    def _recover(self) -> None:
+    def _recover(self, manifest: I.Manifest | None) -> None:
         table = F.read_episode_table(self.root, self.info, with_stats=True)
         cs = self.info["chunks_size"]
         if len(table):
@@ -268,24 +225,53 @@ class DatasetWriter:
                 table.column("data/chunk_index").to_pylist(),
                 table.column("data/file_index").to_pylist(), strict=True)]
             self._next_file = max(nums) + 1
-        for sub in ("data", "meta/episodes"):
-            for path in (self.root / sub).glob("chunk-*/*"):
-                chunk = int(path.parent.name.split("-")[1])
-                stem = path.name.split(".")[0]
-                uncommitted = (stem.startswith("file-") and path.suffix == ".parquet"
-                               and F.file_number(chunk, int(stem[5:]), cs) >= self._next_file)
-                if path.name.endswith(".tmp") or uncommitted:
-                    path.unlink()
-        for path in (self.root / "meta").glob("*.tmp"):
-            path.unlink()
+        committed = {F.numbered_path(t, n, cs) for n in range(self._next_file)
+                     for t in (F.DATA_PATH, F.EPISODES_PATH)}
+        self._remove_leftovers(committed)
         if (self.root / F.TASKS_PATH).exists():
             tasks = pd.read_parquet(self.root / F.TASKS_PATH)
             self._tasks = {str(t): int(i) for t, i in zip(tasks.index, tasks["task_index"],
                                                           strict=True)}
         rows = table.select([c for c in table.column_names if c.startswith("stats/")]).to_pylist()
         self._stats = S.aggregate(S.from_episode_columns(r) for r in rows)
-        if self._stats:
-            _atomic_json(self.root / F.STATS_PATH, S.to_json(self._stats))
+        stats_path = self.root / F.STATS_PATH
+        gen = self._committed
+        recorded = gen.files.get(F.STATS_PATH) if gen else None
+        if self._stats and (recorded is None or not stats_path.exists()
+                            or I.digest_file(stats_path) != recorded):
+            self._new_files[F.STATS_PATH] = _atomic_json(stats_path, S.to_json(self._stats))
+        if gen is None or manifest is None or manifest.pending is not None or self._new_files:
+            self._record_generation(committed)
+
+    def _remove_leftovers(self, committed: set[str]) -> None:
+        """Delete ``.tmp`` files and the numbered files of an unfinished commit; refuse
+        (deleting nothing) when a file cannot be proven uncommitted."""
+        gen = self._committed
+        listed = set(gen.files) if gen else committed
+        leftovers = I.leftover_files(self.root, listed)
+        for rel in leftovers:
+            if rel.endswith(".tmp"):
+                continue
+            if gen is None or rel in committed:
+                raise DatasetIntegrityError(
+                    f"{self.root / rel}: beyond the {self.info['total_episodes']} episodes of "
+                    f"{F.INFO_PATH}, and no record ({I.MANIFEST_PATH}) tells a killed "
+                    "writer's leftover from a stale info.json; nothing was deleted: check "
+                    "info.json, or move the file away if it is a leftover")
+        for rel in leftovers:
+            (self.root / rel).unlink()
+
+    def _record_generation(self, committed: set[str]) -> None:
+        """Write the manifest for the generation on disk (after recovery or an upgrade)."""
+        files = dict(self._committed.files) if self._committed else {
+            rel: I.digest_file(self.root / rel) for rel in committed}
+        for rel in (F.MSTA_META_PATH, F.TASKS_PATH, F.STATS_PATH, F.INFO_PATH):
+            if (self.root / rel).exists():
+                files[rel] = self._new_files.get(rel) or I.digest_file(self.root / rel)
+        gen = I.Generation(self.info["total_episodes"], self.info["total_frames"], files)
+        _atomic_write(self.root / I.MANIFEST_PATH,
+                      lambda p: p.write_bytes(I.Manifest(gen).dumps()))
+        self._committed, self._new_files = gen, {}
 
     def _default_max_frames(self) -> int:
         row = sum(np.dtype(ft["dtype"]).itemsize * ft["shape"][0] for ft in self.features.values())
@@ -341,15 +327,17 @@ class DatasetWriter:
         if self._tasks_dirty:
             df = pd.DataFrame({"task_index": list(self._tasks.values())},
                               index=pd.Index(list(self._tasks), name="task"))
-            _atomic_write(self.root / F.TASKS_PATH, lambda p: df.to_parquet(p))
+            self._new_files[F.TASKS_PATH] = _atomic_write(
+                self.root / F.TASKS_PATH, lambda p: df.to_parquet(p, write_page_checksum=True))
             self._tasks_dirty = False
         self._stats = S.aggregate([self._stats, *(ep.stats for ep in self._buffer)])
-        _atomic_json(self.root / F.STATS_PATH, S.to_json(self._stats))
+        self._new_files[F.STATS_PATH] = _atomic_json(self.root / F.STATS_PATH,
+                                                     S.to_json(self._stats))
         self.info["total_episodes"] += len(self._buffer)
         self.info["total_frames"] += self._buffered_frames
         self.info["total_tasks"] = len(self._tasks)
         self.info["splits"] = {"train": f"0:{self.info['total_episodes']}"}
-        self._write_info()  # commit point
+        self._commit()
         self._buffer.clear()
         self._buffered_frames = 0
 
@@ -412,16 +400,19 @@ class DatasetWriter:
         def write_data(path: Path) -> None:
             with pq.ParquetWriter(path, self._schema, compression="snappy",
                                   use_dictionary=["episode_index", "task_index"],
-                                  write_statistics=list(F.LEROBOT_DEFAULT_FEATURES)) as w:
+                                  write_statistics=list(F.LEROBOT_DEFAULT_FEATURES),
+                                  write_page_checksum=True) as w:
                 start = 0
                 for ep in group:  # one row group per episode, as lerobot writes
                     w.write_table(table.slice(start, ep.length))
                     start += ep.length
 
-        _atomic_write(self.root / F.numbered_path(F.DATA_PATH, number, cs), write_data)
+        rel = F.numbered_path(F.DATA_PATH, number, cs)
+        self._new_files[rel] = _atomic_write(self.root / rel, write_data)
         meta = self._episode_table(group, number)
-        _atomic_write(self.root / F.numbered_path(F.EPISODES_PATH, number, cs),
-                      lambda p: pq.write_table(meta, p, compression="snappy"))
+        rel = F.numbered_path(F.EPISODES_PATH, number, cs)
+        self._new_files[rel] = _atomic_write(self.root / rel, lambda p: pq.write_table(
+            meta, p, compression="snappy", write_page_checksum=True))
         self._next_file += 1
 
     def _episode_table(self, group: list[_Episode], number: int) -> pa.Table:
@@ -446,8 +437,41 @@ class DatasetWriter:
                                                 **F.PROVENANCE_COLUMNS}.items()]
         return pa.Table.from_pylist(rows, schema=pa.schema(fields))
 
-    def _write_info(self) -> None:
+    def _commit(self) -> None:
+        """Record the new generation as pending, write ``info.json`` (the commit point),
+        then record it as committed (see :mod:`msta_data.integrity`)."""
         info = dict(self.info)
         info["features"] = {c: {**ft, "shape": list(ft["shape"])}
                             for c, ft in self.features.items()}
-        _atomic_json(self.root / F.INFO_PATH, info)
+        data = json.dumps(info, indent=4, ensure_ascii=False).encode()
+        old = self._committed
+        files = {**(old.files if old else {}), **self._new_files,
+                 F.INFO_PATH: I.digest_bytes(data)}
+        gen = I.Generation(self.info["total_episodes"], self.info["total_frames"], files)
+        manifest = self.root / I.MANIFEST_PATH
+        _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(old, gen).dumps()))
+        _atomic_write(self.root / F.INFO_PATH, lambda p: p.write_bytes(data))  # commit point
+        self._committed, self._new_files = gen, {}
+        _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(gen).dumps()))
+
+
+def _read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
+    """``meta/msta.json``, checked against the schema version and ``info.json``'s features."""
+    msta_path = root / F.MSTA_META_PATH
+    try:
+        msta_meta = json.loads(msta_path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
+    if not isinstance(msta_meta, dict) or not isinstance(msta_meta.get("sensors"), list):
+        raise DatasetFormatError(f"{msta_path}: not an msta metadata object")
+    if msta_meta.get("msta_schema_version") != F.MSTA_SCHEMA_VERSION:
+        raise DatasetFormatError(
+            f"{msta_path}: msta_schema_version {msta_meta.get('msta_schema_version')!r}"
+            f", expected {F.MSTA_SCHEMA_VERSION}")
+    expected = F.build_features(msta_meta["sensors"])
+    if info["features"] != expected:
+        bad = sorted(k for k in set(expected) | set(info["features"])
+                     if expected.get(k) != info["features"].get(k))
+        raise DatasetFormatError(f"{root / F.INFO_PATH}: features differ from the msta "
+                                 f"schema in columns {bad}")
+    return msta_meta

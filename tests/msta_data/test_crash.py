@@ -12,6 +12,7 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from msta_data import stats as S
+from msta_data.integrity import MANIFEST_PATH, Manifest
 from msta_data.windows import WindowDataset, load_episode_table
 from msta_data.writer import DatasetWriter
 
@@ -79,9 +80,12 @@ def test_uncommitted_files_are_ignored_then_removed(tmp_path, write_dataset, syn
     root = tmp_path / "ds"
     write_dataset(root, [5, 6], flush_every_frames=5)  # two flushes -> files 000 and 001
     committed = {n: (root / "meta" / n).read_bytes() for n in ("info.json", "stats.json")}
+    before = Manifest.load(root).committed
     write_dataset(root, [7], seed0=5, append=True)  # file 002 ...
     for name, content in committed.items():  # ... but killed before the commit
         (root / "meta" / name).write_bytes(content)
+    # the manifest a kill at that point leaves: the new generation pending, not committed
+    (root / MANIFEST_PATH).write_bytes(Manifest(before, Manifest.load(root).committed).dumps())
     for sub in ("data", "meta/episodes"):
         (root / sub / "chunk-000" / "file-003.parquet.tmp").write_bytes(b"partial")
     (root / "meta/info.json.tmp").write_text("{")

@@ -1,0 +1,292 @@
+"""Content hashes of a dataset's committed files, and the checks that use them.
+
+Parquet pages carry no checksum unless the writer asks for one, and a changed byte inside a
+data page decodes to a plausible number (the audit of issue 15 read ``joint_pos`` values of
+5.9e36 that every loader accepted). So at every commit the writer records, in
+``meta/msta_checksums.json`` (msta's own file: LeRobot's loader never reads it), the size
+and sha256 of every file the commit consists of:
+
+* ``data/chunk-*/file-*.parquet`` and ``meta/episodes/chunk-*/file-*.parquet`` (written
+  once, never modified);
+* ``meta/info.json`` (the commit point: it says which generation is on disk),
+  ``meta/stats.json``, ``meta/tasks.parquet`` and ``meta/msta.json``.
+
+A commit writes the manifest twice: first with the new generation as ``pending`` (next to
+the last ``committed`` one), then ``meta/info.json``, then the manifest with the new
+generation ``committed``. A writer killed anywhere in between leaves an ``info.json`` whose
+sha256 is that of one of the two recorded generations; anything else (a lowered episode
+count, an edited file) matches neither and is refused, so a stale ``info.json`` can no
+longer make the writer delete committed files as leftovers.
+
+Checks (:func:`verify_dataset`): ``full`` hashes every recorded file (~1.2 ms per MB on
+this project's CPU, docs/data.md); ``sizes`` checks existence and sizes of the Parquet
+files and hashes only the small meta files. Hashes are cached per process by
+``(path, size, mtime, inode)`` so a training run that opens a dataset twice hashes it once.
+Datasets written before the manifest existed ("legacy") carry none: readers warn, writers
+record one after a full structural check (:func:`check_structure`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from msta_data.errors import DatasetIntegrityError
+
+logger = logging.getLogger(__name__)
+
+MANIFEST_PATH = "meta/msta_checksums.json"
+MANIFEST_FORMAT = 1
+INFO_REL = "meta/info.json"
+STATS_REL = "meta/stats.json"
+#: Directories whose numbered Parquet files make up the committed episodes.
+NUMBERED_DIRS = ("data", "meta/episodes")
+VerifyMode = Literal["full", "sizes"]
+_CHUNK = 1 << 20
+_cache: dict[str, tuple[tuple[int, int, int, int], FileRecord]] = {}
+_warned: set[str] = set()
+
+
+@dataclass(frozen=True)
+class FileRecord:
+    """Size (bytes) and sha256 (hex) of one file."""
+
+    size: int
+    sha256: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {"size": self.size, "sha256": self.sha256}
+
+
+def digest_bytes(data: bytes) -> FileRecord:
+    """The :class:`FileRecord` of an in-memory file content."""
+    return FileRecord(len(data), hashlib.sha256(data).hexdigest())
+
+
+def digest_file(path: Path, use_cache: bool = True) -> FileRecord:
+    """sha256 of a file, read in 1 MiB chunks (cached by size, mtime, ctime and inode)."""
+    st = os.stat(path)
+    key = (st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+    hit = _cache.get(str(path)) if use_cache else None
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while chunk := f.read(_CHUNK):
+            h.update(chunk)
+    rec = FileRecord(st.st_size, h.hexdigest())
+    if use_cache:
+        _cache[str(path)] = (key, rec)
+    return rec
+
+
+@dataclass(frozen=True)
+class Generation:
+    """One commit: the episode and frame totals and every file it consists of."""
+
+    total_episodes: int
+    total_frames: int
+    files: dict[str, FileRecord] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"total_episodes": self.total_episodes, "total_frames": self.total_frames,
+                "files": {rel: r.to_json() for rel, r in sorted(self.files.items())}}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Generation:
+        files = {str(rel): FileRecord(int(r["size"]), str(r["sha256"]))
+                 for rel, r in data["files"].items()}
+        return cls(int(data["total_episodes"]), int(data["total_frames"]), files)
+
+    def numbered(self) -> list[str]:
+        """The recorded data and episode-metadata Parquet files."""
+        return sorted(r for r in self.files if r.startswith(tuple(d + "/" for d in NUMBERED_DIRS)))
+
+
+@dataclass
+class Manifest:
+    """``meta/msta_checksums.json``: the last committed generation and, between the two
+    manifest writes of a commit, the pending one."""
+
+    committed: Generation | None
+    pending: Generation | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"format": MANIFEST_FORMAT, "algorithm": "sha256",
+                "committed": self.committed.to_json() if self.committed else None,
+                "pending": self.pending.to_json() if self.pending else None}
+
+    def dumps(self) -> bytes:
+        return json.dumps(self.to_json(), indent=1).encode()
+
+    @classmethod
+    def load(cls, root: str | Path) -> Manifest | None:
+        """Read the manifest; ``None`` for a dataset written before manifests existed."""
+        path = Path(root) / MANIFEST_PATH
+        try:
+            data = json.loads(path.read_bytes())
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError) as e:
+            raise DatasetIntegrityError(f"{path}: cannot read the checksum manifest ({e})") \
+                from None
+        try:
+            if data.get("format") != MANIFEST_FORMAT:
+                raise ValueError(f"format {data.get('format')!r}, expected {MANIFEST_FORMAT}")
+            gens = [Generation.from_json(data[k]) if data.get(k) else None
+                    for k in ("committed", "pending")]
+        except (AttributeError, KeyError, TypeError, ValueError) as e:
+            raise DatasetIntegrityError(f"{path}: malformed checksum manifest ({e})") from None
+        if gens[0] is None and gens[1] is None:
+            raise DatasetIntegrityError(f"{path}: records no generation")
+        return cls(*gens)
+
+    def generations(self) -> list[Generation]:
+        return [g for g in (self.committed, self.pending) if g is not None]
+
+
+def current_generation(root: str | Path, manifest: Manifest) -> Generation:
+    """The recorded generation ``meta/info.json`` belongs to.
+
+    Raises:
+        DatasetIntegrityError: ``info.json`` matches neither recorded generation (a stale
+            or edited file), naming both.
+    """
+    path = Path(root) / INFO_REL
+    try:
+        rec = digest_bytes(path.read_bytes())
+    except FileNotFoundError:
+        raise DatasetIntegrityError(f"{path}: no such file") from None
+    for gen in manifest.generations():
+        if gen.files.get(INFO_REL) == rec:
+            return gen
+    try:
+        said = json.loads(path.read_bytes()).get("total_episodes")
+    except (ValueError, AttributeError):
+        said = "?"
+    want = manifest.committed or manifest.pending
+    assert want is not None
+    raise DatasetIntegrityError(
+        f"{path}: does not match the last commit recorded in {MANIFEST_PATH} (it says "
+        f"{said} episodes, the commit has {want.total_episodes}): stale or edited; restore it "
+        "(nothing was changed)")
+
+
+def _check_file(root: Path, rel: str, gen: Generation, others: list[Generation],
+                mode: VerifyMode) -> None:
+    path = root / rel
+    want = gen.files[rel]
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise DatasetIntegrityError(
+            f"{path}: missing (recorded at commit in {MANIFEST_PATH}, {want.size} bytes)") \
+            from None
+    accepted = [want] + [g.files[rel] for g in others if rel in g.files]
+    if all(size != a.size for a in accepted):
+        raise DatasetIntegrityError(
+            f"{path}: {size} bytes, {want.size} recorded at commit in {MANIFEST_PATH} "
+            "(truncated or modified)")
+    if mode == "sizes" and rel.startswith(tuple(d + "/" for d in NUMBERED_DIRS)):
+        return
+    got = digest_file(path)
+    if got not in accepted:
+        raise DatasetIntegrityError(
+            f"{path}: sha256 {got.sha256[:16]}... differs from {want.sha256[:16]}... recorded "
+            f"at commit in {MANIFEST_PATH} (corrupted or modified)")
+
+
+def check_generation(root: str | Path, manifest: Manifest, gen: Generation,
+                     mode: VerifyMode = "full", skip: tuple[str, ...] = ()) -> None:
+    """Every file of ``gen`` exists with its recorded size (and sha256 in ``full`` mode).
+
+    A rewritten meta file (stats, tasks) may also match the other recorded generation:
+    that is what a writer killed inside a commit leaves.
+
+    Args:
+        root: dataset root.
+        manifest: the manifest ``gen`` comes from.
+        gen: the generation on disk (:func:`current_generation`).
+        mode: ``full`` or ``sizes`` (module docstring).
+        skip: relative paths not checked (the writer regenerates ``meta/stats.json``).
+    """
+    if mode not in ("full", "sizes"):
+        raise ValueError(f"verify mode must be 'full' or 'sizes', got {mode!r}")
+    others = [g for g in manifest.generations() if g is not gen]
+    for rel in sorted(gen.files):
+        if rel not in skip:
+            _check_file(Path(root), rel, gen, others, mode)
+
+
+def leftover_files(root: str | Path, committed: set[str]) -> list[str]:
+    """Numbered Parquet and ``.tmp`` files under data/ and meta/ that no commit lists."""
+    root = Path(root)
+    out = []
+    for sub in (*NUMBERED_DIRS, "meta"):
+        pattern = "*.tmp" if sub == "meta" else "chunk-*/*"
+        for path in (root / sub).glob(pattern):
+            rel = path.relative_to(root).as_posix()
+            if path.is_file() and rel not in committed:
+                out.append(rel)
+    return sorted(set(out))
+
+
+def verify_dataset(root: str | Path, mode: VerifyMode = "full",
+                   for_publish: bool = False) -> Generation | None:
+    """Check a dataset against its manifest before training on, extending or publishing it.
+
+    Args:
+        root: dataset root.
+        mode: ``full`` (hash every file) or ``sizes``.
+        for_publish: also refuse files no commit lists (a killed writer's leftovers would be
+            uploaded and lerobot's loader reads every Parquet file it finds).
+
+    Returns:
+        the generation on disk, or ``None`` for a legacy dataset (no manifest).
+
+    Raises:
+        DatasetIntegrityError: one line naming the first bad file.
+    """
+    manifest = Manifest.load(root)
+    if manifest is None:
+        if str(root) in _warned:
+            return None
+        _warned.add(str(root))
+        logger.warning("%s: no %s (written before msta recorded checksums): only structural "
+                       "checks apply; extending it with msta-collect --resume records them",
+                       root, MANIFEST_PATH)
+        return None
+    gen = current_generation(root, manifest)
+    check_generation(root, manifest, gen, mode)
+    if for_publish:
+        extra = leftover_files(root, set(gen.files))
+        if extra:
+            raise DatasetIntegrityError(
+                f"{Path(root) / extra[0]}: not part of the last commit (left by a killed "
+                f"writer?; {len(extra)} such file(s)); DatasetWriter.open / msta-collect "
+                "--resume removes them")
+    return gen
+
+
+def check_structure(root: str | Path) -> None:
+    """Read every column of every committed episode, file by file (types, widths, nulls,
+    NaN/Inf, index columns): the check for datasets without a manifest.
+
+    Raises:
+        DatasetFormatError: naming the file and column.
+    """
+    from msta_data import features as F
+    from msta_data.windows import WindowDataset
+
+    info = F.load_info(root)
+    table = F.read_episode_table(root, info).to_pandas()
+    names = F.sensor_column_to_name(info["features"])
+    extra = [c for c in F.input_columns(info["features"]) if c not in names]
+    for _, group in table.groupby(["data/chunk_index", "data/file_index"], sort=True):
+        WindowDataset(root, list(names.values()), T=1, extra_columns=extra,
+                      episodes=group["episode_index"].tolist(), verify=None)
