@@ -297,6 +297,11 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
                  token: str | bool | None = None) -> str:
     """Push a LeRobot dataset root to a dataset repo and tag it with its codebase version.
 
+    The dataset is locked (no writer may append meanwhile) and verified first
+    (``msta_data.integrity.verify_for_publish``: every committed file against the size and
+    sha256 recorded at commit, no leftover of an unfinished commit); a bad file is an error
+    naming it and nothing is uploaded.
+
     The codebase-version tag (e.g. ``v3.0``) is moved to the new commit, as LeRobot's own push
     does, so ``LeRobotDataset(repo_id, revision="v3.0")`` loads the latest push; ``tag`` marks
     this particular version and is never moved.
@@ -323,12 +328,22 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
     version = info.get("codebase_version")
     if not isinstance(version, str) or not version:
         raise HubError(f"{info_path} has no 'codebase_version'")
-    api = hub_api(endpoint, token)
-    text = None
-    if card is not None or not (root / "README.md").exists():
-        text = dataset_card(card or CardInfo(), info, repo_id)
-    sha = _commit_dir(api, root, repo_id, "dataset", branch="main", private=private, card_text=text,
-                      message=message or f"push dataset {root.name}", allow_pickle=False)
+    from msta_data.integrity import verify_for_publish
+    from msta_data.locking import lock_directory
+    from msta_data.writer import DatasetLockedError
+
+    lock = lock_directory(root, "a dataset writer", DatasetLockedError)  # no append meanwhile
+    try:
+        verify_for_publish(root)  # refuses, naming the file, before anything is uploaded
+        api = hub_api(endpoint, token)
+        text = None
+        if card is not None or not (root / "README.md").exists():
+            text = dataset_card(card or CardInfo(), info, repo_id)
+        sha = _commit_dir(api, root, repo_id, "dataset", branch="main", private=private,
+                          card_text=text, message=message or f"push dataset {root.name}",
+                          allow_pickle=False)
+    finally:
+        os.close(lock)
     _set_tag(api, repo_id, "dataset", version, sha, move=True)
     if tag:
         _set_tag(api, repo_id, "dataset", tag, sha, move=False)

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from msta_data.errors import DatasetIntegrityError
+from msta_data.errors import DatasetFormatError, DatasetIntegrityError
 
 logger = logging.getLogger(__name__)
 
@@ -274,19 +274,45 @@ def verify_dataset(root: str | Path, mode: VerifyMode = "full",
 
 
 def check_structure(root: str | Path) -> None:
-    """Read every column of every committed episode, file by file (types, widths, nulls,
-    NaN/Inf, index columns): the check for datasets without a manifest.
+    """Read every committed data file whole (Parquet page checksums verified where written):
+    every ``info.json`` feature present without nulls, no NaN/Inf in float columns, and as
+    many rows as its episodes' lengths. The check for datasets without a manifest (written
+    before msta recorded checksums, or by lerobot itself).
 
     Raises:
         DatasetFormatError: naming the file and column.
     """
+    import numpy as np
+    import pyarrow as pa
+
     from msta_data import features as F
-    from msta_data.windows import WindowDataset
 
     info = F.load_info(root)
     table = F.read_episode_table(root, info).to_pandas()
-    names = F.sensor_column_to_name(info["features"])
-    extra = [c for c in F.input_columns(info["features"]) if c not in names]
-    for _, group in table.groupby(["data/chunk_index", "data/file_index"], sort=True):
-        WindowDataset(root, list(names.values()), T=1, extra_columns=extra,
-                      episodes=group["episode_index"].tolist(), verify=None)
+    cs = int(info["chunks_size"])
+    files = table.groupby(["data/chunk_index", "data/file_index"], sort=True)["length"].sum()
+    for (chunk, file), rows in files.items():
+        path = Path(root) / F.numbered_path(F.DATA_PATH, F.file_number(chunk, file, cs), cs)
+        data = F.read_parquet(path, list(info["features"]))
+        if data.num_rows != rows:
+            raise DatasetFormatError(f"{path}: {data.num_rows} rows, meta/episodes says {rows} "
+                                     "(truncated or rewritten?)")
+        for col in info["features"]:
+            arr = data.column(col).combine_chunks()
+            flat = arr.flatten() if pa.types.is_fixed_size_list(arr.type) else arr
+            if arr.null_count or flat.null_count:
+                raise DatasetFormatError(f"{path}: column {col!r} contains nulls")
+            if pa.types.is_floating(flat.type) and not np.isfinite(flat.to_numpy()).all():
+                raise DatasetFormatError(f"{path}: column {col!r} has NaN/Inf values")
+
+
+def verify_for_publish(root: str | Path) -> None:
+    """What ``msta-hub push-dataset`` checks before uploading anything: every committed
+    file hashed, no leftover of an unfinished commit; without a manifest, every column of
+    every committed episode read (:func:`check_structure`).
+
+    Raises:
+        DatasetFormatError / DatasetIntegrityError: naming the first bad file.
+    """
+    if verify_dataset(root, "full", for_publish=True) is None:
+        check_structure(root)
