@@ -7,12 +7,18 @@
 Every finished episode (fall or time limit) is written with its provenance; episodes still
 running when the requested count is reached are dropped. The writer flushes complete
 Parquet files atomically, so a killed collector loses at most the episodes in flight.
+
+Nothing is created before the configuration, the teacher and the simulator are checked; an
+existing dataset is verified (every committed file against the sha256 recorded at commit)
+before it is extended, and a damaged one is refused with one line naming the file. A
+dataset left empty by a run that recorded nothing is reused by the next run.
 """
 
 from __future__ import annotations
 
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +29,10 @@ from tqdm import tqdm
 
 from collect.rollout import as_policy
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
-from msta_data.features import NON_SENSOR_FEATURES
+from collect.sim.terrain import TerrainConfig
+from msta_data.errors import DatasetError, DirectoryLockedError
+from msta_data.features import NON_SENSOR_FEATURES, load_info
+from msta_data.locking import LOCK_NAME
 from msta_data.sensors import SENSORS
 from msta_data.writer import DatasetWriter
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
@@ -157,21 +166,36 @@ class CollectConfig:
     def __post_init__(self) -> None:
         if self.episodes < 1 or self.num_envs < 1:
             raise ValueError(f"episodes={self.episodes} and num_envs={self.num_envs} must be >= 1")
+        if not self.episode_length_s > 0 or self.flush_every_frames < 1:
+            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0 and "
+                             f"flush_every_frames={self.flush_every_frames} >= 1")
+        terrain = self.env.terrain
+        default = TerrainConfig.__dataclass_fields__["max_init_level"].default
+        if terrain.max_init_level >= terrain.num_levels and terrain.max_init_level != default:
+            raise ValueError(f"env.terrain.max_init_level={terrain.max_init_level}: the terrain "
+                             f"has levels 0..{terrain.num_levels - 1}")
+
+
+def _existing_dataset(cfg: CollectConfig, root: Path) -> DatasetWriter | None:
+    """The verified writer of the dataset at ``root`` to extend, or None for a new one."""
+    if (root / "meta" / "info.json").exists():
+        have = int(load_info(root)["total_episodes"])
+        if cfg.resume or have == 0:  # an empty dataset is what a failed first run leaves
+            return DatasetWriter.open(root, flush_every_frames=cfg.flush_every_frames)
+        raise FileExistsError(f"{root} already holds a dataset ({have} episodes); pass "
+                              "--resume=true to extend it or choose another --root")
+    if root.exists() and any(p for p in root.iterdir() if p.name != LOCK_NAME):
+        raise FileExistsError(f"{root} is not empty and holds no dataset (no meta/info.json); "
+                              "choose another --root")
+    return None
 
 
 def collect(cfg: CollectConfig) -> Path:
-    """Record (or extend) the dataset; returns its root."""
+    """Record (or extend) the dataset; returns its root (checks: module docstring)."""
     root = Path(cfg.root)
-    if cfg.resume and (root / "meta" / "info.json").exists():
-        writer = DatasetWriter.open(root, flush_every_frames=cfg.flush_every_frames)
-    elif root.exists() and any(p for p in root.iterdir() if p.name != ".msta.lock"):
-        raise FileExistsError(f"{root} already holds a dataset; pass --resume=true to extend it "
-                              f"or choose another --root")
-    else:
-        writer = DatasetWriter.create(root, cfg.repo_id,
-                                       flush_every_frames=cfg.flush_every_frames)
-    with writer:
-        have = writer.num_episodes
+    writer = _existing_dataset(cfg, root)
+    have = writer.num_episodes if writer is not None else 0
+    try:
         todo = cfg.episodes - have
         if todo <= 0:
             print(f"{root}: already holds {have} episodes (>= {cfg.episodes}); nothing to do")
@@ -180,9 +204,17 @@ def collect(cfg: CollectConfig) -> Path:
         env_cfg = cfg.env
         env_cfg.num_envs, env_cfg.seed, env_cfg.episode_length_s = (
             cfg.num_envs, seed, cfg.episode_length_s)
-        env = QuadrupedEnv(env_cfg)
-        teacher = build_teacher(cfg.teacher)
+        teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
         revision = teacher_revision(cfg.teacher)
+        env = QuadrupedEnv(env_cfg)
+        if writer is None:
+            writer = DatasetWriter.create(root, cfg.repo_id,
+                                          flush_every_frames=cfg.flush_every_frames)
+    except BaseException:
+        if writer is not None:
+            writer.close()
+        raise
+    with writer:
         types = env.cfg.terrain.types
 
         def write(frames: dict[str, np.ndarray], type_idx: int, level: int) -> None:
@@ -218,8 +250,32 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_s: float,
         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
 
 
-def main() -> None:
-    collect(draccus.parse(CollectConfig))
+def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:
+    """draccus parsing; an invalid value exits with one line naming the class and the
+    reason instead of draccus' "Couldn't instantiate class" and a traceback."""
+    try:
+        return draccus.parse(CollectConfig, args=list(sys.argv[1:] if argv is None else argv),
+                             prog=prog)
+    except (draccus.utils.DecodingError, draccus.utils.ParsingError, ValueError, KeyError,
+            TypeError, FileNotFoundError) as e:
+        where, cause = "", e
+        while not isinstance(cause, draccus.utils.DecodingError) and (
+                cause.__cause__ is not None or cause.__context__ is not None):
+            text = str(cause)
+            if text.startswith("Couldn't instantiate class "):
+                where = text.split()[3] + ": "
+            cause = cause.__cause__ or cause.__context__
+        raise SystemExit(f"{prog}: error: {where}{cause}") from None
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Entry point of ``msta-collect``: errors end in one line naming the file or field."""
+    cfg = parse_config(argv)
+    try:
+        collect(cfg)
+    except (DatasetError, DirectoryLockedError, FileExistsError, FileNotFoundError,
+            ValueError) as e:
+        raise SystemExit(f"msta-collect: error: {e}") from None
 
 
 if __name__ == "__main__":

@@ -10,11 +10,20 @@ Checkpoint layout (LeRobot-style), written by :meth:`StudentPolicy.save_pretrain
     <dir>/config.json         {"type": "<name>", ...config fields}
     <dir>/model.safetensors   weights
     <dir>/processor.json      the processor's statistics and settings (no pickle)
+
+Loading a checkpoint from someone else is checked before anything is allocated: the JSON
+files have size limits, the model ``config.json`` describes is built on PyTorch's ``meta``
+device and its parameter count compared with :func:`param_limit` (``MSTA_MAX_PARAMS``,
+default 100 M; the paper preset has 2.2 M), and the safetensors header (tensor names,
+shapes, offsets, file size) must match that model. Every failure is a one-line
+:class:`CheckpointError` naming the file.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,12 +32,109 @@ from typing import Any, ClassVar, Protocol, Self, runtime_checkable
 import draccus
 import torch
 import torch.nn.functional as F
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
 CONFIG_NAME = "config.json"
 WEIGHTS_NAME = "model.safetensors"
 PROCESSOR_NAME = "processor.json"
+#: Largest config.json / processor.json read (bytes).
+MAX_JSON_BYTES = {CONFIG_NAME: 1 << 20, PROCESSOR_NAME: 64 << 20}
+#: Default limit on the parameters a loaded checkpoint may describe (MSTA_MAX_PARAMS).
+DEFAULT_MAX_PARAMS = 100_000_000
+_SAFETENSORS_DTYPES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2,
+                       "I8": 1, "U8": 1, "BOOL": 1}
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file is missing, unreadable, malformed or too large (file named)."""
+
+
+def read_json_file(path: Path, limit: int | None = None) -> Any:
+    """Parse a checkpoint JSON file with a size limit; errors name the file.
+
+    Args:
+        path: the file.
+        limit: largest accepted size in bytes (default: ``MAX_JSON_BYTES`` by file name).
+    """
+    limit = limit or MAX_JSON_BYTES.get(path.name, 1 << 20)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    size = path.stat().st_size
+    if size > limit:
+        raise CheckpointError(f"{path}: {size:,} bytes, more than the {limit:,} accepted")
+    try:
+        return json.loads(path.read_bytes())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise CheckpointError(f"{path}: not valid JSON ({e})") from None
+
+
+def param_limit() -> int:
+    """The parameter limit for loaded checkpoints: ``MSTA_MAX_PARAMS`` or 100 M."""
+    raw = os.environ.get("MSTA_MAX_PARAMS", "")
+    try:
+        return int(raw) if raw else DEFAULT_MAX_PARAMS
+    except ValueError:
+        raise ValueError(f"MSTA_MAX_PARAMS={raw!r} is not an integer") from None
+
+
+def check_safetensors(path: Path, expected: Mapping[str, Tensor]) -> None:
+    """Check a safetensors file's header against the tensors a model expects, reading only
+    the header (a truncated file, a pickle under that name or other shapes fail here).
+
+    Raises:
+        CheckpointError: naming the file and the first problem.
+    """
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        head = f.read(8)
+        n = struct.unpack("<Q", head)[0] if len(head) == 8 else -1
+        if not 0 < n <= min(size - 8, 100 << 20):
+            raise CheckpointError(f"{path}: not a safetensors file (header length {n}, file "
+                                  f"{size} bytes; truncated, or another format renamed?)")
+        try:
+            header = json.loads(f.read(n))
+            tensors = {k: v for k, v in header.items() if k != "__metadata__"}
+            spans = {k: (v["dtype"], [int(d) for d in v["shape"]], *map(int, v["data_offsets"]))
+                     for k, v in tensors.items()}
+        except (ValueError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as e:
+            raise CheckpointError(f"{path}: malformed safetensors header ({e})") from None
+    body = size - 8 - n
+    if max((end for *_, end in spans.values()), default=0) != body:
+        raise CheckpointError(f"{path}: the header describes a different data size than the "
+                              f"{body} bytes after it (truncated?)")
+    missing = sorted(set(expected) - set(spans))
+    extra = sorted(set(spans) - set(expected))
+    if missing or extra:
+        raise CheckpointError(f"{path}: tensors do not match the model of {CONFIG_NAME}: "
+                              f"missing {missing[:5]}, unexpected {extra[:5]}")
+    for k, (dtype, shape, start, end) in spans.items():
+        width = _SAFETENSORS_DTYPES.get(dtype)
+        want = list(expected[k].shape)
+        if shape != want or width is None or end - start != width * _numel(shape):
+            raise CheckpointError(f"{path}: tensor {k!r} is {dtype}{shape}, the model of "
+                                  f"{CONFIG_NAME} has {want}")
+
+
+def _numel(shape: Sequence[int]) -> int:
+    n = 1
+    for d in shape:
+        n *= d
+    return n
+
+
+def load_weights(module: nn.Module, path: Path) -> None:
+    """``module.load_state_dict`` from a safetensors file after :func:`check_safetensors`."""
+    check_safetensors(path, module.state_dict())
+    try:
+        state = load_file(str(path), device=str(next(module.parameters()).device))
+        module.load_state_dict(state, strict=True)
+    except (SafetensorError, RuntimeError, OSError, ValueError) as e:  # one line, file named
+        raise CheckpointError(f"{path}: cannot load ({type(e).__name__}: "
+                              f"{str(e).splitlines()[0] if str(e) else ''})") from None
 
 #: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
 #: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
@@ -80,10 +186,17 @@ class PolicyConfig(draccus.ChoiceRegistry):
 
     @classmethod
     def load(cls, directory: str | Path) -> PolicyConfig:
+        """Read ``<directory>/config.json``; every error names the file."""
         path = Path(directory) / CONFIG_NAME
         if not path.is_file():
             raise FileNotFoundError(f"no {CONFIG_NAME} in {directory}")
-        return cls.from_dict(json.loads(path.read_text()))
+        data = read_json_file(path)
+        if not isinstance(data, dict):
+            raise CheckpointError(f"{path}: expected a JSON object, got {type(data).__name__}")
+        try:
+            return cls.from_dict(data)
+        except (ValueError, TypeError, KeyError) as e:
+            raise CheckpointError(f"{path}: {e}") from None
 
 
 @runtime_checkable
@@ -129,26 +242,15 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None)
             ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
     """
-    path = Path(path_or_repo_id)
-    if path.is_dir():
-        return path
+    from msta_data.locate import locate
+
     spec = str(path_or_repo_id)
-    from msta_data.hub import is_hub_id, materialize
-
-    if not is_hub_id(spec):
-        raise FileNotFoundError(f"checkpoint directory {spec!r} does not exist (and it is not "
-                                f"a hub id user/name[@revision])")
-    if revision and "@" not in spec:
+    if revision and "@" not in spec and not Path(spec).expanduser().exists():
         spec = f"{spec}@{revision}"
-    try:
-        return materialize(spec, repo_type="model")
-    except Exception as exc:  # network, auth, missing repo: say both readings failed
-        import os
-
-        raise FileNotFoundError(
-            f"{spec!r} is neither an existing checkpoint directory nor a hub repo reachable at "
-            f"HF_ENDPOINT={os.environ.get('HF_ENDPOINT', '(huggingface_hub default)')}: "
-            f"{type(exc).__name__}: {exc}") from exc
+    path = locate(spec, "model", "checkpoint")
+    if not path.is_dir():
+        raise CheckpointError(f"{path}: not a checkpoint directory")
+    return path
 
 
 class StudentPolicy(nn.Module):
@@ -252,13 +354,19 @@ class StudentPolicy(nn.Module):
         path_or_repo_id: str | Path,
         revision: str | None = None,
         device: str | torch.device = "cpu",
+        max_params: int | None = None,
     ) -> Self:
-        """Load a checkpoint written by :meth:`save_pretrained`.
+        """Load a checkpoint written by :meth:`save_pretrained` (checked: module docstring).
 
         Args:
-            path_or_repo_id: checkpoint directory (hub repo ids later).
+            path_or_repo_id: checkpoint directory, or hub id ``user/name[@revision]``.
             revision: hub revision (branch, tag or commit) for repo ids.
             device: where to put the weights.
+            max_params: refuse configs describing more parameters (default
+                :func:`param_limit`: ``MSTA_MAX_PARAMS`` or 100 M).
+
+        Raises:
+            CheckpointError: a malformed, oversized or mismatched file (named).
         """
         directory = resolve_pretrained(path_or_repo_id, revision)
         config = PolicyConfig.load(directory)
@@ -267,10 +375,25 @@ class StudentPolicy(nn.Module):
         proc_path = directory / PROCESSOR_NAME
         if not proc_path.is_file():
             raise FileNotFoundError(f"no {PROCESSOR_NAME} in {directory}")
-        processor = cls.processor_class.from_dict(json.loads(proc_path.read_text()))
-        policy = cls(config, processor)
+        try:
+            processor = cls.processor_class.from_dict(read_json_file(proc_path))
+        except (ValueError, TypeError, KeyError, AttributeError) as e:
+            raise CheckpointError(f"{proc_path}: {type(e).__name__}: {e}") from None
+        limit = max_params if max_params is not None else param_limit()
+        config_path = directory / CONFIG_NAME
+        try:
+            with torch.device("meta"):  # sizes only: nothing is allocated
+                n = sum(t.numel() for t in cls(config, processor).state_dict().values())
+        except (ValueError, TypeError, KeyError, RuntimeError) as e:
+            raise CheckpointError(f"{config_path}: cannot build the model it describes "
+                                  f"({type(e).__name__}: {e})") from None
+        if n > limit:
+            raise CheckpointError(
+                f"{config_path}: describes a {n:,}-parameter {config.type} model, more than "
+                f"the limit of {limit:,} (set MSTA_MAX_PARAMS or pass max_params to load it)")
         weights = directory / WEIGHTS_NAME
         if not weights.is_file():
             raise FileNotFoundError(f"no {WEIGHTS_NAME} in {directory}")
-        policy.load_state_dict(load_file(str(weights)), strict=True)
+        policy = cls(config, processor)
+        load_weights(policy, weights)
         return policy.to(device).eval()

@@ -93,16 +93,22 @@ def make_policy(cfg: PolicyConfig, stats: Mapping[str, Mapping[str, Any]]) -> St
 
 
 def load_policy(
-    path_or_repo_id: str | Path, revision: str | None = None, device: str = "cpu"
+    path_or_repo_id: str | Path, revision: str | None = None, device: str = "cpu",
+    max_params: int | None = None,
 ) -> StudentPolicy:
     """Load any registered student from a checkpoint (its config.json names the type).
 
     Args:
-        path_or_repo_id: checkpoint directory (hub repo ids later).
+        path_or_repo_id: checkpoint directory, or hub id ``user/name[@revision]``.
         revision: hub revision for repo ids.
         device: where to put the weights.
+        max_params: parameter limit (``StudentPolicy.from_pretrained``).
+
+    Raises:
+        CheckpointError: a malformed, oversized or mismatched file (named).
     """
     directory = resolve_pretrained(path_or_repo_id, revision)
     _import_builtins()
     cfg = PolicyConfig.load(directory)
-    return get_policy_class(cfg.type).from_pretrained(directory, device=device)
+    return get_policy_class(cfg.type).from_pretrained(directory, device=device,
+                                                      max_params=max_params)

@@ -31,10 +31,12 @@ from typing import Any
 import draccus
 import numpy as np
 import torch
-from safetensors.torch import load_file
+from safetensors import SafetensorError
 from tqdm import tqdm
 
-from policies.base import WEIGHTS_NAME, PolicyConfig, StudentPolicy
+from msta_data.errors import DatasetError, DirectoryLockedError
+from msta_data.locking import LOCK_NAME, lock_directory
+from policies.base import WEIGHTS_NAME, CheckpointError, PolicyConfig, StudentPolicy, load_weights
 from policies.msta import MSTAConfig
 from train.common import (
     LoopConfig,
@@ -104,43 +106,76 @@ class FitResult:
 
 # ----- dataset and output directory ------------------------------------------------------
 def resolve_dataset(spec: str) -> Path:
-    """A local dataset root for ``spec`` (a directory, or a hub id pulled once).
+    """A local, verified dataset root for ``spec`` (a directory, or a hub id pulled once).
 
     Args:
-        spec: a directory, or ``[datasets/]user/name[@revision]``. A path whose parent
-            directory exists locally (``outputs/ds``) is never looked up on the hub.
+        spec: a directory, or ``[datasets/]user/name[@revision]`` (``msta_data.locate``: a
+            spec written as a path is never looked up on a hub, and no hub is asked unless
+            ``HF_ENDPOINT`` is set).
+
+    Raises:
+        FileNotFoundError: no such directory (absolute path named) or not a dataset.
+        DatasetIntegrityError: a committed file is missing or changed (file named).
     """
+    from msta_data.integrity import verify_dataset
+    from msta_data.locate import locate
+
     if not spec:
         raise ValueError("--dataset is required (a dataset root or a hub id)")
-    path = Path(spec).expanduser()
-    if path.is_dir():
-        if not (path / "meta" / "info.json").is_file():
-            raise FileNotFoundError(f"--dataset {spec!r}: {path / 'meta' / 'info.json'} missing "
-                                    "(not a LeRobot v3.0 dataset)")
-        return path
-    local_like = path.is_absolute() or spec.startswith(".") or (
-        str(path.parent) not in ("", ".") and path.parent.is_dir())
-    if path.exists() or local_like:
-        raise FileNotFoundError(f"--dataset {spec!r}: no such dataset directory")
-    from msta_data.hub import materialize
-
-    try:
-        return materialize(spec, repo_type="dataset")
-    except Exception as e:  # any hub failure: say what was tried
-        raise FileNotFoundError(f"--dataset {spec!r} is not a local directory and fetching it "
-                                f"as a hub id failed: {e}") from e
+    path = locate(spec, "dataset", "--dataset")
+    if not (path / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"--dataset {spec!r}: {path / 'meta' / 'info.json'} missing "
+                                "(not a LeRobot v3.0 dataset)")
+    verify_dataset(path, "full")
+    return path
 
 
-def prepare_output(out: Path, resume: bool) -> None:
-    """Refuse to mix runs: a fresh run needs an empty directory, a resume a checkpoint."""
+#: What a run directory holds besides checkpoints (a run killed before its first checkpoint
+#: leaves only these, and starts again from step 0).
+RUN_ARTIFACTS = frozenset({"train_config.json", "metrics.csv", "tensorboard", "checkpoints",
+                           LOCK_NAME})
+
+
+def prepare_output(out: Path, resume: bool) -> bool:
+    """Refuse to mix runs: a fresh run needs an empty directory, a resume a checkpoint.
+
+    A directory holding only the artifacts of a run killed before its first checkpoint
+    (``RUN_ARTIFACTS``, no ``checkpoints/last``) is cleared and the run starts from step 0,
+    with or without ``--resume``.
+
+    Returns:
+        True when training continues from ``checkpoints/last``.
+    """
     last = out / "checkpoints" / "last"
-    if resume:
-        if not last.exists():
-            raise FileNotFoundError(f"--resume=true but {last} does not exist (nothing to "
-                                    "resume; drop --resume to start a new run)")
-    elif out.exists() and any(out.iterdir()):
+    if last.exists():
+        if not resume:
+            raise FileExistsError(f"{out} holds a run (checkpoint {last.resolve().name}); pass "
+                                  "--resume=true to continue it or choose another --output_dir")
+        return True
+    names = {p.name for p in out.iterdir()} if out.is_dir() else set()
+    ckpts = out / "checkpoints"
+    unfinished = names and names <= RUN_ARTIFACTS and (
+        not ckpts.is_dir() or all(p.name.endswith(".tmp") for p in ckpts.iterdir()))
+    if unfinished and names - {LOCK_NAME}:
+        print(f"msta-train: {out} holds a run killed before its first checkpoint; starting it "
+              "again from step 0", flush=True)
+        for name in names - {LOCK_NAME}:
+            path = out / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    elif names - {LOCK_NAME}:
+        if resume:
+            raise FileNotFoundError(f"--resume=true but {last} does not exist and {out} holds "
+                                    "other files (nothing to resume; choose another "
+                                    "--output_dir)")
         raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
                               "choose another --output_dir")
+    return False
+
+
+def lock_run(out: Path) -> int:
+    """Create ``out`` and take its lock (one msta-train per directory); returns the fd."""
+    out.mkdir(parents=True, exist_ok=True)
+    return lock_directory(out, "another msta-train run")
 
 
 def check_resume_config(out: Path, cfg: TrainConfig) -> None:
@@ -212,8 +247,12 @@ def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any]) 
     weights = last / "pretrained_model" / WEIGHTS_NAME
     if not weights.is_file():
         raise FileNotFoundError(f"checkpoint {last} has no {weights.name}")
-    policy.load_state_dict(load_file(str(weights), device=str(policy.device)), strict=True)
-    return load_training_state(last / "training_state", **state)
+    load_weights(policy, weights)
+    try:
+        return load_training_state(last / "training_state", **state)
+    except (ValueError, KeyError, TypeError, RuntimeError, SafetensorError) as e:
+        raise CheckpointError(f"{last / 'training_state'}: cannot restore ({type(e).__name__}: "
+                              f"{str(e).splitlines()[0] if str(e) else ''})") from None
 
 
 # ----- the loop --------------------------------------------------------------------------
@@ -307,15 +346,29 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     Args:
         cfg: the parsed configuration.
         on_step: forwarded to :func:`fit` (tests use it to interrupt a run).
+
+    The dataset is verified (``resolve_dataset``) before ``output_dir`` is created; the
+    run directory is then locked (``output_dir/.msta.lock``: a second msta-train on it gets
+    a one-line error and changes nothing) until the run ends.
     """
+    out = Path(cfg.output_dir)
+    root = resolve_dataset(cfg.dataset)  # verified before anything is created
+    lock = lock_run(out)
+    try:
+        return _train_locked(cfg, root, out, on_step)
+    finally:
+        os.close(lock)
+
+
+def _train_locked(cfg: TrainConfig, root: Path, out: Path,
+                  on_step: Callable[[int, dict[str, float]], None] | None) -> Path:
+    """:func:`train` once the run directory is locked."""
     from msta_data.stats import load_stats
     from msta_data.windows import episode_split
     from policies.factory import make_policy
 
-    out = Path(cfg.output_dir)
-    root = resolve_dataset(cfg.dataset)
-    prepare_output(out, cfg.resume)
-    if cfg.resume:
+    resuming = prepare_output(out, cfg.resume)
+    if resuming:
         check_resume_config(out, cfg)
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
@@ -325,14 +378,13 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed)
     train_ds = load_windows(root, policy, train_eps)
     val_ds = load_windows(root, policy, val_eps) if val_eps else None
-    out.mkdir(parents=True, exist_ok=True)
-    if not cfg.resume:
+    if not resuming:
         atomic_json(out / "train_config.json", draccus.encode(cfg))
     n_params = sum(p.numel() for p in policy.parameters())
     print(f"dataset {root}: {len(train_eps)} train episodes ({len(train_ds):,} windows), "
           f"{len(val_eps)} validation; {cfg.policy.type} policy with {n_params:,} parameters "
           f"on {device}, {torch.get_num_threads()} threads")
-    res = fit(policy, train_ds, val_ds, cfg.loop_part(), out, cfg.resume, on_step=on_step)
+    res = fit(policy, train_ds, val_ds, cfg.loop_part(), out, resuming, on_step=on_step)
     final = policy.save_pretrained(out / "final")
     shutil.copy(out / "train_config.json", final / "train_config.json")
     val = ", ".join(f"val {k} {v:.4g}" for k, v in res.val.items())
@@ -364,9 +416,11 @@ def warn_if_not_learned(val: dict[str, float]) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
+    cfg = parse_cli(TrainConfig, argv, prog="msta-train")
     try:
-        train(parse_cli(TrainConfig, argv, prog="msta-train"))
-    except PushError as e:
+        train(cfg)
+    except (PushError, DatasetError, DirectoryLockedError, CheckpointError, FileNotFoundError,
+            FileExistsError, ValueError) as e:  # one line naming the file, no traceback
         raise SystemExit(f"msta-train: error: {e}") from None
 
 
