@@ -1,0 +1,56 @@
+"""Issue 15 (9, 11): msta-collect checks its configuration, teacher and simulator before it
+creates anything, says what is wrong in one line, and a failed first run never blocks the
+rerun."""
+
+from __future__ import annotations
+
+import pytest
+
+from collect.record import main
+from msta_data.windows import load_episode_table
+from msta_data.writer import DatasetWriter
+
+SMALL = ["--teacher.type=zero", "--num_envs=2", "--episode_length_s=0.2", "--progress=false",
+         "--env.nthread=1", "--env.terrain.types=[flat]", "--env.terrain.num_levels=1",
+         "--env.terrain.border=2.0", "--env.randomization.pool_size=2"]
+
+
+def _fails(args: list[str]) -> str:
+    with pytest.raises(SystemExit) as err:
+        main(args)
+    message = str(err.value)
+    assert message.startswith("msta-collect: error: ") and "\n" not in message
+    assert "Couldn't instantiate" not in message
+    return message
+
+
+@pytest.mark.parametrize("flag, says", [
+    ("--env.terrain.max_init_level=11", "max_init_level=11: the terrain has levels 0..9"),
+    ("--env.terrain.num_levels=0", "TerrainConfig: num_levels=0 must be >= 1"),
+    ("--episodes=abc", "`episodes`: Couldn't parse 'abc'"),
+    ("--teacher.type=rma", "teacher type 'rma' needs --teacher.path"),
+])
+def test_config_errors_are_one_line_and_create_nothing(tmp_path, flag, says):
+    root = tmp_path / "ds"
+    assert says in _fails([f"--root={root}", flag])
+    assert not root.exists()
+
+
+def test_a_failed_first_run_leaves_nothing_and_the_rerun_works(tmp_path):
+    root = tmp_path / "ds"
+    spec = tmp_path / "teacher.txt"
+    spec.write_text("not a teacher spec")
+    assert "teacher.txt" in _fails([f"--root={root}", "--episodes=2", *SMALL,
+                                    "--teacher.type=imported", f"--teacher.path={spec}"])
+    assert not root.exists()  # the teacher is built before the dataset is created
+    main([f"--root={root}", "--episodes=2", *SMALL])
+    assert len(load_episode_table(root)) == 2
+
+
+def test_an_empty_dataset_left_by_a_run_that_recorded_nothing_is_reused(tmp_path):
+    root = tmp_path / "ds"
+    DatasetWriter.create(root, "local/a1_teacher").close()  # a run killed before its 1st flush
+    main([f"--root={root}", "--episodes=2", *SMALL])
+    assert len(load_episode_table(root)) == 2
+    assert "--resume=true" in _fails([f"--root={root}", "--episodes=3", *SMALL])
+
