@@ -3,9 +3,10 @@
 Each ``commits/<sha>.json`` holds the commit's metadata and its *diff* against its first
 parent (``changes``: path -> entry for added or modified files, ``removed``: deleted paths).
 A full file table is written to ``trees/<sha>.json`` only for root commits and when the diff
-entries accumulated since the last snapshot reach the table's size (or 64): every snapshot is
-paid for by at least as many diff entries, so storage stays linear, and reading a revision
-reads at most one snapshot plus about as many diff entries as the table has.
+entries accumulated since the last snapshot reach half the table's size (and at least 64):
+every snapshot is paid for by at least half as many diff entries, so storage stays linear in
+the number of changes, and reading a revision reads one snapshot plus fewer diff entries than
+max(64, half the table).
 
 Commits written by earlier versions (``files``: the full table in the commit JSON) are read
 as snapshots, so old roots keep working unchanged. Commits are immutable, so parsed commits
@@ -168,7 +169,7 @@ class CommitStore:
         chain = max(1, len(changes) + len(removed))
         if parents:
             chain += int(self._read(repo_dir, parents[0]).get("chain", 0))
-        snapshot = not parents or chain >= max(len(files), MIN_CHAIN)
+        snapshot = not parents or chain >= max(len(files) // 2, MIN_CHAIN)
         body = {"parents": parents, "title": title, "message": message, "author": author, "date": date,
                 "changes": {p: e.to_json() for p, e in sorted(changes.items())}, "removed": removed,
                 "nonce": secrets.token_hex(8)}

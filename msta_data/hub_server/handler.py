@@ -148,7 +148,8 @@ class HubHandler(BaseHTTPRequestHandler):
         return user
 
     def _error_response(self, err: HttpError) -> Response:
-        headers = {"X-Error-Message": err.message.replace("\n", " ").replace("\r", " ")[:500], **err.headers}
+        message = err.message.encode("ascii", "backslashreplace").decode()  # headers are latin-1
+        headers = {"X-Error-Message": message.replace("\n", " ").replace("\r", " ")[:500], **err.headers}
         if err.code:
             headers["X-Error-Code"] = err.code
         return Response(err.status, {"error": err.message, **err.extra}, headers)

@@ -9,7 +9,7 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import IO, TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
 from msta_data.hub_server import boundary
@@ -97,7 +97,7 @@ class BodyReader(io.RawIOBase):
         timeout_s: see ``Limits.read_timeout_s``; the socket itself times out single reads.
     """
 
-    def __init__(self, rfile: IO[bytes], length: int | None, chunked: bool, limit: int, timeout_s: float):
+    def __init__(self, rfile: io.BufferedIOBase, length: int | None, chunked: bool, limit: int, timeout_s: float):
         super().__init__()
         self._rfile = rfile
         self._chunked = chunked
@@ -153,7 +153,7 @@ class BodyReader(io.RawIOBase):
                 return 0
         if self.received + min(len(buffer), self._remaining) > self._limit:
             raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
-        data = self._rfile.read(min(len(buffer), self._remaining, CHUNK))
+        data = self._rfile.read1(min(len(buffer), self._remaining, CHUNK))  # one recv: paced
         if not data:
             raise self._fail(400, "request body ended early")
         buffer[: len(data)] = data

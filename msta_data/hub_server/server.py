@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 from dataclasses import dataclass, field
 from http.server import ThreadingHTTPServer
@@ -112,7 +113,7 @@ class _HttpServer(ThreadingHTTPServer):
             self._slots.release()
 
     def handle_error(self, request: Any, client_address: Any) -> None:
-        logger.warning("connection from %s ended with an error", client_address[0])
+        logger.warning("connection from %s ended with %s", client_address[0], sys.exc_info()[0].__name__)
 
 
 class HubServer:
