@@ -332,7 +332,10 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
     from msta_data.locking import lock_directory
     from msta_data.writer import DatasetLockedError
 
-    lock = lock_directory(root, "a dataset writer", DatasetLockedError)  # no append meanwhile
+    try:  # no writer may append meanwhile
+        lock: int | None = lock_directory(root, "a dataset writer", DatasetLockedError)
+    except PermissionError:  # a read-only copy: nobody appends to it through msta
+        lock = None
     try:
         verify_for_publish(root)  # refuses, naming the file, before anything is uploaded
         api = hub_api(endpoint, token)
@@ -343,7 +346,8 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
                           card_text=text, message=message or f"push dataset {root.name}",
                           allow_pickle=False)
     finally:
-        os.close(lock)
+        if lock is not None:
+            os.close(lock)
     _set_tag(api, repo_id, "dataset", version, sha, move=True)
     if tag:
         _set_tag(api, repo_id, "dataset", tag, sha, move=False)

@@ -15,6 +15,7 @@ from pathlib import Path
 from huggingface_hub.errors import HfHubHTTPError
 
 from msta_data import hub
+from msta_data.errors import DirectoryLockedError
 
 _EPILOG = """examples:
   msta-hub serve --root /srv/msta-hub --port 8008 --token-file /etc/msta-hub/tokens
@@ -200,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("httpx").setLevel(logging.WARNING)
     try:
         return args.func(args)
-    except (hub.HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError) as err:
+    except (hub.HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError,
+            DirectoryLockedError) as err:
         print(f"msta-hub {args.command}: error: {err}", file=sys.stderr)
         return 1
 
