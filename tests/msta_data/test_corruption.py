@@ -213,6 +213,19 @@ def test_msta_hub_push_dataset_refuses(damaged, hub_server, monkeypatch, capsys)
     assert snapshot(root) == before
 
 
+def test_push_dataset_waits_for_no_writer(template, tmp_path, hub_server, monkeypatch, capsys):
+    from msta_data.hub_cli import main
+
+    monkeypatch.setenv("HF_ENDPOINT", hub_server.url)
+    monkeypatch.setenv("HF_TOKEN", SECRET)
+    root = tmp_path / "ds"
+    shutil.copytree(template, root)
+    with DatasetWriter.open(root):
+        assert main(["push-dataset", str(root), "alice/busy"]) == 1
+    assert "a dataset writer (pid" in capsys.readouterr().err
+    assert main(["push-dataset", str(root), "alice/busy"]) == 0
+
+
 def test_lerobot_itself_notices_only_truncation(template, tmp_path):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
