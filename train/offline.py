@@ -415,12 +415,17 @@ def warn_if_not_learned(val: dict[str, float]) -> bool:
     return True
 
 
+#: Errors a user's input causes (a damaged dataset, a locked directory, a bad checkpoint or
+#: value): the CLIs print them as one line naming the file, without a traceback.
+USER_ERRORS = (PushError, DatasetError, DirectoryLockedError, CheckpointError,
+               FileNotFoundError, FileExistsError, ValueError)
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(TrainConfig, argv, prog="msta-train")
     try:
         train(cfg)
-    except (PushError, DatasetError, DirectoryLockedError, CheckpointError, FileNotFoundError,
-            FileExistsError, ValueError) as e:  # one line naming the file, no traceback
+    except USER_ERRORS as e:
         raise SystemExit(f"msta-train: error: {e}") from None
 
 

@@ -456,9 +456,11 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
 
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(CorrectConfig, argv, prog="msta-correct")
+    from train.offline import USER_ERRORS
+
     try:
         prog = correct(cfg)
-    except PushError as e:
+    except USER_ERRORS as e:  # one line naming the file, no traceback
         raise SystemExit(f"msta-correct: error: {e}") from None
     print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
           f"{prog['rounds'][str(cfg.rounds)].get('checkpoint')}")
