@@ -66,7 +66,10 @@ PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
 #: Fields that must match progress.json when resuming (they define the data).
 RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
-                 "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed")
+                 "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
+                 "levels_from_dataset")
+#: Values of RESUME_FIELDS in progress.json files written before the field existed.
+RESUME_LEGACY = {"levels_from_dataset": False}
 
 
 @dataclass
@@ -91,6 +94,11 @@ class CorrectConfig(LoopConfig):
             student alone drives).
         beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
         rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
+        levels_from_dataset: cap the rollouts' starting terrain level
+            (``env.terrain.max_init_level``, used with the terrain curriculum, the default)
+            at the highest level of the dataset's teacher episodes, so stage 2 corrects the student on the ground stage 1 taught it
+            (rolling out a levels-0-2 student on levels up to 5 lowered its survival on
+            levels 0-2: docs/training.md); false = ``env.terrain`` as given.
         recent_weight: sampling weight of an episode from round k in round r is
             ``recent_weight**(r-k)`` (teacher data is round 0); 1 = uniform over all frames.
         val_fraction: share of episodes held out for the validation loss (by episode).
@@ -118,6 +126,7 @@ class CorrectConfig(LoopConfig):
     beta: float = 0.5
     beta_decay: float = 1.0
     rollout: InputSpec = field(default_factory=InputSpec)
+    levels_from_dataset: bool = True
     recent_weight: float = 1.0
     val_fraction: float = 0.05
     eval: EvalConfig = field(default_factory=EvalConfig)
@@ -324,7 +333,8 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
         raise FileExistsError(f"{path} exists; pass --resume=true to continue that run or "
                               "choose another --output_dir")
     prog = json.loads(path.read_text())
-    bad = [k for k in RESUME_FIELDS if prog["config"].get(k) != encoded.get(k)]
+    bad = [k for k in RESUME_FIELDS
+           if prog["config"].get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
     if bad:
         raise ValueError(f"--resume=true with different {bad} than {path}")
     return prog
@@ -357,6 +367,30 @@ def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     return ckpt, root
 
 
+def rollout_levels(cfg: CorrectConfig, root: Path, prog: dict[str, Any]) -> CorrectConfig:
+    """``cfg`` with the rollouts' ``max_init_level`` capped at the highest terrain level of the
+    dataset's teacher episodes (``--levels_from_dataset``); the cap is decided once and kept
+    in progress.json, so a resumed run rolls out where the first one did."""
+    from msta_data.windows import load_episode_table
+
+    if not cfg.levels_from_dataset:
+        return cfg
+    if "rollout_max_init_level" not in prog:
+        table = load_episode_table(root)
+        teacher = table[table["provenance/source"] != "student"]["provenance/terrain_level"]
+        level = cfg.env.terrain.max_init_level
+        if len(teacher) and int(teacher.max()) >= 0:
+            level = min(level, int(teacher.max()))
+        prog["rollout_max_init_level"] = level
+        atomic_json(Path(cfg.output_dir) / PROGRESS, prog)
+        if level < cfg.env.terrain.max_init_level:
+            print(f"stage-2 rollouts start at terrain levels 0-{level}, the levels of the "
+                  f"dataset's teacher episodes (--levels_from_dataset=false: 0-"
+                  f"{cfg.env.terrain.max_init_level})")
+    terrain = replace(cfg.env.terrain, max_init_level=int(prog["rollout_max_init_level"]))
+    return replace(cfg, env=replace(cfg.env, terrain=terrain))
+
+
 PhaseHook = Callable[[str, int], None]
 
 
@@ -380,6 +414,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
                               "choose another --output_dir")
     ckpt, root = resolve_inputs(cfg, out)
     prog = load_progress(out, cfg, root)
+    cfg = rollout_levels(cfg, root, prog)
     if cfg.push_to and "dataset_source" not in prog:  # before a hub tag can move
         prog["dataset_source"] = dataset_source(cfg.dataset, root)
     path = out / PROGRESS

@@ -267,3 +267,18 @@ def test_bad_inputs(base, tmp_path):
         main(["--eval.mask_ratios=[0.0,1.5]"])
     with pytest.raises(SystemExit, match="unknown terrain 'lava'"):
         main(["--eval.terrains=flat,lava"])
+
+
+def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys):
+    """Teacher data from level 0 only: stage-2 rollouts start at level 0 although
+    env.terrain allows 0-1 (a student is corrected where stage 1 taught it)."""
+    flat = replace(TERRAIN, max_init_level=0)
+    root = collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=2, num_envs=2,
+                                 root=str(tmp_path / "ds"), episode_length_s=EPISODE_S,
+                                 progress=False, env=replace(small_env(), terrain=flat)))
+    prog = correct(make_cfg(base, tmp_path, rounds=1, episodes_per_round=8))
+    assert prog["rollout_max_init_level"] == 0
+    eps = load_episode_table(root)
+    assert (eps["provenance/source"] == "student").sum() == 8
+    assert (eps["provenance/terrain_level"] == 0).all()
+    assert "stage-2 rollouts start at terrain levels 0-0" in capsys.readouterr().out
