@@ -192,6 +192,13 @@ class GaitTeacher:
 
     Args:
         config: controller parameters; defaults walk all terrains.
+
+    Attributes:
+        follow_robot: False (default) when the teacher drives: the stance feet slide along
+            its own plan. True when it labels states another policy drives (msta-correct):
+            each step the stance feet's planned positions restart from the measured ones
+            (forward kinematics of ``joint_pos`` and the attitude), so the labels do not pull
+            the feet back to a plan the robot never followed. The gait clock keeps running.
     """
 
     name = "gait"
@@ -210,6 +217,7 @@ class GaitTeacher:
         self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
         self.caution = np.zeros((0, 1))      # 0 flat-ground gait .. 1 rough-ground gait
+        self.follow_robot = False
         nominal = np.column_stack([HIP_OFFSETS[:, 0],
                                    HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
                                    + np.sign(THIGH_OFFSET_Y) * self.cfg.stance_width])
@@ -234,6 +242,9 @@ class GaitTeacher:
         if self.fresh.any():
             self._init_feet(np.flatnonzero(self.fresh), st)
             self.fresh[:] = False
+        if self.follow_robot:  # labelling another policy: plan from where the feet are
+            self.feet[..., :2] = np.where(self.stance[..., None], st.feet_actual[..., :2],
+                                          self.feet[..., :2])
         step = cfg.max_accel * cfg.dt * np.array([1.0, 1.0, 2.0])
         lo, hi = cfg.rough_range
         self.caution = np.clip((st.roughness - lo) / max(hi - lo, 1e-9), 0.0, 1.0)[:, None]

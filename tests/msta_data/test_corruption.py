@@ -21,7 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from msta_data.errors import DatasetError, DatasetFormatError
+from msta_data.errors import DatasetFormatError
 from msta_data.integrity import MANIFEST_PATH, Manifest
 from msta_data.locking import LOCK_NAME
 from msta_data.windows import WindowDataset

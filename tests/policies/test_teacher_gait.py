@@ -196,3 +196,27 @@ def test_reset_accepts_ids_of_a_larger_batch_than_last_seen():
     teacher.reset(np.arange(6))
     big = QuadrupedEnv(EnvConfig(num_envs=6, nthread=1))
     assert teacher.act(big.reset()).shape == (6, 12)
+
+
+def test_follow_robot_plans_stance_feet_from_where_they_are():
+    """Another policy drives (a slowed, scaled-down copy of the teacher's gait); the teacher
+    shadows it. Its own plan drifts away from the feet; following the robot, every stance
+    foot's planned position starts from the measured one (one step of sweep away)."""
+    from policies.teacher.gait import _State
+
+    drift = {}
+    for follow in (False, True):
+        env = _env(4, seed=3)
+        obs = env.reset()
+        driver, shadow = GaitTeacher(GaitConfig(period=0.3)), GaitTeacher()
+        shadow.follow_robot = follow
+        for _ in range(60):
+            shadow.act(obs)
+            obs = env.step(0.7 * driver.act(obs)).obs
+        was_stance = shadow.stance.copy()
+        shadow.act(obs)
+        actual = _State.from_obs(obs).feet_actual[..., :2]
+        gap = np.linalg.norm(shadow.feet[..., :2] - actual, axis=-1)[was_stance & shadow.stance]
+        drift[follow] = float(gap.max())
+    assert drift[True] < 0.05, drift  # dt x the sweep velocity (<= 2.5 m/s)
+    assert drift[False] > 2 * drift[True], drift

@@ -111,6 +111,7 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
     assert prog["rounds"]["1"]["train"]["train_samples_per_s"] > 0
     # labels: the teacher's action on the recorded (privileged) observation, replayed
     teacher = build_teacher(TeacherConfig(type="gait"))
+    teacher.follow_robot = True  # msta-correct's default labelling (--teacher_follows_robot)
     student_eps = list(range(4, 4 + 2 * E))
     ds = WindowDataset(root, teacher.sensors, T=1, extra_columns=("action", "executed_action"),
                        episodes=student_eps)
@@ -161,13 +162,14 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
 
 
 def test_beta_one_reproduces_teacher_rollouts(base, tmp_path):
-    cfg = make_cfg(base, tmp_path, rounds=1, beta=1.0)
+    cfg = make_cfg(base, tmp_path, rounds=1, beta=1.0, teacher_follows_robot=False)
     args = [f"--policy={cfg.policy}", f"--dataset={cfg.dataset}",
             f"--output_dir={cfg.output_dir}", "--rounds=1", f"--episodes_per_round={E}",
             "--num_envs=4", f"--episode_length_s={EPISODE_S}", "--env.nthread=1",
             "--env.terrain.types=[flat,stairs_up]", "--env.terrain.num_levels=2",
             "--env.terrain.max_init_level=1", "--env.terrain.border=2.0",
             "--env.randomization.pool_size=2", "--teacher.type=gait", "--beta=1.0",
+            "--teacher_follows_robot=false",
             "--steps=2", "--batch_size=8", "--warmup_steps=1", "--progress=false",
             "--device=cpu", "--eval.enabled=false"]
     main(args)
