@@ -199,24 +199,28 @@ def test_reset_accepts_ids_of_a_larger_batch_than_last_seen():
 
 
 def test_follow_robot_plans_stance_feet_from_where_they_are():
-    """Another policy drives (a slowed, scaled-down copy of the teacher's gait); the teacher
-    shadows it. Its own plan drifts away from the feet; following the robot, every stance
-    foot's planned position starts from the measured one (one step of sweep away)."""
+    """Another policy drives (a slower, scaled-down copy of the teacher's gait); the teacher
+    shadows it. Its own plan drifts away from the feet; following the robot, a stance foot's
+    plan starts at most ``follow_gap`` from the measured foot (plus one step of sweep)."""
     from policies.teacher.gait import _State
 
     drift = {}
-    for follow in (False, True):
+    for gap in (None, 0.0, 0.03):
         env = _env(4, seed=3)
         obs = env.reset()
-        driver, shadow = GaitTeacher(GaitConfig(period=0.3)), GaitTeacher()
-        shadow.follow_robot = follow
+        driver = GaitTeacher(GaitConfig(period=0.3))
+        shadow = GaitTeacher(GaitConfig(follow_gap=gap or 0.0))
+        shadow.follow_robot = gap is not None
         for _ in range(60):
             shadow.act(obs)
             obs = env.step(0.7 * driver.act(obs)).obs
         was_stance = shadow.stance.copy()
         shadow.act(obs)
         actual = _State.from_obs(obs).feet_actual[..., :2]
-        gap = np.linalg.norm(shadow.feet[..., :2] - actual, axis=-1)[was_stance & shadow.stance]
-        drift[follow] = float(gap.max())
-    assert drift[True] < 0.05, drift  # dt x the sweep velocity (<= 2.5 m/s)
-    assert drift[False] > 2 * drift[True], drift
+        gap_m = np.linalg.norm(shadow.feet[..., :2] - actual, axis=-1)[was_stance & shadow.stance]
+        drift[gap] = float(gap_m.max())
+    sweep = 0.05  # dt x the sweep velocity (<= 2.5 m/s)
+    assert drift[0.0] < sweep and drift[0.03] < 0.03 + sweep, drift
+    assert drift[None] > 2 * drift[0.0] and drift[None] > drift[0.03], drift
+    with pytest.raises(ValueError, match="follow_gap"):
+        GaitConfig(follow_gap=-0.1)
