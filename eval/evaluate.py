@@ -170,13 +170,14 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
         tcfg = TeacherConfig(type=source.split(":", 1)[1])
         return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg),
                            build_teacher(tcfg))
-    from msta_data.hub import is_hub_id, materialize
+    from msta_data.hub import is_hub_id
+    from msta_data.locate import locate
 
-    if not Path(source).exists() and not is_hub_id(source):
-        raise FileNotFoundError(f"checkpoint {source!r} not found: not a directory and not a "
-                                f"hub id user/name[@revision] (teachers: 'teacher' or "
-                                f"'teacher:<type>' with type in {sorted(TEACHERS)})")
-    path = materialize(source)
+    try:  # msta's one path-or-hub rule (msta_data/locate.py)
+        path = locate(source, "model", "--policies")
+    except FileNotFoundError as e:
+        raise FileNotFoundError(f"{e} (teachers: 'teacher' or 'teacher:<type>' with type in "
+                                f"{sorted(TEACHERS)})") from None
     name = source if is_hub_id(source) else Path(source).resolve().name
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source))
 

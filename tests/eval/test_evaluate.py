@@ -147,7 +147,8 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
 
 @pytest.mark.parametrize("args, message", [
     (["--scenarios", "token_removal,bogus"], "unknown scenario 'bogus'"),
-    (["--policies", "teacher,/no/such/ckpt"], "checkpoint '/no/such/ckpt' not found"),
+    (["--policies", "teacher,/no/such/ckpt"], "'/no/such/ckpt': no such checkpoint directory"),
+    (["--policies", "teacher,outptus/ckpt"], "'outptus/ckpt': no such checkpoint directory"),
     (["--terrains", "flat,lava"], "unknown terrain 'lava'"),
     (["--levels", "12"], "level 12 out of range"),
     (["--suite", "huge"], "unknown suite 'huge'"),
