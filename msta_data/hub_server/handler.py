@@ -191,6 +191,9 @@ class HubHandler(BaseHTTPRequestHandler):
         logger.info("%s %s -> %s", getattr(self, "command", "?"), path, code)
 
     def log_error(self, format: str, *args: Any) -> None:
+        if format.startswith("Request timed out"):  # an idle keep-alive connection closed
+            logger.debug("idle connection from %s closed", self.client_address[0])
+            return
         logger.warning("bad request from %s", self.client_address[0])
 
     def log_message(self, format: str, *args: Any) -> None:

@@ -114,7 +114,8 @@ def test_trickled_body_is_cut_off(srv):
     assert _status(answer) == 408 and time.monotonic() - t0 < 10
 
 
-def test_idle_connections_are_closed_and_connections_capped(tmp_path):
+def test_idle_connections_are_closed_and_connections_capped(tmp_path, caplog):
+    caplog.set_level(logging.DEBUG, logger="msta_data.hub_server")
     srv = H.start_server(tmp_path / "hub", read_timeout_s=1.0, max_connections=2)
     try:
         idle = [socket.create_connection(("127.0.0.1", srv.port), timeout=5) for _ in range(2)]
@@ -128,6 +129,9 @@ def test_idle_connections_are_closed_and_connections_capped(tmp_path):
         assert _alive(srv)
     finally:
         srv.stop()
+    # closing an idle keep-alive connection is routine, not a client mistake
+    assert "idle connection from 127.0.0.1 closed" in caplog.text
+    assert not any("bad request" in r.getMessage() for r in caplog.records)
 
 
 # ------------------------------------------------------------------ 5: client mistakes
