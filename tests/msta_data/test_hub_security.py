@@ -7,29 +7,16 @@ bytes huggingface_hub would never send, the real huggingface_hub client elsewher
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import itertools
 import json
 import os
-import sys
 import time
 from pathlib import Path
-from types import ModuleType
 
+import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
 import pytest
 from huggingface_hub import HfApi
 
-
-def _load_helpers() -> ModuleType:
-    name = "msta_hub_security_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("test_hub_security_helpers.py"))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-H = _load_helpers()
 ALICE, BOB = H.ALICE, H.BOB
 CANARY = b"CANARY-" + os.urandom(12).hex().encode()
 

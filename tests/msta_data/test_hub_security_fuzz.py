@@ -11,30 +11,18 @@ the examples are the same on every run unless ``MSTA_FUZZ_RANDOM=1``.
 from __future__ import annotations
 
 import base64
-import importlib.util
 import json
 import os
 import sys
 import threading
 from pathlib import Path
-from types import ModuleType
 from urllib.parse import quote
 
+import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-
-def _load_helpers() -> ModuleType:
-    name = "msta_hub_security_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("test_hub_security_helpers.py"))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-H = _load_helpers()
 ALICE, BOB = H.ALICE, H.BOB
 CANARY = b"CANARY-" + os.urandom(12).hex().encode()
 ALICE_SECRET = b"ALICE-PRIVATE-" + os.urandom(12).hex().encode()

@@ -7,31 +7,17 @@ with a 4xx before the server does any work for it, never a 500, and the server k
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import logging
 import socket
-import sys
 import time
-from pathlib import Path
-from types import ModuleType
 from urllib.parse import urlsplit
 
+import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
 import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError
 
-
-def _load_helpers() -> ModuleType:
-    name = "msta_hub_security_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("test_hub_security_helpers.py"))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-H = _load_helpers()
 ALICE, BOB = H.ALICE, H.BOB
 
 

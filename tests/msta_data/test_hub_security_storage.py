@@ -4,26 +4,13 @@ reads back exactly, and roots written by the previous storage format keep workin
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
 import random
-import sys
 from pathlib import Path
-from types import ModuleType
 
+import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
 from huggingface_hub import HfApi
 
-
-def _load_helpers() -> ModuleType:
-    name = "msta_hub_security_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name("test_hub_security_helpers.py"))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-H = _load_helpers()
 ALICE = H.ALICE
 
 

@@ -1,7 +1,8 @@
 """Raw-HTTP helpers shared by the hub security tests (a real server on 127.0.0.1, no mocks).
 
-Holds no tests. The test modules load it by path with :func:`load_helpers`, because a
-``tests`` package installed in site-packages shadows this tree's ``tests`` directory.
+Holds no tests. ``conftest.py`` registers it as ``msta_hub_security_helpers`` (with
+``--import-mode=importlib`` a test directory is not on ``sys.path``, and a ``tests`` package
+installed in site-packages shadows this tree's ``tests`` directory).
 """
 
 from __future__ import annotations
