@@ -22,6 +22,7 @@ BUILTIN_POLICIES: dict[str, str] = {
     "tert_concat": "policies.baselines",
     "tert_separate": "policies.baselines",
     "tert_mask": "policies.baselines",
+    "mlp": "policies.baselines",
 }
 
 _POLICIES: dict[str, type[StudentPolicy]] = {}

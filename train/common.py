@@ -100,6 +100,9 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str) -
     """
     import sys
 
+    from policies.factory import known_policies
+
+    known_policies()  # registers every built-in policy type with draccus before parsing
     args = list(sys.argv[1:] if argv is None else argv)
     preset, rest = None, []
     for i, a in enumerate(args):

@@ -13,16 +13,17 @@ import torch
 
 from msta_data import sensors
 from policies.base import PolicyConfig
-from policies.baselines import BASELINES, TCNConfig, TERTMaskConfig, TimestepPolicy
+from policies.baselines import BASELINES, REFERENCES, TCNConfig, TERTMaskConfig, TimestepPolicy
 from policies.baselines.common import random_input_mask
 from policies.factory import get_config_class, known_policies, load_policy, make_config, make_policy
 
 T = 15  # the paper's window (RMA's convolutions need >= 12 steps)
-#: every registered baseline, plus the TCN variant that accepts any window length
-CASES = [(name, {}) for name in BASELINES] + [("rma_tcn", {"readout": "mean"})]
+#: every registered baseline and reference learner, plus the TCN variant that accepts any
+#: window length
+CASES = [(name, {}) for name in BASELINES + REFERENCES] + [("rma_tcn", {"readout": "mean"})]
 IDS = [n + ("-mean" if o else "") for n, o in CASES]
 #: baselines that run on windows of another length than their training one
-ANY_T = [c for c in CASES if c != ("rma_tcn", {})]
+ANY_T = [c for c in CASES if c not in (("rma_tcn", {}), ("mlp", {}))]
 
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -74,8 +75,8 @@ def raw_placeholder(policy: TimestepPolicy, name: str, B: int, steps: int) -> to
 
 # --- registry, presets, config --------------------------------------------------------
 def test_registry_presets_and_draccus() -> None:
-    assert set(BASELINES) <= set(known_policies())
-    for name in BASELINES:
+    assert set(BASELINES + REFERENCES) <= set(known_policies())
+    for name in BASELINES + REFERENCES:
         cls = get_config_class(name)
         assert {"paper", "cpu", "tiny"} <= set(cls.PRESETS)
         paper, cpu = cls.from_preset("paper"), cls.from_preset("cpu")
@@ -112,6 +113,8 @@ def test_registry_presets_and_draccus() -> None:
         ("rma_tcn", {"conv_kernels": (4, 3), "conv_strides": (2, 1, 1)}, "equal length"),
         ("rma_tcn", {"history": 7}, "shorter than the convolutions need .12."),
         ("rma_tcn", {"readout": "max"}, "readout"),
+        ("mlp", {"hidden_dims": ()}, "hidden_dims"),
+        ("mlp", {"hidden_dims": (64, 0)}, "hidden_dims"),
     ],
 )
 def test_config_validation(name: str, bad: dict, match: str) -> None:
@@ -233,6 +236,14 @@ def test_other_window_lengths(name: str, overrides: dict) -> None:
     for steps in (12, T + 1, 20) + ((1,) if name != "rma_tcn" else ()):
         out = policy.act(make_batch(steps=steps))
         assert out.shape == (4, 12) and torch.isfinite(out).all()
+
+
+def test_mlp_window_length_errors() -> None:
+    mlp = make("mlp").eval()
+    assert mlp.act(make_batch(steps=T)).shape == (4, 12)
+    for steps in (T - 1, T + 5):
+        with pytest.raises(ValueError, match=f"training length T=15; got T={steps}"):
+            mlp.act(make_batch(steps=steps))
 
 
 def test_tcn_window_length_errors() -> None:

@@ -36,6 +36,27 @@ def test_preset_and_overrides_parse(tmp_path):
     assert cfg.mask_ratio is None and cfg.policy.mask_ratio == 0.75
 
 
+def test_every_policy_type_parses_in_a_fresh_process(tmp_path):
+    """--policy.type=gru / mlp / ... must not depend on someone importing the baselines
+    first (a fresh msta-train said "invalid choice: 'gru' (choose from 'msta')")."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    repo = Path(__file__).resolve().parents[2]
+    code = ("from train.common import parse_cli; from train.offline import TrainConfig; "
+            "import sys; cfgs = [parse_cli(TrainConfig, ['--dataset=x', '--policy.type=' + t], "
+            "'msta-train').policy for t in sys.argv[1:]]; "
+            "print(' '.join(f'{c.type}:{type(c).__name__}' for c in cfgs))")
+    out = subprocess.run([sys.executable, "-c", code, "gru", "mlp", "tert_mask", "rma_tcn"],
+                         check=False, capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                         env={**os.environ, "PYTHONPATH": str(repo)})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["gru:GRUConfig", "mlp:MLPConfig", "tert_mask:TERTMaskConfig",
+                                  "rma_tcn:TCNConfig"]
+
+
 def test_run_writes_metrics_checkpoints_and_a_loadable_final(synthetic_dataset, tmp_path):
     out = tmp_path / "run"
     final = train(cfg_for(synthetic_dataset, out, "--steps=6", "--save_every=3",
