@@ -75,23 +75,27 @@ RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False}
 @dataclass
 class CorrectConfig(LoopConfig):
     """Args:
-        lr: peak learning rate of each round's retraining (lower than stage 1's 1e-3: the
-            round fine-tunes trained weights; measured, see docs/training.md).
+        steps: optimizer steps of each round's retraining.
+        lr: peak learning rate of each round's retraining (stage 1's 1e-3: at 3e-4 an MSTA
+            student stopped improving after its second round; docs/training.md).
         mask_ratio: retraining token-removal ratio; null = the paper's stage-2 ratio 0.5,
             capped at the ratio the student was trained with (a student trained without
             masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
         policy: the starting student checkpoint (stage-1 ``final/``) or a hub id.
         dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
         output_dir: round checkpoints, training runs and progress.json.
-        rounds: correction rounds (raise it on ``--resume`` to run more).
+        rounds: correction rounds (raise it on ``--resume`` to run more). DAgger needs
+            several: the first round usually lowers a stage-1 student (its own falls enter
+            the data), the next ones lift it (docs/training.md).
         episodes_per_round: student episodes appended per round.
         num_envs: environments rolled out together.
         episode_length_s: time limit of the student episodes (s).
         env: simulator options of the rollouts (its seed is shifted by the round).
         teacher: the labelling teacher (``--teacher.type=gait``).
         beta: DAgger mixing: probability that an env executes the teacher's action in a step
-            (0.5 by default: the student's episodes stay long enough to label; 0 = the
-            student alone drives).
+            (0, the default: the student alone drives, so its data holds the states it
+            reaches; after four rounds beta 0 tracked 0.91 of the teacher, beta 0.5 0.67,
+            docs/training.md).
         beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
         rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
         levels_from_dataset: cap the rollouts' starting terrain level
@@ -120,19 +124,19 @@ class CorrectConfig(LoopConfig):
         push_private: create that repo as private.
     """
 
-    steps: int = 500
-    lr: float = 3e-4
+    steps: int = 1000
+    lr: float = 1e-3
     mask_ratio: float | None = None
     policy: str = ""
     dataset: str = ""
     output_dir: str = "outputs/correct/msta"
-    rounds: int = 1
+    rounds: int = 4
     episodes_per_round: int = 64
     num_envs: int = 32
     episode_length_s: float = 10.0
     env: EnvConfig = field(default_factory=EnvConfig)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
-    beta: float = 0.5
+    beta: float = 0.0
     beta_decay: float = 1.0
     rollout: InputSpec = field(default_factory=InputSpec)
     levels_from_dataset: bool = True

@@ -27,6 +27,10 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     assert info["total_episodes"] == 4 + 2
     assert (out / "stage1" / "final" / "model.safetensors").is_file()
     assert (out / "pulled" / "stage2-r1" / "model.safetensors").is_file()
+    # stage 2 retrained at the demo's --correct_mask (0.75), and the checkpoint says so
+    assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
+        "mask_ratio"] == 0.75
+    assert "DAgger beta 0" in text
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert metrics
     assert "demo/msta_a1@stage2-r1" in text
