@@ -44,6 +44,9 @@ class LoopConfig:
         val_samples: validation windows evaluated (evenly spaced over the split).
         seed: seeds the model init, the sampler, the masks and every RNG.
         progress: show a tqdm progress bar.
+        ema_decay: keep an exponential moving average of the weights (decay per step,
+            e.g. 0.995: about the last 200 steps) and make it the result: the final
+            validation and the final checkpoint use the averaged weights. 0 = off.
     """
 
     steps: int = 2000
@@ -60,6 +63,7 @@ class LoopConfig:
     val_samples: int = 1024
     seed: int = 0
     progress: bool = True
+    ema_decay: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "log_every", "val_samples"):
@@ -70,6 +74,8 @@ class LoopConfig:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
         if not self.lr > 0:
             raise ValueError(f"lr={self.lr} must be > 0")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.min_lr_ratio <= 1.0:
             raise ValueError(f"min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
         if self.mask_ratio is not None and not 0.0 <= self.mask_ratio < 1.0:

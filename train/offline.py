@@ -224,14 +224,74 @@ class MetricsLogger:
         self.tb.close()
 
 
+# ----- weight averaging ------------------------------------------------------------------
+class WeightEMA:
+    """Exponential moving average of a policy's parameters (``LoopConfig.ema_decay``).
+
+    After step t the average moves towards the weights by ``1 - min(decay, (1+t)/(10+t))``
+    (the usual warm-up, so early steps do not freeze the start weights in). Its state is
+    one safetensors file in the checkpoint's training state, so a resumed run averages on
+    exactly as an uninterrupted one.
+
+    Args:
+        policy: the trained policy.
+        decay: per-step decay in (0, 1).
+    """
+
+    FILE = "ema.safetensors"
+
+    def __init__(self, policy: StudentPolicy, decay: float) -> None:
+        self.decay = decay
+        self.params = dict(policy.named_parameters())
+        self.avg = {n: p.detach().clone() for n, p in self.params.items()}
+        self.t = 0
+
+    @torch.no_grad()
+    def update(self) -> None:
+        self.t += 1
+        w = 1.0 - min(self.decay, (1.0 + self.t) / (10.0 + self.t))
+        for n, p in self.params.items():
+            self.avg[n].lerp_(p.detach(), w)
+
+    @torch.no_grad()
+    def apply(self) -> None:
+        """Copy the averaged weights into the policy."""
+        for n, p in self.params.items():
+            p.copy_(self.avg[n])
+
+    def save(self, directory: Path) -> None:
+        from safetensors.torch import save_file
+
+        save_file({n: v.contiguous() for n, v in self.avg.items()}, str(directory / self.FILE),
+                  metadata={"t": str(self.t), "decay": repr(self.decay)})
+
+    def load(self, directory: Path) -> None:
+        from safetensors import safe_open
+
+        path = directory / self.FILE
+        if not path.is_file():
+            raise CheckpointError(f"{directory}: no {self.FILE}, but this run averages weights "
+                                  "(--ema_decay); resume with the --ema_decay it was started with")
+        with safe_open(str(path), "pt", device="cpu") as f:
+            meta = f.metadata() or {}
+            if set(f.keys()) != set(self.avg):
+                raise CheckpointError(f"{path}: its tensors are not this policy's parameters")
+            for n in self.avg:
+                self.avg[n].copy_(f.get_tensor(n))
+        self.t = int(meta.get("t", 0))
+
+
 # ----- checkpoints -----------------------------------------------------------------------
-def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str, Any]) -> Path:
+def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str, Any],
+                    ema: WeightEMA | None = None) -> Path:
     """``checkpoints/<step>/`` written under a temporary name, renamed, then ``last`` moved."""
     ckpts = out / "checkpoints"
     final, tmp = ckpts / f"{step:06d}", ckpts / f"{step:06d}.tmp"
     shutil.rmtree(tmp, ignore_errors=True)
     policy.save_pretrained(tmp / "pretrained_model")
     save_training_state(tmp / "training_state", step, **state)
+    if ema is not None:
+        ema.save(tmp / "training_state")
     shutil.rmtree(final, ignore_errors=True)
     os.replace(tmp, final)
     link = ckpts / "last.tmp"
@@ -241,13 +301,16 @@ def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str
     return final
 
 
-def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any]) -> int:
+def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any],
+                       ema: WeightEMA | None = None) -> int:
     """Load ``checkpoints/last`` into the policy and the loop state; returns its step."""
     last = (out / "checkpoints" / "last").resolve()
     weights = last / "pretrained_model" / WEIGHTS_NAME
     if not weights.is_file():
         raise FileNotFoundError(f"checkpoint {last} has no {weights.name}")
     load_weights(policy, weights)
+    if ema is not None:
+        ema.load(last / "training_state")
     try:
         return load_training_state(last / "training_state", **state)
     except (ValueError, KeyError, TypeError, RuntimeError, SafetensorError) as e:
@@ -285,8 +348,9 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     state = {"optimizer": optimizer, "scheduler": scheduler, "sampler": sampler,
              "mask_generator": gen}
     step = 0
+    ema = WeightEMA(policy, cfg.ema_decay) if cfg.ema_decay > 0 else None
     if resume and (out / "checkpoints" / "last").exists():
-        step = restore_checkpoint(out, policy, state)
+        step = restore_checkpoint(out, policy, state, ema)
         scheduler.lr_lambdas[0].total = cfg.steps  # a raised --steps stretches the cosine
     logger = MetricsLogger(out, step)
     bar = tqdm(total=cfg.steps, initial=step, disable=not cfg.progress, desc=desc, unit="step")
@@ -297,9 +361,13 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             batch = train_ds.get_batch(sampler.next_batch())
             metrics = train_step(policy, optimizer, scheduler, batch, cfg.grad_clip,
                                  mask_ratio, gen)
+            if ema is not None:
+                ema.update()
             train_time += time.perf_counter() - t0
             samples += cfg.batch_size
             step += 1
+            if ema is not None and step == cfg.steps:
+                ema.apply()  # the result is the average: validated and saved below
             row: dict[str, float] = {}
             if step % cfg.log_every == 0 or step == cfg.steps:
                 row.update({k: metrics[k] for k in ("lr", "loss", "action_mse", "grad_norm")})
@@ -312,7 +380,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             if row:
                 logger.log(step, row)
             if (cfg.save_every and step % cfg.save_every == 0) or step == cfg.steps:
-                save_checkpoint(out, step, policy, state)
+                save_checkpoint(out, step, policy, state, ema)
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}",
                             samples_s=f"{samples / max(train_time, 1e-9):.0f}")

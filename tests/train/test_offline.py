@@ -89,8 +89,10 @@ class Crash(RuntimeError):
     pass
 
 
-def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path):
-    args = ("--steps=8", "--save_every=4", "--eval_every=4", "--log_every=1", "--lr=3e-3")
+@pytest.mark.parametrize("ema", [0.0, 0.9], ids=["plain", "ema"])
+def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, ema):
+    args = ("--steps=8", "--save_every=4", "--eval_every=4", "--log_every=1", "--lr=3e-3",
+            f"--ema_decay={ema}")
     ref = train(cfg_for(synthetic_dataset, tmp_path / "ref", *args))
 
     def crash_at_6(step, metrics):  # two steps after checkpoint 4: those are lost
@@ -113,6 +115,46 @@ def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path):
     assert [r["step"] for r in rb] == [str(s) for s in range(1, 9)]
     for x, y in zip(ra, rb, strict=True):
         assert (x["loss"], x["lr"], x["val_loss"]) == (y["loss"], y["lr"], y["val_loss"])
+
+
+def test_ema_makes_the_final_weights_the_running_average(synthetic_dataset, tmp_path):
+    """--ema_decay: the final checkpoint holds the running average of the weights after
+    every step (decay min(d, (1+t)/(10+t)), from the initial weights), not the last step's."""
+    from train import offline
+
+    init: dict[str, torch.Tensor] = {}
+    seen: list[dict[str, torch.Tensor]] = []
+    real_fit = offline.fit
+
+    def spy_fit(policy, *a, **kw):
+        init.update({k: v.detach().clone() for k, v in policy.named_parameters()})
+
+        def grab(step, metrics):  # after each step (the last one: already averaged)
+            seen.append({k: v.detach().clone() for k, v in policy.named_parameters()})
+        return real_fit(policy, *a, **{**kw, "on_step": grab})
+
+    args = ("--steps=6", "--save_every=0", "--eval_every=0", "--lr=3e-3")
+    offline.fit = spy_fit
+    try:
+        final = train(cfg_for(synthetic_dataset, tmp_path / "ema", *args, "--ema_decay=0.5"))
+    finally:
+        offline.fit = real_fit
+    # the average only reads the weights: the plain run with the same seed walks the same
+    # path, and its final weights are the last raw step
+    plain = load_file(str(train(cfg_for(synthetic_dataset, tmp_path / "plain", *args))
+                          / "model.safetensors"))
+    got = load_file(str(final / "model.safetensors"))
+    raws = seen[:-1] + [{k: plain[k] for k in init}]
+    assert len(raws) == 6
+    avg = {k: v.clone() for k, v in init.items()}
+    for t, w in enumerate(raws, start=1):
+        a = 1.0 - min(0.5, (1.0 + t) / (10.0 + t))
+        avg = {k: avg[k] + a * (w[k] - avg[k]) for k in avg}
+    changed = 0
+    for k in avg:
+        assert torch.allclose(got[k], avg[k], atol=1e-6), k
+        changed += not torch.equal(got[k], plain[k])
+    assert changed  # the average is not the last step's weights
 
 
 def test_loss_decreases_on_a_learnable_dataset(synthetic_dataset, tmp_path):
