@@ -10,7 +10,8 @@
      stage 1's: as good per round as the paper's 0.5 here and twice as fast on a CPU);
      --push_to pushes each round's checkpoint with tag stage2-r<r> and its evaluation in
      the model card;
-  6. the last stage-2 checkpoint is pulled back by tag and evaluated with msta-eval
+  6. the best round on msta-correct's own round evaluation (30 trials, seed 1; round 0 =
+     stage 1 counts too) is pulled back by tag and evaluated with msta-eval
      (test masks 0 / 25 / 50 %, every paper terrain at levels 0-2, 20 trials per terrain)
      against the teacher (table printed, plots saved);
   7. a one-line verdict: does the student walk like its teacher (normalized linear-velocity
@@ -87,8 +88,34 @@ def step_push(dataset: Path) -> str:
     return f"datasets/{HUB_USER}/a1_teacher@{sha}"
 
 
+#: Rounds are compared on msta-eval trials with this seed (the final test uses seed 0).
+SELECT_SEED = 1
+
+
+def round_scores(progress: dict) -> dict[int, float]:
+    """Round -> mean over the evaluated test masks of (normalized linear tracking +
+    survival), from msta-correct's per-round evaluation in progress.json."""
+    scores: dict[int, float] = {}
+    for r, entry in progress.get("rounds", {}).items():
+        runs = [run for run in (entry.get("eval") or {}).values() if run.get("status") == "ok"]
+        if not runs:
+            continue
+        vals = [(run["normalized"]["per_terrain"]["average"]["lin_tracking"] or 0.0)
+                + run["raw"]["per_terrain"]["average"]["survival"] for run in runs]
+        scores[int(r)] = sum(vals) / len(vals)
+    return scores
+
+
 def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
-                 episodes: int, mask: float, threads: int) -> Path:
+                 episodes: int, mask: float, threads: int, select_trials: int,
+                 select_s: float) -> int:
+    """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
+    best on the selection trials. DAgger promises a good policy among its iterates, not
+    that the last is best, and this student's consecutive rounds differ by ~0.2 in
+    survival (docs/training.md)."""
+    import json
+
+    from train.evaluation import EvalConfig
     from train.online import CorrectConfig, correct
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
@@ -100,16 +127,25 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
+                        eval=EvalConfig(trials=select_trials, levels="0,1,2",
+                                        episode_s=select_s, seed=SELECT_SEED, threads=threads),
                         progress=False)
     correct(cfg)
-    return out / "stage2" / f"round_{rounds}"
+    scores = round_scores(json.loads((out / "stage2" / "progress.json").read_text()))
+    best = max(scores, key=lambda r: (scores[r], r)) if scores else rounds
+    print("selection (msta-correct's round evaluation: {} trials of {:g} s, seed {}; score = "
+          "linear tracking vs teacher + survival, averaged over test masks 0 and 50 %): {}; "
+          "evaluating round {}".format(
+              select_trials, select_s, SELECT_SEED,
+              ", ".join(f"round {r} {v:.2f}" for r, v in sorted(scores.items())), best))
+    return best
 
 
-def step_eval(out: Path, rounds: int, trials: int, episode_s: float) -> dict:
+def step_eval(out: Path, best: int, trials: int, episode_s: float) -> dict:
     from eval.evaluate import EvalConfig, evaluate
     from msta_data import hub
 
-    tag = f"stage2-r{rounds}" if rounds else "stage1"
+    tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
           f"0 / 25 / 50 %, {trials} trials of {episode_s:g} s over the five terrains at levels "
           "0-2) ==")
@@ -177,6 +213,10 @@ def main(argv: list[str] | None = None) -> None:
                    help="stage-2 student episodes (10 s) per round")
     p.add_argument("--correct_mask", type=float, default=0.75,
                    help="stage-2 training mask ratio (the paper's 0.5 costs twice the time)")
+    p.add_argument("--select_trials", type=int, default=30,
+                   help="trials per test mask on which the rounds are compared (seed 1)")
+    p.add_argument("--select_episode_s", type=float, default=5.0,
+                   help="episode length of those trials (s)")
     p.add_argument("--teacher_s", type=float, default=8.0, help="step 1 walk per robot (s)")
     p.add_argument("--envs_per_type", type=int, default=8, help="step 1 robots per terrain")
     p.add_argument("--eval_trials", type=int, default=100,
@@ -186,7 +226,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--threads", type=int, default=2, help="torch threads for training")
     args = p.parse_args(argv)
     for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
-                 "envs_per_type", "eval_trials", "threads"):
+                 "envs_per_type", "eval_trials", "select_trials", "threads"):
         if getattr(args, name) < 1:
             p.error(f"--{name} must be >= 1")
     if args.rounds < 0:
@@ -203,13 +243,16 @@ def main(argv: list[str] | None = None) -> None:
     try:
         hub_dataset = step_push(dataset)
         stage1 = step_train(args.out, hub_dataset, args.train_steps, args.threads)
+        best = 0
         if args.rounds:
-            step_correct(args.out, stage1, hub_dataset, args.rounds, args.correct_steps,
-                         args.correct_episodes, args.correct_mask, args.threads)
-        metrics = step_eval(args.out, args.rounds, args.eval_trials, args.eval_episode_s)
+            best = step_correct(args.out, stage1, hub_dataset, args.rounds, args.correct_steps,
+                                args.correct_episodes, args.correct_mask, args.threads,
+                                args.select_trials, args.select_episode_s)
+        metrics = step_eval(args.out, best, args.eval_trials, args.eval_episode_s)
     finally:
         server.stop()
     _, line = verdict(metrics)
+    line += f" (checkpoint {f'stage2-r{best}' if best else 'stage1'})"
     (args.out / "verdict.txt").write_text(line + "\n")
     print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min; outputs in {args.out}/")
     print(line)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 from eval.demo import main
 
@@ -12,7 +13,8 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     main(["--out", str(out), "--episodes", "4", "--episode_s", "0.5", "--train_steps", "3",
           "--rounds", "1", "--correct_steps", "2", "--correct_episodes", "2",
           "--teacher_s", "0.4", "--envs_per_type", "1", "--eval_trials", "5",
-          "--eval_episode_s", "0.3", "--threads", "1"])
+          "--eval_episode_s", "0.3", "--threads", "1", "--select_trials", "5",
+          "--select_episode_s", "0.3"])
     text = capsys.readouterr().out
     for step in range(1, 7):
         assert f"== {step}." in text
@@ -26,14 +28,22 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     info = json.loads((out / "stage2" / "dataset" / "meta" / "info.json").read_text())
     assert info["total_episodes"] == 4 + 2
     assert (out / "stage1" / "final" / "model.safetensors").is_file()
-    assert (out / "pulled" / "stage2-r1" / "model.safetensors").is_file()
+    # the round picked on the selection trials (seed 1) is the one pulled and evaluated
+    sel = re.search(r"selection \(.*seed 1;.*: round 0 (\S+), round 1 (\S+); evaluating round "
+                    r"(\d)", text)
+    assert sel, text[-3000:]
+    best = int(sel.group(3))
+    assert best == (1 if float(sel.group(2)) >= float(sel.group(1)) else 0)
+    tag = "stage2-r1" if best else "stage1"
+    assert (out / "pulled" / tag / "model.safetensors").is_file()
+    assert last.endswith(f"(checkpoint {tag})")
     # stage 2 retrained at the demo's --correct_mask (0.75), and the checkpoint says so
     assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
         "mask_ratio"] == 0.75
     assert "DAgger beta 0" in text
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert metrics
-    assert "demo/msta_a1@stage2-r1" in text
+    assert f"demo/msta_a1@{tag}" in text
     assert "demo-secret-token" not in text
 
 
