@@ -16,20 +16,19 @@ dataset left empty by a run that recorded nothing is reused by the next run.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 from tqdm import tqdm
 
 from collect.rollout import as_policy
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.terrain import TerrainConfig
+from msta_data import cli
 from msta_data.errors import DatasetError, DirectoryLockedError
 from msta_data.features import NON_SENSOR_FEATURES, load_info
 from msta_data.locking import LOCK_NAME
@@ -251,21 +250,10 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_s: float,
 
 
 def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:
-    """draccus parsing; an invalid value exits with one line naming the class and the
-    reason instead of draccus' "Couldn't instantiate class" and a traceback."""
-    try:
-        return draccus.parse(CollectConfig, args=list(sys.argv[1:] if argv is None else argv),
-                             prog=prog)
-    except (draccus.utils.DecodingError, draccus.utils.ParsingError, ValueError, KeyError,
-            TypeError, FileNotFoundError) as e:
-        where, cause = "", e
-        while not isinstance(cause, draccus.utils.DecodingError) and (
-                cause.__cause__ is not None or cause.__context__ is not None):
-            text = str(cause)
-            if text.startswith("Couldn't instantiate class "):
-                where = text.split()[3] + ": "
-            cause = cause.__cause__ or cause.__context__
-        raise SystemExit(f"{prog}: error: {where}{cause}") from None
+    """:func:`msta_data.cli.parse_config`: an unknown option or an invalid value exits 2 with
+    one line naming the field and the reason."""
+    return cli.parse_config(CollectConfig, argv, prog, aliases={
+        "env.num_envs": "num_envs", "env.seed": "seed", "env.episode_length_s": "episode_length_s"})
 
 
 def main(argv: Sequence[str] | None = None) -> None:

@@ -34,6 +34,7 @@ from typing import Any
 
 import draccus
 
+from msta_data.cli import parse_config
 from policies.teacher.config import TeacherConfig
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
@@ -410,7 +411,7 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-compare``); bad flags and inputs exit with one line."""
     args = sys.argv[1:] if argv is None else argv
     try:
-        cfg = draccus.parse(CompareConfig, args=args, prog="msta-compare")
+        cfg = parse_config(CompareConfig, args, "msta-compare")
         compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
     except (draccus.utils.ParsingError, draccus.utils.DecodingError, ValueError,
             FileNotFoundError) as e:

@@ -56,6 +56,7 @@ from eval.scenarios import (
     get_suite,
     split_csv,
 )
+from msta_data.cli import parse_config
 from policies.actor import InputSpec, StudentActor
 from policies.teacher.base import TEACHERS
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
@@ -421,7 +422,7 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-eval``)."""
     try:
-        cfg = draccus.parse(EvalConfig, args=sys.argv[1:] if argv is None else argv)
+        cfg = parse_config(EvalConfig, argv, "msta-eval")
         metrics = evaluate(cfg)
     except (KeyError, ValueError, FileNotFoundError, NotADirectoryError,
             draccus.utils.ParsingError, draccus.utils.DecodingError) as e:

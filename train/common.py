@@ -21,10 +21,11 @@ from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 import torch
 from safetensors.torch import load_file, save_file
+
+from msta_data.cli import parse_config, usage_error
 
 
 @dataclass
@@ -90,19 +91,20 @@ class LoopConfig:
 _PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
 
 
-def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str) -> T:
-    """draccus parsing plus two conveniences for the ``policy`` field.
+def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
+                 aliases: dict[str, str] | None = None) -> T:
+    """:func:`msta_data.cli.parse_config` plus two conveniences for the ``policy`` field.
 
     ``--policy.preset=<name>`` starts from a named preset (``MSTAConfig.from_preset``);
     ``--policy.<field>=...`` flags given explicitly still override it. Without
     ``--policy.type`` but with other ``--policy.*`` flags, ``--policy.type=msta`` is implied.
-    Unknown keys exit with draccus' usage error; invalid values exit with a one-line message
-    naming the field.
+    Unknown options and invalid values exit 2 with a one-line message.
 
     Args:
         config_class: a draccus dataclass with a ``policy: PolicyConfig`` field.
         argv: arguments (default ``sys.argv[1:]``).
         prog: program name for the usage message.
+        aliases: nested option -> the top-level option that decides it (parse_config).
     """
     import sys
 
@@ -114,7 +116,7 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str) -
     for i, a in enumerate(args):
         m = _PRESET.match(a)
         if m and m.group(1) is None and i + 1 < len(args):
-            raise SystemExit(f"{prog}: write --policy.preset=<name> (with '=')")
+            raise usage_error(f"{prog}: error: write --policy.preset=<name> (with '=')")
         if m:
             preset = m.group(1)
         else:
@@ -122,24 +124,18 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str) -
     policy_flags = [a for a in rest if a.startswith("--policy.")]
     if policy_flags and not any(a.startswith("--policy.type") for a in policy_flags):
         rest.insert(0, "--policy.type=msta")
-    try:
-        cfg = draccus.parse(config_class, args=rest, prog=prog)
-    except (draccus.utils.DecodingError, draccus.utils.ParsingError, ValueError, KeyError,
-            TypeError) as e:  # invalid values: one line naming the field, no traceback
-        root = e
-        while root.__cause__ is not None or root.__context__ is not None:
-            root = root.__cause__ or root.__context__
-        detail = f" ({type(root).__name__}: {root})" if root is not e else ""
-        raise SystemExit(f"{prog}: error: {e}{detail}") from None
+    cfg = parse_config(config_class, rest, prog, extra_options=[("--policy.preset", (
+        "start the policy config from a named preset (msta and the baselines: paper, cpu, "
+        "tiny); explicit --policy.<field> flags still override it"))], aliases=aliases)
     if preset is not None:
         explicit = {a.split("=", 1)[0][len("--policy."):] for a in policy_flags} - {"type"}
         policy = cfg.policy  # type: ignore[attr-defined]
         if not hasattr(type(policy), "from_preset"):
-            raise SystemExit(f"{prog}: policy type {policy.type!r} has no presets")
+            raise usage_error(f"{prog}: error: policy type {policy.type!r} has no presets")
         try:
             new = type(policy).from_preset(preset, **{k: getattr(policy, k) for k in explicit})
         except (KeyError, ValueError) as e:
-            raise SystemExit(f"{prog}: error: {e.args[0]}") from None
+            raise usage_error(f"{prog}: error: {e.args[0]}") from None
         cfg = replace(cfg, policy=new)  # type: ignore[type-var]
     return cfg
 

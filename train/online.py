@@ -506,7 +506,8 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    cfg = parse_cli(CorrectConfig, argv, prog="msta-correct")
+    cfg = parse_cli(CorrectConfig, argv, prog="msta-correct", aliases={
+        "env.num_envs": "num_envs", "env.episode_length_s": "episode_length_s"})
     from train.offline import USER_ERRORS
 
     try:

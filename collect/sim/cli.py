@@ -10,11 +10,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
 import numpy as np
 
 from collect.rollout import ZeroPolicy, run
 from collect.sim.env import EnvConfig, QuadrupedEnv
+from msta_data.cli import parse_config
 
 
 @dataclass
@@ -77,8 +77,9 @@ def simulate(cfg: SimRunConfig) -> str:
     return table
 
 
-def main() -> None:
-    simulate(draccus.parse(SimRunConfig))
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point (``msta-sim``)."""
+    simulate(parse_config(SimRunConfig, argv, "msta-sim"))
 
 
 if __name__ == "__main__":

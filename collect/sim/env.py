@@ -57,7 +57,12 @@ class ControlConfig:
 
 @dataclass
 class NoiseConfig:
-    """Uniform observation noise; half-widths come from the registry, times ``scale``."""
+    """Uniform observation noise; half-widths come from the registry, times ``scale``.
+
+    Args:
+        enabled: add the noise to every observation.
+        scale: multiplies every sensor's noise half-width (the sensor registry's).
+    """
 
     enabled: bool = True
     scale: float = 1.0

@@ -14,7 +14,21 @@ import numpy as np
 
 @dataclass
 class RewardScales:
-    """Scale per reward term (0 disables a term). Names follow legged_gym."""
+    """Scale per reward term (0 disables a term). Names follow legged_gym.
+
+    Args:
+        tracking_lin_vel: exp(-|v_xy - cmd_xy|^2 / sigma) linear-velocity tracking.
+        tracking_ang_vel: exp(-(w_z - cmd_yaw)^2 / sigma) yaw-rate tracking.
+        lin_vel_z: penalty on the base's vertical speed squared.
+        ang_vel_xy: penalty on roll and pitch rates squared.
+        torques: penalty on the summed squared joint torques.
+        dof_acc: penalty on the summed squared joint accelerations.
+        feet_air_time: bonus (air time - air_time_target) per touchdown while the command
+            asks to move (|cmd_xy| > 0.1 m/s).
+        collision: penalty per thigh or calf in contact.
+        action_rate: penalty on the squared change of the action.
+        dof_pos_limits: penalty on the summed distance of joints beyond their soft limits.
+    """
 
     tracking_lin_vel: float = 1.0
     tracking_ang_vel: float = 0.5

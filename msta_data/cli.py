@@ -1,0 +1,305 @@
+"""The command-line layer every msta console script parses its config with.
+
+:func:`parse_config` is draccus parsing (typed dataclass configs, ``--a.b.c=value``, an
+unknown key is an error) plus what a user expects of a command line:
+
+* ``--help`` shows every option with its description and default. The description is the
+  field's entry in the ``Args:`` block of its dataclass docstring (the public API's
+  documentation, house rule 7), so the two never drift apart; the dataclass docstring
+  dumps and draccus' "Config file for <group>" lines are left out.
+* A misspelled option exits 2 with one line and the closest known options
+  ("did you mean --steps?") instead of a page of usage.
+* An invalid value exits 2 with one line naming the field and the reason, no traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import difflib
+import functools
+import inspect
+import itertools
+import re
+import sys
+import textwrap
+import typing
+from collections.abc import Callable, Sequence
+from typing import Any, NoReturn
+
+import draccus
+from draccus.wrappers.field_metavar import get_metavar
+
+#: Errors that mean "a bad value on the command line" (draccus wraps ours).
+VALUE_ERRORS = (draccus.utils.DecodingError, draccus.utils.ParsingError, ValueError, KeyError,
+                TypeError, FileNotFoundError, NotADirectoryError)
+
+_ENTRY = re.compile(r"^(\s*)(\w+(?:,\s*\w+)*)(?:\s*\([^)]*\))?:\s*(.*)$")
+
+
+@functools.cache
+def args_doc(cls: type) -> dict[str, str]:
+    """Field name -> description from the ``Args:`` (or ``Attributes:``) blocks of ``cls``
+    and its bases, or from a docstring right under the field (a subclass's entry wins),
+    whitespace collapsed to one line."""
+    out: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        # a leading newline: a docstring that starts with "Args:" keeps its entries indented
+        doc = inspect.cleandoc("\n" + (klass.__dict__.get("__doc__") or ""))
+        out.update(_parse_args_block(doc))
+        out.update(_field_docstrings(klass))
+    return out
+
+
+def _field_docstrings(cls: type) -> dict[str, str]:
+    """``x: int = 0`` followed by a string literal: that string documents ``x``."""
+    try:
+        tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    except (OSError, TypeError, SyntaxError):
+        return {}
+    body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+    out = {}
+    for node, nxt in itertools.pairwise(body):
+        if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                and isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant)
+                and isinstance(nxt.value.value, str)):
+            out[node.target.id] = " ".join(nxt.value.value.split())
+    return out
+
+
+def _parse_args_block(doc: str) -> dict[str, str]:
+    out: dict[str, str] = {}
+    lines = doc.splitlines()
+    i = 0
+    while i < len(lines):
+        if lines[i].strip() not in ("Args:", "Attributes:"):
+            i += 1
+            continue
+        base = len(lines[i]) - len(lines[i].lstrip())
+        i += 1
+        indent, names = None, []
+        while i < len(lines):
+            line = lines[i]
+            depth = len(line) - len(line.lstrip())
+            if line.strip() and depth <= base:
+                break  # the block ended (the next section or text)
+            m = _ENTRY.match(line)
+            if m and (indent is None or len(m.group(1)) == indent):
+                indent, names = len(m.group(1)), [n.strip() for n in m.group(2).split(",")]
+                for name in names:
+                    out[name] = m.group(3).strip()
+            elif names and line.strip():
+                for name in names:
+                    out[name] = f"{out[name]} {line.strip()}".strip()
+            i += 1
+    return out
+
+
+def _field_types(cls: type) -> dict[str, Any]:
+    try:
+        hints = typing.get_type_hints(cls)
+    except Exception:  # noqa: BLE001 - unresolvable annotations: fall back to the raw ones
+        hints = {f.name: f.type for f in dataclasses.fields(cls)}
+    return {f.name: hints.get(f.name, f.type) for f in dataclasses.fields(cls)}
+
+
+def _dataclasses_of(tp: Any) -> list[type]:
+    """The dataclass(es) a field's type can hold: itself, an Optional's argument, or every
+    registered choice of a draccus choice type (``--policy.type=...``)."""
+    for arg in typing.get_args(tp) or (tp,):
+        if isinstance(arg, type) and dataclasses.is_dataclass(arg):
+            choices = getattr(arg, "get_known_choices", None)
+            if choices is not None:
+                return [arg, *choices().values()]
+            return [arg]
+    return []
+
+
+def field_help(config_class: type, dest: str) -> str | None:
+    """Description of the option ``--<dest>`` (``env.terrain.types``) from the docstrings."""
+    classes, *path = [config_class], *dest.split(".")
+    for part in path[:-1]:
+        nested = []
+        for cls in classes:
+            if dataclasses.is_dataclass(cls):
+                tp = _field_types(cls).get(part)
+                if tp is not None:
+                    nested += _dataclasses_of(tp)
+        classes = nested
+    for cls in classes:
+        doc = args_doc(cls).get(path[-1])
+        if doc:
+            return doc
+    return None
+
+
+def _format_default(value: Any) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if value is None:
+        return "null"
+    if isinstance(value, (tuple, list)):
+        return "[" + ",".join(_format_default(v) for v in value) + "]" if value else "[]"
+    if isinstance(value, str):
+        return repr(value) if value == "" else value
+    return str(value)
+
+
+class HelpFormatter(argparse.MetavarTypeHelpFormatter):
+    """Type names as metavars (``--steps int``); descriptions and defaults come from
+    :func:`document`, so no automatic "(default: ...)" is added."""
+
+    def _format_args(self, action: argparse.Action, default_metavar: str) -> str:
+        if action.choices or action.type is None:
+            return super()._format_args(action, default_metavar)
+        return get_metavar(action.type) or super()._format_args(action, default_metavar)
+
+    def _get_default_metavar_for_optional(self, action: argparse.Action) -> str:
+        return getattr(action.type, "__name__", None) or "value"
+
+
+def _default_of(config_class: type, dest: str) -> Any:
+    """The default value at ``dest`` in a default-constructed config (None if unknown)."""
+    try:
+        obj: Any = config_class()
+        for part in dest.split("."):
+            obj = getattr(obj, part)
+        return obj
+    except Exception:  # noqa: BLE001 - a config without full defaults: no default shown
+        return None
+
+
+def document(parser: argparse.ArgumentParser, config_class: type) -> None:
+    """Rewrite the help of draccus' parser: descriptions and defaults on every option."""
+    actions = {id(a): a for a in parser._actions}  # draccus also keeps some only in groups
+    actions.update({id(a): a for g in parser._action_groups for a in g._group_actions})
+    for action in actions.values():
+        if not action.option_strings or action.dest in ("help", draccus.utils.CONFIG_ARG):
+            continue
+        if isinstance(action.help, str) and action.help.startswith("Config file for "):
+            action.help = argparse.SUPPRESS  # draccus' per-group config-file options
+            continue
+        default = action.default
+        if action.dest.endswith(".type") and action.choices:  # a draccus choice type
+            group = action.dest[:-len(".type")]
+            text = f"which registered {group} type to build"
+            default = _default_of(config_class, action.dest)
+        else:
+            text = field_help(config_class, action.dest) or (action.help or "").strip() or None
+        parts = [text] if text else []
+        if action.choices:
+            parts.append("(one of: " + ", ".join(map(str, action.choices)) + ")")
+        if not dataclasses.is_dataclass(default):
+            parts.append(f"(default: {_format_default(default)})")
+        action.help = " ".join(parts).replace("%", "%%")
+    for group in parser._action_groups:
+        group.description = None  # the dataclass docstring: its Args are on the options now
+
+
+def _one_line_error(parser: argparse.ArgumentParser, prog: str) -> Callable[[str], NoReturn]:
+    known = [s for a in parser._actions for s in a.option_strings
+             if a.help is not argparse.SUPPRESS and a.dest != "help"]
+
+    def error(message: str) -> NoReturn:
+        m = re.match(r"unrecognized arguments: (.*)", message)
+        if m:
+            bad = [a.split("=", 1)[0] for a in m.group(1).split() if a.startswith("-")]
+            hints = []
+            for opt in bad:
+                close = difflib.get_close_matches(opt, known, n=3, cutoff=0.6)
+                hints.append(f"{opt}" + (f" (did you mean {' or '.join(close)}?)" if close
+                                         else ""))
+            message = "unknown option " + ", ".join(hints or [m.group(1)])
+        raise usage_error(f"{prog}: error: {message}; see {prog} --help")
+
+    return error
+
+
+def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
+                    extra_options: Sequence[tuple[str, str]] = (),
+                    aliases: dict[str, str] | None = None) -> T:
+    """Parse ``argv`` (default ``sys.argv[1:]``) into ``config_class`` (see the module doc).
+
+    Args:
+        config_class: a draccus dataclass.
+        argv: command-line arguments.
+        prog: program name shown in help and errors.
+        extra_options: ``(flag, help)`` of options the caller consumes itself before
+            parsing (e.g. ``--policy.preset``), listed in ``--help`` only.
+        aliases: nested option -> the top-level option that decides it (``env.seed`` ->
+            ``seed`` where the command sets ``env.seed`` from ``seed``): the nested flag is
+            read as the top-level one, and giving both is an error, so an option the user
+            gave is never silently overridden.
+
+    Raises:
+        SystemExit: 0 after ``--help``; 2 with a one-line message for an unknown option or
+            an invalid value.
+    """
+    args = _resolve_aliases(list(sys.argv[1:] if argv is None else argv), aliases or {}, prog)
+    try:
+        wrapper = draccus.argparsing.ArgumentParser(config_class, prog=prog,
+                                                    formatter_class=HelpFormatter)
+        if "-h" in args or "--help" in args:
+            document(wrapper.parser, config_class)
+        for a in wrapper.parser._actions:
+            if a.dest in (aliases or {}):
+                a.help = f"the same as --{aliases[a.dest]} (which see)"  # type: ignore[index]
+        for flag, text in extra_options:
+            wrapper.parser.add_argument(flag, metavar="str", default=argparse.SUPPRESS,
+                                        help=text.replace("%", "%%"))
+        wrapper.parser.usage = f"{prog} [-h] [--<option>=<value> ...]"
+        wrapper.parser.error = _one_line_error(wrapper.parser, prog)  # type: ignore[method-assign]
+        return wrapper.parse_args(args)
+    except VALUE_ERRORS as e:
+        raise usage_error(f"{prog}: error: {describe(e)}") from None
+
+
+def _resolve_aliases(args: list[str], aliases: dict[str, str], prog: str) -> list[str]:
+    given: dict[str, str] = {}
+    out = []
+    for a in args:
+        flag, sep, value = a.partition("=")
+        name = flag[2:] if flag.startswith("--") else None
+        if name in aliases:
+            target = aliases[name]
+            if target in given.values() or any(x.partition("=")[0] == f"--{target}"
+                                               for x in args):
+                raise usage_error(f"{prog}: error: give --{target} or --{name}, not both "
+                                  f"(--{target} sets {name})")
+            given[name] = target
+            a = f"--{target}{sep}{value}"
+        out.append(a)
+    return out
+
+
+class UsageError(SystemExit):
+    """Exit status 2 (argparse's for a bad command line); ``str()`` is the message."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(2)
+        self.message = message
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def usage_error(message: str) -> UsageError:
+    """Print ``message`` to stderr and return the exception to raise (exit status 2)."""
+    sys.stderr.write(message + "\n")
+    return UsageError(message)
+
+
+def describe(e: BaseException) -> str:
+    """One line for a parsing error: the field or class draccus names, then the innermost
+    reason (our ``__post_init__`` checks raise inside draccus' wrappers)."""
+    where, root = "", e
+    while root.__cause__ is not None or root.__context__ is not None:
+        text = str(root)
+        if text.startswith("Couldn't instantiate class "):
+            where = text.split()[3] + ": "
+        root = root.__cause__ or root.__context__
+    msg = root.args[0] if isinstance(root, KeyError) and root.args else root
+    if root is e:
+        return f"{msg}"
+    return f"{where}{msg}" if where else f"{e} ({type(root).__name__}: {msg})"

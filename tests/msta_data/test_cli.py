@@ -1,0 +1,137 @@
+"""Contract of every draccus console script: documented --help, one-line errors (exit 2)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import pytest
+
+from collect.record import main as collect_main
+from collect.sim.cli import main as sim_main
+from eval.compare import main as compare_main
+from eval.evaluate import main as eval_main
+from msta_data.cli import args_doc, field_help, parse_config
+from train.offline import main as train_main
+from train.online import main as correct_main
+
+#: console script -> (entry point, an option it has, a bad value for an option)
+SCRIPTS = {
+    "msta-train": (train_main, "--steps", "--steps=abc"),
+    "msta-correct": (correct_main, "--rounds", "--env.collision=fastt"),
+    "msta-collect": (collect_main, "--episodes", "--episodes=0"),
+    "msta-eval": (eval_main, "--trials", "--terrains=lava"),
+    "msta-compare": (compare_main, "--preset", "--collect_envs=x"),
+    "msta-sim": (sim_main, "--seconds", "--env.num_envs=-1"),
+}
+
+
+def options(help_text: str) -> dict[str, str]:
+    """Option flag -> its help text (the rest of its line and its continuation lines)."""
+    out: dict[str, str] = {}
+    flag = None
+    for line in help_text.splitlines():
+        m = re.match(r"^  (-h, )?(--[\w.]+)(?: \S+(?: \S+)*)?(?:\s{2,}(.*))?$", line)
+        if m:
+            flag = m.group(2)
+            out[flag] = (m.group(3) or "").strip()
+        elif flag and line.startswith("   ") and line.strip():
+            out[flag] = f"{out[flag]} {line.strip()}"
+        elif not line.strip() or not line.startswith(" "):
+            flag = None
+    return out
+
+
+@pytest.mark.parametrize("prog", SCRIPTS)
+def test_help_describes_every_option_and_errors_are_one_line(prog, capsys):
+    main, known, bad_value = SCRIPTS[prog]
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    opts = options(text)
+    assert known in opts and len(opts) > 5
+    for flag, desc in opts.items():
+        words = re.sub(r"\(default: .*?\)", "", desc).strip()
+        assert words, f"{prog} {flag}: no description"
+        assert "def " not in desc and "Config file for" not in desc, f"{prog} {flag}: {desc}"
+    assert "Args:" not in text and len(text.splitlines()[0]) < 100  # short usage line
+
+    typo = known[:-1] + known[-1].upper() + "x"  # --stepsx-like: close to a real option
+    with pytest.raises(SystemExit) as e:
+        main([f"{typo}=1"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"did you mean {known}" in err, err
+
+    with pytest.raises(SystemExit) as e:
+        main([bad_value])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"{prog}: error: "), err
+
+
+def test_policy_help_lists_types_presets_and_the_chosen_type_fields(capsys):
+    with pytest.raises(SystemExit):
+        train_main(["--policy.type=gru", "--help"])
+    opts = options(capsys.readouterr().out)
+    assert "gru" in opts["--policy.type"] and "(default: msta)" in opts["--policy.type"]
+    assert "paper, cpu, tiny" in opts["--policy.preset"]
+    assert opts["--policy.hidden_dim"]  # a GRU field, described
+
+
+@dataclass
+class Inner:
+    """Args:
+        kp, kd: two gains
+            on one entry.
+    """
+
+    depth: int = 3
+    """a field docstring."""
+    kp: float = 1.0
+    kd: float = 2.0
+
+    def gains(self) -> tuple[float, float]:
+        """(see Outer.label)"""
+        return self.kp, self.kd
+
+
+@dataclass
+class Outer:
+    """Outer config.
+
+    Args:
+        name: what it is called.
+        inner: nested options.
+    """
+
+    name: str = "x"
+    inner: Inner = field(default_factory=Inner)
+
+    def label(self) -> str:
+        """(draccus reads a docstring's last Args entry as a field and the closing quotes as
+        the start of its docstring, which must end somewhere below.)"""
+        return self.name
+
+
+def test_descriptions_come_from_args_blocks_and_field_docstrings():
+    assert args_doc(Inner) == {"kp": "two gains on one entry.", "kd": "two gains on one entry.",
+                               "depth": "a field docstring."}
+    assert field_help(Outer, "inner.depth") == "a field docstring."
+    assert field_help(Outer, "name") == "what it is called."
+    assert field_help(Outer, "nope") is None
+    cfg = parse_config(Outer, ["--inner.kd=5", "--name=y"], "prog")
+    assert cfg == Outer(name="y", inner=Inner(kd=5.0))
+
+
+def test_a_nested_option_the_command_sets_itself_is_read_not_overridden():
+    """msta-collect sets env.episode_length_s / env.seed / env.num_envs from its own
+    top-level options: the nested flags mean the same, and both at once is an error."""
+    from collect.record import parse_config as collect_config
+
+    cfg = collect_config(["--env.episode_length_s=0.2", "--env.seed=7", "--env.num_envs=3"])
+    assert (cfg.episode_length_s, cfg.seed, cfg.num_envs) == (0.2, 7, 3)
+    with pytest.raises(SystemExit, match="give --seed or --env.seed, not both") as e:
+        collect_config(["--seed=1", "--env.seed=7"])
+    assert e.value.code == 2
