@@ -23,9 +23,11 @@ Everything goes under ``--out`` (default ``outputs/demo``); a rerun starts afres
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import shutil
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from collect.sim.env import EnvConfig
@@ -141,7 +143,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     return best
 
 
-def step_eval(out: Path, best: int, trials: int, episode_s: float) -> dict:
+def step_eval(out: Path, best: int, trials: int, episode_s: float, threads: int) -> dict:
     from eval.evaluate import EvalConfig, evaluate
     from msta_data import hub
 
@@ -154,7 +156,7 @@ def step_eval(out: Path, best: int, trials: int, episode_s: float) -> dict:
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
                                   scenarios="token_removal", out=str(out / "eval"),
                                   trials=trials, levels="0,1,2", episode_s=episode_s,
-                                  progress=False))
+                                  threads=threads, progress=False))
     report = out / "eval" / "report.md"
     if report.exists():
         print(report.read_text())
@@ -199,6 +201,14 @@ def verdict(metrics: dict) -> tuple[bool, str]:
     return walks, line
 
 
+@contextlib.contextmanager
+def timed(name: str) -> Iterator[None]:
+    """Print how long the block took (the demo's time budget is per step)."""
+    t0 = time.time()
+    yield
+    print(f"({name} took {(time.time() - t0) / 60:.1f} min)", flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description="Run the msta pipeline demo on built-in defaults.",
                                 formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -206,10 +216,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=int, default=96, help="teacher episodes to record")
     p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
     p.add_argument("--train_steps", type=int, default=1500, help="stage-1 optimizer steps")
-    p.add_argument("--rounds", type=int, default=5, help="stage-2 rounds (0: stage 1 only)")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="stage-2 rounds (0: stage 1 only); one keeps the demo near 15 min on "
+                        "2 cores (each round: rollouts, 1000 steps, its evaluation ~5-6 min)")
     p.add_argument("--correct_steps", type=int, default=1000,
                    help="stage-2 retraining steps per round")
-    p.add_argument("--correct_episodes", type=int, default=64,
+    p.add_argument("--correct_episodes", type=int, default=32,
                    help="stage-2 student episodes (10 s) per round")
     p.add_argument("--correct_mask", type=float, default=0.75,
                    help="stage-2 training mask ratio (the paper's 0.5 costs twice the time)")
@@ -223,7 +235,8 @@ def main(argv: list[str] | None = None) -> None:
                    help="msta-eval trials per test mask (spread over 5 terrains x levels 0-2)")
     p.add_argument("--eval_episode_s", type=float, default=5.0,
                    help="msta-eval episode length (s)")
-    p.add_argument("--threads", type=int, default=2, help="torch threads for training")
+    p.add_argument("--threads", type=int, default=2,
+                   help="torch threads for training and evaluation")
     args = p.parse_args(argv)
     for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
                  "envs_per_type", "eval_trials", "select_trials", "threads"):
@@ -237,18 +250,26 @@ def main(argv: list[str] | None = None) -> None:
     if args.out.exists():
         shutil.rmtree(args.out)
     t0 = time.time()
-    step_teacher(args.out, seconds=args.teacher_s, envs_per_type=args.envs_per_type)
-    dataset = step_collect(args.out, args.episodes, args.episode_s)
+    with timed("step 1"):
+        step_teacher(args.out, seconds=args.teacher_s, envs_per_type=args.envs_per_type)
+    with timed("step 2"):
+        dataset = step_collect(args.out, args.episodes, args.episode_s)
     server = start_hub(args.out)
     try:
-        hub_dataset = step_push(dataset)
-        stage1 = step_train(args.out, hub_dataset, args.train_steps, args.threads)
+        with timed("step 3"):
+            hub_dataset = step_push(dataset)
+        with timed("step 4"):
+            stage1 = step_train(args.out, hub_dataset, args.train_steps, args.threads)
         best = 0
         if args.rounds:
-            best = step_correct(args.out, stage1, hub_dataset, args.rounds, args.correct_steps,
-                                args.correct_episodes, args.correct_mask, args.threads,
-                                args.select_trials, args.select_episode_s)
-        metrics = step_eval(args.out, best, args.eval_trials, args.eval_episode_s)
+            with timed("step 5"):
+                best = step_correct(args.out, stage1, hub_dataset, args.rounds,
+                                    args.correct_steps, args.correct_episodes,
+                                    args.correct_mask, args.threads, args.select_trials,
+                                    args.select_episode_s)
+        with timed("step 6"):
+            metrics = step_eval(args.out, best, args.eval_trials, args.eval_episode_s,
+                                args.threads)
     finally:
         server.stop()
     _, line = verdict(metrics)
