@@ -37,7 +37,7 @@ HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
 
 def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
-    from collect.sim.cli import SimRunConfig, simulate
+    from collect.simulate import SimRunConfig, simulate
 
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from collect.record import main as collect_main
-from collect.sim.cli import main as sim_main
+from collect.simulate import main as sim_main
 from eval.compare import main as compare_main
 from eval.evaluate import main as eval_main
 from msta_data.cli import args_doc, field_help, parse_config
