@@ -18,7 +18,7 @@ from mujoco import rollout
 
 from collect.sim import robot
 from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE
 
 
 def _raw_rate(env: QuadrupedEnv, actions: np.ndarray) -> float:

@@ -22,6 +22,7 @@ from collect.sim.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
 from collect.sim.randomization import RandomizationConfig, build_pool
 from collect.sim.rewards import RewardConfig, RewardInputs, compute_rewards, soft_limits
 from collect.sim.terrain import Terrain, TerrainConfig, sample_initial, update_levels
+from msta_data.robot import DEFAULT_POSE, SPAWN_HEIGHT
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 
 PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
@@ -242,7 +243,7 @@ class QuadrupedEnv:
         a = self._check_action(action)
         self.last_action[:] = self.action
         self.action[:] = a
-        target = robot.DEFAULT_POSE + self.cfg.control.action_scale * a
+        target = DEFAULT_POSE + self.cfg.control.action_scale * a
         self._control[:] = target[:, None, :]
         t_before = self.state[:, 0].copy()
         self._runner.rollout(self._models, self._datas, self.state, self._control,
@@ -361,7 +362,7 @@ class QuadrupedEnv:
         st = np.tile(self._template, (n, 1))
         lay = self.layout
         ground = self.terrain.height_at(xy[:, None, :] + self._footprint()[None]).max(axis=1)
-        st[:, lay.base_pos] = np.column_stack([xy, ground + robot.SPAWN_HEIGHT])
+        st[:, lay.base_pos] = np.column_stack([xy, ground + SPAWN_HEIGHT])
         st[:, lay.base_quat] = yaw_quat(yaw)
         self.state[ids] = st
         self.variant[ids] = self.rng.integers(0, len(self.pool), n)

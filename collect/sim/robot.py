@@ -1,4 +1,4 @@
-"""A1-class robot constants and scene assembly (robot MJCF + terrain heightfield)."""
+"""A1-class scene assembly (robot MJCF + terrain heightfield); the MuJoCo side of msta_data.robot."""
 
 from __future__ import annotations
 
@@ -8,24 +8,10 @@ from importlib import resources
 import mujoco
 import numpy as np
 
+from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, SPAWN_HEIGHT
 from msta_data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
 
 ASSET = "a1.xml"
-
-#: legged_gym default pose: hip +0.1 (left) / -0.1 (right); thigh 0.8 front / 1.0 rear; calf -1.5.
-DEFAULT_POSE = np.array(
-    [0.1, 0.8, -1.5, -0.1, 0.8, -1.5, 0.1, 1.0, -1.5, -0.1, 1.0, -1.5], dtype=np.float64)
-TORQUE_LIMIT = 33.5
-VELOCITY_LIMIT = 21.0
-THIGH_LENGTH = 0.2
-CALF_LENGTH = 0.2
-FOOT_RADIUS = 0.02
-#: Calf collision capsule length (m) in the "full" collision set (to the foot sphere).
-CALF_COLLISION_FULL = 0.17
-HIP_OFFSETS = np.array([[0.183, 0.047], [0.183, -0.047], [-0.183, 0.047], [-0.183, -0.047]])
-THIGH_OFFSET_Y = np.array([0.08505, -0.08505, 0.08505, -0.08505])
-#: Trunk height above flat ground in the default pose, plus a small drop margin.
-SPAWN_HEIGHT = 0.34
 
 # Sensor layout of the MJCF (see assets/a1.xml): 4 foot touches, trunk touch,
 # 4 thigh touches, 4 calf touches, 12 actuator forces.
@@ -184,29 +170,7 @@ def joint_limits(model: mujoco.MjModel) -> np.ndarray:
     return np.array(model.jnt_range[1:13], dtype=np.float64)
 
 
-def foot_positions_body(q: np.ndarray) -> np.ndarray:
-    """Forward kinematics of the feet in the base frame.
-
-    Args:
-        q: (N, 12) joint angles in registry order.
-    Returns:
-        (N, 4, 3) foot sphere centres in the base frame.
-    """
-    q = q.reshape(-1, 4, 3)
-    hip, thigh, calf = q[..., 0], q[..., 1], q[..., 2]
-    # Leg plane: thigh and calf rotate about y; x forward, z down.
-    x = -THIGH_LENGTH * np.sin(thigh) - CALF_LENGTH * np.sin(thigh + calf)
-    z_leg = -THIGH_LENGTH * np.cos(thigh) - CALF_LENGTH * np.cos(thigh + calf)
-    y_leg = THIGH_OFFSET_Y[None, :]
-    # Hip rotation about x.
-    c, s = np.cos(hip), np.sin(hip)
-    y = c * y_leg - s * z_leg
-    z = s * y_leg + c * z_leg
-    out = np.stack([x + HIP_OFFSETS[None, :, 0], y + HIP_OFFSETS[None, :, 1], z], axis=-1)
-    return out
-
-
 __all__ = [
-    "COLLISION_SETS", "DEFAULT_POSE", "LEGS", "TORQUE_LIMIT", "StateLayout", "build_model",
-    "default_state", "foot_positions_body", "joint_limits", "state_layout",
+    "COLLISION_SETS", "SENS_FOOT", "SENS_LEG_COLLISION", "SENS_TORQUE", "SENS_TRUNK", "StateLayout",
+    "build_model", "check_collision_set", "default_state", "joint_limits", "state_layout",
 ]

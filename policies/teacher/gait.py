@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from collect.sim.math3d import quat_to_mat, yaw_of
-from collect.sim.robot import (
+from msta_data.robot import (
     DEFAULT_POSE,
     FOOT_RADIUS,
     HIP_OFFSETS,

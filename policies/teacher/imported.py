@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from collect.sim.env import ControlConfig
-from collect.sim.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE
 from msta_data.sensors import ACTION_DIM, FOOT_NAMES, JOINT_NAMES, LEGS, get
 from policies.teacher.base import check_obs, register_teacher
 

@@ -28,7 +28,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from collect.sim.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE
 from msta_data.sensors import ACTION_DIM
 from policies.teacher.base import check_obs, register_teacher
 from policies.teacher.imported import InputScaler, SignalSpec

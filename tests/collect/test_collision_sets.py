@@ -6,6 +6,7 @@ import pytest
 
 from collect.sim import robot
 from collect.sim.env import EnvConfig
+from msta_data.robot import CALF_COLLISION_FULL
 
 
 def _colliding(model: mujoco.MjModel) -> set[str]:
@@ -48,7 +49,7 @@ def test_fast_set_is_feet_trunk_and_upper_calves():
     assert full == fast | {"FL_thigh", "FR_thigh", "RL_thigh", "RR_thigh"}
     fast_calf = robot.build_model(None).geom("FL_calf").size[1]
     assert fast_calf == pytest.approx(0.05)
-    assert full_model.geom("FL_calf").size[1] == pytest.approx(robot.CALF_COLLISION_FULL / 2)
+    assert full_model.geom("FL_calf").size[1] == pytest.approx(CALF_COLLISION_FULL / 2)
 
 
 def test_the_lower_shin_collides_only_in_the_full_set():

@@ -12,6 +12,7 @@ from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
+from msta_data import robot as robot_spec
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 from policies.teacher.base import Teacher, make_teacher
 from policies.teacher.gait import GaitConfig, GaitTeacher
@@ -66,20 +67,20 @@ def test_fk_matches_mujoco_and_ik_round_trip():
     model = robot.build_model(None)
     data = mujoco.MjData(model)
     rng = np.random.default_rng(0)
-    q = robot.DEFAULT_POSE + rng.uniform(-0.4, 0.4, (20, 12))
-    feet = robot.foot_positions_body(q)
+    q = robot_spec.DEFAULT_POSE + rng.uniform(-0.4, 0.4, (20, 12))
+    feet = robot_spec.foot_positions_body(q)
     for i in range(3):
         data.qpos[:7] = (0, 0, 0, 1, 0, 0, 0)
         data.qpos[7:] = q[i]
         mujoco.mj_kinematics(model, data)
-        sim = np.array([data.geom(f"{leg}_foot").xpos for leg in robot.LEGS])
+        sim = np.array([data.geom(f"{leg}_foot").xpos for leg in robot_spec.LEGS])
         np.testing.assert_allclose(feet[i], sim, atol=1e-9)
     q2 = leg_ik(feet)
     np.testing.assert_allclose(q2, q, atol=1e-9)
     # Jacobian columns: the foot moves by J dq for a small dq.
     jac = foot_jacobian(q)
     dq = rng.normal(0, 1e-4, (20, 12))
-    moved = robot.foot_positions_body(q + dq) - feet
+    moved = robot_spec.foot_positions_body(q + dq) - feet
     pred = np.einsum("nkij,nkj->nki", jac, dq.reshape(20, 4, 3))
     np.testing.assert_allclose(moved, pred, atol=1e-7)
     # Unreachable targets are projected, never NaN.

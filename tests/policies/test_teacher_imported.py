@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE
 from msta_data.sensors import JOINT_NAMES, SENSORS, STUDENT_SENSORS, get
 from policies.teacher.base import TEACHERS, Teacher, make_teacher
 from policies.teacher.imported import ActionConverter, ActionSpec, ImportedTeacher

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE
 from msta_data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS, get
 from policies.teacher.base import TEACHERS, Teacher, make_teacher
 from policies.teacher.imported import SignalSpec
