@@ -118,7 +118,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
     from msta_data.stats import load_stats
     from msta_data.windows import WindowDataset, episode_split
     from policies.factory import make_policy
-    from train.common import WarmupCosine, make_optimizer
+    from train.optim import WarmupCosine, make_optimizer
     from train.step import train_step, validate
 
     train_eps, val_eps = episode_split(root, 0.1, SEED)

@@ -11,7 +11,7 @@ import torch
 from safetensors.torch import load_file
 
 from policies.msta import MSTAPolicy
-from train.common import parse_cli
+from train.cli import parse_cli
 from train.offline import TrainConfig, main, train
 
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",
@@ -45,7 +45,7 @@ def test_every_policy_type_parses_in_a_fresh_process(tmp_path):
     from pathlib import Path
 
     repo = Path(__file__).resolve().parents[2]
-    code = ("from train.common import parse_cli; from train.offline import TrainConfig; "
+    code = ("from train.cli import parse_cli; from train.offline import TrainConfig; "
             "import sys; cfgs = [parse_cli(TrainConfig, ['--dataset=x', '--policy.type=' + t], "
             "'msta-train').policy for t in sys.argv[1:]]; "
             "print(' '.join(f'{c.type}:{type(c).__name__}' for c in cfgs))")
@@ -193,7 +193,7 @@ def test_bad_inputs_give_clear_errors(synthetic_dataset, tmp_path, capsys):
 
 
 def test_warns_when_the_student_has_not_learned(synthetic_dataset, tmp_path, capsys):
-    from train.offline import warn_if_not_learned
+    from train.loop import warn_if_not_learned
 
     # six steps leave the tiny student near the mean: the warning says so
     train(cfg_for(synthetic_dataset, tmp_path / "short", "--steps=6", "--eval_every=0"))

@@ -15,7 +15,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from train.common import parse_cli
+from train.cli import parse_cli
 from train.offline import TrainConfig, main, train
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,0 +1,67 @@
+"""Command-line parsing shared by ``msta-train`` and ``msta-correct``."""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Sequence
+from dataclasses import replace
+
+from msta_data.cli import parse_config, usage_error
+from msta_data.errors import DatasetError, DirectoryLockedError
+from policies.base import CheckpointError
+from policies.factory import known_policies
+from train.push import PushError
+
+_PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
+
+
+def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
+                 aliases: dict[str, str] | None = None) -> T:
+    """:func:`msta_data.cli.parse_config` plus two conveniences for the ``policy`` field.
+
+    ``--policy.preset=<name>`` starts from a named preset (``MSTAConfig.from_preset``);
+    ``--policy.<field>=...`` flags given explicitly still override it. Without
+    ``--policy.type`` but with other ``--policy.*`` flags, ``--policy.type=msta`` is implied.
+    Unknown options and invalid values exit 2 with a one-line message.
+
+    Args:
+        config_class: a draccus dataclass with a ``policy: PolicyConfig`` field.
+        argv: arguments (default ``sys.argv[1:]``).
+        prog: program name for the usage message.
+        aliases: nested option -> the top-level option that decides it (parse_config).
+    """
+    known_policies()  # registers every built-in policy type with draccus before parsing
+    args = list(sys.argv[1:] if argv is None else argv)
+    preset, rest = None, []
+    for i, a in enumerate(args):
+        m = _PRESET.match(a)
+        if m and m.group(1) is None and i + 1 < len(args):
+            raise usage_error(f"{prog}: error: write --policy.preset=<name> (with '=')")
+        if m:
+            preset = m.group(1)
+        else:
+            rest.append(a)
+    policy_flags = [a for a in rest if a.startswith("--policy.")]
+    if policy_flags and not any(a.startswith("--policy.type") for a in policy_flags):
+        rest.insert(0, "--policy.type=msta")
+    cfg = parse_config(config_class, rest, prog, extra_options=[("--policy.preset", (
+        "start the policy config from a named preset (msta and the baselines: paper, cpu, "
+        "tiny); explicit --policy.<field> flags still override it"))], aliases=aliases)
+    if preset is not None:
+        explicit = {a.split("=", 1)[0][len("--policy."):] for a in policy_flags} - {"type"}
+        policy = cfg.policy  # type: ignore[attr-defined]
+        if not hasattr(type(policy), "from_preset"):
+            raise usage_error(f"{prog}: error: policy type {policy.type!r} has no presets")
+        try:
+            new = type(policy).from_preset(preset, **{k: getattr(policy, k) for k in explicit})
+        except (KeyError, ValueError) as e:
+            raise usage_error(f"{prog}: error: {e.args[0]}") from None
+        cfg = replace(cfg, policy=new)  # type: ignore[type-var]
+    return cfg
+
+
+#: Errors a user's input causes (a damaged dataset, a locked directory, a bad checkpoint or
+#: value): the CLIs print them as one line naming the file, without a traceback.
+USER_ERRORS = (PushError, DatasetError, DirectoryLockedError, CheckpointError,
+               FileNotFoundError, FileExistsError, ValueError)

@@ -1,0 +1,64 @@
+"""The optimizer / schedule / logging flags every training loop shares (stage 1 and 2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+
+@dataclass
+class LoopConfig:
+    """Args:
+        steps: optimizer steps.
+        batch_size: windows per step.
+        lr: peak learning rate (AdamW).
+        weight_decay: AdamW decoupled weight decay (not applied to biases, norms, embeddings).
+        warmup_steps: linear warm-up from 0 to ``lr``, then cosine decay.
+        min_lr_ratio: the cosine ends at ``lr * min_lr_ratio``.
+        grad_clip: max global gradient norm (0 = no clipping).
+        mask_ratio: training token-removal ratio; null = the policy config's (0.75 for MSTA).
+        eval_every: validation every N steps (0 = only at the end).
+        save_every: checkpoint every N steps (0 = only the final one).
+        log_every: train metrics to CSV / TensorBoard every N steps.
+        val_samples: validation windows evaluated (evenly spaced over the split).
+        seed: seeds the model init, the sampler, the masks and every RNG.
+        progress: show a tqdm progress bar.
+        ema_decay: keep an exponential moving average of the weights (decay per step,
+            e.g. 0.995: about the last 200 steps) and make it the result: the final
+            validation and the final checkpoint use the averaged weights. 0 = off.
+    """
+
+    steps: int = 2000
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 0.01
+    warmup_steps: int = 100
+    min_lr_ratio: float = 0.1
+    grad_clip: float = 1.0
+    mask_ratio: float | None = None
+    eval_every: int = 500
+    save_every: int = 1000
+    log_every: int = 10
+    val_samples: int = 1024
+    seed: int = 0
+    progress: bool = True
+    ema_decay: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "log_every", "val_samples"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        for name in ("warmup_steps", "eval_every", "save_every", "grad_clip", "weight_decay"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+        if not self.lr > 0:
+            raise ValueError(f"lr={self.lr} must be > 0")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
+        if not 0.0 <= self.min_lr_ratio <= 1.0:
+            raise ValueError(f"min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
+        if self.mask_ratio is not None and not 0.0 <= self.mask_ratio < 1.0:
+            raise ValueError(f"mask_ratio={self.mask_ratio} must be in [0, 1)")
+
+    def loop_part(self) -> LoopConfig:
+        """Just the :class:`LoopConfig` fields (for subclasses carrying more)."""
+        return LoopConfig(**{f.name: getattr(self, f.name) for f in fields(LoopConfig)})

@@ -1,0 +1,159 @@
+"""Training state on disk: optimizer, scheduler, RNG and sampler position as safetensors +
+JSON (no pickle anywhere), and run checkpoints written atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
+
+from policies.base import WEIGHTS_NAME, CheckpointError, StudentPolicy, load_weights
+from train.sampling import WindowSampler
+
+if TYPE_CHECKING:
+    from train.loop import WeightEMA
+
+
+def atomic_json(path: Path, obj: Any) -> None:
+    """Write JSON to ``path`` via a fsync-ed temporary file and a rename."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w") as f:
+        f.write(json.dumps(obj, indent=2) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def flatten_optimizer_state(state: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict]:
+    """``optimizer.state_dict()`` -> (tensors for safetensors, JSON-ready structure)."""
+    tensors: dict[str, torch.Tensor] = {}
+    per_param: dict[str, dict[str, Any]] = {}
+    for pid, entry in state["state"].items():
+        out: dict[str, Any] = {}
+        for key, value in entry.items():
+            if isinstance(value, torch.Tensor):
+                name = f"state.{pid}.{key}"
+                tensors[name] = value.detach().cpu().contiguous()
+                out[key] = {"__tensor__": name}
+            else:
+                out[key] = value
+        per_param[str(pid)] = out
+    return tensors, {"state": per_param, "param_groups": state["param_groups"]}
+
+
+def unflatten_optimizer_state(tensors: dict[str, torch.Tensor], meta: dict) -> dict[str, Any]:
+    """Inverse of :func:`flatten_optimizer_state`."""
+    state = {}
+    for pid, entry in meta["state"].items():
+        state[int(pid)] = {k: tensors[v["__tensor__"]] if isinstance(v, dict) and "__tensor__"
+                           in v else v for k, v in entry.items()}
+    groups = [{k: tuple(v) if k == "betas" else v for k, v in g.items()}
+              for g in meta["param_groups"]]
+    return {"state": state, "param_groups": groups}
+
+
+def rng_state(mask_generator: torch.Generator) -> tuple[dict[str, torch.Tensor], dict]:
+    """Every RNG the loop touches: (tensors, JSON)."""
+    tensors = {"torch": torch.get_rng_state(), "mask_generator": mask_generator.get_state()}
+    if torch.cuda.is_available():
+        for i, s in enumerate(torch.cuda.get_rng_state_all()):
+            tensors[f"cuda.{i}"] = s
+    py = random.getstate()
+    np_state = np.random.get_state()
+    meta = {"python": [py[0], list(py[1]), py[2]],
+            "numpy": [np_state[0], np_state[1].tolist(), *[x for x in np_state[2:]]]}
+    return tensors, meta
+
+
+def set_rng_state(tensors: dict[str, torch.Tensor], meta: dict,
+                  mask_generator: torch.Generator) -> None:
+    torch.set_rng_state(tensors["torch"])
+    mask_generator.set_state(tensors["mask_generator"])
+    cuda = [tensors[k] for k in sorted(tensors) if k.startswith("cuda.")]
+    if cuda and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(cuda)
+    v, s, g = meta["python"]
+    random.setstate((v, tuple(s), g))
+    name, keys, pos, has_gauss, cached = meta["numpy"]
+    np.random.set_state((name, np.asarray(keys, np.uint32), pos, has_gauss, cached))
+
+
+def save_training_state(directory: Path, step: int, optimizer: torch.optim.Optimizer,
+                        scheduler: torch.optim.lr_scheduler.LRScheduler,
+                        sampler: WindowSampler, mask_generator: torch.Generator) -> None:
+    """Write ``optimizer.safetensors/.json``, ``scheduler.json``, ``rng.safetensors/.json``
+    and ``training_step.json`` (step + sampler position) into ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    tensors, meta = flatten_optimizer_state(optimizer.state_dict())
+    save_file(tensors, str(directory / "optimizer.safetensors"))
+    (directory / "optimizer.json").write_text(json.dumps(meta) + "\n")
+    (directory / "scheduler.json").write_text(json.dumps(scheduler.state_dict()) + "\n")
+    tensors, meta = rng_state(mask_generator)
+    save_file(tensors, str(directory / "rng.safetensors"))
+    (directory / "rng.json").write_text(json.dumps(meta) + "\n")
+    (directory / "training_step.json").write_text(
+        json.dumps({"step": step, "sampler": sampler.state_dict()}) + "\n")
+
+
+def load_training_state(directory: Path, optimizer: torch.optim.Optimizer,
+                        scheduler: torch.optim.lr_scheduler.LRScheduler,
+                        sampler: WindowSampler, mask_generator: torch.Generator) -> int:
+    """Restore what :func:`save_training_state` wrote; returns the step reached."""
+    missing = [n for n in ("optimizer.safetensors", "optimizer.json", "scheduler.json",
+                           "rng.safetensors", "rng.json", "training_step.json")
+               if not (directory / n).is_file()]
+    if missing:
+        raise FileNotFoundError(f"training state {directory} is incomplete: missing {missing}")
+    meta = json.loads((directory / "optimizer.json").read_text())
+    optimizer.load_state_dict(
+        unflatten_optimizer_state(load_file(str(directory / "optimizer.safetensors")), meta))
+    scheduler.load_state_dict(json.loads((directory / "scheduler.json").read_text()))
+    set_rng_state(load_file(str(directory / "rng.safetensors")),
+                  json.loads((directory / "rng.json").read_text()), mask_generator)
+    step_info = json.loads((directory / "training_step.json").read_text())
+    sampler.load_state_dict(step_info["sampler"])
+    return int(step_info["step"])
+
+
+def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str, Any],
+                    ema: WeightEMA | None = None) -> Path:
+    """``checkpoints/<step>/`` written under a temporary name, renamed, then ``last`` moved."""
+    ckpts = out / "checkpoints"
+    final, tmp = ckpts / f"{step:06d}", ckpts / f"{step:06d}.tmp"
+    shutil.rmtree(tmp, ignore_errors=True)
+    policy.save_pretrained(tmp / "pretrained_model")
+    save_training_state(tmp / "training_state", step, **state)
+    if ema is not None:
+        ema.save(tmp / "training_state")
+    shutil.rmtree(final, ignore_errors=True)
+    os.replace(tmp, final)
+    link = ckpts / "last.tmp"
+    link.unlink(missing_ok=True)
+    link.symlink_to(final.name)
+    os.replace(link, ckpts / "last")
+    return final
+
+
+def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any],
+                       ema: WeightEMA | None = None) -> int:
+    """Load ``checkpoints/last`` into the policy and the loop state; returns its step."""
+    last = (out / "checkpoints" / "last").resolve()
+    weights = last / "pretrained_model" / WEIGHTS_NAME
+    if not weights.is_file():
+        raise FileNotFoundError(f"checkpoint {last} has no {weights.name}")
+    load_weights(policy, weights)
+    if ema is not None:
+        ema.load(last / "training_state")
+    try:
+        return load_training_state(last / "training_state", **state)
+    except (ValueError, KeyError, TypeError, RuntimeError, SafetensorError) as e:
+        raise CheckpointError(f"{last / 'training_state'}: cannot restore ({type(e).__name__}: "
+                              f"{str(e).splitlines()[0] if str(e) else ''})") from None
