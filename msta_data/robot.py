@@ -29,6 +29,23 @@ THIGH_OFFSET_Y = np.array([0.08505, -0.08505, 0.08505, -0.08505])
 #: Trunk height above flat ground in the default pose, plus a small drop margin.
 SPAWN_HEIGHT = 0.34
 
+# Control defaults: the simulator's ControlConfig starts from these and the teachers plan
+# with them (paper: PD gains 30 / 0.7, 50 Hz control over a 200 Hz physics step).
+#: Position gain of the joint actuators.
+KP = 30.0
+#: Damping gain of the joint actuators.
+KD = 0.7
+#: Joint target = default pose + ACTION_SCALE * action.
+ACTION_SCALE = 0.25
+#: Actions are clipped to +-CLIP_ACTIONS before scaling.
+CLIP_ACTIONS = 100.0
+#: Physics step (s).
+SIM_DT = 0.005
+#: Physics steps per control step.
+DECIMATION = 4
+#: Control period (s): SIM_DT * DECIMATION = 0.02 (50 Hz).
+CONTROL_DT = SIM_DT * DECIMATION
+
 
 def foot_positions_body(q: np.ndarray) -> np.ndarray:
     """Forward kinematics of the feet in the base frame.
@@ -53,7 +70,8 @@ def foot_positions_body(q: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
-    "CALF_COLLISION_FULL", "CALF_LENGTH", "DEFAULT_POSE", "FOOT_RADIUS", "HIP_OFFSETS", "LEGS",
-    "NUM_JOINTS", "SPAWN_HEIGHT", "THIGH_LENGTH", "THIGH_OFFSET_Y", "TORQUE_LIMIT",
-    "VELOCITY_LIMIT", "foot_positions_body",
+    "ACTION_SCALE", "CALF_COLLISION_FULL", "CALF_LENGTH", "CLIP_ACTIONS", "CONTROL_DT",
+    "DECIMATION", "DEFAULT_POSE", "FOOT_RADIUS", "HIP_OFFSETS", "KD", "KP", "LEGS", "NUM_JOINTS",
+    "SIM_DT", "SPAWN_HEIGHT", "THIGH_LENGTH", "THIGH_OFFSET_Y", "TORQUE_LIMIT", "VELOCITY_LIMIT",
+    "foot_positions_body",
 ]

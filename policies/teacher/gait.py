@@ -33,11 +33,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from collect.sim.math3d import quat_to_mat, yaw_of
+from msta_data.math3d import quat_to_mat, yaw_of
 from msta_data.robot import (
+    ACTION_SCALE,
+    CONTROL_DT,
     DEFAULT_POSE,
     FOOT_RADIUS,
     HIP_OFFSETS,
+    KP,
     THIGH_OFFSET_Y,
     foot_positions_body,
 )
@@ -153,12 +156,12 @@ class GaitConfig:
     reach_rate: float = 0.5
     max_reach: float = 0.08
     mass: float = 12.453
-    kp: float = 30.0
+    kp: float = KP
     kd: float = 0.8
     damping_comp: float = 0.35
     max_joint_speed: float = 15.0
-    action_scale: float = 0.25
-    dt: float = 0.02
+    action_scale: float = ACTION_SCALE
+    dt: float = CONTROL_DT
 
     def __post_init__(self) -> None:
         self.phase_offsets = tuple(float(v) for v in self.phase_offsets)

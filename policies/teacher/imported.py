@@ -28,8 +28,7 @@ import draccus
 import numpy as np
 import torch
 
-from collect.sim.env import ControlConfig
-from msta_data.robot import DEFAULT_POSE
+from msta_data.robot import ACTION_SCALE, DEFAULT_POSE
 from msta_data.sensors import ACTION_DIM, FOOT_NAMES, JOINT_NAMES, LEGS, get
 from policies.teacher.base import check_obs, register_teacher
 
@@ -342,7 +341,7 @@ class ImportedTeacher:
     name = "imported"
 
     def __init__(self, spec: str | Path | ImportedSpec, device: str = "cpu",
-                 msta_action_scale: float = ControlConfig.action_scale,
+                 msta_action_scale: float = ACTION_SCALE,
                  base_dir: str | Path = ".") -> None:
         if not isinstance(spec, ImportedSpec):
             base_dir = Path(spec).parent
@@ -371,7 +370,7 @@ class ImportedTeacher:
 
     @classmethod
     def from_spec(cls, path: str | Path, device: str = "cpu",
-                  msta_action_scale: float = ControlConfig.action_scale) -> ImportedTeacher:
+                  msta_action_scale: float = ACTION_SCALE) -> ImportedTeacher:
         """Load the teacher a spec file describes.
 
         Args:
