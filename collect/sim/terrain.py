@@ -19,11 +19,9 @@ See docs/terrains.md for the per-type parameterization and pictures.
 
 from __future__ import annotations
 
-import argparse
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -497,20 +495,3 @@ def sample_initial(num_envs: int, rng: np.random.Generator, cfg: TerrainConfig,
     # max_init_level is capped by the grid: a 1-level grid needs no extra setting
     top = min(cfg.max_init_level, cfg.num_levels - 1) if cfg.curriculum else cfg.num_levels - 1
     return type_idx, rng.integers(0, top + 1, size=num_envs)
-
-
-# ----------------------------------------------------------------------------- CLI
-def main(argv: Sequence[str] | None = None) -> None:
-    """CLI: ``python -m collect.sim.terrain --docs docs/``."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--docs", type=Path, required=True, help="folder for the PNGs")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    from collect.sim.terrain_docs import write_docs
-
-    for path in write_docs(args.docs, seed=args.seed):
-        print(path)
-
-
-if __name__ == "__main__":
-    main()

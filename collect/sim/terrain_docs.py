@@ -1,13 +1,19 @@
-"""PNG pictures of the terrain grid for docs/ (``python -m collect.sim.terrain --docs docs/``)."""
+"""PNG pictures of the terrain grid for docs/ (``python -m collect.sim.terrain_docs --docs docs/``).
+
+Only this module imports :mod:`collect.sim.terrain` for the pictures; the terrain module
+does not import it back.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from collect.sim.terrain import Terrain, TerrainConfig
+from msta_data.cli import parse_config
 
 DOC_LEVELS = (0, 4, 9)
 
@@ -114,3 +120,25 @@ def write_docs(out_dir: Path, seed: int = 0, cfg: TerrainConfig | None = None) -
     paths.append(out_dir / "terrain_grid.png")
     plot_grid(terrain, paths[-1])
     return paths
+
+
+@dataclass
+class DocsConfig:
+    """Args:
+        docs: folder the PNGs are written to (created if missing).
+        seed: terrain seed.
+    """
+
+    docs: Path = Path("docs")
+    seed: int = 0
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """CLI: ``python -m collect.sim.terrain_docs --docs docs/`` prints each PNG written."""
+    cfg = parse_config(DocsConfig, argv, prog="python -m collect.sim.terrain_docs")
+    for path in write_docs(cfg.docs, seed=cfg.seed):
+        print(path)
+
+
+if __name__ == "__main__":
+    main()
