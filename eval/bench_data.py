@@ -15,11 +15,11 @@ The last two lines are ``write speed-up vs lerobot: <x>`` and ``read speed-up vs
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -112,15 +112,34 @@ def bench_read_lerobot(root: Path, samples: int) -> float:
     return samples / (time.perf_counter() - t0)
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--episodes", type=int, default=20)
-    p.add_argument("--frames", type=int, default=1000)
-    p.add_argument("--stock-episodes", type=int, default=2)
-    p.add_argument("--stock-frames", type=int, default=500)
-    p.add_argument("--batch", type=int, default=256)
-    p.add_argument("--stock-samples", type=int, default=100)
-    args = p.parse_args()
+@dataclass
+class BenchDataConfig:
+    """Args:
+        episodes: episodes written and read by msta's writer and loader.
+        frames: frames per episode.
+        stock_episodes: episodes written by lerobot's own writer (slow: fewer).
+        stock_frames: frames per episode for lerobot's writer.
+        batch_size: windows per batch read through msta's loader.
+        stock_samples: samples read through lerobot's LeRobotDataset.
+    """
+
+    episodes: int = 20
+    frames: int = 1000
+    stock_episodes: int = 2
+    stock_frames: int = 500
+    batch_size: int = 256
+    stock_samples: int = 100
+
+    def __post_init__(self) -> None:
+        for name, value in vars(self).items():
+            if value < 1:
+                raise ValueError(f"{name}={value} must be >= 1")
+
+
+def main(argv: list[str] | None = None) -> None:
+    from msta_data.cli import parse_config
+
+    args = parse_config(BenchDataConfig, argv, prog="python -m eval.bench_data")
     logging.disable(logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
         tmp = Path(tmp)
@@ -139,8 +158,8 @@ def main() -> None:
         stock_w = bench_write_lerobot(tmp / "stock", stock_eps)
         print(f"write  lerobot add_frame  : {stock_w:12,.0f} frames/s "
               f"({args.stock_episodes} x {args.stock_frames} frames)")
-        ours_r, load_s = bench_read_ours(tmp / "ours", args.batch)
-        print(f"read   msta WindowDataset : {ours_r:12,.0f} samples/s (batch {args.batch}, "
+        ours_r, load_s = bench_read_ours(tmp / "ours", args.batch_size)
+        print(f"read   msta WindowDataset : {ours_r:12,.0f} samples/s (batch {args.batch_size}, "
               f"{len(STUDENT_SENSORS)} sensors, {WINDOW} steps; load {load_s:.2f} s)")
         stock_r = bench_read_lerobot(tmp / "ours", args.stock_samples)
         print(f"read   lerobot delta_ts   : {stock_r:12,.1f} samples/s "

@@ -3,7 +3,7 @@
 Does the MSTA student imitate the teacher as well as a GRU does? On one fixed, seeded
 teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10 s, terrain
 levels 0-2, split by episode 43 / 5 as ``msta-train`` splits it), every learner trains for
-the same wall-clock budget (``--seconds``, default 120 s each, ``--threads`` 2) with AdamW
+the same wall-clock budget (``--seconds``, default 120 s each, ``--num_threads`` 2) with AdamW
 at its learning rate, batch 64, 100 warm-up steps then a constant rate, and is validated
 every ``--eval_every`` s on the same 512 validation windows (validation time is not charged
 to the budget):
@@ -15,7 +15,7 @@ to the budget):
   honest baseline).
 
 The figure is the validation MSE of the z-scored actions (1.0 = predicting the mean). It
-prints a table, writes ``learning_curves.png`` and ``results.json`` under ``--out`` and ends
+prints a table, writes ``learning_curves.png`` and ``results.json`` under ``--output_dir`` and ends
 with the line ``msta/gru val-mse ratio: <x>`` (cpu preset, unmasked; the issue's goal is
 <= 1.5). Both are measured in the same run, so the ratio holds on a slower or busier machine
 better than either absolute figure.
@@ -23,7 +23,6 @@ better than either absolute figure.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
@@ -213,34 +212,53 @@ def plot(curves: list[Curve], path: Path) -> None:
     plt.close(fig)
 
 
+@dataclass
+class BenchLearnConfig:
+    """Args:
+        output_dir: folder for the dataset, results.json and learning_curves.png.
+        seconds: training wall-clock budget per learner (s).
+        eval_every: validate every this many training seconds.
+        num_threads: torch threads.
+        episodes: teacher episodes to record (>= 40 for the issue's benchmark).
+        episode_length_s: teacher episode length (s).
+        learners: comma-separated subset of msta_cpu, msta_paper, gru, mlp.
+        lr: AdamW learning rate (every learner).
+    """
+
+    output_dir: str = "outputs/bench_learn"
+    seconds: float = 120.0
+    eval_every: float = 30.0
+    num_threads: int = 2
+    episodes: int = 48
+    episode_length_s: float = 10.0
+    learners: str = ",".join(LEARNERS)
+    lr: float = 1e-3
+
+    def __post_init__(self) -> None:
+        bad = sorted(set(self.names()) - set(LEARNERS))
+        if bad:
+            raise ValueError(f"unknown learners {bad}; choose from {list(LEARNERS)}")
+        if not (self.seconds > 0 and self.eval_every > 0 and self.lr > 0):
+            raise ValueError("seconds, eval_every and lr must be > 0")
+        if self.num_threads < 1 or self.episodes < 2:
+            raise ValueError("num_threads must be >= 1 and episodes >= 2")
+
+    def names(self) -> list[str]:
+        return [s for s in self.learners.split(",") if s]
+
+
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--out", type=Path, default=Path("outputs/bench_learn"),
-                   help="folder for the dataset, results.json and learning_curves.png")
-    p.add_argument("--seconds", type=float, default=120.0,
-                   help="training wall-clock budget per learner (s)")
-    p.add_argument("--eval_every", type=float, default=30.0,
-                   help="validate every this many training seconds")
-    p.add_argument("--threads", type=int, default=2, help="torch threads")
-    p.add_argument("--episodes", type=int, default=48, help="teacher episodes to record (>= 40)")
-    p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
-    p.add_argument("--learners", default=",".join(LEARNERS),
-                   help=f"comma-separated subset of {','.join(LEARNERS)}")
-    p.add_argument("--lr", type=float, default=1e-3, help="AdamW learning rate (every learner)")
-    args = p.parse_args(argv)
-    learners = [s for s in args.learners.split(",") if s]
-    bad = sorted(set(learners) - set(LEARNERS))
-    if bad:
-        p.error(f"unknown learners {bad}; choose from {list(LEARNERS)}")
-    if args.seconds <= 0 or args.eval_every <= 0 or args.threads < 1 or args.episodes < 2:
-        p.error("--seconds and --eval_every must be > 0, --threads >= 1, --episodes >= 2")
-    torch.set_num_threads(args.threads)
-    args.out.mkdir(parents=True, exist_ok=True)
+    from msta_data.cli import parse_config
+
+    args = parse_config(BenchLearnConfig, argv, prog="python -m eval.bench_learn")
+    learners = args.names()
+    out = Path(args.output_dir)
+    torch.set_num_threads(args.num_threads)
+    out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
-    root = record_dataset(args.out / "dataset", args.episodes, args.episode_s)
+    root = record_dataset(out / "dataset", args.episodes, args.episode_length_s)
     print(f"dataset: {args.episodes} teacher episodes recorded in {time.time() - t0:.0f} s; "
-          f"{len(learners)} learners x {args.seconds:.0f} s on {args.threads} threads", flush=True)
+          f"{len(learners)} learners x {args.seconds:.0f} s on {args.num_threads} threads", flush=True)
     curves = []
     for name in learners:
         c = run_learner(name, root, args.seconds, args.eval_every, args.lr, 64)
@@ -248,11 +266,11 @@ def main(argv: list[str] | None = None) -> None:
         tail = "" if math.isnan(c.val_masked[-1]) else f", at test mask 0.5 {c.val_masked[-1]:.4f}"
         print(f"{name:<11} {c.steps[-1]:>6} steps ({c.samples_per_s:.0f} samples/s): "
               f"val MSE {c.val[-1]:.4f}{tail}", flush=True)
-    plot(curves, args.out / "learning_curves.png")
-    (args.out / "results.json").write_text(json.dumps(
-        {"seconds_per_learner": args.seconds, "threads": args.threads, "lr": args.lr,
+    plot(curves, out / "learning_curves.png")
+    (out / "results.json").write_text(json.dumps(
+        {"seconds_per_learner": args.seconds, "threads": args.num_threads, "lr": args.lr,
          "curves": [c.__dict__ for c in curves]}, indent=1) + "\n")
-    print(f"curves: {args.out / 'learning_curves.png'}; figures: {args.out / 'results.json'}")
+    print(f"curves: {out / 'learning_curves.png'}; figures: {out / 'results.json'}")
     final = {c.name: c.val[-1] for c in curves}
     if "msta_cpu" in final and "gru" in final:
         print(f"msta/gru val-mse ratio: {final['msta_cpu'] / final['gru']:.2f}")

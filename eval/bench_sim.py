@@ -9,8 +9,8 @@ busy machine (absolute figures are medians over rounds and follow the machine's 
 
 from __future__ import annotations
 
-import argparse
 import time
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
@@ -48,15 +48,32 @@ def _env_rate(env: QuadrupedEnv, actions: np.ndarray) -> float:
     return len(actions) * env.num_envs / (time.perf_counter() - t)
 
 
+@dataclass
+class BenchSimConfig:
+    """Args:
+        num_envs: robots simulated in parallel.
+        steps: control steps per measurement.
+        rounds: measurements (the median counts).
+        nthread: MuJoCo rollout threads (EnvConfig.nthread).
+        collision: robot collision set (EnvConfig.collision): fast or full.
+    """
+
+    num_envs: int = 1024
+    steps: int = 50
+    rounds: int = 5
+    nthread: int = 2
+    collision: str = "fast"
+
+    def __post_init__(self) -> None:
+        robot.check_collision_set(self.collision)
+        if min(self.num_envs, self.steps, self.rounds, self.nthread) < 1:
+            raise ValueError("num_envs, steps, rounds and nthread must be >= 1")
+
+
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--num_envs", type=int, default=1024)
-    p.add_argument("--steps", type=int, default=50, help="control steps per measurement")
-    p.add_argument("--rounds", type=int, default=5)
-    p.add_argument("--nthread", type=int, default=2)
-    p.add_argument("--collision", default="fast", choices=robot.COLLISION_SETS,
-                   help="robot collision set (EnvConfig.collision)")
-    args = p.parse_args(argv)
+    from msta_data.cli import parse_config
+
+    args = parse_config(BenchSimConfig, argv, prog="python -m eval.bench_sim")
     env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0,
                                collision=args.collision))
     env.reset()

@@ -15,7 +15,6 @@ forward + backward = 3x forward; embeddings, norms and the head are left out.
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 from collections.abc import Callable
@@ -187,13 +186,28 @@ def report(cases: dict[tuple[str, float, bool], Case], mm: Case, gen: torch.Gene
     print(f"matmul share: {share:.2f}")
 
 
+@dataclass
+class BenchTrainConfig:
+    """Args:
+        rounds: round-robin rounds over every case (the best round counts).
+        seconds: minimum time per case and round (s).
+        num_threads: torch threads.
+    """
+
+    rounds: int = 3
+    seconds: float = 0.5
+    num_threads: int = 2
+
+    def __post_init__(self) -> None:
+        if self.rounds < 1 or self.num_threads < 1 or not self.seconds > 0:
+            raise ValueError("rounds and num_threads must be >= 1 and seconds > 0")
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--rounds", type=int, default=3, help="round-robin rounds (best counts)")
-    parser.add_argument("--seconds", type=float, default=0.5, help="min. time per case and round")
-    parser.add_argument("--threads", type=int, default=2)
-    args = parser.parse_args(argv)
-    torch.set_num_threads(args.threads)
+    from msta_data.cli import parse_config
+
+    args = parse_config(BenchTrainConfig, argv, prog="python -m eval.bench_train")
+    torch.set_num_threads(args.num_threads)
     gen = torch.Generator().manual_seed(0)
     cases = make_cases(gen)
     mm = matmul_case(MSTAConfig.from_preset("paper"), 0.75)

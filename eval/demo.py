@@ -17,17 +17,17 @@
   7. a one-line verdict: does the student walk like its teacher (normalized linear-velocity
      tracking >= 0.80 at test mask 0 and >= 0.75 at 50 %, survival >= 0.90)?
 
-Everything goes under ``--out`` (default ``outputs/demo``); a rerun starts afresh.
+Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import shutil
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 from collect.sim.env import EnvConfig
@@ -209,73 +209,94 @@ def timed(name: str) -> Iterator[None]:
     print(f"({name} took {(time.time() - t0) / 60:.1f} min)", flush=True)
 
 
+@dataclass
+class DemoConfig:
+    """Args:
+        output_dir: where everything goes; a rerun deletes it and starts afresh.
+        episodes: teacher episodes to record.
+        episode_length_s: teacher episode length (s).
+        train_steps: stage-1 optimizer steps.
+        rounds: stage-2 rounds (0: stage 1 only); one keeps the demo near 15 min on 2 cores
+            (each round: rollouts, 1000 steps, its evaluation: ~5-6 min).
+        correct_steps: stage-2 retraining steps per round.
+        correct_episodes: stage-2 student episodes (10 s) per round.
+        correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5 costs twice the time).
+        select_trials: trials per test mask on which the rounds are compared (seed 1).
+        select_episode_length_s: episode length of those trials (s).
+        teacher_seconds: step 1: how long each robot walks (s).
+        envs_per_type: step 1: robots per terrain type.
+        eval_trials: msta-eval trials per test mask (spread over 5 terrains x levels 0-2).
+        eval_episode_length_s: msta-eval episode length (s).
+        num_threads: torch threads for training and evaluation.
+    """
+
+    output_dir: str = "outputs/demo"
+    episodes: int = 96
+    episode_length_s: float = 10.0
+    train_steps: int = 1500
+    rounds: int = 1
+    correct_steps: int = 1000
+    correct_episodes: int = 32
+    correct_mask_ratio: float = 0.75
+    select_trials: int = 30
+    select_episode_length_s: float = 5.0
+    teacher_seconds: float = 8.0
+    envs_per_type: int = 8
+    eval_trials: int = 100
+    eval_episode_length_s: float = 5.0
+    num_threads: int = 2
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
+                     "envs_per_type", "eval_trials", "select_trials", "num_threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        for name in ("episode_length_s", "select_episode_length_s", "teacher_seconds",
+                     "eval_episode_length_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}={getattr(self, name)} must be > 0")
+        if self.rounds < 0:
+            raise ValueError(f"rounds={self.rounds} must be >= 0")
+        if not 0.0 <= self.correct_mask_ratio < 1.0:
+            raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
+
+
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description="Run the msta pipeline demo on built-in defaults.",
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--out", type=Path, default=Path("outputs/demo"), help="output folder")
-    p.add_argument("--episodes", type=int, default=96, help="teacher episodes to record")
-    p.add_argument("--episode_s", type=float, default=10.0, help="teacher episode length (s)")
-    p.add_argument("--train_steps", type=int, default=1500, help="stage-1 optimizer steps")
-    p.add_argument("--rounds", type=int, default=1,
-                   help="stage-2 rounds (0: stage 1 only); one keeps the demo near 15 min on "
-                        "2 cores (each round: rollouts, 1000 steps, its evaluation ~5-6 min)")
-    p.add_argument("--correct_steps", type=int, default=1000,
-                   help="stage-2 retraining steps per round")
-    p.add_argument("--correct_episodes", type=int, default=32,
-                   help="stage-2 student episodes (10 s) per round")
-    p.add_argument("--correct_mask", type=float, default=0.75,
-                   help="stage-2 training mask ratio (the paper's 0.5 costs twice the time)")
-    p.add_argument("--select_trials", type=int, default=30,
-                   help="trials per test mask on which the rounds are compared (seed 1)")
-    p.add_argument("--select_episode_s", type=float, default=5.0,
-                   help="episode length of those trials (s)")
-    p.add_argument("--teacher_s", type=float, default=8.0, help="step 1 walk per robot (s)")
-    p.add_argument("--envs_per_type", type=int, default=8, help="step 1 robots per terrain")
-    p.add_argument("--eval_trials", type=int, default=100,
-                   help="msta-eval trials per test mask (spread over 5 terrains x levels 0-2)")
-    p.add_argument("--eval_episode_s", type=float, default=5.0,
-                   help="msta-eval episode length (s)")
-    p.add_argument("--threads", type=int, default=2,
-                   help="torch threads for training and evaluation")
-    args = p.parse_args(argv)
-    for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
-                 "envs_per_type", "eval_trials", "select_trials", "threads"):
-        if getattr(args, name) < 1:
-            p.error(f"--{name} must be >= 1")
-    if args.rounds < 0:
-        p.error("--rounds must be >= 0")
-    if not 0.0 <= args.correct_mask < 1.0:
-        p.error("--correct_mask must be in [0, 1)")
+    """Run the msta pipeline demo on built-in defaults (``python -m eval.demo --help``)."""
+    from msta_data.cli import parse_config
+
+    cfg = parse_config(DemoConfig, argv, prog="python -m eval.demo")
+    out = Path(cfg.output_dir)
     os.environ.setdefault("MUJOCO_GL", "egl")
-    if args.out.exists():
-        shutil.rmtree(args.out)
+    if out.exists():
+        shutil.rmtree(out)
     t0 = time.time()
     with timed("step 1"):
-        step_teacher(args.out, seconds=args.teacher_s, envs_per_type=args.envs_per_type)
+        step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type)
     with timed("step 2"):
-        dataset = step_collect(args.out, args.episodes, args.episode_s)
-    server = start_hub(args.out)
+        dataset = step_collect(out, cfg.episodes, cfg.episode_length_s)
+    server = start_hub(out)
     try:
         with timed("step 3"):
             hub_dataset = step_push(dataset)
         with timed("step 4"):
-            stage1 = step_train(args.out, hub_dataset, args.train_steps, args.threads)
+            stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads)
         best = 0
-        if args.rounds:
+        if cfg.rounds:
             with timed("step 5"):
-                best = step_correct(args.out, stage1, hub_dataset, args.rounds,
-                                    args.correct_steps, args.correct_episodes,
-                                    args.correct_mask, args.threads, args.select_trials,
-                                    args.select_episode_s)
+                best = step_correct(out, stage1, hub_dataset, cfg.rounds, cfg.correct_steps,
+                                    cfg.correct_episodes, cfg.correct_mask_ratio,
+                                    cfg.num_threads, cfg.select_trials,
+                                    cfg.select_episode_length_s)
         with timed("step 6"):
-            metrics = step_eval(args.out, best, args.eval_trials, args.eval_episode_s,
-                                args.threads)
+            metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
+                                cfg.num_threads)
     finally:
         server.stop()
     _, line = verdict(metrics)
     line += f" (checkpoint {f'stage2-r{best}' if best else 'stage1'})"
-    (args.out / "verdict.txt").write_text(line + "\n")
-    print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min; outputs in {args.out}/")
+    (out / "verdict.txt").write_text(line + "\n")
+    print(f"\ndemo finished in {(time.time() - t0) / 60:.1f} min; outputs in {out}/")
     print(line)
 
 

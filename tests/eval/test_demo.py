@@ -10,11 +10,10 @@ from eval.demo import main
 
 def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     out = tmp_path / "demo"
-    main(["--out", str(out), "--episodes", "4", "--episode_s", "0.5", "--train_steps", "3",
-          "--rounds", "1", "--correct_steps", "2", "--correct_episodes", "2",
-          "--teacher_s", "0.4", "--envs_per_type", "1", "--eval_trials", "5",
-          "--eval_episode_s", "0.3", "--threads", "1", "--select_trials", "5",
-          "--select_episode_s", "0.3"])
+    main([f"--output_dir={out}", "--episodes=4", "--episode_length_s=0.5", "--train_steps=3",
+          "--rounds=1", "--correct_steps=2", "--correct_episodes=2", "--teacher_seconds=0.4",
+          "--envs_per_type=1", "--eval_trials=5", "--eval_episode_length_s=0.3",
+          "--num_threads=1", "--select_trials=5", "--select_episode_length_s=0.3"])
     text = capsys.readouterr().out
     for step in range(1, 7):
         assert f"== {step}." in text
@@ -37,7 +36,7 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
     tag = "stage2-r1" if best else "stage1"
     assert (out / "pulled" / tag / "model.safetensors").is_file()
     assert last.endswith(f"(checkpoint {tag})")
-    # stage 2 retrained at the demo's --correct_mask (0.75), and the checkpoint says so
+    # stage 2 retrained at the demo's --correct_mask_ratio (0.75), and the checkpoint says so
     assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
         "mask_ratio"] == 0.75
     assert "DAgger beta 0" in text
