@@ -39,6 +39,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from msta_data import layout as L
 from msta_data import sensors as registry
 from msta_data.errors import DatasetFormatError, EpisodeValidationError
 
@@ -46,7 +47,6 @@ CODEBASE_VERSION = "v3.0"
 MSTA_SCHEMA_VERSION = 1
 DEFAULT_FPS = 50
 DEFAULT_ROBOT_TYPE = "a1"
-MSTA_META_PATH = "meta/msta.json"
 
 #: lerobot's automatically filled columns (same dicts as ``lerobot.utils.constants``).
 LEROBOT_DEFAULT_FEATURES: dict[str, dict[str, Any]] = {
@@ -218,11 +218,7 @@ def data_schema(features: dict[str, dict[str, Any]]) -> pa.Schema:
 # On-disk layout (LeRobot v3.0) shared by the writer and the reader.
 # ---------------------------------------------------------------------------------------
 
-INFO_PATH = "meta/info.json"
-STATS_PATH = "meta/stats.json"
-TASKS_PATH = "meta/tasks.parquet"
-DATA_PATH = "data/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
-EPISODES_PATH = "meta/episodes/chunk-{chunk_index:03d}/file-{file_index:03d}.parquet"
+# File names and path templates: msta_data.layout.
 #: Episode-table columns every msta dataset has (besides ``stats/...``), lerobot's first.
 EPISODE_INDEX_COLUMNS: dict[str, pa.DataType] = {
     "episode_index": pa.int64(),
@@ -266,7 +262,7 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
         DatasetFormatError: missing or unreadable file, another ``codebase_version``,
             wrong fps, or malformed features (message names the file and key).
     """
-    path = Path(root) / INFO_PATH
+    path = Path(root) / L.INFO_PATH
     try:
         info = json.loads(path.read_text())
     except FileNotFoundError:
@@ -283,8 +279,8 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
             raise DatasetFormatError(f"{path}: missing key {key!r}")
     if fps is not None and info["fps"] != fps:
         raise DatasetFormatError(f"{path}: fps is {info['fps']}, expected {fps}")
-    if info["data_path"] != DATA_PATH:
-        raise DatasetFormatError(f"{path}: data_path {info['data_path']!r} != {DATA_PATH!r}")
+    if info["data_path"] != L.DATA_PATH:
+        raise DatasetFormatError(f"{path}: data_path {info['data_path']!r} != {L.DATA_PATH!r}")
     for col, ft in info["features"].items():
         if not isinstance(ft, dict) or "dtype" not in ft or "shape" not in ft:
             raise DatasetFormatError(f"{path}: feature {col!r} lacks dtype/shape: {ft!r}")
@@ -294,7 +290,7 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
 
 def check_column_feature(info: dict[str, Any], column: str, root: str | Path) -> None:
     """Raise unless ``info.json`` declares ``column`` as the registry / schema expects."""
-    path = Path(root) / INFO_PATH
+    path = Path(root) / L.INFO_PATH
     expected = build_features().get(column)
     actual = info["features"].get(column)
     if actual is None:
@@ -324,7 +320,7 @@ def read_parquet(path: Path, columns: list[str] | None = None) -> pa.Table:
 
 
 def episode_files(root: str | Path) -> list[Path]:
-    return sorted((Path(root) / "meta" / "episodes").glob("chunk-*/file-*.parquet"))
+    return sorted((Path(root) / L.EPISODES_DIR).glob(L.NUMBERED_GLOB))
 
 
 def read_episode_table(root: str | Path, info: dict[str, Any],
@@ -349,19 +345,19 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
     if not tables:
         if total:
             raise DatasetFormatError(
-                f"{Path(root) / 'meta/episodes'}: no episode files but info.json says {total}")
+                f"{Path(root) / L.EPISODES_DIR}: no episode files but info.json says {total}")
         return pa.table({c: pa.array([], t) for c, t in EPISODE_INDEX_COLUMNS.items()})
     try:
         table = pa.concat_tables(tables, promote_options="default")
     except pa.ArrowException as e:
-        raise DatasetFormatError(f"{Path(root) / 'meta/episodes'}: inconsistent files: {e}") from e
+        raise DatasetFormatError(f"{Path(root) / L.EPISODES_DIR}: inconsistent files: {e}") from e
     ep = table.column("episode_index").to_numpy()
     table = table.filter(pa.array(ep < total)).sort_by("episode_index")
     got = table.column("episode_index").to_numpy()
     if len(got) != total or (total and not np.array_equal(got, np.arange(total))):
         missing = sorted(set(range(total)) - set(got.tolist()))[:10]
         raise DatasetFormatError(
-            f"{Path(root) / 'meta/episodes'}: info.json has {total} episodes but the episode "
+            f"{Path(root) / L.EPISODES_DIR}: info.json has {total} episodes but the episode "
             f"table has {len(got)} (missing e.g. {missing}, or duplicates)")
     return table
 

@@ -36,16 +36,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from msta_data import layout as L
 from msta_data.errors import DatasetFormatError, DatasetIntegrityError
 
 logger = logging.getLogger(__name__)
 
-MANIFEST_PATH = "meta/msta_checksums.json"
 MANIFEST_FORMAT = 1
-INFO_REL = "meta/info.json"
-STATS_REL = "meta/stats.json"
-#: Directories whose numbered Parquet files make up the committed episodes.
-NUMBERED_DIRS = ("data", "meta/episodes")
 VerifyMode = Literal["full", "sizes"]
 _CHUNK = 1 << 20
 _cache: dict[str, tuple[tuple[int, int, int, int], FileRecord]] = {}
@@ -105,7 +101,7 @@ class Generation:
 
     def numbered(self) -> list[str]:
         """The recorded data and episode-metadata Parquet files."""
-        return sorted(r for r in self.files if r.startswith(tuple(d + "/" for d in NUMBERED_DIRS)))
+        return sorted(r for r in self.files if r.startswith(tuple(d + "/" for d in L.NUMBERED_DIRS)))
 
 
 @dataclass
@@ -127,7 +123,7 @@ class Manifest:
     @classmethod
     def load(cls, root: str | Path) -> Manifest | None:
         """Read the manifest; ``None`` for a dataset written before manifests existed."""
-        path = Path(root) / MANIFEST_PATH
+        path = Path(root) / L.MANIFEST_PATH
         try:
             data = json.loads(path.read_bytes())
         except FileNotFoundError:
@@ -157,13 +153,13 @@ def current_generation(root: str | Path, manifest: Manifest) -> Generation:
         DatasetIntegrityError: ``info.json`` matches neither recorded generation (a stale
             or edited file), naming both.
     """
-    path = Path(root) / INFO_REL
+    path = Path(root) / L.INFO_PATH
     try:
         rec = digest_bytes(path.read_bytes())
     except FileNotFoundError:
         raise DatasetIntegrityError(f"{path}: no such file") from None
     for gen in manifest.generations():
-        if gen.files.get(INFO_REL) == rec:
+        if gen.files.get(L.INFO_PATH) == rec:
             return gen
     try:
         said = json.loads(path.read_bytes()).get("total_episodes")
@@ -172,7 +168,7 @@ def current_generation(root: str | Path, manifest: Manifest) -> Generation:
     want = manifest.committed or manifest.pending
     assert want is not None
     raise DatasetIntegrityError(
-        f"{path}: does not match the last commit recorded in {MANIFEST_PATH} (it says "
+        f"{path}: does not match the last commit recorded in {L.MANIFEST_PATH} (it says "
         f"{said} episodes, the commit has {want.total_episodes}): stale or edited; restore it "
         "(nothing was changed)")
 
@@ -185,20 +181,20 @@ def _check_file(root: Path, rel: str, gen: Generation, others: list[Generation],
         size = path.stat().st_size
     except FileNotFoundError:
         raise DatasetIntegrityError(
-            f"{path}: missing (recorded at commit in {MANIFEST_PATH}, {want.size} bytes)") \
+            f"{path}: missing (recorded at commit in {L.MANIFEST_PATH}, {want.size} bytes)") \
             from None
     accepted = [want] + [g.files[rel] for g in others if rel in g.files]
     if all(size != a.size for a in accepted):
         raise DatasetIntegrityError(
-            f"{path}: {size} bytes, {want.size} recorded at commit in {MANIFEST_PATH} "
+            f"{path}: {size} bytes, {want.size} recorded at commit in {L.MANIFEST_PATH} "
             "(truncated or modified)")
-    if mode == "sizes" and rel.startswith(tuple(d + "/" for d in NUMBERED_DIRS)):
+    if mode == "sizes" and rel.startswith(tuple(d + "/" for d in L.NUMBERED_DIRS)):
         return
     got = digest_file(path)
     if got not in accepted:
         raise DatasetIntegrityError(
             f"{path}: sha256 {got.sha256[:16]}... differs from {want.sha256[:16]}... recorded "
-            f"at commit in {MANIFEST_PATH} (corrupted or modified)")
+            f"at commit in {L.MANIFEST_PATH} (corrupted or modified)")
 
 
 def check_generation(root: str | Path, manifest: Manifest, gen: Generation,
@@ -227,8 +223,8 @@ def leftover_files(root: str | Path, committed: set[str]) -> list[str]:
     """Numbered Parquet and ``.tmp`` files under data/ and meta/ that no commit lists."""
     root = Path(root)
     out = []
-    for sub in (*NUMBERED_DIRS, "meta"):
-        pattern = "*.tmp" if sub == "meta" else "chunk-*/*"
+    for sub in (*L.NUMBERED_DIRS, L.META_DIR):
+        pattern = "*.tmp" if sub == L.META_DIR else "chunk-*/*"
         for path in (root / sub).glob(pattern):
             rel = path.relative_to(root).as_posix()
             if path.is_file() and rel not in committed:
@@ -259,7 +255,7 @@ def verify_dataset(root: str | Path, mode: VerifyMode = "full",
         _warned.add(str(root))
         logger.warning("%s: no %s (written before msta recorded checksums): only structural "
                        "checks apply; extending it with msta-collect --resume records them",
-                       root, MANIFEST_PATH)
+                       root, L.MANIFEST_PATH)
         return None
     gen = current_generation(root, manifest)
     check_generation(root, manifest, gen, mode)
@@ -292,7 +288,7 @@ def check_structure(root: str | Path) -> None:
     cs = int(info["chunks_size"])
     files = table.groupby(["data/chunk_index", "data/file_index"], sort=True)["length"].sum()
     for (chunk, file), rows in files.items():
-        path = Path(root) / F.numbered_path(F.DATA_PATH, F.file_number(chunk, file, cs), cs)
+        path = Path(root) / F.numbered_path(L.DATA_PATH, F.file_number(chunk, file, cs), cs)
         data = F.read_parquet(path, list(info["features"]))
         if data.num_rows != rows:
             raise DatasetFormatError(f"{path}: {data.num_rows} rows, meta/episodes says {rows} "

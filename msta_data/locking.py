@@ -13,8 +13,7 @@ import os
 from pathlib import Path
 
 from msta_data.errors import DirectoryLockedError
-
-LOCK_NAME = ".msta.lock"
+from msta_data.layout import LOCK_NAME
 
 
 def lock_directory(directory: str | Path, holder: str = "another writer",

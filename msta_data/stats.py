@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from msta_data import layout as L
+
 QUANTILES: tuple[float, ...] = (0.01, 0.10, 0.50, 0.90, 0.99)
 QUANTILE_KEYS: tuple[str, ...] = tuple(f"q{int(q * 100):02d}" for q in QUANTILES)
 STAT_KEYS: tuple[str, ...] = ("min", "max", "mean", "std", "count", *QUANTILE_KEYS)
@@ -148,6 +150,6 @@ def to_json(stats: Stats) -> dict[str, dict[str, list]]:
 
 def load_stats(root: str | Path) -> Stats:
     """Read ``meta/stats.json`` into float64 arrays (``count`` int64)."""
-    raw = json.loads((Path(root) / "meta" / "stats.json").read_text())
+    raw = json.loads((Path(root) / L.STATS_PATH).read_text())
     return {col: {k: np.asarray(v, dtype=np.int64 if k == "count" else np.float64)
                   for k, v in st.items()} for col, st in raw.items()}

@@ -28,6 +28,7 @@ import pyarrow as pa
 
 from msta_data import features as F
 from msta_data import integrity as I
+from msta_data import layout as L
 from msta_data import sensors as registry
 from msta_data.errors import DatasetFormatError
 
@@ -162,7 +163,7 @@ class WindowDataset:
         position = {ep: i for i, ep in enumerate(self.episodes)}
         files = meta.groupby(["data/chunk_index", "data/file_index"], sort=True)
         for (chunk, file), group in files:
-            path = self.root / F.numbered_path(F.DATA_PATH, F.file_number(chunk, file, cs), cs)
+            path = self.root / F.numbered_path(L.DATA_PATH, F.file_number(chunk, file, cs), cs)
             table = F.read_parquet(path, cols + list(_INDEX_COLUMNS))
             idx = {c: _column_to_numpy(table, c, F.LEROBOT_DEFAULT_FEATURES[c], path)
                    for c in _INDEX_COLUMNS}

@@ -47,10 +47,12 @@ import pyarrow.parquet as pq
 
 from msta_data import features as F
 from msta_data import integrity as I
+from msta_data import layout as L
 from msta_data import stats as S
 from msta_data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
 from msta_data.features import validate_episode
-from msta_data.locking import LOCK_NAME, lock_directory
+from msta_data.layout import LOCK_NAME
+from msta_data.locking import lock_directory
 
 __all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
 
@@ -157,14 +159,14 @@ class DatasetWriter:
                 "codebase_version": F.CODEBASE_VERSION, "fps": int(fps), "features": feats,
                 "total_episodes": 0, "total_frames": 0, "total_tasks": 0, "chunks_size": 1000,
                 "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
-                "data_path": F.DATA_PATH, "video_path": None, "robot_type": robot_type,
+                "data_path": L.DATA_PATH, "video_path": None, "robot_type": robot_type,
                 "splits": {},
             }
             msta_meta = {"msta_schema_version": F.MSTA_SCHEMA_VERSION, "repo_id": repo_id,
                          "sensors": list(F.resolve_sensors(sensors)),
                          "provenance_columns": list(F.PROVENANCE_COLUMNS)}
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
-            self._new_files[F.MSTA_META_PATH] = _atomic_json(root / F.MSTA_META_PATH, msta_meta)
+            self._new_files[L.MSTA_META_PATH] = _atomic_json(root / L.MSTA_META_PATH, msta_meta)
             self._commit()
             return self
         except BaseException:
@@ -191,8 +193,8 @@ class DatasetWriter:
             DatasetFormatError: the schema or the metadata is wrong (file named).
         """
         root = Path(root)
-        if not (root / F.INFO_PATH).exists():
-            raise DatasetFormatError(f"{root / F.INFO_PATH}: no such file; use create()")
+        if not (root / L.INFO_PATH).exists():
+            raise DatasetFormatError(f"{root / L.INFO_PATH}: no such file; use create()")
         lock_fd = _take_lock(root)
         try:
             info = F.load_info(root)
@@ -203,7 +205,7 @@ class DatasetWriter:
                 I.check_structure(root)
             else:
                 gen = I.current_generation(root, manifest)
-                I.check_generation(root, manifest, gen, verify, skip=(F.STATS_PATH,))
+                I.check_generation(root, manifest, gen, verify, skip=(L.STATS_PATH,))
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
             self._committed = gen
             self._recover(manifest)
@@ -219,27 +221,27 @@ class DatasetWriter:
             last = table.slice(len(table) - 1).to_pylist()[0]
             if last["dataset_to_index"] != self.info["total_frames"]:
                 raise DatasetFormatError(
-                    f"{self.root / F.INFO_PATH}: total_frames {self.info['total_frames']} but "
+                    f"{self.root / L.INFO_PATH}: total_frames {self.info['total_frames']} but "
                     f"the last episode ends at {last['dataset_to_index']}")
             nums = [F.file_number(c, f, cs) for c, f in zip(
                 table.column("data/chunk_index").to_pylist(),
                 table.column("data/file_index").to_pylist(), strict=True)]
             self._next_file = max(nums) + 1
         committed = {F.numbered_path(t, n, cs) for n in range(self._next_file)
-                     for t in (F.DATA_PATH, F.EPISODES_PATH)}
+                     for t in (L.DATA_PATH, L.EPISODES_PATH)}
         self._remove_leftovers(committed)
-        if (self.root / F.TASKS_PATH).exists():
-            tasks = pd.read_parquet(self.root / F.TASKS_PATH)
+        if (self.root / L.TASKS_PATH).exists():
+            tasks = pd.read_parquet(self.root / L.TASKS_PATH)
             self._tasks = {str(t): int(i) for t, i in zip(tasks.index, tasks["task_index"],
                                                           strict=True)}
         rows = table.select([c for c in table.column_names if c.startswith("stats/")]).to_pylist()
         self._stats = S.aggregate(S.from_episode_columns(r) for r in rows)
-        stats_path = self.root / F.STATS_PATH
+        stats_path = self.root / L.STATS_PATH
         gen = self._committed
-        recorded = gen.files.get(F.STATS_PATH) if gen else None
+        recorded = gen.files.get(L.STATS_PATH) if gen else None
         if self._stats and (recorded is None or not stats_path.exists()
                             or I.digest_file(stats_path) != recorded):
-            self._new_files[F.STATS_PATH] = _atomic_json(stats_path, S.to_json(self._stats))
+            self._new_files[L.STATS_PATH] = _atomic_json(stats_path, S.to_json(self._stats))
         if gen is None or manifest is None or manifest.pending is not None or self._new_files:
             self._record_generation(committed)
 
@@ -255,7 +257,7 @@ class DatasetWriter:
             if gen is None or rel in committed:
                 raise DatasetIntegrityError(
                     f"{self.root / rel}: beyond the {self.info['total_episodes']} episodes of "
-                    f"{F.INFO_PATH}, and no record ({I.MANIFEST_PATH}) tells a killed "
+                    f"{L.INFO_PATH}, and no record ({L.MANIFEST_PATH}) tells a killed "
                     "writer's leftover from a stale info.json; nothing was deleted: check "
                     "info.json, or move the file away if it is a leftover")
         for rel in leftovers:
@@ -265,11 +267,11 @@ class DatasetWriter:
         """Write the manifest for the generation on disk (after recovery or an upgrade)."""
         files = dict(self._committed.files) if self._committed else {
             rel: I.digest_file(self.root / rel) for rel in committed}
-        for rel in (F.MSTA_META_PATH, F.TASKS_PATH, F.STATS_PATH, F.INFO_PATH):
+        for rel in (L.MSTA_META_PATH, L.TASKS_PATH, L.STATS_PATH, L.INFO_PATH):
             if (self.root / rel).exists():
                 files[rel] = self._new_files.get(rel) or I.digest_file(self.root / rel)
         gen = I.Generation(self.info["total_episodes"], self.info["total_frames"], files)
-        _atomic_write(self.root / I.MANIFEST_PATH,
+        _atomic_write(self.root / L.MANIFEST_PATH,
                       lambda p: p.write_bytes(I.Manifest(gen).dumps()))
         self._committed, self._new_files = gen, {}
 
@@ -327,11 +329,11 @@ class DatasetWriter:
         if self._tasks_dirty:
             df = pd.DataFrame({"task_index": list(self._tasks.values())},
                               index=pd.Index(list(self._tasks), name="task"))
-            self._new_files[F.TASKS_PATH] = _atomic_write(
-                self.root / F.TASKS_PATH, lambda p: df.to_parquet(p, write_page_checksum=True))
+            self._new_files[L.TASKS_PATH] = _atomic_write(
+                self.root / L.TASKS_PATH, lambda p: df.to_parquet(p, write_page_checksum=True))
             self._tasks_dirty = False
         self._stats = S.aggregate([self._stats, *(ep.stats for ep in self._buffer)])
-        self._new_files[F.STATS_PATH] = _atomic_json(self.root / F.STATS_PATH,
+        self._new_files[L.STATS_PATH] = _atomic_json(self.root / L.STATS_PATH,
                                                      S.to_json(self._stats))
         self.info["total_episodes"] += len(self._buffer)
         self.info["total_frames"] += self._buffered_frames
@@ -407,10 +409,10 @@ class DatasetWriter:
                     w.write_table(table.slice(start, ep.length))
                     start += ep.length
 
-        rel = F.numbered_path(F.DATA_PATH, number, cs)
+        rel = F.numbered_path(L.DATA_PATH, number, cs)
         self._new_files[rel] = _atomic_write(self.root / rel, write_data)
         meta = self._episode_table(group, number)
-        rel = F.numbered_path(F.EPISODES_PATH, number, cs)
+        rel = F.numbered_path(L.EPISODES_PATH, number, cs)
         self._new_files[rel] = _atomic_write(self.root / rel, lambda p: pq.write_table(
             meta, p, compression="snappy", write_page_checksum=True))
         self._next_file += 1
@@ -446,18 +448,18 @@ class DatasetWriter:
         data = json.dumps(info, indent=4, ensure_ascii=False).encode()
         old = self._committed
         files = {**(old.files if old else {}), **self._new_files,
-                 F.INFO_PATH: I.digest_bytes(data)}
+                 L.INFO_PATH: I.digest_bytes(data)}
         gen = I.Generation(self.info["total_episodes"], self.info["total_frames"], files)
-        manifest = self.root / I.MANIFEST_PATH
+        manifest = self.root / L.MANIFEST_PATH
         _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(old, gen).dumps()))
-        _atomic_write(self.root / F.INFO_PATH, lambda p: p.write_bytes(data))  # commit point
+        _atomic_write(self.root / L.INFO_PATH, lambda p: p.write_bytes(data))  # commit point
         self._committed, self._new_files = gen, {}
         _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(gen).dumps()))
 
 
 def _read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
     """``meta/msta.json``, checked against the schema version and ``info.json``'s features."""
-    msta_path = root / F.MSTA_META_PATH
+    msta_path = root / L.MSTA_META_PATH
     try:
         msta_meta = json.loads(msta_path.read_text())
     except (OSError, json.JSONDecodeError) as e:
@@ -472,6 +474,6 @@ def _read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
     if info["features"] != expected:
         bad = sorted(k for k in set(expected) | set(info["features"])
                      if expected.get(k) != info["features"].get(k))
-        raise DatasetFormatError(f"{root / F.INFO_PATH}: features differ from the msta "
+        raise DatasetFormatError(f"{root / L.INFO_PATH}: features differ from the msta "
                                  f"schema in columns {bad}")
     return msta_meta

@@ -22,8 +22,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from msta_data.errors import DatasetFormatError
-from msta_data.integrity import MANIFEST_PATH, Manifest
-from msta_data.locking import LOCK_NAME
+from msta_data.integrity import Manifest
+from msta_data.layout import LOCK_NAME, MANIFEST_PATH
 from msta_data.windows import WindowDataset
 from msta_data.writer import DatasetWriter
 

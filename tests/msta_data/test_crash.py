@@ -12,7 +12,8 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from msta_data import stats as S
-from msta_data.integrity import MANIFEST_PATH, Manifest
+from msta_data.integrity import Manifest
+from msta_data.layout import MANIFEST_PATH
 from msta_data.windows import WindowDataset, load_episode_table
 from msta_data.writer import DatasetWriter
 
