@@ -18,7 +18,7 @@ from mujoco import rollout
 
 from collect.sim import robot
 from collect.sim.env import EnvConfig, QuadrupedEnv
-from msta_data.robot import DEFAULT_POSE
+from msta_data.robot import DEFAULT_POSE, NUM_JOINTS
 
 
 def _raw_rate(env: QuadrupedEnv, actions: np.ndarray) -> float:
@@ -78,11 +78,11 @@ def main(argv: list[str] | None = None) -> None:
                                collision=args.collision))
     env.reset()
     rng = np.random.default_rng(0)
-    _env_rate(env, np.zeros((10, env.num_envs, 12)))  # warm-up: let robots land
+    _env_rate(env, np.zeros((10, env.num_envs, NUM_JOINTS)))  # warm-up: let robots land
     env_rates, raw_rates = [], []
     for r in range(args.rounds):
         # a trotting-like excitation: the same random joint targets for both measurements
-        actions = rng.normal(0, 0.3, (args.steps, env.num_envs, 12))
+        actions = rng.normal(0, 0.3, (args.steps, env.num_envs, NUM_JOINTS))
         raw_rates.append(_raw_rate(env, actions))
         env_rates.append(_env_rate(env, actions))
         print(f"round {r}: env {env_rates[-1]:,.0f} steps/s | raw rollout {raw_rates[-1]:,.0f} "

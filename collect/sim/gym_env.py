@@ -16,6 +16,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from collect.sim.env import REASONS, EnvConfig, QuadrupedEnv
+from msta_data.robot import NUM_JOINTS
 from msta_data.sensors import SENSORS, get
 
 
@@ -37,7 +38,7 @@ class MstaVectorEnv(VectorEnv):
             get(s)
         self.single_observation_space = gym.spaces.Dict({
             s: gym.spaces.Box(-np.inf, np.inf, (get(s).dim,), np.float32) for s in self.sensors})
-        self.single_action_space = gym.spaces.Box(-100.0, 100.0, (12,), np.float32)
+        self.single_action_space = gym.spaces.Box(-100.0, 100.0, (NUM_JOINTS,), np.float32)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
 
