@@ -14,8 +14,12 @@ from pathlib import Path
 
 from huggingface_hub.errors import HfHubHTTPError
 
-from msta_data import hub
 from msta_data.errors import DirectoryLockedError
+from msta_data.hub_cards import CardInfo
+from msta_data.hub_ids import HubError
+from msta_data.hub_pull import pull
+from msta_data.hub_push import push, push_dataset
+from msta_data.hub_versions import versions
 
 _EPILOG = """examples:
   msta-hub serve --root /srv/msta-hub --port 8008 --token-file /etc/msta-hub/tokens
@@ -47,7 +51,7 @@ def _serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _card(args: argparse.Namespace, checkpoint: Path | None = None) -> hub.CardInfo | None:
+def _card(args: argparse.Namespace, checkpoint: Path | None = None) -> CardInfo | None:
     config = None
     if args.config_json is not None:
         config = json.loads(args.config_json.read_text())
@@ -65,12 +69,12 @@ def _card(args: argparse.Namespace, checkpoint: Path | None = None) -> hub.CardI
     fields = (args.dataset_repo, args.dataset_revision, args.stage, args.round, config, table, metrics)
     if all(f is None for f in fields):
         return None
-    return hub.CardInfo(dataset_repo=args.dataset_repo, dataset_revision=args.dataset_revision, config=config,
+    return CardInfo(dataset_repo=args.dataset_repo, dataset_revision=args.dataset_revision, config=config,
                         stage=args.stage, round=args.round, eval_table=table, metrics=metrics)
 
 
 def _push(args: argparse.Namespace) -> int:
-    sha = hub.push(args.checkpoint_dir, args.repo_id, tag=args.tag, private=args.private,
+    sha = push(args.checkpoint_dir, args.repo_id, tag=args.tag, private=args.private,
                    card=_card(args, args.checkpoint_dir), branch=args.branch, message=args.message,
                    move_tag=args.move_tag, endpoint=args.endpoint)
     print(sha)
@@ -78,21 +82,21 @@ def _push(args: argparse.Namespace) -> int:
 
 
 def _push_dataset(args: argparse.Namespace) -> int:
-    sha = hub.push_dataset(args.root, args.repo_id, private=args.private, card=_card(args), tag=args.tag,
+    sha = push_dataset(args.root, args.repo_id, private=args.private, card=_card(args), tag=args.tag,
                            message=args.message, endpoint=args.endpoint)
     print(sha)
     return 0
 
 
 def _pull(args: argparse.Namespace) -> int:
-    path = hub.pull(args.spec, args.dest, repo_type="dataset" if args.dataset else None,
+    path = pull(args.spec, args.dest, repo_type="dataset" if args.dataset else None,
                     overwrite=args.overwrite, endpoint=args.endpoint)
     print(path)
     return 0
 
 
 def _versions(args: argparse.Namespace) -> int:
-    result = hub.versions(args.repo_id, repo_type="dataset" if args.dataset else "model",
+    result = versions(args.repo_id, repo_type="dataset" if args.dataset else "model",
                           with_metrics=not args.no_metrics, endpoint=args.endpoint)
     print(json.dumps(result.to_dict(), indent=2) if args.json else result.to_text())
     return 0
@@ -201,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         logging.getLogger("httpx").setLevel(logging.WARNING)
     try:
         return args.func(args)
-    except (hub.HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError,
+    except (HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError,
             DirectoryLockedError) as err:
         print(f"msta-hub {args.command}: error: {err}", file=sys.stderr)
         return 1

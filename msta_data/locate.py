@@ -5,7 +5,7 @@
    a first component that exists here) is local: when it is missing the error says so and
    gives the absolute path; no hub is asked.
 3. Otherwise a ``[datasets/]user/name[@revision]`` is fetched (once per commit, hash
-   verified, :func:`msta_data.hub.materialize`) from ``HF_ENDPOINT`` — only when that is
+   verified, :func:`msta_data.hub_pull.materialize`) from ``HF_ENDPOINT`` — only when that is
    set. msta never contacts a hub it was not pointed at, so with ``HF_ENDPOINT`` unset a
    mistyped relative path (``outpts/a1``) is reported as a missing local path, not looked
    up on huggingface.co.
@@ -16,6 +16,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+
+from msta_data.hub_ids import is_hub_id
+from msta_data.hub_pull import materialize
 
 
 def looks_like_path(spec: str) -> bool:
@@ -47,8 +50,6 @@ def locate(spec: str, repo_type: str, flag: str) -> Path:
         return path
     noun = "dataset" if repo_type == "dataset" else "checkpoint"
     where = f"{flag} {spec!r}: no such {noun} directory ({path.absolute()})"
-    from msta_data.hub import is_hub_id, materialize
-
     if looks_like_path(spec) or not is_hub_id(spec):
         raise FileNotFoundError(where)
     endpoint = os.environ.get("HF_ENDPOINT")

@@ -199,8 +199,8 @@ def test_msta_correct_refuses(damaged, checkpoint, tmp_path):
 
 
 def test_msta_hub_push_dataset_refuses(damaged, hub_server, monkeypatch, capsys):
-    from msta_data import hub
     from msta_data.hub_cli import main
+    from msta_data.hub_ids import hub_api
 
     monkeypatch.setenv("HF_ENDPOINT", hub_server.url)
     monkeypatch.setenv("HF_TOKEN", SECRET)
@@ -208,7 +208,7 @@ def test_msta_hub_push_dataset_refuses(damaged, hub_server, monkeypatch, capsys)
     assert main(["push-dataset", str(root), "alice/damaged"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("msta-hub push-dataset: error: ") and name in err and "\n" not in err
-    assert not hub.hub_api().repo_exists("alice/damaged", repo_type="dataset")
+    assert not hub_api().repo_exists("alice/damaged", repo_type="dataset")
     assert snapshot(root) == before
 
 

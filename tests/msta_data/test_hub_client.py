@@ -15,9 +15,13 @@ import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError, RepositoryNotFoundError
 
-from msta_data import hub
+from msta_data.hub_cards import CardInfo, card_metadata
 from msta_data.hub_cli import main as cli_main
+from msta_data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, is_hub_id, parse_hub_id
+from msta_data.hub_pull import materialize, pull, resolve
+from msta_data.hub_push import push, push_dataset
 from msta_data.hub_server import HubServer, ServerConfig
+from msta_data.hub_versions import versions
 
 SECRET = "alice-secret-0001"
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -47,112 +51,112 @@ def _digests(root: Path) -> dict[str, str]:
 
 
 def test_parse_hub_id():
-    assert hub.parse_hub_id("alice/m@stage1-r0") == hub.HubId("alice/m", "stage1-r0", "model")
-    assert hub.parse_hub_id("datasets/alice/d@v3.0") == hub.HubId("alice/d", "v3.0", "dataset")
-    assert hub.parse_hub_id("alice/d", repo_type="dataset") == hub.HubId("alice/d", None, "dataset")
-    assert str(hub.parse_hub_id("datasets/alice/d@v3.0")) == "datasets/alice/d@v3.0"
+    assert parse_hub_id("alice/m@stage1-r0") == HubId("alice/m", "stage1-r0", "model")
+    assert parse_hub_id("datasets/alice/d@v3.0") == HubId("alice/d", "v3.0", "dataset")
+    assert parse_hub_id("alice/d", repo_type="dataset") == HubId("alice/d", None, "dataset")
+    assert str(parse_hub_id("datasets/alice/d@v3.0")) == "datasets/alice/d@v3.0"
     for bad in ("alice", "a/b/c", "alice/m@", "alice/m@a b", "/abs/path"):
         with pytest.raises(ValueError, match="not a hub id"):
-            hub.parse_hub_id(bad)
-    assert hub.is_hub_id("alice/m@v1") and not hub.is_hub_id(str(REPO_ROOT))
+            parse_hub_id(bad)
+    assert is_hub_id("alice/m@v1") and not is_hub_id(str(REPO_ROOT))
 
 
 def test_push_two_versions_and_pull_each_by_tag_branch_and_sha(server, tmp_path):
     v1 = _checkpoint(tmp_path / "v1", 1, {"old.json": b"{}"})
     v2 = _checkpoint(tmp_path / "v2", 2)
-    card = hub.CardInfo(dataset_repo="alice/teacher", dataset_revision="v3.0", stage=1, round=0,
+    card = CardInfo(dataset_repo="alice/teacher", dataset_revision="v3.0", stage=1, round=0,
                         config={"lr": 0.001}, eval_table={"mask0": {"total": 0.97}, "mask50": {"total": 0.94}})
-    s1 = hub.push(v1, "alice/ckpt", tag="stage1-r0", card=card)
-    s2 = hub.push(v2, "alice/ckpt", tag="stage2-r0", card=hub.CardInfo(stage=2, metrics={"total": 0.99}))
-    hub.hub_api().create_branch("alice/ckpt", branch="field", revision=s1)
+    s1 = push(v1, "alice/ckpt", tag="stage1-r0", card=card)
+    s2 = push(v2, "alice/ckpt", tag="stage2-r0", card=CardInfo(stage=2, metrics={"total": 0.99}))
+    hub_api().create_branch("alice/ckpt", branch="field", revision=s1)
     expected1 = _digests(v1)
     expected2 = _digests(v2)
     for spec, want in (("alice/ckpt@stage1-r0", expected1), ("alice/ckpt@stage2-r0", expected2),
                        ("alice/ckpt@field", expected1), ("alice/ckpt@main", expected2), ("alice/ckpt", expected2),
                        (f"alice/ckpt@{s1}", expected1), (f"alice/ckpt@{s2[:8]}", expected2)):
-        got = _digests(hub.pull(spec, tmp_path / "pulled" / spec.replace("/", "_")))
+        got = _digests(pull(spec, tmp_path / "pulled" / spec.replace("/", "_")))
         readme = got.pop("README.md")
         assert got == want, spec  # old.json of v1 is gone in v2: each commit is a whole checkpoint
         assert readme
     assert not [p for p in (tmp_path / "pulled").iterdir() if p.name.startswith(".")]  # no partial dirs
 
     pulled = tmp_path / "pulled" / "alice_ckpt@stage1-r0"
-    meta = hub.card_metadata((pulled / "README.md").read_text())
+    meta = card_metadata((pulled / "README.md").read_text())
     assert meta["msta"]["dataset"] == {"repo": "alice/teacher", "revision": "v3.0"}
     assert meta["msta"]["stage"] == 1 and meta["msta"]["round"] == 0 and meta["msta"]["config"] == {"lr": 0.001}
 
-    versions = hub.versions("alice/ckpt")
-    assert versions.tags == {"stage1-r0": s1, "stage2-r0": s2}
-    assert versions.branches == {"main": s2, "field": s1}
-    by_sha = {v.sha: v for v in versions.commits}
-    assert [v.sha for v in versions.commits][:2] == [s2, s1]
+    listed = versions("alice/ckpt")
+    assert listed.tags == {"stage1-r0": s1, "stage2-r0": s2}
+    assert listed.branches == {"main": s2, "field": s1}
+    by_sha = {v.sha: v for v in listed.commits}
+    assert [v.sha for v in listed.commits][:2] == [s2, s1]
     assert by_sha[s1].metrics == {"mask0/total": 0.97, "mask50/total": 0.94} and by_sha[s1].tags == ["stage1-r0"]
     assert by_sha[s2].metrics == {"total": 0.99} and by_sha[s2].branches == ["main"]
-    assert "stage2-r0" in versions.to_text()
+    assert "stage2-r0" in listed.to_text()
 
 
 def test_push_same_content_again_and_tag_rules(server, tmp_path):
     ckpt = _checkpoint(tmp_path / "c", 3)
-    s1 = hub.push(ckpt, "alice/same", tag="a")
-    assert hub.push(ckpt, "alice/same", tag="a") == s1  # nothing changed: no new commit, tag unchanged
+    s1 = push(ckpt, "alice/same", tag="a")
+    assert push(ckpt, "alice/same", tag="a") == s1  # nothing changed: no new commit, tag unchanged
     (ckpt / "config.json").write_text("{}")
-    s2 = hub.push(ckpt, "alice/same")
-    with pytest.raises(hub.HubError, match="already points to"):
-        hub.push(ckpt, "alice/same", tag="a")
-    assert hub.push(ckpt, "alice/same", tag="a", move_tag=True) == s2
-    assert hub.resolve("alice/same@a").revision == s2
+    s2 = push(ckpt, "alice/same")
+    with pytest.raises(HubError, match="already points to"):
+        push(ckpt, "alice/same", tag="a")
+    assert push(ckpt, "alice/same", tag="a", move_tag=True) == s2
+    assert resolve("alice/same@a").revision == s2
     (ckpt / "optimizer.pt").write_bytes(b"\x80\x04pickle")
-    with pytest.raises(hub.HubError, match="pickle"):
-        hub.push(ckpt, "alice/same")
+    with pytest.raises(HubError, match="pickle"):
+        push(ckpt, "alice/same")
 
 
 def test_corrupted_blob_fails_pull_and_leaves_nothing(server, tmp_path):
     ckpt = _checkpoint(tmp_path / "c", 4)
-    hub.push(ckpt, "alice/corrupt", tag="t")
+    push(ckpt, "alice/corrupt", tag="t")
     weights = hashlib.sha256((ckpt / "model.safetensors").read_bytes()).hexdigest()
     blob = server.config.root / "blobs" / weights[:2] / weights
     data = bytearray(blob.read_bytes())
     data[100] ^= 0xFF
     blob.write_bytes(bytes(data))  # same size, different bytes
     dest = tmp_path / "out" / "ckpt"
-    with pytest.raises(hub.HubIntegrityError, match=r"model\.safetensors.*was not written"):
-        hub.pull("alice/corrupt@t", dest)
+    with pytest.raises(HubIntegrityError, match=r"model\.safetensors.*was not written"):
+        pull("alice/corrupt@t", dest)
     assert not dest.exists() and list((tmp_path / "out").iterdir()) == []
     blob.write_bytes(bytes(data[:1000]))  # truncated: the transfer itself breaks
-    with pytest.raises(hub.HubError, match="was not written"):
-        hub.pull("alice/corrupt@t", dest)
+    with pytest.raises(HubError, match="was not written"):
+        pull("alice/corrupt@t", dest)
     assert not dest.exists() and list((tmp_path / "out").iterdir()) == []
 
 
 def test_pull_refuses_to_clobber_and_reports_missing_repo(server, tmp_path):
-    hub.push(_checkpoint(tmp_path / "c", 5), "alice/x")
+    push(_checkpoint(tmp_path / "c", 5), "alice/x")
     dest = tmp_path / "existing"
     dest.mkdir()
     (dest / "keep.txt").write_text("mine")
     with pytest.raises(FileExistsError):
-        hub.pull("alice/x", dest)
-    assert hub.pull("alice/x", dest, overwrite=True) == dest and not (dest / "keep.txt").exists()
+        pull("alice/x", dest)
+    assert pull("alice/x", dest, overwrite=True) == dest and not (dest / "keep.txt").exists()
     with pytest.raises(RepositoryNotFoundError):
-        hub.pull("alice/does-not-exist", tmp_path / "none")
+        pull("alice/does-not-exist", tmp_path / "none")
     assert not (tmp_path / "none").exists()
 
 
 def test_private_push_refused_to_anonymous_pull(server, tmp_path):
-    hub.push(_checkpoint(tmp_path / "c", 6), "alice/priv", private=True)
+    push(_checkpoint(tmp_path / "c", 6), "alice/priv", private=True)
     with pytest.raises(RepositoryNotFoundError):
-        hub.pull("alice/priv", tmp_path / "anon", token=False)
+        pull("alice/priv", tmp_path / "anon", token=False)
     with pytest.raises(HfHubHTTPError) as wrong:
-        hub.pull("alice/priv", tmp_path / "wrong", token="wrong-token-0000")
+        pull("alice/priv", tmp_path / "wrong", token="wrong-token-0000")
     assert wrong.value.response.status_code == 401
     assert not (tmp_path / "anon").exists() and not (tmp_path / "wrong").exists()
-    assert (hub.pull("alice/priv", tmp_path / "ok") / "config.json").exists()
+    assert (pull("alice/priv", tmp_path / "ok") / "config.json").exists()
 
 
 def test_large_file_inline_upload(server, tmp_path):
     big = os.urandom(11 * 1024 * 1024)
     ckpt = _checkpoint(tmp_path / "c", 7, {"big.safetensors": big})
-    hub.push(ckpt, "alice/big")
-    pulled = hub.pull("alice/big", tmp_path / "pulled")
+    push(ckpt, "alice/big")
+    pulled = pull("alice/big", tmp_path / "pulled")
     assert hashlib.sha256((pulled / "big.safetensors").read_bytes()).digest() == hashlib.sha256(big).digest()
 
 
@@ -164,42 +168,42 @@ def test_large_file_through_lfs(tmp_path):
     with HubServer(cfg) as srv:
         env = {**os.environ, "HF_ENDPOINT": srv.url, "HF_TOKEN": SECRET, "HF_HUB_DISABLE_XET": "1",
                "HF_HOME": str(tmp_path / "hf")}
-        code = f"from msta_data import hub; print(hub.push({str(ckpt)!r}, 'alice/lfs', tag='v1'))"
+        code = f"from msta_data.hub_push import push; print(push({str(ckpt)!r}, 'alice/lfs', tag='v1'))"
         out = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         files = {f.path: f for f in HfApi(endpoint=srv.url, token=SECRET).list_repo_tree("alice/lfs")}
         assert files["big.safetensors"].lfs.sha256 == hashlib.sha256(big).hexdigest()
         assert files["config.json"].lfs is None
-        pulled = hub.pull("alice/lfs@v1", tmp_path / "pulled", endpoint=srv.url, token=SECRET)
+        pulled = pull("alice/lfs@v1", tmp_path / "pulled", endpoint=srv.url, token=SECRET)
         assert (pulled / "big.safetensors").read_bytes() == big
 
 
 def test_push_dataset_tags_codebase_version(server, tmp_path, write_dataset):
     root = tmp_path / "ds"
     write_dataset(root, [3])
-    card = hub.CardInfo(config={"episodes": 1})
-    s1 = hub.push_dataset(root, "alice/teacher", card=card)
-    s2 = hub.push_dataset(root, "alice/teacher", card=card, tag="round1")  # same content: same commit
+    card = CardInfo(config={"episodes": 1})
+    s1 = push_dataset(root, "alice/teacher", card=card)
+    s2 = push_dataset(root, "alice/teacher", card=card, tag="round1")  # same content: same commit
     assert s1 == s2
     write_dataset(root, [4], seed0=1, append=True)  # a second version
-    s3 = hub.push_dataset(root, "alice/teacher", card=card)
-    refs = hub.hub_api().list_repo_refs("alice/teacher", repo_type="dataset")
+    s3 = push_dataset(root, "alice/teacher", card=card)
+    refs = hub_api().list_repo_refs("alice/teacher", repo_type="dataset")
     assert {t.name: t.target_commit for t in refs.tags} == {"v3.0": s3, "round1": s1}
-    pulled = hub.pull("datasets/alice/teacher@v3.0", tmp_path / "pulled")
+    pulled = pull("datasets/alice/teacher@v3.0", tmp_path / "pulled")
     assert (pulled / "meta" / "info.json").read_bytes() == (root / "meta" / "info.json").read_bytes()
     assert json.loads((pulled / "meta" / "info.json").read_text())["total_episodes"] == 2
-    card = hub.card_metadata((pulled / "README.md").read_text())
+    card = card_metadata((pulled / "README.md").read_text())
     assert card["msta"]["lerobot"]["robot_type"] == "a1" and "LeRobot" in card["tags"]
     with pytest.raises(FileNotFoundError, match="info.json"):
-        hub.push_dataset(tmp_path / "v1", "alice/nope")
+        push_dataset(tmp_path / "v1", "alice/nope")
 
 
 def test_tokens_never_logged_or_printed(server, tmp_path, caplog, capfd):
     with caplog.at_level(logging.DEBUG):
-        sha = hub.push(_checkpoint(tmp_path / "c", 9), "alice/quiet", tag="t", private=True)
-        hub.pull("alice/quiet@t", tmp_path / "p")
+        sha = push(_checkpoint(tmp_path / "c", 9), "alice/quiet", tag="t", private=True)
+        pull("alice/quiet@t", tmp_path / "p")
         with pytest.raises(HfHubHTTPError):
-            hub.pull("alice/quiet@t", tmp_path / "q", token="another-secret-42")
+            pull("alice/quiet@t", tmp_path / "q", token="another-secret-42")
         assert cli_main(["versions", "alice/quiet", "--json"]) == 0
     out, err = capfd.readouterr()
     text = caplog.text + out + err
@@ -247,14 +251,14 @@ def test_cli_serve_subprocess_restart(tmp_path):
 
     proc, url = start()
     try:
-        sha = hub.push(_checkpoint(tmp_path / "c", 11), "alice/served", tag="t", endpoint=url, token=SECRET)
+        sha = push(_checkpoint(tmp_path / "c", 11), "alice/served", tag="t", endpoint=url, token=SECRET)
     finally:
         proc.terminate()
         _, err1 = proc.communicate(timeout=10)
     proc, url = start()
     try:
-        assert hub.resolve("alice/served@t", endpoint=url, token=SECRET).revision == sha
-        assert (hub.pull("alice/served@t", tmp_path / "p", endpoint=url, token=False) / "config.json").exists()
+        assert resolve("alice/served@t", endpoint=url, token=SECRET).revision == sha
+        assert (pull("alice/served@t", tmp_path / "p", endpoint=url, token=False) / "config.json").exists()
     finally:
         proc.terminate()
         _, err2 = proc.communicate(timeout=10)
@@ -263,9 +267,9 @@ def test_cli_serve_subprocess_restart(tmp_path):
 
 
 def test_materialize_caches_by_commit(server, tmp_path):
-    sha = hub.push(_checkpoint(tmp_path / "c", 12), "alice/mat", tag="t")
+    sha = push(_checkpoint(tmp_path / "c", 12), "alice/mat", tag="t")
     local = tmp_path / "c"
-    assert hub.materialize(local) == local
-    got = hub.materialize("alice/mat@t", cache_dir=tmp_path / "cache")
+    assert materialize(local) == local
+    got = materialize("alice/mat@t", cache_dir=tmp_path / "cache")
     assert got == tmp_path / "cache" / "models" / "alice" / "mat" / sha
-    assert hub.materialize(f"alice/mat@{sha[:9]}", cache_dir=tmp_path / "cache") == got
+    assert materialize(f"alice/mat@{sha[:9]}", cache_dir=tmp_path / "cache") == got

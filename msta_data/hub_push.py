@@ -1,0 +1,171 @@
+"""Push a checkpoint directory or a dataset root as one commit of a hub repo.
+
+Every commit is the complete directory: files absent locally are deleted in the repo.
+Pickle-format files are refused unless allowed; a dataset is locked and verified against
+its checksum manifest before anything is uploaded.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+
+from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
+
+from msta_data import layout as L
+from msta_data.errors import DatasetLockedError
+from msta_data.hub_cards import CardInfo, dataset_card, model_card
+from msta_data.hub_ids import HubError, hub_api
+from msta_data.integrity import verify_for_publish
+from msta_data.locking import lock_directory
+
+logger = logging.getLogger(__name__)
+
+PICKLE_SUFFIXES = (".pt", ".pth", ".pkl", ".pickle", ".bin", ".ckpt", ".joblib")
+_SKIP_DIRS = (".git", ".cache/huggingface")
+
+
+def _local_files(root: Path) -> dict[str, Path]:
+    out = {}
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root).as_posix()
+        if path.name in L.LOCAL_ONLY_FILES:
+            continue
+        if path.is_file() and not any(rel == d or rel.startswith(d + "/") for d in _SKIP_DIRS):
+            out[rel] = path
+    return out
+
+
+def _set_tag(api: HfApi, repo_id: str, repo_type: str, tag: str, sha: str, move: bool) -> None:
+    current = {t.name: t.target_commit for t in api.list_repo_refs(repo_id, repo_type=repo_type).tags}
+    if current.get(tag) == sha:
+        return
+    if tag in current:
+        if not move:
+            raise HubError(f"tag '{tag}' of {repo_id} already points to {current[tag][:12]}; "
+                           "pass move_tag=True (--move-tag) to move it")
+        api.delete_tag(repo_id, tag=tag, repo_type=repo_type)
+    api.create_tag(repo_id, tag=tag, revision=sha, repo_type=repo_type)
+
+
+def _commit_dir(api: HfApi, root: Path, repo_id: str, repo_type: str, *, branch: str, private: bool,
+                card_text: str | None, message: str, allow_pickle: bool) -> str:
+    """Make ``branch`` hold exactly the files of ``root`` (+ README.md from ``card_text``)."""
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root} is not a directory")
+    files = _local_files(root)
+    if card_text is not None:
+        files.pop(L.CARD_NAME, None)
+    pickles = [p for p in files if p.lower().endswith(PICKLE_SUFFIXES)]
+    if pickles and not allow_pickle:
+        raise HubError(f"{root} holds pickle-format files {pickles}; save safetensors/JSON or pass allow_pickle=True")
+    if not files and card_text is None:
+        raise HubError(f"{root} is empty: nothing to push")
+    api.create_repo(repo_id, repo_type=repo_type, private=private, exist_ok=True)
+    if branch != "main":
+        api.create_branch(repo_id, branch=branch, repo_type=repo_type, exist_ok=True)
+    ops: list = [CommitOperationAdd(path_in_repo=rel, path_or_fileobj=str(p)) for rel, p in files.items()]
+    if card_text is not None:
+        ops.append(CommitOperationAdd(path_in_repo=L.CARD_NAME, path_or_fileobj=card_text.encode()))
+    keep = {op.path_in_repo for op in ops}
+    remote = api.list_repo_files(repo_id, repo_type=repo_type, revision=branch)
+    ops += [CommitOperationDelete(path_in_repo=p) for p in remote if p not in keep]
+    return api.create_commit(repo_id, operations=ops, commit_message=message, revision=branch,
+                             repo_type=repo_type).oid
+
+
+def push(checkpoint_dir: str | os.PathLike, repo_id: str, tag: str | None = None, private: bool = False, *,
+         card: CardInfo | None = None, branch: str = "main", message: str | None = None,
+         move_tag: bool = False, allow_pickle: bool = False, endpoint: str | None = None,
+         token: str | bool | None = None) -> str:
+    """Commit a checkpoint directory as the new state of ``branch`` of a model repo.
+
+    Files absent from the directory are deleted in the repo, so every commit is a complete
+    checkpoint. Unchanged content is not uploaded again.
+
+    Args:
+        checkpoint_dir: directory to upload (e.g. config.json + model.safetensors).
+        repo_id: ``user/name``; created when missing.
+        tag: tag to put on the new commit (e.g. ``stage1-r0``).
+        private: create the repo as private (only applies when it is created).
+        card: write README.md from this (replaces a README.md in the directory).
+        branch: branch to commit to; created from main when missing.
+        message: commit message.
+        move_tag: move ``tag`` when it already exists on another commit (else HubError).
+        allow_pickle: permit pickle-format files (.pt, .bin, .pkl, ...); refused by default.
+        endpoint: hub URL (default HF_ENDPOINT).
+        token: secret (default HF_TOKEN).
+
+    Returns:
+        The commit sha now at the head of ``branch``.
+    """
+    root = Path(checkpoint_dir)
+    api = hub_api(endpoint, token)
+    text = model_card(card, repo_id) if card is not None else None
+    sha = _commit_dir(api, root, repo_id, "model", branch=branch, private=private, card_text=text,
+                      message=message or f"push {root.name}", allow_pickle=allow_pickle)
+    if tag:
+        _set_tag(api, repo_id, "model", tag, sha, move_tag)
+    logger.info("pushed %s to %s@%s (commit %s)", root, repo_id, tag or branch, sha[:12])
+    return sha
+
+
+def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *, card: CardInfo | None = None,
+                 tag: str | None = None, message: str | None = None, endpoint: str | None = None,
+                 token: str | bool | None = None) -> str:
+    """Push a LeRobot dataset root to a dataset repo and tag it with its codebase version.
+
+    The dataset is locked (no writer may append meanwhile) and verified first
+    (``msta_data.integrity.verify_for_publish``: every committed file against the size and
+    sha256 recorded at commit, no leftover of an unfinished commit); a bad file is an error
+    naming it and nothing is uploaded.
+
+    The codebase-version tag (e.g. ``v3.0``) is moved to the new commit, as LeRobot's own push
+    does, so ``LeRobotDataset(repo_id, revision="v3.0")`` loads the latest push; ``tag`` marks
+    this particular version and is never moved.
+
+    Args:
+        root: dataset root holding meta/info.json.
+        repo_id: ``user/name`` of the dataset repo.
+        private: create the repo as private.
+        card: dataset card content; default: a card built from meta/info.json when the root
+            has no README.md.
+        tag: extra tag for this version.
+        message: commit message.
+        endpoint: hub URL (default HF_ENDPOINT).
+        token: secret (default HF_TOKEN).
+
+    Returns:
+        The commit sha.
+    """
+    root = Path(root)
+    info_path = L.info_path(root)
+    if not info_path.is_file():
+        raise FileNotFoundError(f"{root} is not a LeRobot dataset root: {info_path} is missing")
+    info = json.loads(info_path.read_text())
+    version = info.get("codebase_version")
+    if not isinstance(version, str) or not version:
+        raise HubError(f"{info_path} has no 'codebase_version'")
+    try:  # no writer may append meanwhile
+        lock: int | None = lock_directory(root, "a dataset writer", DatasetLockedError)
+    except PermissionError:  # a read-only copy: nobody appends to it through msta
+        lock = None
+    try:
+        verify_for_publish(root)  # refuses, naming the file, before anything is uploaded
+        api = hub_api(endpoint, token)
+        text = None
+        if card is not None or not (root / L.CARD_NAME).exists():
+            text = dataset_card(card or CardInfo(), info, repo_id)
+        sha = _commit_dir(api, root, repo_id, "dataset", branch="main", private=private,
+                          card_text=text, message=message or f"push dataset {root.name}",
+                          allow_pickle=False)
+    finally:
+        if lock is not None:
+            os.close(lock)
+    _set_tag(api, repo_id, "dataset", version, sha, move=True)
+    if tag:
+        _set_tag(api, repo_id, "dataset", tag, sha, move=False)
+    logger.info("pushed dataset %s to %s (commit %s, tag %s)", root, repo_id, sha[:12], version)
+    return sha

@@ -1,0 +1,96 @@
+"""Tags, branches and commits of a hub repo, with the metrics each commit's card records."""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from huggingface_hub import HfApi
+
+from msta_data import layout as L
+from msta_data.hub_cards import card_metadata, card_metrics
+from msta_data.hub_ids import hub_api, parse_hub_id
+
+
+@dataclass
+class Version:
+    """One commit of a repo with the refs pointing at it and its card's metrics."""
+
+    sha: str
+    title: str
+    date: str
+    authors: list[str]
+    tags: list[str] = field(default_factory=list)
+    branches: list[str] = field(default_factory=list)
+    metrics: dict[str, float] = field(default_factory=dict)
+    card: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RepoVersions:
+    """Tags, branches and commits (newest first) of a repo."""
+
+    repo_id: str
+    repo_type: str
+    tags: dict[str, str]
+    branches: dict[str, str]
+    commits: list[Version]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"repo_id": self.repo_id, "repo_type": self.repo_type, "tags": self.tags,
+                "branches": self.branches, "commits": [vars(c) for c in self.commits]}
+
+    def to_text(self) -> str:
+        lines = [f"{self.repo_type} {self.repo_id}"]
+        for c in self.commits:
+            refs = ", ".join([f"branch {b}" for b in c.branches] + [f"tag {t}" for t in c.tags])
+            metrics = " ".join(f"{k}={v:.4g}" for k, v in c.metrics.items())
+            lines.append(f"{c.sha[:12]}  {c.date[:19]}  {c.title}" + (f"  [{refs}]" if refs else "")
+                         + (f"  {metrics}" if metrics else ""))
+        return "\n".join(lines)
+
+
+def _card_at(api: HfApi, repo_id: str, repo_type: str, sha: str, cache: dict[str, dict]) -> dict[str, Any]:
+    info = api.get_paths_info(repo_id, [L.CARD_NAME], revision=sha, repo_type=repo_type)
+    if not info:
+        return {}
+    blob = info[0].blob_id
+    if blob not in cache:
+        with tempfile.TemporaryDirectory() as tmp:
+            path = api.hf_hub_download(repo_id, L.CARD_NAME, revision=sha, repo_type=repo_type, local_dir=tmp)
+            cache[blob] = card_metadata(Path(path).read_text(encoding="utf-8"))
+    return cache[blob]
+
+
+def versions(repo_id: str, *, repo_type: str = "model", with_metrics: bool = True,
+             endpoint: str | None = None, token: str | bool | None = None) -> RepoVersions:
+    """Tags, branches and the commits of every branch, with metrics from each commit's card.
+
+    Args:
+        repo_id: ``user/name`` (a ``datasets/`` prefix selects the dataset repo).
+        repo_type: "model" or "dataset".
+        with_metrics: read each commit's README.md front matter (one request per commit).
+        endpoint: hub URL (default HF_ENDPOINT).
+        token: secret (default HF_TOKEN).
+    """
+    hub_id = parse_hub_id(repo_id, None if repo_id.startswith("datasets/") else repo_type)
+    api = hub_api(endpoint, token)
+    refs = api.list_repo_refs(hub_id.repo_id, repo_type=hub_id.repo_type)
+    tags = {t.name: t.target_commit for t in refs.tags}
+    branches = {b.name: b.target_commit for b in refs.branches}
+    seen: dict[str, Version] = {}
+    for branch in sorted(branches, key=lambda b: b != "main"):
+        for c in api.list_repo_commits(hub_id.repo_id, repo_type=hub_id.repo_type, revision=branch):
+            if c.commit_id not in seen:
+                seen[c.commit_id] = Version(c.commit_id, c.title, c.created_at.isoformat(), list(c.authors))
+    cards: dict[str, dict] = {}
+    for v in seen.values():
+        v.tags = sorted(t for t, sha in tags.items() if sha == v.sha)
+        v.branches = sorted(b for b, sha in branches.items() if sha == v.sha)
+        if with_metrics:
+            v.card = _card_at(api, hub_id.repo_id, hub_id.repo_type, v.sha, cards)
+            v.metrics = card_metrics(v.card)
+    commits = sorted(seen.values(), key=lambda v: v.date, reverse=True)
+    return RepoVersions(hub_id.repo_id, hub_id.repo_type, tags, branches, commits)
