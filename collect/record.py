@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import as_policy
+from collect.rollout import Step, as_policy, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.terrain import TerrainConfig
 from msta_data import cli
@@ -82,11 +82,38 @@ class EpisodeRecorder:
         return {k: v[i, :n].copy() for k, v in self.buf.items()}
 
 
+class LabelledActor:
+    """``actor`` drives; ``label`` (default: the actor) acts on the same observation right
+    after it, and its action is kept in ``label_action`` for the recorder.
+
+    Args:
+        actor: the policy that drives (act/reset or a callable).
+        label: the policy whose action is the ``action`` label, or None.
+    """
+
+    def __init__(self, actor: Any, label: Any = None) -> None:
+        self._act, self._reset = as_policy(actor)
+        self._lab_act, self._lab_reset = (as_policy(label) if label is not None
+                                          else (None, lambda ids: None))
+        self.label_action = np.zeros((0, 12), dtype=np.float32)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        executed = np.asarray(self._act(obs), dtype=np.float32)
+        self.label_action = (executed if self._lab_act is None
+                             else np.asarray(self._lab_act(obs), dtype=np.float32))
+        return executed
+
+    def reset(self, ids: np.ndarray) -> None:
+        self._reset(ids)
+        self._lab_reset(ids)
+
+
 def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
                     write: Callable[[dict[str, np.ndarray], int, int], None],
                     sensors: tuple[str, ...] | None = None, label: Any = None,
                     progress: bool = True) -> int:
-    """Run ``actor`` until ``episodes`` episodes have finished, handing each to ``write``.
+    """Run ``actor`` until ``episodes`` episodes have finished, handing each to ``write``
+    (:func:`collect.rollout.rollout` with a recording hook).
 
     Args:
         env: the simulator (reset here).
@@ -99,35 +126,32 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
         environment steps taken.
     """
     sensors = tuple(sensors or SENSORS)
-    act, reset = as_policy(actor)
-    lab_act, lab_reset = as_policy(label) if label is not None else (None, lambda ids: None)
-    obs = env.reset()
+    env.reset()
+    if episodes <= 0:
+        return 0
+    policy = LabelledActor(actor, label)
     rec = EpisodeRecorder(env.num_envs, env.max_steps, sensors)
-    all_ids = np.arange(env.num_envs)
-    rec.start(all_ids, env.type_idx, env.level)
-    reset(all_ids)
-    lab_reset(all_ids)
-    done_count, steps = 0, 0
+    rec.start(np.arange(env.num_envs), env.type_idx, env.level)
+    done_count = 0
     bar = tqdm(total=episodes, disable=not progress, unit="ep", desc="episodes")
     t0 = time.time()
-    while done_count < episodes:
-        executed = np.asarray(act(obs), dtype=np.float32)
-        labels = executed if lab_act is None else np.asarray(lab_act(obs), dtype=np.float32)
-        res = env.step(executed)
-        steps += env.num_envs
-        rec.add(obs, labels, executed, res)
-        ended = np.flatnonzero(res.done)
+
+    def on_step(step: Step) -> bool:
+        nonlocal done_count
+        rec.add(step.obs, policy.label_action, step.action, step.res)
+        ended = np.flatnonzero(step.res.done)
         for i in ended:
             if done_count < episodes:
                 write(rec.take(i), int(rec.type_idx[i]), int(rec.level[i]))
                 done_count += 1
         if len(ended):
             rec.start(ended, env.type_idx, env.level)
-            reset(ended)
-            lab_reset(ended)
             bar.update(min(len(ended), bar.total - bar.n))
+        steps = (step.t + 1) * env.num_envs
         bar.set_postfix(frames_per_s=f"{steps / max(time.time() - t0, 1e-9):,.0f}")
-        obs = res.obs
+        return done_count >= episodes
+
+    steps = rollout(env, policy, on_step) * env.num_envs
     bar.close()
     return steps
 

@@ -1,7 +1,13 @@
-"""Run any policy in the batched simulator and summarize what happened per terrain type.
+"""The one rollout loop: run any policy in the batched simulator.
 
 A policy here is anything with ``act(obs) -> (N, 12)`` and ``reset(ids)`` (every teacher,
 and students through their adapters), or a plain callable ``obs -> actions``.
+
+:func:`rollout` is the loop every caller shares: recording (``collect.record``), stage 2
+(``train.online`` through recording), the evaluation's trials (``eval.metrics``), the
+teacher report and ``msta-sim`` (:func:`run`). What differs between them (recording frames,
+per-trial bookkeeping, when to stop) is a hook called after every step with a :class:`Step`;
+:func:`step_quantities` defines the per-step figures every summary sums.
 """
 
 from __future__ import annotations
@@ -39,6 +45,89 @@ def as_policy(policy: Any) -> tuple[Callable, Callable]:
 
 
 @dataclass
+class Step:
+    """One control step of all environments, as :func:`rollout` hands it to its hook.
+
+    Args:
+        t: the step's index in this rollout (0-based).
+        obs: the observation the action was computed from.
+        action: (N, 12) the action executed.
+        res: the simulator's result (``res.obs`` is already after auto-resets).
+        type_idx: (N,) terrain type of every environment during the step.
+        command: (N, 3) command of every environment during the step.
+        meas: true base velocities and position at the end of the step, before any
+            auto-reset (``QuadrupedEnv.meas_before_reset``).
+    """
+
+    t: int
+    obs: dict[str, np.ndarray]
+    action: np.ndarray
+    res: StepResult
+    type_idx: np.ndarray
+    command: np.ndarray
+    meas: dict[str, np.ndarray]
+
+
+#: What :func:`step_quantities` returns, in order.
+STEP_QUANTITIES = ("lin", "ang", "total", "vel_err", "yaw_err")
+
+
+def step_quantities(step: Step) -> dict[str, np.ndarray]:
+    """The per-step figures every summary sums (msta-sim's table, the evaluation's trials,
+    the teacher report), each (N,): ``lin`` / ``ang`` the linear- and angular-velocity
+    tracking rewards and ``total`` the total reward (the simulator's, already scaled by dt);
+    ``vel_err`` |v_xy - cmd_xy| (m/s) and ``yaw_err`` |w_z - cmd_wz| (rad/s) from the true
+    base velocities at the end of the step and the command during it."""
+    m, cmd, res = step.meas, step.command, step.res
+    return {"lin": res.metrics["lin_vel_tracking"], "ang": res.metrics["ang_vel_tracking"],
+            "total": res.reward,
+            "vel_err": np.linalg.norm(m["base_lin_vel"][:, :2] - cmd[:, :2], axis=1),
+            "yaw_err": np.abs(m["base_ang_vel"][:, 2] - cmd[:, 2])}
+
+
+#: Called after every step; returning True ends the rollout.
+StepHook = Callable[[Step], "bool | None"]
+
+
+def rollout(env: QuadrupedEnv, policy: Any, on_step: StepHook, max_steps: int | None = None,
+            reset_done: bool = True) -> int:
+    """Step ``policy`` in ``env`` (already reset) until ``on_step`` returns True or after
+    ``max_steps`` steps.
+
+    The policy is reset for every environment first. Each step: ``act`` on the current
+    observation, one ``env.step``, then ``on_step(step)``, then (``reset_done``) the policy is
+    reset for the environments whose episode ended (the simulator has already started their
+    next one).
+
+    Args:
+        env: a reset simulator.
+        policy: object with act/reset, or a callable obs -> actions.
+        on_step: the caller's hook (frames, trial bookkeeping, summaries, a progress bar).
+        max_steps: upper bound on control steps (None: until ``on_step`` says stop).
+        reset_done: reset the policy of environments whose episode ended (false: only the
+            first episode of every environment matters, as in the evaluation's trials).
+    Returns:
+        the control steps taken (each advances all ``env.num_envs`` environments).
+    """
+    act, reset = as_policy(policy)
+    obs = env.last_obs
+    reset(np.arange(env.num_envs))
+    t = 0
+    while max_steps is None or t < max_steps:
+        a = act(obs)
+        type_idx, cmd = env.type_idx.copy(), env.commands.command.copy()
+        res = env.step(a)
+        stop = on_step(Step(t, obs, a, res, type_idx, cmd, env.meas_before_reset))
+        if reset_done and res.done.any():
+            reset(np.flatnonzero(res.done))
+        obs = res.obs
+        t += 1
+        if stop:
+            break
+    return t
+
+
+@dataclass
 class TerrainStats:
     """Accumulated per-terrain-type statistics."""
 
@@ -67,21 +156,20 @@ class RolloutSummary:
     types: tuple[str, ...]
     per_type: dict[str, TerrainStats] = field(default_factory=dict)
 
-    def add(self, env: QuadrupedEnv, res: StepResult, type_idx: np.ndarray,
-            cmd: np.ndarray, meas: dict[str, np.ndarray]) -> None:
-        vel_err = np.linalg.norm(meas["base_lin_vel"][:, :2] - cmd[:, :2], axis=1)
-        yaw_err = np.abs(meas["base_ang_vel"][:, 2] - cmd[:, 2])
+    def add(self, step: Step) -> None:
+        """Sum one step into the rows of the terrain types the environments ran on."""
+        q, res = step_quantities(step), step.res
         for t, name in enumerate(self.types):
-            sel = type_idx == t
+            sel = step.type_idx == t
             if not sel.any():
                 continue
             st = self.per_type.setdefault(name, TerrainStats())
             st.steps += int(sel.sum())
-            st.lin_tracking += float(res.metrics["lin_vel_tracking"][sel].sum())
-            st.ang_tracking += float(res.metrics["ang_vel_tracking"][sel].sum())
-            st.total += float(res.reward[sel].sum())
-            st.vel_err += float(vel_err[sel].sum())
-            st.yaw_err += float(yaw_err[sel].sum())
+            st.lin_tracking += float(q["lin"][sel].sum())
+            st.ang_tracking += float(q["ang"][sel].sum())
+            st.total += float(q["total"][sel].sum())
+            st.vel_err += float(q["vel_err"][sel].sum())
+            st.yaw_err += float(q["yaw_err"][sel].sum())
             done = sel & res.done
             st.episodes += int(done.sum())
             st.falls += int((done & (res.reason == REASONS.index("fall"))).sum())
@@ -106,7 +194,7 @@ class RolloutSummary:
 def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True,
         on_step: Callable[[dict, np.ndarray, StepResult], None] | None = None,
         ) -> RolloutSummary:
-    """Step ``policy`` in ``env`` (already reset) for ``steps`` control steps.
+    """:func:`rollout` for ``steps`` control steps, summarized per terrain type (msta-sim).
 
     Args:
         env: a reset simulator.
@@ -117,23 +205,17 @@ def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True,
     Returns:
         per-terrain-type statistics.
     """
-    act, reset = as_policy(policy)
     summary = RolloutSummary(tuple(env.cfg.terrain.types))
-    obs = env.last_obs
-    reset(np.arange(env.num_envs))
     bar = tqdm(total=steps * env.num_envs, disable=not progress, unit="step", unit_scale=True,
                desc="rollout")
-    for _ in range(steps):
-        a = act(obs)
-        type_idx, cmd = env.type_idx.copy(), env.commands.command.copy()
-        res = env.step(a)
-        summary.add(env, res, type_idx, cmd, env.meas_before_reset)
+
+    def hook(step: Step) -> None:
+        summary.add(step)
         if on_step is not None:
-            on_step(obs, a, res)
-        if res.done.any():
-            reset(np.flatnonzero(res.done))
-        obs = res.obs
+            on_step(step.obs, step.action, step.res)
         bar.update(env.num_envs)
+
+    rollout(env, policy, hook, max_steps=steps)
     bar.close()
     for t, name in enumerate(summary.types):
         if name in summary.per_type:

@@ -36,17 +36,17 @@ from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, NoiseConfig
+from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
 from eval import report
 from eval.metrics import (
-    EvalEnv,
     NotApplicable,
     TrialResults,
     aggregate,
     normalize,
     run_trials,
+    start_trials,
 )
 from eval.scenarios import (
     Condition,
@@ -211,9 +211,10 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
     return entries
 
 
-def make_env(cfg: TrialConfig, num_envs: int) -> EvalEnv:
-    """The evaluation simulator: tiles pinned, only the evaluated terrain columns built."""
-    return EvalEnv(EnvConfig(
+def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
+    """The evaluation simulator: tiles pinned (curriculum off), only the evaluated terrain
+    columns built; :func:`eval.metrics.start_trials` gives every trial its random stream."""
+    return QuadrupedEnv(EnvConfig(
         num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
         terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
         commands=CommandConfig(use_heading=cfg.heading_commands),
@@ -408,7 +409,8 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
         raise ValueError(f"--video terrain {terrain!r} is not evaluated ({cfg.terrain_list})")
     entry = by_name[name]
     env = make_env(replace(cfg, episode_s=max(cfg.video_s, cfg.episode)), 1)
-    env.start(np.array([0]), np.array([cfg.terrain_list.index(terrain)]), np.array([level]))
+    start_trials(env, np.array([0]), np.array([cfg.terrain_list.index(terrain)]),
+                 np.array([level]))
     # teachers keep per-env state sized at first use: build a fresh one for one robot
     actor = load_entry(entry.source, cfg).obj if entry.kind == "teacher" \
         else StudentActor(entry.obj, 1)

@@ -3,10 +3,13 @@
 A *trial* is one episode of one environment pinned to a (terrain type, level) tile. Trial
 ``i`` draws everything random in its episode (spawn point and yaw, domain-randomization
 variant, commands and target headings, latency, pushes, observation noise) from its own
-generator keyed by ``(seed, i)`` (:class:`EvalEnv`), so a student and the teacher see
+generator keyed by ``(seed, i)`` (the simulator's per-environment streams,
+``QuadrupedEnv.reset(streams=...)``; :func:`start_trials`), so a student and the teacher see
 identical tiles, levels, spawns, command samples and noise on the same trial, whatever
 happens in the other environments of the batch. Only the first episode of every
-environment counts; the auto-reset episodes after it are ignored.
+environment counts; the auto-reset episodes after it are ignored. The trials run through the
+one rollout loop (:func:`collect.rollout.rollout`), and the per-step figures are
+:func:`collect.rollout.step_quantities`, the same that msta-sim and the teacher report sum.
 
 Metrics per trial (rewards are the simulator's, already scaled by dt):
 
@@ -41,98 +44,34 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import as_policy
-from collect.sim.env import PROPRIO, REASONS, EnvConfig, QuadrupedEnv
+from collect.rollout import STEP_QUANTITIES, Step, as_policy, rollout, step_quantities
+from collect.sim.env import REASONS, QuadrupedEnv
 from eval.intervals import mean_interval, proportion_interval, ratio_interval
-from msta_data.sensors import SENSORS
 
 #: Returns normalized by the teacher's (the paper's three metrics).
 RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
 #: Every number reported per terrain.
 METRICS: tuple[str, ...] = RETURNS + ("survival", "vel_err", "yaw_err", "length")
-_TRIAL_SALT = 0x7E57
 
 
 class NotApplicable(Exception):
     """A policy cannot take a condition (it raised on construction or on its first step)."""
 
 
-class EvalEnv(QuadrupedEnv):
-    """``QuadrupedEnv`` whose per-environment random draws come from per-trial generators.
-
-    The parent draws commands, pushes, noise and resets for all environments from one
-    generator, so a fall in one environment shifts the random numbers of all the others.
-    Here every environment draws from the generator of the trial it runs.
+def start_trials(env: QuadrupedEnv, trials: np.ndarray, type_idx: np.ndarray,
+                 level: np.ndarray) -> dict[str, np.ndarray]:
+    """Reset every environment into its trial: its tile, and the trial's own random stream
+    (``QuadrupedEnv.reset(streams=trials)``).
 
     Args:
-        cfg: the environment configuration (``terrain.curriculum`` must be False).
+        env: a simulator with ``terrain.curriculum`` off.
+        trials: (N,) trial indices (key each environment's generator).
+        type_idx: (N,) terrain type index per environment.
+        level: (N,) level per environment.
+    Returns:
+        the first observations.
     """
-
-    def __init__(self, cfg: EnvConfig) -> None:
-        if cfg.terrain.curriculum:
-            raise ValueError("evaluation pins tiles: terrain.curriculum must be False")
-        super().__init__(cfg)
-        self.trial_rngs: list[np.random.Generator] = []
-        widths = [np.full(SENSORS[k].dim, self._noise[k]) for k in PROPRIO]
-        self._noise_width = np.concatenate(widths)
-
-    def start(self, trials: np.ndarray, type_idx: np.ndarray, level: np.ndarray,
-              ) -> dict[str, np.ndarray]:
-        """Reset every environment into its trial.
-
-        Args:
-            trials: (N,) trial indices (key each environment's generator).
-            type_idx: (N,) terrain type index per environment.
-            level: (N,) level per environment.
-        Returns:
-            the first observations.
-        """
-        seed = self.cfg.seed
-        self.trial_rngs = [np.random.default_rng([seed, _TRIAL_SALT, int(t)]) for t in trials]
-        self.rng = np.random.default_rng([seed, _TRIAL_SALT])  # no per-env draw uses it
-        if not self.meas:  # the parent updates measurements row by row after the first reset
-            self.state[:] = self._template
-            self.meas = self._measure(self.state, np.zeros((self.num_envs, 1,
-                                                            self.model.nsensordata)))
-        return self.reset(type_idx=type_idx, level=level)
-
-    def _reset_ids(self, ids: np.ndarray) -> None:
-        shared = self.rng
-        # the parent re-steers the yaw-rate command of *every* env on a reset: keep the others'
-        yaw_rate = self.commands.command[:, 2].copy()
-        try:
-            for i in ids:
-                self.rng = self.trial_rngs[i]
-                super()._reset_ids(np.array([i]))
-        finally:
-            self.rng = shared
-        others = np.setdiff1d(np.arange(self.num_envs), ids)
-        self.commands.command[others, 2] = yaw_rate[others]
-        self._hist_fresh = np.asarray(ids)
-
-    def _resample_commands(self) -> None:
-        every = max(1, round(self.cfg.commands.resample_s / self.dt))
-        ids = np.flatnonzero((self.episode_step % every == 0) & (self.episode_step > 0))
-        for i in ids:
-            self.commands.resample(np.array([i]), self.trial_rngs[i])
-
-    def _push(self) -> None:
-        rc = self.cfg.randomization
-        if not (rc.enabled and rc.push_interval_s > 0 and rc.push_max_vel > 0):
-            return
-        every = max(1, round(rc.push_interval_s / self.dt))
-        v = self.layout.base_linvel
-        for i in np.flatnonzero((self.episode_step + self.push_step) % every == every - 1):
-            self.state[i, v.start:v.start + 2] += self.trial_rngs[i].uniform(
-                -rc.push_max_vel, rc.push_max_vel, 2)
-
-    def _proprio(self, m: dict[str, np.ndarray], ids: np.ndarray) -> np.ndarray:
-        x = np.concatenate([m["base_ang_vel"] if k == "ang_vel" else m[k] for k in PROPRIO],
-                           axis=1)
-        if self._noise_width.any():
-            u = np.stack([self.trial_rngs[i].random(x.shape[1]) for i in ids])
-            x = x + (2.0 * u - 1.0) * self._noise_width
-        return x.astype(np.float32)
+    return env.reset(type_idx=type_idx, level=level, streams=trials)
 
 
 @dataclass(frozen=True)
@@ -189,6 +128,14 @@ class TrialResults:
         z = [np.zeros(n) for _ in range(6)]
         return cls(*z[:4], np.zeros(n, dtype=bool), *z[4:6], max_steps=max_steps)
 
+    def add(self, ids: np.ndarray, step: Step, weight: np.ndarray) -> None:
+        """Sum one step's :func:`~collect.rollout.step_quantities` of the environments
+        running trials ``ids``, each times ``weight`` (1 while its first episode runs)."""
+        q = step_quantities(step)
+        for key in STEP_QUANTITIES:
+            getattr(self, key)[ids] += weight * q[key]
+        self.steps[ids] += weight
+
     def take(self, idx: np.ndarray) -> TrialResults:
         return TrialResults(self.lin[idx], self.ang[idx], self.total[idx], self.steps[idx],
                             self.fell[idx], self.vel_err[idx], self.yaw_err[idx],
@@ -199,23 +146,35 @@ class TrialResults:
 ActorFactory = Callable[[int, int], Any]
 
 
-def _first_act(make_actor: ActorFactory, n: int, obs: dict[str, np.ndarray]):
-    """Build the round-0 actor and take its first step; failures mean n/a."""
-    try:
-        actor = make_actor(0, n)
-        act, reset = as_policy(actor)
-        reset(np.arange(n))
-        return act, reset, act(obs)
-    except (ValueError, KeyError, NotImplementedError) as e:
-        raise NotApplicable(f"{type(e).__name__}: {e}") from e
+class _FirstStepGuard:
+    """The round-0 actor: a failure when it is reset or takes its first step means n/a."""
+
+    def __init__(self, act: Callable, reset: Callable) -> None:
+        self._act, self._reset, self.first = act, reset, True
+
+    def reset(self, ids: np.ndarray) -> None:
+        try:
+            self._reset(ids)
+        except (ValueError, KeyError, NotImplementedError) as e:
+            raise NotApplicable(f"{type(e).__name__}: {e}") from e
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if not self.first:
+            return self._act(obs)
+        self.first = False
+        try:
+            return self._act(obs)
+        except (ValueError, KeyError, NotImplementedError) as e:
+            raise NotApplicable(f"{type(e).__name__}: {e}") from e
 
 
-def run_trials(env: EvalEnv, make_actor: ActorFactory, layout: TrialLayout, desc: str = "",
-               progress: bool = True) -> TrialResults:
+def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
+               desc: str = "", progress: bool = True) -> TrialResults:
     """Run every trial of ``layout`` with actors from ``make_actor``.
 
     Args:
-        env: the evaluation env; ``env.num_envs`` environments per round.
+        env: the evaluation simulator (``terrain.curriculum`` off); ``env.num_envs``
+            environments per round.
         make_actor: (round, num_envs) -> fresh actor (a teacher, or a ``StudentActor``).
         layout: trials and their tiles.
         desc: progress-bar label.
@@ -230,46 +189,41 @@ def run_trials(env: EvalEnv, make_actor: ActorFactory, layout: TrialLayout, desc
     out = TrialResults.zeros(len(rounds) * n, max_steps)
     bar = tqdm(total=len(rounds) * n * max_steps, desc=desc, unit="step", unit_scale=True,
                disable=not progress, leave=False)
+    types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
     for r, ids in enumerate(rounds):
-        types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
-        obs = env.start(ids, types[layout.terrain_of(ids)], layout.level_of(ids))
+        start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
         if r == 0:
-            act, _, first = _first_act(make_actor, n, obs)
+            try:
+                actor: Any = _FirstStepGuard(*as_policy(make_actor(0, n)))
+            except (ValueError, KeyError, NotImplementedError) as e:
+                raise NotApplicable(f"{type(e).__name__}: {e}") from e
         else:
-            act, reset = as_policy(make_actor(r, n))
-            reset(np.arange(n))
-            first = act(obs)
-        _episode(env, act, obs, first, out, ids, bar)
+            actor = make_actor(r, n)
+        _round(env, actor, out, ids, bar)
     bar.close()
     return out.take(np.arange(layout.trials))
 
 
-def _episode(env: EvalEnv, act: Callable, obs: dict, action: np.ndarray, out: TrialResults,
-             ids: np.ndarray, bar: tqdm) -> None:
+def _round(env: QuadrupedEnv, actor: Any, out: TrialResults, ids: np.ndarray,
+           bar: tqdm) -> None:
     """One round: step until every environment's first episode ended; sum into ``out``."""
     n = env.num_envs
     alive = np.ones(n, dtype=bool)
     bad = np.isin(np.arange(len(REASONS)), [REASONS.index("fall"), REASONS.index("nan")])
-    for t in range(env.max_steps):
-        if t:
-            action = act(obs)
-        cmd = env.commands.command.copy()
-        res = env.step(action)
-        m, w = env.meas_before_reset, alive.astype(np.float64)
-        out.lin[ids] += w * res.metrics["lin_vel_tracking"]
-        out.ang[ids] += w * res.metrics["ang_vel_tracking"]
-        out.total[ids] += w * res.reward
-        out.steps[ids] += w
-        out.vel_err[ids] += w * np.linalg.norm(m["base_lin_vel"][:, :2] - cmd[:, :2], axis=1)
-        out.yaw_err[ids] += w * np.abs(m["base_ang_vel"][:, 2] - cmd[:, 2])
+
+    def on_step(step: Step) -> bool:
+        res = step.res
+        out.add(ids, step, alive.astype(np.float64))
         ended = alive & res.done
         out.fell[ids[ended]] = bad[res.reason[ended]]
-        alive &= ~res.done
+        alive[:] &= ~res.done
         bar.update(n)
         if not alive.any():
-            bar.update(n * (env.max_steps - t - 1))
-            break
-        obs = res.obs
+            bar.update(n * (env.max_steps - step.t - 1))
+            return True
+        return False
+
+    rollout(env, actor, on_step, max_steps=env.max_steps, reset_done=False)
 
 
 def _cells(layout: TrialLayout) -> dict[str, Any]:

@@ -19,36 +19,38 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from collect.rollout import Step, rollout
+from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from eval.metrics import TrialResults, summarize
 from policies.teacher.base import TEACHERS, make_teacher
 
 MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival
 MINIMUM_LOW_LEVELS = 3           # every type, levels 0-2: >= 80 % survival
 
 
-@dataclass
-class TileStats:
-    """Accumulated per-step and per-episode numbers of one (terrain, level) tile."""
+def tile_row(summary: dict[str, Any]) -> dict[str, Any]:
+    """A report row from :func:`eval.metrics.summarize` over a tile's episodes: ``episodes``,
+    ``survival`` (share ending by the time limit) with its 95 % interval ``survival_ci``,
+    ``lin_reward`` / ``ang_reward`` (tracking reward per step lived: the episodes' summed
+    returns over their summed steps), ``lin_err`` / ``ang_err`` (mean |v_xy - cmd_xy| and
+    |w_z - cmd_wz| over all steps, :func:`collect.rollout.step_quantities`)."""
+    length = summary["length"] or float("nan")
+    return {"episodes": summary["trials"], "survival": summary["survival"],
+            "survival_ci": summary["ci"]["survival"],
+            "lin_reward": summary["lin_tracking"] / length,
+            "ang_reward": summary["ang_tracking"] / length,
+            "lin_err": summary["vel_err"], "ang_err": summary["yaw_err"]}
 
-    episodes: int = 0
-    survived: int = 0
-    steps: int = 0
-    lin_reward: float = 0.0
-    ang_reward: float = 0.0
-    lin_err: float = 0.0
-    ang_err: float = 0.0
 
-    def row(self) -> dict[str, float]:
-        s = max(self.steps, 1)
-        return {"episodes": self.episodes, "survival": self.survived / max(self.episodes, 1),
-                "lin_reward": self.lin_reward / s, "ang_reward": self.ang_reward / s,
-                "lin_err": self.lin_err / s, "ang_err": self.ang_err / s}
+#: Report rows per (terrain type, level): :func:`tile_row`.
+Stats = dict[tuple[str, int], dict[str, Any]]
 
 
 @dataclass
@@ -67,13 +69,7 @@ class ReportConfig:
     extra: dict = field(default_factory=dict)
 
 
-def _tracking_error(reward: np.ndarray, scale: float, dt: float, sigma: float) -> np.ndarray:
-    """Invert the tracking kernel r = scale dt exp(-err^2 / sigma) to |err| (exact)."""
-    ratio = np.clip(reward / (scale * dt), 1e-300, 1.0)
-    return np.sqrt(-sigma * np.log(ratio))
-
-
-def evaluate(cfg: ReportConfig, progress: bool = True) -> dict[tuple[str, int], TileStats]:
+def evaluate(cfg: ReportConfig, progress: bool = True) -> Stats:
     """Roll the teacher on every (type, level) tile; see the module docstring.
 
     Each terrain type runs on its own grid (``columns_per_type`` columns of that type
@@ -84,16 +80,18 @@ def evaluate(cfg: ReportConfig, progress: bool = True) -> dict[tuple[str, int], 
         cfg: what to run.
         progress: show a tqdm bar over control steps.
     Returns:
-        stats per (type name, level).
+        report rows (:func:`tile_row`) per (type name, level).
     """
-    stats: dict[tuple[str, int], TileStats] = {}
+    stats: Stats = {}
     for t in cfg.types:
         stats.update(_evaluate_type(cfg, t, progress))
     return stats
 
 
-def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool
-                   ) -> dict[tuple[str, int], TileStats]:
+def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
+    """One terrain type: every environment runs ``ceil(episodes / envs_per_tile)`` episodes
+    through :func:`collect.rollout.rollout`; each finished episode is one trial of
+    :class:`eval.metrics.TrialResults`, summarized per tile by :func:`eval.metrics.summarize`."""
     k = cfg.envs_per_tile
     n = len(cfg.levels) * k
     env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_s,
@@ -103,42 +101,33 @@ def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool
                         randomization=RandomizationConfig(enabled=cfg.randomization),
                         noise=NoiseConfig(enabled=cfg.noise))
     env = QuadrupedEnv(env_cfg)
-    level = np.repeat(np.asarray(cfg.levels), k)
-    obs = env.reset(type_idx=np.zeros(n, dtype=np.int64), level=level)
+    env.reset(type_idx=np.zeros(n, dtype=np.int64), level=np.repeat(np.asarray(cfg.levels), k))
     teacher = make_teacher(cfg.teacher)
     per_env = math.ceil(cfg.episodes / k)
     done_eps = np.zeros(n, dtype=np.int64)
-    tile_of_env = np.repeat(np.arange(len(cfg.levels)), k)
-    acc = np.zeros((len(cfg.levels), 5))        # steps, lin_r, ang_r, lin_err, ang_err
-    ends = np.zeros((len(cfg.levels), 2), dtype=np.int64)
-    rs = env_cfg.rewards
+    episodes = TrialResults.zeros(n * per_env, env.max_steps)  # env e's j-th: e * per_env + j
+    fell = np.isin(np.arange(len(REASONS)), [REASONS.index("fall"), REASONS.index("nan")])
     total = per_env * env.max_steps
     bar = _bar(total, progress, terrain)
-    step = 0
-    while (done_eps < per_env).any():
-        res = env.step(teacher.act(obs))
-        obs = res.obs
+
+    def on_step(step: Step) -> bool:
         active = done_eps < per_env
-        lin, ang = res.metrics["lin_vel_tracking"], res.metrics["ang_vel_tracking"]
-        lin_e = _tracking_error(lin, rs.scales.tracking_lin_vel, env.dt, rs.tracking_sigma)
-        ang_e = _tracking_error(ang, rs.scales.tracking_ang_vel, env.dt, rs.tracking_sigma)
-        vals = np.column_stack([np.ones(n), lin, ang, lin_e, ang_e]) * active[:, None]
-        np.add.at(acc, tile_of_env, vals)
-        ended = np.flatnonzero(res.done & active)
-        np.add.at(ends, (tile_of_env[ended], 0), 1)
-        np.add.at(ends, (tile_of_env[ended], 1), (res.reason[ended] == 2).astype(np.int64))
+        slot = np.arange(n) * per_env + np.minimum(done_eps, per_env - 1)
+        episodes.add(slot, step, active.astype(np.float64))
+        ended = np.flatnonzero(step.res.done & active)
+        episodes.fell[slot[ended]] = fell[step.res.reason[ended]]
         done_eps[ended] += 1
-        teacher.reset(np.flatnonzero(res.done))
-        step += 1
-        if bar is not None and step % 25 == 0:
+        if bar is not None and (step.t + 1) % 25 == 0:
             bar.n = min(total, int(np.minimum(done_eps * env.max_steps + env.episode_step,
                                               per_env * env.max_steps).mean()))
             bar.refresh()
+        return not (done_eps < per_env).any()
+
+    rollout(env, teacher, on_step)
     if bar is not None:
         bar.close()
-    return {(terrain, lv): TileStats(episodes=int(ends[i, 0]), survived=int(ends[i, 1]),
-                                     steps=int(acc[i, 0]), lin_reward=acc[i, 1],
-                                     ang_reward=acc[i, 2], lin_err=acc[i, 3], ang_err=acc[i, 4])
+    tile_of_episode = np.repeat(np.arange(len(cfg.levels)), k * per_env)
+    return {(terrain, lv): tile_row(summarize(episodes, [np.flatnonzero(tile_of_episode == i)]))
             for i, lv in enumerate(cfg.levels)}
 
 
@@ -149,18 +138,18 @@ def _bar(total: int, progress: bool, terrain: str):
     return tqdm(total=total, unit="step/env", desc=f"teacher report {terrain}", smoothing=0.1)
 
 
-def highest_level(stats: dict[tuple[str, int], TileStats], terrain: str, levels: tuple[int, ...],
+def highest_level(stats: Stats, terrain: str, levels: tuple[int, ...],
                   threshold: float = 0.8) -> int:
     """Highest level L such that every level <= L has survival >= threshold (-1 if none)."""
     best = -1
     for lv in sorted(levels):
-        if stats[(terrain, lv)].row()["survival"] < threshold:
+        if stats[(terrain, lv)]["survival"] < threshold:
             break
         best = lv
     return best
 
 
-def render_markdown(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig, command: str,
+def render_markdown(stats: Stats, cfg: ReportConfig, command: str,
                     seconds: float, image: str | None) -> str:
     """The report as Markdown (tables per terrain, summary, minimums)."""
     lines = [f"# Teacher quality: `{cfg.teacher}`", "",
@@ -181,7 +170,7 @@ def render_markdown(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig, 
     lines += ["## Summary", "", "| terrain | highest level with >= 80 % survival | "
               "survival L0-4 | mean abs(v err) L0-4 |", "|---|---|---|---|"]
     for t in cfg.types:
-        low = [stats[(t, lv)].row() for lv in cfg.levels if lv < 5]
+        low = [stats[(t, lv)] for lv in cfg.levels if lv < 5]
         surv = np.mean([r["survival"] for r in low]) if low else float("nan")
         err = np.mean([r["lin_err"] for r in low]) if low else float("nan")
         lines.append(f"| {t} | {highest_level(stats, t, cfg.levels)} | {surv:.1%} | {err:.3f} |")
@@ -190,7 +179,7 @@ def render_markdown(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig, 
         lines += [f"## {t}", "", "| level | episodes | survival | lin track | ang track | "
                   "abs(v err) m/s | abs(w err) rad/s |", "|---|---|---|---|---|---|---|"]
         for lv in cfg.levels:
-            r = stats[(t, lv)].row()
+            r = stats[(t, lv)]
             lines.append(f"| {lv} | {r['episodes']} | {r['survival']:.1%} | "
                          f"{r['lin_reward'] / (env_scale('lin')):.3f} | "
                          f"{r['ang_reward'] / env_scale('ang'):.3f} | {r['lin_err']:.3f} | "
@@ -208,19 +197,19 @@ def env_scale(which: str) -> float:
     return (s.tracking_lin_vel if which == "lin" else s.tracking_ang_vel) * cfg.dt
 
 
-def _minimums(stats: dict[tuple[str, int], TileStats], cfg: ReportConfig) -> list[str]:
+def _minimums(stats: Stats, cfg: ReportConfig) -> list[str]:
     out = []
     for t in ("flat", "smooth_slope"):
         for lv in range(MINIMUM_FLAT_LEVELS):
             if (t, lv) in stats:
-                r = stats[(t, lv)].row()
+                r = stats[(t, lv)]
                 ok = r["survival"] >= 0.95 and r["lin_err"] <= 0.25
                 out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 95 %), |v err| "
                            f"{r['lin_err']:.3f} (<= 0.25): {'met' if ok else 'NOT met'}")
     for t in cfg.types:
         for lv in range(MINIMUM_LOW_LEVELS):
             if (t, lv) in stats:
-                r = stats[(t, lv)].row()
+                r = stats[(t, lv)]
                 ok = r["survival"] >= 0.8
                 out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 80 %): "
                            f"{'met' if ok else 'NOT met'}")

@@ -5,23 +5,31 @@ N environments share one scene (robot + terrain heightfield) and are stepped tog
 physics steps with a constant position target. Observations are named by the sensor
 registry (``msta_data/sensors.py``); environments reset automatically on a fall, a physics
 blow-up or the time limit.
+
+Random draws (spawns, domain-randomization variants, commands, latency, pushes, observation
+noise) come from one generator seeded by ``cfg.seed``, or, after
+``reset(streams=keys)``, from one generator per environment keyed by
+``(cfg.seed, keys[i])``: then what happens in one environment (a fall, an early reset)
+never shifts the random numbers of another, and an environment's episodes are the same
+whatever batch it runs in (the evaluation's trials, ``eval/metrics.py``).
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 from mujoco import rollout
 
 from collect.sim import robot
-from collect.sim.commands import CommandConfig, CommandSampler
+from collect.sim.commands import CommandSampler
+from collect.sim.env_config import ControlConfig, EnvConfig, NoiseConfig
 from collect.sim.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
-from collect.sim.randomization import RandomizationConfig, build_pool
-from collect.sim.rewards import RewardConfig, RewardInputs, compute_rewards, soft_limits
-from collect.sim.terrain import Terrain, TerrainConfig, sample_initial, update_levels
+from collect.sim.randomization import build_pool
+from collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
+from collect.sim.terrain import Terrain, sample_initial, update_levels
 from msta_data.robot import DEFAULT_POSE, SPAWN_HEIGHT
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 
@@ -29,95 +37,11 @@ PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
 #: Episode end reasons reported in ``StepResult.reason``.
 REASONS = ("running", "fall", "timeout", "nan")
 CONTACT_THRESHOLD = 1.0  # N
-
-
-@dataclass
-class ControlConfig:
-    """Args:
-        kp, kd: PD gains of the position actuators (paper: 30, 0.7).
-        action_scale: joint target = default pose + action_scale * action.
-        clip_actions: actions are clipped to +-clip_actions before scaling.
-        sim_dt: physics step (s).
-        decimation: physics steps per control step (0.005 s x 4 -> 50 Hz).
-    """
-
-    kp: float = 30.0
-    kd: float = 0.7
-    action_scale: float = 0.25
-    clip_actions: float = 100.0
-    sim_dt: float = 0.005
-    decimation: int = 4
-
-    def __post_init__(self) -> None:
-        for name in ("kp", "kd", "action_scale", "clip_actions", "sim_dt"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"control.{name}={getattr(self, name)} must be > 0")
-        if self.decimation < 1:
-            raise ValueError(f"control.decimation={self.decimation} must be >= 1")
-
-
-@dataclass
-class NoiseConfig:
-    """Uniform observation noise; half-widths come from the registry, times ``scale``.
-
-    Args:
-        enabled: add the noise to every observation.
-        scale: multiplies every sensor's noise half-width (the sensor registry's).
-    """
-
-    enabled: bool = True
-    scale: float = 1.0
-
-
-@dataclass
-class EnvConfig:
-    """Args:
-        num_envs: environments stepped together.
-        seed: seeds terrain, randomization, commands, noise and spawns.
-        episode_length_s: time limit (s).
-        nthread: rollout threads (0 = all cores).
-        spawn_offset: m, uniform xy offset of the spawn point around the tile centre.
-        type_weights: share of environments per terrain type (aligned with terrain.types);
-            empty = uniform.
-        fall_gravity_z: a fall is declared when the projected gravity's z exceeds this
-            (the trunk is tilted more than ~60 degrees), or the trunk touches the ground.
-        collision: robot collision set: "fast" (feet, trunk, upper calves; default) or
-            "full" (also whole calves and thighs; ~1.3x slower physics).
-    """
-
-    num_envs: int = 256
-    seed: int = 0
-    episode_length_s: float = 20.0
-    nthread: int = 2
-    spawn_offset: float = 1.0
-    type_weights: tuple[float, ...] = ()
-    fall_gravity_z: float = -0.5
-    collision: str = "fast"
-    terrain: TerrainConfig = field(default_factory=TerrainConfig)
-    commands: CommandConfig = field(default_factory=CommandConfig)
-    randomization: RandomizationConfig = field(default_factory=RandomizationConfig)
-    noise: NoiseConfig = field(default_factory=NoiseConfig)
-    rewards: RewardConfig = field(default_factory=RewardConfig)
-    control: ControlConfig = field(default_factory=ControlConfig)
-
-    def __post_init__(self) -> None:
-        if self.num_envs < 1:
-            raise ValueError(f"num_envs={self.num_envs} must be >= 1")
-        if self.episode_length_s <= 0:
-            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
-        self.type_weights = tuple(self.type_weights)
-        robot.check_collision_set(self.collision)
-        if self.type_weights and len(self.type_weights) != len(self.terrain.types):
-            raise ValueError(f"type_weights {self.type_weights} must have one weight per "
-                             f"terrain type {self.terrain.types}")
-
-    @property
-    def dt(self) -> float:
-        return self.control.sim_dt * self.control.decimation
-
-    @property
-    def max_episode_steps(self) -> int:
-        return int(round(self.episode_length_s / self.dt))
+#: Salt of the per-environment generators of ``QuadrupedEnv.reset(streams=...)``.
+STREAM_SALT = 0x7E57
+#: The configuration classes live in env_config.py; importing them from here keeps working.
+__all__ = ["CONTACT_THRESHOLD", "PROPRIO", "REASONS", "STREAM_SALT", "ControlConfig",
+           "EnvConfig", "NoiseConfig", "QuadrupedEnv", "StepResult"]
 
 
 @dataclass
@@ -172,6 +96,10 @@ class QuadrupedEnv:
         self._scan_points = scan.reshape(-1, 2)                       # (187, 2), x-major
         self._noise = {k: (SENSORS[k].noise * cfg.noise.scale if cfg.noise.enabled else 0.0)
                        for k in PROPRIO}
+        self._noise_width = np.concatenate([np.full(SENSORS[k].dim, self._noise[k])
+                                            for k in PROPRIO])
+        #: Per-environment generators (``reset(streams=...)``); None: the shared ``rng``.
+        self.streams: list[np.random.Generator] | None = None
         self._lat = cfg.randomization.max_latency_steps if cfg.randomization.enabled else 0
         self._alloc(n)
         self.type_idx, self.level = sample_initial(
@@ -208,22 +136,37 @@ class QuadrupedEnv:
 
     # ------------------------------------------------------------------ public API
     def reset(self, type_idx: np.ndarray | None = None, level: np.ndarray | None = None,
-              ) -> dict[str, np.ndarray]:
+              streams: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Reset every environment; optionally pin each one's terrain type and level.
 
         Args:
             type_idx: (N,) indices into ``cfg.terrain.types`` (kept for later episodes).
             level: (N,) levels in [0, num_levels).
+            streams: (N,) integer keys: environment i then draws everything random of this
+                and its later episodes (spawn, variant, commands, latency, pushes, noise)
+                from its own generator ``default_rng([cfg.seed, STREAM_SALT, streams[i]])``
+                (needs ``terrain.curriculum`` off). None: every draw comes from the shared
+                generator ``rng`` (the default; collection).
         Returns:
             the first observation of every environment.
         """
         if type_idx is not None or level is not None:
             self.set_tiles(self.type_idx if type_idx is None else type_idx,
                            self.level if level is None else level)
+        self.streams = None if streams is None else self._make_streams(streams)
         self._reset_ids(np.arange(self.num_envs))
         self._needs_reset = False
         self.last_obs = self._observe()
         return self.last_obs
+
+    def _make_streams(self, keys: np.ndarray) -> list[np.random.Generator]:
+        if self.cfg.terrain.curriculum:
+            raise ValueError("per-environment streams need terrain.curriculum=False (the "
+                             "curriculum's level changes draw from the shared generator)")
+        keys = np.asarray(keys, dtype=np.int64)
+        if keys.shape != (self.num_envs,):
+            raise ValueError(f"streams has shape {keys.shape}, expected ({self.num_envs},)")
+        return [np.random.default_rng([self.cfg.seed, STREAM_SALT, int(k)]) for k in keys]
 
     def set_tiles(self, type_idx: np.ndarray, level: np.ndarray) -> None:
         """Pin terrain type and level per environment (applied at each env's next reset)."""
@@ -340,7 +283,11 @@ class QuadrupedEnv:
     def _resample_commands(self) -> None:
         every = max(1, int(round(self.cfg.commands.resample_s / self.dt)))
         ids = np.flatnonzero((self.episode_step % every == 0) & (self.episode_step > 0))
-        self.commands.resample(ids, self.rng)
+        if self.streams is None:
+            self.commands.resample(ids, self.rng)
+        else:
+            for i in ids:
+                self.commands.resample(np.array([i]), self.streams[i])
 
     def _push(self) -> None:
         rc = self.cfg.randomization
@@ -349,28 +296,45 @@ class QuadrupedEnv:
         every = max(1, int(round(rc.push_interval_s / self.dt)))
         ids = np.flatnonzero((self.episode_step + self.push_step) % every == every - 1)
         if len(ids):
-            v = self.layout.base_linvel
-            self.state[ids, v.start:v.start + 2] += self.rng.uniform(
-                -rc.push_max_vel, rc.push_max_vel, (len(ids), 2))
+            v, lim = self.layout.base_linvel, rc.push_max_vel
+            if self.streams is None:
+                kick = self.rng.uniform(-lim, lim, (len(ids), 2))
+            else:
+                kick = np.array([self.streams[i].uniform(-lim, lim, 2) for i in ids])
+            self.state[ids, v.start:v.start + 2] += kick
 
     def _reset_ids(self, ids: np.ndarray) -> None:
-        """New episodes for ``ids``: spawn state, variant, command, latency, buffers."""
+        """New episodes for ``ids``, from the shared generator or each one's own stream."""
+        if self.streams is None:
+            self._reset_rows(ids, self.rng)
+        else:
+            if not self.meas:  # rows are measured one at a time: start from the whole batch
+                self.state[:] = self._template
+                self.meas = self._measure(self.state, np.zeros((self.num_envs, 1,
+                                                                self.model.nsensordata)))
+            for i in ids:
+                self._reset_rows(np.array([i]), self.streams[i])
+        self._hist_fresh = np.asarray(ids)
+
+    def _reset_rows(self, ids: np.ndarray, rng: np.random.Generator) -> None:
+        """New episodes for ``ids`` drawn from ``rng``: spawn state, variant, command,
+        latency, buffers."""
         n, cfg = len(ids), self.cfg
-        centre = self.terrain.tile_center(self.type_idx[ids], self.level[ids], rng=self.rng)
-        xy = centre[:, :2] + self.rng.uniform(-cfg.spawn_offset, cfg.spawn_offset, (n, 2))
-        yaw = self.rng.uniform(-np.pi, np.pi, n)
+        centre = self.terrain.tile_center(self.type_idx[ids], self.level[ids], rng=rng)
+        xy = centre[:, :2] + rng.uniform(-cfg.spawn_offset, cfg.spawn_offset, (n, 2))
+        yaw = rng.uniform(-np.pi, np.pi, n)
         st = np.tile(self._template, (n, 1))
         lay = self.layout
         ground = self.terrain.height_at(xy[:, None, :] + self._footprint()[None]).max(axis=1)
         st[:, lay.base_pos] = np.column_stack([xy, ground + SPAWN_HEIGHT])
         st[:, lay.base_quat] = yaw_quat(yaw)
         self.state[ids] = st
-        self.variant[ids] = self.rng.integers(0, len(self.pool), n)
+        self.variant[ids] = rng.integers(0, len(self.pool), n)
         for i, v in zip(ids, self.variant[ids]):
             self._models[i] = self.pool[v]
-        self.commands.resample(ids, self.rng)
-        self.latency[ids] = self.rng.integers(0, self._lat + 1, n)
-        self.push_step[ids] = self.rng.integers(0, 1 << 30, n)
+        self.commands.resample(ids, rng)
+        self.latency[ids] = rng.integers(0, self._lat + 1, n)
+        self.push_step[ids] = rng.integers(0, 1 << 30, n)
         self.spawn_xy[ids] = xy
         for buf in (self.action, self.last_action, self.last_joint_vel, self.air_time):
             buf[ids] = 0.0
@@ -386,7 +350,6 @@ class QuadrupedEnv:
                 self.meas[k][ids] = v
         self.commands.update_yaw_rate(fresh["yaw"], ids)
         self._hist[ids] = self._proprio(fresh, ids)[:, None, :]
-        self._hist_fresh = ids
 
     def _footprint(self) -> np.ndarray:
         return np.array([[0.2, 0.15], [0.2, -0.15], [-0.2, 0.15], [-0.2, -0.15], [0, 0]])
@@ -423,6 +386,14 @@ class QuadrupedEnv:
         }
 
     def _proprio(self, m: dict[str, np.ndarray], ids: np.ndarray) -> np.ndarray:
+        """Noisy proprioception (len(ids), 45) of rows ``ids`` of ``m``."""
+        if self.streams is not None:  # one draw per row from its environment's stream
+            x = np.concatenate([m["base_ang_vel"] if k == "ang_vel" else m[k] for k in PROPRIO],
+                               axis=1)
+            if self._noise_width.any():
+                u = np.stack([self.streams[i].random(x.shape[1]) for i in ids])
+                x = x + (2.0 * u - 1.0) * self._noise_width
+            return x.astype(np.float32)
         parts = []
         for k in PROPRIO:
             x = m["base_ang_vel"] if k == "ang_vel" else m[k]

@@ -1,4 +1,4 @@
-"""EvalEnv (per-trial random streams), trial layout and metric aggregation."""
+"""Per-trial random streams (QuadrupedEnv.reset(streams=...)), trial layout and metric aggregation."""
 
 from __future__ import annotations
 
@@ -6,23 +6,23 @@ import numpy as np
 import pytest
 
 from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig
+from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
-from eval.metrics import EvalEnv, TrialLayout, aggregate, normalize, run_trials
+from eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials
 from policies.teacher.config import ZeroTeacher
 
 TYPES = ("flat", "smooth_slope")
 
 
-def make_env(n: int, seconds: float = 2.0) -> EvalEnv:
-    return EvalEnv(EnvConfig(num_envs=n, seed=5, episode_length_s=seconds,
+def make_env(n: int, seconds: float = 2.0) -> QuadrupedEnv:
+    return QuadrupedEnv(EnvConfig(num_envs=n, seed=5, episode_length_s=seconds,
                              terrain=TerrainConfig(types=TYPES, curriculum=False),
                              commands=CommandConfig(resample_s=0.2)))
 
 
-def roll(env: EvalEnv, wild_env0: bool, steps: int = 60):
+def roll(env: QuadrupedEnv, wild_env0: bool, steps: int = 60):
     """Observations of env 1 and commands of every env per step; env 0 may flail."""
-    env.start(np.arange(3), np.array([0, 1, 0]), np.array([0, 2, 3]))
+    start_trials(env, np.arange(3), np.array([0, 1, 0]), np.array([0, 2, 3]))
     obs1, cmds, done0 = [], [], False
     for t in range(steps):
         a = np.zeros((3, 12))
@@ -68,9 +68,23 @@ def test_layout_rounds_and_tiles():
         TrialLayout(("a",), (0,), 0)
 
 
-def test_curriculum_is_refused():
+def test_streams_refuse_the_curriculum_and_a_wrong_shape():
+    env = QuadrupedEnv(EnvConfig(num_envs=2, terrain=TerrainConfig(curriculum=True)))
     with pytest.raises(ValueError, match="curriculum"):
-        EvalEnv(EnvConfig(num_envs=1, terrain=TerrainConfig(curriculum=True)))
+        env.reset(streams=np.arange(2))
+    with pytest.raises(ValueError, match="streams has shape"):
+        make_env(2).reset(streams=np.arange(3))
+
+
+def test_a_trial_is_the_same_in_any_batch_position():
+    """Trial 7's first observations are the same alone and as env 1 of a batch of three."""
+    alone, batch = make_env(1), make_env(3)
+    a = start_trials(alone, np.array([7]), np.array([1]), np.array([2]))
+    b = start_trials(batch, np.array([3, 7, 9]), np.array([0, 1, 0]), np.array([0, 2, 4]))
+    for k in a:
+        np.testing.assert_array_equal(a[k][0], b[k][1], err_msg=k)
+    c = start_trials(alone, np.array([8]), np.array([1]), np.array([2]))
+    assert not np.array_equal(a["joint_pos"], c["joint_pos"])  # another trial, other draws
 
 
 def test_aggregate_and_normalize_by_hand():
