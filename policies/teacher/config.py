@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, is_dataclass
 from pathlib import Path
 
 import numpy as np
 
+from msta_data.revision import content_revision, file_parts
 from policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
 
 
@@ -61,20 +61,14 @@ def build_teacher(cfg: TeacherConfig) -> Teacher:
 
 
 def teacher_revision(cfg: TeacherConfig) -> str:
-    """A short content hash identifying the teacher (its files, or its type and config)."""
-    h = hashlib.sha256(cfg.type.encode())
-    p = Path(cfg.path) if cfg.path else None
-    if p is not None:
-        files = sorted(p.rglob("*")) if p.is_dir() else [p]
-        for f in files:
-            if f.is_file():
-                h.update(f.name.encode())
-                h.update(f.read_bytes())
+    """``<type>-<12 hex>`` (:func:`msta_data.revision.content_revision`): the type, then the
+    teacher's files (names and bytes) or, for a teacher without files, its config as JSON."""
+    parts: list[bytes | str] = [cfg.type]
+    if cfg.path:
+        parts += file_parts(cfg.path)
     else:
         teacher = build_teacher(cfg)
         conf = getattr(teacher, "cfg", None) or getattr(teacher, "config", None)
-        if conf is not None and hasattr(conf, "__dataclass_fields__"):
-            from dataclasses import asdict
-
-            h.update(json.dumps(asdict(conf), sort_keys=True, default=str).encode())
-    return f"{cfg.type}-{h.hexdigest()[:12]}"
+        if conf is not None and is_dataclass(conf):
+            parts.append(json.dumps(asdict(conf), sort_keys=True, default=str))
+    return content_revision(parts, prefix=cfg.type)
