@@ -84,24 +84,35 @@ class EpisodeRecorder:
 
 class LabelledActor:
     """``actor`` drives; ``label`` (default: the actor) acts on the same observation right
-    after it, and its action is kept in ``label_action`` for the recorder.
+    after it, once per step, and its action is the recorded ``action`` label
+    (``label_action``). With ``beta`` > 0 every environment executes the label's action
+    instead with probability ``beta`` per step (DAgger mixing, msta-correct).
 
     Args:
         actor: the policy that drives (act/reset or a callable).
-        label: the policy whose action is the ``action`` label, or None.
+        label: the labelling policy (a teacher), or None.
+        beta: probability that an environment executes the label's action in a step.
+        seed: seeds the per-step coin flips.
     """
 
-    def __init__(self, actor: Any, label: Any = None) -> None:
+    def __init__(self, actor: Any, label: Any = None, beta: float = 0.0, seed: int = 0) -> None:
         self._act, self._reset = as_policy(actor)
         self._lab_act, self._lab_reset = (as_policy(label) if label is not None
                                           else (None, lambda ids: None))
+        self.beta, self.rng = beta, np.random.default_rng(seed)
         self.label_action = np.zeros((0, 12), dtype=np.float32)
+        self.label_share = [0, 0]  # label-executed env steps, all env steps
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        executed = np.asarray(self._act(obs), dtype=np.float32)
-        self.label_action = (executed if self._lab_act is None
-                             else np.asarray(self._lab_act(obs), dtype=np.float32))
-        return executed
+        executed = np.asarray(self._act(obs), dtype=np.float32)   # (N, 12)
+        if self._lab_act is None:
+            self.label_action = executed
+            return executed
+        self.label_action = np.asarray(self._lab_act(obs), dtype=np.float32)
+        use = self.rng.random(len(executed)) < self.beta          # (N,)
+        self.label_share[0] += int(use.sum())
+        self.label_share[1] += len(use)
+        return np.where(use[:, None], self.label_action, executed)
 
     def reset(self, ids: np.ndarray) -> None:
         self._reset(ids)
@@ -117,7 +128,8 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
 
     Args:
         env: the simulator (reset here).
-        actor: the policy that drives (act/reset or a callable).
+        actor: the policy that drives (act/reset or a callable), or a
+            :class:`LabelledActor` (which then also labels; ``label`` must be None).
         episodes: how many finished episodes to emit.
         write: called as ``write(frames, type_idx, level)`` per finished episode.
         sensors: registry sensors to record (default: all).
@@ -129,7 +141,8 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     env.reset()
     if episodes <= 0:
         return 0
-    policy = LabelledActor(actor, label)
+    policy = actor if isinstance(actor, LabelledActor) and label is None \
+        else LabelledActor(actor, label)
     rec = EpisodeRecorder(env.num_envs, env.max_steps, sensors)
     rec.start(np.arange(env.num_envs), env.type_idx, env.level)
     done_count = 0

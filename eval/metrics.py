@@ -31,7 +31,9 @@ trials, the delta method on paired trials for ratios, Wilson for survival).
 
 ``msta-eval`` (:mod:`eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
 through :class:`eval.evaluate.Evaluator`, so the same checkpoint on the same trials gets
-the same figures in both (and on the stage-2 model card).
+the same figures in both; msta-correct's round table and the stage-2 model card pick theirs
+from the run record with :func:`headline`. The teacher report summarizes its tiles with
+:func:`summarize` (one trial per finished episode).
 """
 
 from __future__ import annotations
@@ -52,6 +54,14 @@ from eval.intervals import mean_interval, proportion_interval, ratio_interval
 RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
 #: Every number reported per terrain.
 METRICS: tuple[str, ...] = RETURNS + ("survival", "vel_err", "yaw_err", "length")
+
+
+#: The headline figures of an msta-eval run record, as msta-correct's round table and the
+#: stage-2 model card show them: (name, figure, metric); the returns normalized by the
+#: teacher's on the same trials, survival raw.
+HEADLINE_FIGURES: tuple[tuple[str, str, str], ...] = (
+    ("lin_tracking_vs_teacher", "normalized", "lin_tracking"), ("survival", "raw", "survival"),
+    ("total_vs_teacher", "normalized", "total"))
 
 
 class NotApplicable(Exception):
@@ -341,3 +351,19 @@ def normalize(student: TrialResults, teacher: TrialResults, layout: TrialLayout
         return {**out, "trials": len(idx), "ci": ci}
 
     return _map_cells(_cells(layout), cell)
+
+
+def headline(run: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The :data:`HEADLINE_FIGURES` of one run record (``eval.evaluate.Evaluator.condition``
+    with status ok) per terrain and ``average``, as cells keyed by figure name:
+    ``{terrain: {name: value, ..., "trials": n, "ci": {name: [low, high] or None}}}``
+    (``eval.report.fmt_cell`` formats them). msta-correct's round table and the stage-2 model
+    card read their figures here, so both show msta-eval's numbers."""
+    out: dict[str, dict[str, Any]] = {}
+    for name, figure, key in HEADLINE_FIGURES:
+        for t, cell in run[figure]["per_terrain"].items():
+            row = out.setdefault(t, {"ci": {}})
+            row[name] = cell[key]
+            row["ci"][name] = cell["ci"][key]
+            row["trials"] = cell["trials"]
+    return out

@@ -16,7 +16,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from eval.scenarios import TrialConfig
+from eval.evaluate import Evaluator, student_entry, torch_eval_settings
+from eval.metrics import HEADLINE_FIGURES, headline
+from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
+from eval.scenarios import ScenarioContext, TrialConfig, get_scenario
 from policies.teacher.config import TeacherConfig
 
 
@@ -62,8 +65,6 @@ class RoundEvaluator:
 
     def teacher(self) -> dict[str, Any]:
         """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
-        from eval.evaluate import Evaluator, torch_eval_settings
-
         if self.ev is None:
             ev = Evaluator(self.cfg, self.teacher_cfg, progress=False)
             with torch_eval_settings(self.cfg.threads):
@@ -74,9 +75,6 @@ class RoundEvaluator:
     def student(self, ckpt: Path) -> dict[str, Any]:
         """msta-eval's run record (raw and normalized figures, intervals, trials) of the
         checkpoint ``ckpt`` per test mask, keyed ``f"{mask:g}"``."""
-        from eval.evaluate import student_entry, torch_eval_settings
-        from eval.scenarios import ScenarioContext, get_scenario
-
         self.teacher()
         entry = student_entry(ckpt, ckpt.name, str(ckpt))
         ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.mask_ratios,
@@ -86,17 +84,11 @@ class RoundEvaluator:
                     for c in get_scenario("token_removal").build(ctx)}
 
 
-#: (column, figure, metric): normalized returns are ``normalized`` figures, survival ``raw``.
-ROUND_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
-                 ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
-
-
 def print_table(prog: dict[str, Any]) -> None:
     """Per-round table: speeds, then per test mask the trials and msta-eval's figures
     (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
-    total reward normalized by the teacher on the same trials, and survival."""
-    from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
-
+    total reward normalized by the teacher on the same trials, and survival
+    (:func:`eval.metrics.headline`, the model card's figures too)."""
     lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
              "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
              "tracking vs teacher / survival |", "|" + "---|" * 11]
@@ -114,12 +106,12 @@ def print_table(prog: dict[str, Any]) -> None:
                 reason = run.get("reason", "evaluated by an older msta-correct")
                 lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
                 continue
-            per = {f: run[f]["per_terrain"] for _, f, _ in ROUND_FIGURES}
-            avg = [fmt_cell(per[f]["average"], key) for _, f, key in ROUND_FIGURES]
+            cells = headline(run)
+            avg = [fmt_cell(cells["average"], name) for name, _, _ in HEADLINE_FIGURES]
             terr = " ".join(
-                f"{SHORT_TERRAIN.get(t, t)} {_fmt(per['normalized'][t]['lin_tracking'], '.2f')}"
-                f"/{row['survival']:.2f}" for t, row in per["raw"].items() if t != "average")
-            lines.append(f"{head} | {float(m):.0%} | {per['raw']['average']['trials']} | "
+                f"{SHORT_TERRAIN.get(t, t)} {_fmt(row['lin_tracking_vs_teacher'], '.2f')}"
+                f"/{row['survival']:.2f}" for t, row in cells.items() if t != "average")
+            lines.append(f"{head} | {float(m):.0%} | {cells['average']['trials']} | "
                          + " | ".join(avg) + f" | {terr} |")
         warnings += [identical_line(f"round {k}", "test masks", labels)
                      for labels in identical_groups(list(runs.values()))]

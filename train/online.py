@@ -54,10 +54,16 @@ import numpy as np
 import torch
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
-from collect.sim.env import EnvConfig
+from collect.record import LabelledActor, record_rollouts
+from collect.sim.env import EnvConfig, QuadrupedEnv
+from msta_data.features import load_info
+from msta_data.hub import materialize
+from msta_data.windows import episode_split, load_episode_table
+from msta_data.writer import DatasetWriter
 from policies.actor import InputSpec, StudentActor
-from policies.base import StudentPolicy
-from policies.teacher.config import TeacherConfig
+from policies.base import PolicyConfig, StudentPolicy
+from policies.factory import load_policy
+from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 from train.common import LoopConfig, atomic_json, parse_cli, seed_everything, select_device
 from train.evaluation import EvalConfig, RoundEvaluator, print_table
 from train.push import check_push_to, dataset_source, push_round
@@ -164,53 +170,7 @@ class CorrectConfig(LoopConfig):
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
 
 
-# ----- actors --------------------------------------------------------------------------
-class MixedActor:
-    """The student drives; per env and step the teacher's action is executed instead with
-    probability ``beta``. The teacher is called exactly once per step (stateful teachers
-    such as the gait clock advance once); :class:`TeacherLabel` hands out that action.
-
-    Args:
-        student: a :class:`~policies.actor.StudentActor`.
-        teacher: a teacher (act/reset).
-        beta: teacher-execution probability.
-        seed: seeds the per-step coin flips.
-    """
-
-    def __init__(self, student: StudentActor, teacher: Any, beta: float, seed: int) -> None:
-        self.student, self.teacher, self.beta = student, teacher, beta
-        self.rng = np.random.default_rng(seed)
-        self.last_obs: dict[str, np.ndarray] | None = None
-        self.last_teacher: np.ndarray | None = None
-        self.teacher_share = [0, 0]  # teacher-executed env steps, all env steps
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        a_student = self.student.act(obs)  # (N, 12), also advances the student's history
-        a_teacher = np.asarray(self.teacher.act(obs), dtype=np.float32)  # (N, 12)
-        self.last_obs, self.last_teacher = obs, a_teacher
-        use = self.rng.random(len(a_student)) < self.beta  # (N,)
-        self.teacher_share[0] += int(use.sum())
-        self.teacher_share[1] += len(use)
-        return np.where(use[:, None], a_teacher, a_student)
-
-    def reset(self, ids: np.ndarray) -> None:
-        self.student.reset(ids)
-        self.teacher.reset(ids)
-
-
-class TeacherLabel:
-    """The label policy of :func:`collect.record.record_rollouts`: the teacher action the
-    :class:`MixedActor` computed for the same observation."""
-
-    def __init__(self, mixed: MixedActor) -> None:
-        self.mixed = mixed
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        if obs is not self.mixed.last_obs or self.mixed.last_teacher is None:
-            raise RuntimeError("labels must be requested right after the actor's step")
-        return self.mixed.last_teacher
-
-
+# ----- the student and its revision ------------------------------------------------------
 def policy_revision(policy: StudentPolicy) -> str:
     """``<type>-<12 hex>``: a hash of the weights (names, dtypes, shapes, bytes)."""
     h = hashlib.sha256()
@@ -243,11 +203,9 @@ Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
 
 def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
              revision: str) -> tuple[list[Episode], dict[str, float]]:
-    """Phase 1-2: the round's student episodes with teacher labels, in memory."""
-    from collect.record import record_rollouts
-    from collect.sim.env import QuadrupedEnv
-    from policies.teacher.config import build_teacher
-
+    """Phase 1-2: the round's student episodes with teacher labels, in memory (the shared
+    rollout loop through :func:`collect.record.record_rollouts`; the student drives, the
+    teacher labels every step and executes with probability beta: ``LabelledActor``)."""
     teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
     if hasattr(teacher, "follow_robot"):
         teacher.follow_robot = cfg.teacher_follows_robot
@@ -257,7 +215,8 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
                                episode_length_s=cfg.episode_length_s))
     beta = cfg.beta * cfg.beta_decay ** (r - 1)
     spec = replace(cfg.rollout, seed=cfg.rollout.seed + r)
-    mixed = MixedActor(student_actor(policy, cfg.num_envs, spec), teacher, beta, cfg.seed + r)
+    mixed = LabelledActor(student_actor(policy, cfg.num_envs, spec), teacher, beta=beta,
+                          seed=cfg.seed + r)
     types = env.cfg.terrain.types
     episodes: list[Episode] = []
 
@@ -269,10 +228,9 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
 
     policy.eval()
     t0 = time.perf_counter()
-    steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, label=TeacherLabel(mixed),
-                            progress=cfg.progress)
+    steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, progress=cfg.progress)
     dt = time.perf_counter() - t0
-    share = mixed.teacher_share[0] / max(mixed.teacher_share[1], 1)
+    share = mixed.label_share[0] / max(mixed.label_share[1], 1)
     return episodes, {"env_steps": steps, "env_steps_per_s": steps / dt, "beta": beta,
                       "teacher_executed_share": share,
                       "frames": sum(len(f["action"]) for f, _ in episodes)}
@@ -280,8 +238,6 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
 
 def append_episodes(root: Path, episodes: list[Episode]) -> int:
     """Phase 3: one writer session, one flush (one commit); returns the new episode count."""
-    from msta_data.writer import DatasetWriter
-
     frames = sum(len(f["action"]) for f, _ in episodes)
     with DatasetWriter.open(root, flush_every_frames=frames + 1) as w:
         for f, prov in episodes:
@@ -292,8 +248,6 @@ def append_episodes(root: Path, episodes: list[Episode]) -> int:
 
 def check_tail(root: Path, before: int, expected: int, r: int, revision: str) -> bool:
     """Did a killed run already commit this round's episodes? (see the module docstring)"""
-    from msta_data.windows import load_episode_table
-
     table = load_episode_table(root)
     if len(table) == before:
         return False
@@ -312,7 +266,6 @@ def check_tail(root: Path, before: int, expected: int, r: int, revision: str) ->
 def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path
             ) -> dict[str, float]:
     """Phase 4: :func:`train.offline.fit` on the aggregate, from the current weights."""
-    from msta_data.windows import episode_split, load_episode_table
     from train.offline import fit, load_windows
 
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed + r)
@@ -358,15 +311,12 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, local dataset root to append to)."""
-    from policies.base import PolicyConfig
     from train.offline import resolve_dataset
 
     if not cfg.policy:
         raise ValueError("--policy is required (a stage-1 checkpoint directory or hub id)")
     ckpt = Path(cfg.policy).expanduser()
     if not ckpt.is_dir():
-        from msta_data.hub import materialize
-
         try:
             ckpt = materialize(cfg.policy, repo_type="model")
         except Exception as e:  # any hub failure: say what was tried
@@ -387,8 +337,6 @@ def rollout_levels(cfg: CorrectConfig, root: Path, prog: dict[str, Any]) -> Corr
     """``cfg`` with the rollouts' ``max_init_level`` capped at the highest terrain level of the
     dataset's teacher episodes (``--levels_from_dataset``); the cap is decided once and kept
     in progress.json, so a resumed run rolls out where the first one did."""
-    from msta_data.windows import load_episode_table
-
     if not cfg.levels_from_dataset:
         return cfg
     if "rollout_max_init_level" not in prog:
@@ -419,10 +367,6 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
             append), ``committed`` (episodes in the dataset, progress.json not yet updated),
             ``trained`` and ``evaluated``; tests raise there to simulate a kill.
     """
-    from msta_data.features import load_info
-    from policies.factory import load_policy
-    from policies.teacher.config import teacher_revision
-
     hook = on_phase or (lambda phase, r: None)
     out = Path(cfg.output_dir)
     if not cfg.resume and out.exists() and any(out.iterdir()):
@@ -469,8 +413,6 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     path = out / PROGRESS
     revision = policy_revision(policy)
     if not rec.get("appended"):
-        from msta_data.features import load_info
-
         if "episodes_before" in rec and check_tail(root, rec["episodes_before"],
                                                    cfg.episodes_per_round, r, revision):
             rec.update(appended=True, recovered_after_commit=True,

@@ -34,6 +34,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from eval.metrics import HEADLINE_FIGURES, headline
+
 _SHA = re.compile(r"^[0-9a-f]{40}$")
 
 
@@ -164,15 +166,11 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
 
 
 # ----- stage 2 -----------------------------------------------------------------------------
-#: (card name, msta-eval figure, metric): returns normalized by the teacher, survival raw.
-CARD_FIGURES = (("lin_tracking_vs_teacher", "normalized", "lin_tracking"),
-                ("survival", "raw", "survival"), ("total_vs_teacher", "normalized", "total"))
-
-
 def round_eval(prog: dict[str, Any], r: int) -> tuple[dict[str, float], dict | None]:
     """(metrics, per-terrain table) of round ``r`` from msta-correct's progress.json content.
 
-    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluate.Evaluator``):
+    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluate.Evaluator``;
+    :func:`eval.metrics.headline` picks them, as for msta-correct's round table):
     per test mask m, ``lin_tracking_vs_teacher@mask<m>`` and ``total_vs_teacher@mask<m>``
     (per-step returns over the teacher's on the same trials), ``survival@mask<m>`` (share
     of trials without a fall), each with ``<name>_ci95_low@mask<m>`` / ``_high`` (95 %
@@ -188,18 +186,18 @@ def round_eval(prog: dict[str, Any], r: int) -> tuple[dict[str, float], dict | N
     for m, run in (rec.get("eval") or {}).items():
         if run.get("status") != "ok":
             continue
-        metrics["eval_trials"] = run["raw"]["per_terrain"]["average"]["trials"]
-        for name, figure, key in CARD_FIGURES:
-            per = run[figure]["per_terrain"]
-            avg = per["average"]
-            metrics[f"{name}@mask{m}"] = avg[key]
-            if avg["ci"][key]:
-                low, high = avg["ci"][key]
+        cells = headline(run)
+        avg = cells["average"]
+        metrics["eval_trials"] = avg["trials"]
+        for name, _, _ in HEADLINE_FIGURES:
+            metrics[f"{name}@mask{m}"] = avg[name]
+            if avg["ci"][name]:
+                low, high = avg["ci"][name]
                 metrics[f"{name}_ci95_low@mask{m}"] = low
                 metrics[f"{name}_ci95_high@mask{m}"] = high
-            for t, cell in per.items():
+            for t, cell in cells.items():
                 row = table.setdefault(t, {})
-                row[f"{name}@mask{m}"] = cell[key]
+                row[f"{name}@mask{m}"] = cell[name]
                 row["trials"] = cell["trials"]
     return _finite(metrics), ({k: _finite(v) for k, v in table.items()} or None)
 
