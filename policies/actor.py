@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from msta_data.robot import NUM_JOINTS
 from msta_data.sensors import get
 
 #: sensors whose channels are per joint (a dead joint encoder removes q_j and qdot_j)
@@ -45,9 +46,9 @@ class InputSpec:
         self.dead_joints = tuple(int(j) for j in self.dead_joints)
         for s in self.drop_sensors:
             get(s)
-        bad = [j for j in self.dead_joints if not 0 <= j < 12]
+        bad = [j for j in self.dead_joints if not 0 <= j < NUM_JOINTS]
         if bad:
-            raise ValueError(f"dead joint index {bad[0]} out of range [0, 12)")
+            raise ValueError(f"dead joint index {bad[0]} out of range [0, {NUM_JOINTS})")
         if self.T is not None and self.T < 1:
             raise ValueError(f"T={self.T} must be >= 1")
         if not 0.0 <= self.mask_ratio < 1.0:
@@ -71,14 +72,11 @@ class StudentActor:
         self.spec = spec = spec or InputSpec()
         self.name = name
         self.num_envs = num_envs
-        trained_T = getattr(policy.config, "history", None)
-        if spec.T is None and trained_T is None:
-            raise ValueError(f"{type(policy).__name__}.config has no 'history'; pass InputSpec(T=...)")
-        self.T = int(spec.T or trained_T)
+        self.T = int(spec.T or policy.config.history)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:
             raise ValueError("every input sensor was dropped; nothing left to act on")
-        keep = [j for j in range(12) if j not in spec.dead_joints]
+        keep = [j for j in range(NUM_JOINTS) if j not in spec.dead_joints]
         self.channels = {s: keep for s in JOINT_ENCODER_SENSORS
                          if s in self.sensors and spec.dead_joints}
         self.hist = {s: np.zeros((num_envs, self.T, len(self.channels.get(s, range(get(s).dim)))),

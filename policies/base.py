@@ -11,193 +11,46 @@ Checkpoint layout (LeRobot-style), written by :meth:`StudentPolicy.save_pretrain
     <dir>/model.safetensors   weights
     <dir>/processor.json      the processor's statistics and settings (no pickle)
 
-Loading a checkpoint from someone else is checked before anything is allocated: the JSON
-files have size limits, the model ``config.json`` describes is built on PyTorch's ``meta``
-device and its parameter count compared with :func:`param_limit` (``MSTA_MAX_PARAMS``,
-default 100 M; the paper preset has 2.2 M), and the safetensors header (tensor names,
-shapes, offsets, file size) must match that model. Every failure is a one-line
-:class:`CheckpointError` naming the file.
+Loading a checkpoint from someone else is checked before anything is allocated (file size
+limits, a parameter limit, the safetensors header against the model; one-line
+:class:`CheckpointError` naming the file): :mod:`policies.checkpoint` holds those checks,
+:mod:`policies.config` the config every student starts from; both are re-exported here.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import struct
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, Self, runtime_checkable
 
-import draccus
 import torch
 import torch.nn.functional as F
-from safetensors import SafetensorError
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 from torch import Tensor, nn
 
-CONFIG_NAME = "config.json"
-WEIGHTS_NAME = "model.safetensors"
-PROCESSOR_NAME = "processor.json"
-#: Largest config.json / processor.json read (bytes).
-MAX_JSON_BYTES = {CONFIG_NAME: 1 << 20, PROCESSOR_NAME: 64 << 20}
-#: Default limit on the parameters a loaded checkpoint may describe (MSTA_MAX_PARAMS).
-DEFAULT_MAX_PARAMS = 100_000_000
-_SAFETENSORS_DTYPES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2,
-                       "I8": 1, "U8": 1, "BOOL": 1}
+from policies.checkpoint import (
+    CONFIG_NAME,
+    DEFAULT_MAX_PARAMS,
+    MAX_JSON_BYTES,
+    PROCESSOR_NAME,
+    WEIGHTS_NAME,
+    CheckpointError,
+    check_safetensors,
+    load_weights,
+    param_limit,
+    read_json_file,
+    resolve_pretrained,
+)
+from policies.config import PolicyConfig, check_fraction
+from policies.processor import Batch, Channels, StudentProcessor
 
-
-class CheckpointError(ValueError):
-    """A checkpoint file is missing, unreadable, malformed or too large (file named)."""
-
-
-def read_json_file(path: Path, limit: int | None = None) -> Any:
-    """Parse a checkpoint JSON file with a size limit; errors name the file.
-
-    Args:
-        path: the file.
-        limit: largest accepted size in bytes (default: ``MAX_JSON_BYTES`` by file name).
-    """
-    limit = limit or MAX_JSON_BYTES.get(path.name, 1 << 20)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    size = path.stat().st_size
-    if size > limit:
-        raise CheckpointError(f"{path}: {size:,} bytes, more than the {limit:,} accepted")
-    try:
-        return json.loads(path.read_bytes())
-    except (ValueError, UnicodeDecodeError) as e:
-        raise CheckpointError(f"{path}: not valid JSON ({e})") from None
-
-
-def param_limit() -> int:
-    """The parameter limit for loaded checkpoints: ``MSTA_MAX_PARAMS`` or 100 M."""
-    raw = os.environ.get("MSTA_MAX_PARAMS", "")
-    try:
-        return int(raw) if raw else DEFAULT_MAX_PARAMS
-    except ValueError:
-        raise ValueError(f"MSTA_MAX_PARAMS={raw!r} is not an integer") from None
-
-
-def check_safetensors(path: Path, expected: Mapping[str, Tensor]) -> None:
-    """Check a safetensors file's header against the tensors a model expects, reading only
-    the header (a truncated file, a pickle under that name or other shapes fail here).
-
-    Raises:
-        CheckpointError: naming the file and the first problem.
-    """
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    size = path.stat().st_size
-    with open(path, "rb") as f:
-        head = f.read(8)
-        n = struct.unpack("<Q", head)[0] if len(head) == 8 else -1
-        if not 0 < n <= min(size - 8, 100 << 20):
-            raise CheckpointError(f"{path}: not a safetensors file (header length {n}, file "
-                                  f"{size} bytes; truncated, or another format renamed?)")
-        try:
-            header = json.loads(f.read(n))
-            tensors = {k: v for k, v in header.items() if k != "__metadata__"}
-            spans = {k: (v["dtype"], [int(d) for d in v["shape"]], *map(int, v["data_offsets"]))
-                     for k, v in tensors.items()}
-        except (ValueError, UnicodeDecodeError, KeyError, TypeError, AttributeError) as e:
-            raise CheckpointError(f"{path}: malformed safetensors header ({e})") from None
-    body = size - 8 - n
-    if max((end for *_, end in spans.values()), default=0) != body:
-        raise CheckpointError(f"{path}: the header describes a different data size than the "
-                              f"{body} bytes after it (truncated?)")
-    missing = sorted(set(expected) - set(spans))
-    extra = sorted(set(spans) - set(expected))
-    if missing or extra:
-        raise CheckpointError(f"{path}: tensors do not match the model of {CONFIG_NAME}: "
-                              f"missing {missing[:5]}, unexpected {extra[:5]}")
-    for k, (dtype, shape, start, end) in spans.items():
-        width = _SAFETENSORS_DTYPES.get(dtype)
-        want = list(expected[k].shape)
-        if shape != want or width is None or end - start != width * _numel(shape):
-            raise CheckpointError(f"{path}: tensor {k!r} is {dtype}{shape}, the model of "
-                                  f"{CONFIG_NAME} has {want}")
-
-
-def _numel(shape: Sequence[int]) -> int:
-    n = 1
-    for d in shape:
-        n *= d
-    return n
-
-
-def load_weights(module: nn.Module, path: Path) -> None:
-    """``module.load_state_dict`` from a safetensors file after :func:`check_safetensors`."""
-    check_safetensors(path, module.state_dict())
-    try:
-        state = load_file(str(path), device=str(next(module.parameters()).device))
-        module.load_state_dict(state, strict=True)
-    except (SafetensorError, RuntimeError, OSError, ValueError) as e:  # one line, file named
-        raise CheckpointError(f"{path}: cannot load ({type(e).__name__}: "
-                              f"{str(e).splitlines()[0] if str(e) else ''})") from None
-
-#: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
-#: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
-Channels = Mapping[str, Sequence[int]]
-#: Sensor name -> (B, T, c) window; tensors or numpy arrays (converted on the policy's device).
-Batch = Mapping[str, Any]
-
-
-@dataclass
-class PolicyConfig(draccus.ChoiceRegistry):
-    """Base of every student config. Subclasses register by name with
-    ``@PolicyConfig.register_subclass("<name>")`` so draccus parses ``--policy.type=<name>``."""
-
-    @property
-    def type(self) -> str:
-        return self.get_choice_name(self.__class__)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict including the registered ``type``."""
-        return draccus.encode(self, PolicyConfig)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> PolicyConfig:
-        """Build a config from a dict with a ``type`` key; unknown keys raise.
-
-        Args:
-            data: e.g. the content of ``config.json``.
-        """
-        if "type" not in data:
-            raise ValueError(
-                f"policy config has no 'type' key; known types: {sorted(cls.get_known_choices())}"
-            )
-        if data["type"] not in cls.get_known_choices():
-            raise ValueError(
-                f"unknown policy type {data['type']!r}; known: {sorted(cls.get_known_choices())}"
-            )
-        data = dict(data)
-        legacy = getattr(cls.get_choice_class(data["type"]), "LEGACY_DEFAULTS", {})
-        data.update({k: v for k, v in legacy.items() if k not in data})
-        try:
-            return draccus.decode(PolicyConfig, data)
-        except draccus.utils.DecodingError as e:
-            raise ValueError(f"invalid {data['type']!r} policy config: {e}") from None
-
-    def save(self, directory: str | Path) -> Path:
-        path = Path(directory) / CONFIG_NAME
-        path.write_text(json.dumps(self.to_dict(), indent=2) + "\n")
-        return path
-
-    @classmethod
-    def load(cls, directory: str | Path) -> PolicyConfig:
-        """Read ``<directory>/config.json``; every error names the file."""
-        path = Path(directory) / CONFIG_NAME
-        if not path.is_file():
-            raise FileNotFoundError(f"no {CONFIG_NAME} in {directory}")
-        data = read_json_file(path)
-        if not isinstance(data, dict):
-            raise CheckpointError(f"{path}: expected a JSON object, got {type(data).__name__}")
-        try:
-            return cls.from_dict(data)
-        except (ValueError, TypeError, KeyError) as e:
-            raise CheckpointError(f"{path}: {e}") from None
-
+__all__ = [
+    "CONFIG_NAME", "DEFAULT_MAX_PARAMS", "MAX_JSON_BYTES", "PROCESSOR_NAME", "WEIGHTS_NAME",
+    "Batch", "Channels", "CheckpointError", "Policy", "PolicyConfig", "Processor",
+    "StudentPolicy", "StudentProcessor", "check_safetensors", "load_weights", "param_limit", "read_json_file",
+    "resolve_pretrained",
+]
 
 @runtime_checkable
 class Processor(Protocol):
@@ -233,40 +86,33 @@ class Policy(Protocol):
     def save_pretrained(self, directory: str | Path) -> Path: ...
 
 
-def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None) -> Path:
-    """A local checkpoint directory for ``path_or_repo_id``.
-
-    Args:
-        path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
-            (once per commit, hash-verified) through ``msta_data.hub.materialize`` from
-            ``HF_ENDPOINT``.
-        revision: hub revision (branch, tag or commit) when the id carries none.
-    """
-    from msta_data.locate import locate
-
-    spec = str(path_or_repo_id)
-    if revision and "@" not in spec and not Path(spec).expanduser().exists():
-        spec = f"{spec}@{revision}"
-    path = locate(spec, "model", "checkpoint")
-    if not path.is_dir():
-        raise CheckpointError(f"{path}: not a checkpoint directory")
-    return path
-
-
 class StudentPolicy(nn.Module):
     """Shared save / load for students: config + processor + weights.
 
     Subclasses set ``config_class`` and ``processor_class`` and build their modules in
     ``__init__(config, processor)``.
+
+    Args:
+        config: the student's config (a registered :class:`PolicyConfig`).
+        processor: its processor, built for the same input sensors.
     """
 
     config_class: ClassVar[type[PolicyConfig]]
-    processor_class: ClassVar[type]
+    processor_class: ClassVar[type[StudentProcessor]]
 
-    def __init__(self, config: PolicyConfig, processor: Any) -> None:
+    def __init__(self, config: PolicyConfig, processor: StudentProcessor) -> None:
         super().__init__()
+        if tuple(processor.input_sensors) != tuple(config.input_sensors):
+            raise ValueError(
+                f"processor sensors {processor.input_sensors} != config {config.input_sensors}"
+            )
         self.config = config
         self.processor = processor
+
+    @property
+    def required_sensors(self) -> tuple[str, ...]:
+        """Registry names the policy reads (any subset of them is accepted)."""
+        return self.config.input_sensors
 
     @property
     def device(self) -> torch.device:
@@ -285,8 +131,7 @@ class StudentPolicy(nn.Module):
         """``None`` -> the config's ratio in training mode, 0 in eval mode; checked range."""
         if mask_ratio is None:
             mask_ratio = self.config.mask_ratio if self.training else 0.0
-        if not 0.0 <= mask_ratio < 1.0:
-            raise ValueError(f"mask_ratio must be in [0, 1), got {mask_ratio}")
+        check_fraction(mask_ratio=mask_ratio)
         return mask_ratio
 
     @torch.no_grad()

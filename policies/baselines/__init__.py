@@ -1,7 +1,13 @@
 """The paper's baselines as students (importing registers their names):
 ``gru``, ``rma_tcn``, ``tert_concat``, ``tert_separate``, ``tert_mask``.
 MSTA's learnable-mask variant is ``msta`` with ``learnable_mask=True``. ``mlp`` (a plain MLP
-on the flattened window) is a reference learner, not one of the paper's baselines."""
+on the flattened window) is a reference learner, not one of the paper's baselines.
+
+``BASELINES`` and ``REFERENCES`` are read from the registry
+(:func:`policies.factory.registered_policies`), so a policy registered with
+``kind="baseline"`` or ``kind="reference"`` appears in them without being named here."""
+
+from typing import Any
 
 from policies.baselines.common import (
     TimestepConfig,
@@ -22,11 +28,18 @@ from policies.baselines.tert import (
     TERTSeparateConfig,
     TERTSeparatePolicy,
 )
+from policies.factory import registered_policies
 
-#: registered baseline names
-BASELINES: tuple[str, ...] = ("gru", "rma_tcn", "tert_concat", "tert_separate", "tert_mask")
-#: registered reference learners that are not baselines of the paper
-REFERENCES: tuple[str, ...] = ("mlp",)
+#: module attribute -> registry kind it lists
+_LISTS = {"BASELINES": "baseline", "REFERENCES": "reference"}
+
+
+def __getattr__(name: str) -> Any:
+    """``BASELINES`` (registered baseline names) and ``REFERENCES`` (registered reference
+    learners that are not baselines of the paper), sorted tuples from the registry."""
+    if name in _LISTS:
+        return tuple(registered_policies(_LISTS[name]))
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "BASELINES",

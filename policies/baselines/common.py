@@ -22,76 +22,25 @@ hides those steps from attention.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Self
+from dataclasses import dataclass
+from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from msta_data import sensors
 from policies.base import Batch, Channels, PolicyConfig, StudentPolicy
-from policies.msta.processor_msta import PAD_KEY, MSTAProcessor
+from policies.processor import StudentProcessor
 
 FORMAT = "timestep-processor/1"
 
 
 @dataclass
 class TimestepConfig(PolicyConfig):
-    """Fields shared by the timestep-level baselines (not registered itself).
-
-    Args:
-        input_sensors: registry names the student reads, in input-vector order.
-        history: window length T used in training.
-        clip_std: normalized inputs are clipped to [-clip_std, clip_std].
-        mask_ratio: fraction of input scalars replaced by their placeholder per sample
-            during training (0: placeholders are never trained).
-        head_hidden_dim: hidden width of the action MLP head (0: a linear head).
-        action_key: dataset column of the target action.
-        action_dim: number of joint targets.
-        normalize_action: train on z-scored actions (the processor maps back).
-    """
-
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {"paper": {}}
-
-    input_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
-    history: int = 15
-    clip_std: float = 4.0
-    mask_ratio: float = 0.0
-    head_hidden_dim: int = 128
-    action_key: str = "action"
-    action_dim: int = sensors.ACTION_DIM
-    normalize_action: bool = True
-
-    def __post_init__(self) -> None:
-        self.input_sensors = tuple(self.input_sensors)
-        if not self.input_sensors:
-            raise ValueError("input_sensors is empty")
-        if len(set(self.input_sensors)) != len(self.input_sensors):
-            raise ValueError(f"input_sensors has duplicates: {self.input_sensors}")
-        for name in self.input_sensors:
-            if not sensors.get(name).is_student_input:  # get(): KeyError lists known sensors
-                raise ValueError(
-                    f"sensor {name!r} is privileged (teacher only), not a student input"
-                )
-        for key in ("history", "clip_std", "action_dim"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
-        if self.head_hidden_dim < 0:
-            raise ValueError(f"head_hidden_dim must be >= 0, got {self.head_hidden_dim}")
-        if not 0.0 <= self.mask_ratio < 1.0:
-            raise ValueError(f"mask_ratio must be in [0, 1), got {self.mask_ratio}")
-
-    @classmethod
-    def from_preset(cls, name: str, **overrides: Any) -> Self:
-        """A named preset (``paper``, ``cpu``, ``tiny``) with optional field overrides.
-
-        Args:
-            name: a key of the class's ``PRESETS``.
-            overrides: field values replacing the preset's.
-        """
-        if name not in cls.PRESETS:
-            raise KeyError(f"unknown {cls.__name__} preset {name!r}; known: {sorted(cls.PRESETS)}")
-        return replace(cls(**cls.PRESETS[name]), **overrides)
+    """Base of the timestep-level baselines' configs (not registered itself); its fields
+    are :class:`policies.config.PolicyConfig`'s (``mask_ratio``: fraction of the input
+    scalars replaced by their placeholder per sample during training; 0: placeholders are
+    never trained)."""
 
 
 @dataclass
@@ -109,11 +58,12 @@ class TimestepInputs:
     pad: Tensor | None
 
 
-class TimestepProcessor(MSTAProcessor):
+class TimestepProcessor(StudentProcessor):
     """Statistics owner of the baselines: raw windows -> (B, T, C) normalized vectors.
 
     Validation (unknown / non-input sensors, channel declarations, NaN, pad) and action
-    normalization are MSTA's, so every student rejects bad input the same way.
+    normalization are the shared :class:`policies.processor.StudentProcessor`'s, so every
+    student rejects bad input the same way.
 
     Args:
         input_sensors: registry names, in input-vector order.
@@ -124,6 +74,8 @@ class TimestepProcessor(MSTAProcessor):
         normalize_action: z-score actions for the loss.
     """
 
+    FORMAT = FORMAT
+
     def __init__(
         self,
         input_sensors: tuple[str, ...] | list[str],
@@ -132,7 +84,8 @@ class TimestepProcessor(MSTAProcessor):
         action_key: str = "action",
         normalize_action: bool = True,
     ) -> None:
-        super().__init__(input_sensors, stats, 2, clip_std, action_key, normalize_action)
+        super().__init__(input_sensors, stats, clip_std=clip_std, action_key=action_key,
+                         normalize_action=normalize_action)
         self.offsets: dict[str, int] = {}
         start = 0
         for name in self.input_sensors:
@@ -145,35 +98,6 @@ class TimestepProcessor(MSTAProcessor):
         start = self.offsets[name]
         return list(range(start, start + sensors.get(name).dim))
 
-    @classmethod
-    def from_stats(cls, config: TimestepConfig, stats: Any) -> Self:
-        """Processor for ``config`` from dataset statistics (lerobot stats.json layout)."""
-        return cls(
-            config.input_sensors, stats, config.clip_std, config.action_key, config.normalize_action
-        )
-
-    def to_dict(self) -> dict[str, Any]:
-        return {
-            "format": FORMAT,
-            "input_sensors": list(self.input_sensors),
-            "clip_std": self.clip_std,
-            "action_key": self.action_key,
-            "normalize_action": self.normalize_action,
-            "stats": self.stats,
-        }
-
-    @classmethod
-    def from_dict(cls, data: Any) -> Self:
-        if data.get("format") != FORMAT:
-            raise ValueError(f"processor format {data.get('format')!r} is not {FORMAT!r}")
-        return cls(
-            data["input_sensors"],
-            data["stats"],
-            data["clip_std"],
-            data["action_key"],
-            data["normalize_action"],
-        )
-
     def normalize(self, batch: Batch, channels: Channels | None = None) -> TimestepInputs:
         """Validate a raw batch and assemble the normalized per-step input vectors.
 
@@ -182,50 +106,25 @@ class TimestepProcessor(MSTAProcessor):
                 order), optional "pad" (B, T) bool; the action key is ignored.
             channels: sensor name -> channel indices present in that sensor's tensor.
         """
-        channels = dict(channels or {})
-        present = [k for k in batch if k not in (PAD_KEY, self.action_key)]
-        for name in present + list(channels):
-            self._check_input_sensor(name)
-        for name in channels:
-            if name not in batch:
-                raise ValueError(f"channels given for sensor {name!r}, which is not in the batch")
-        if not present:
-            raise ValueError(
-                f"batch holds no input sensor; expected some of {list(self.input_sensors)}"
-            )
-        x: Tensor | None = None
-        missing: Tensor | None = None
-        for name in self.input_sensors:  # canonical order: the dict order never matters
-            if name not in batch:
-                continue
-            v = batch[name]
-            idx = self._channel_index(name, channels.get(name), v)
-            if x is None:
-                x = torch.zeros(*v.shape[:2], self.num_channels, device=v.device)  # (B, T, C)
-                missing = torch.ones(self.num_channels, dtype=torch.bool, device=v.device)
-            elif v.shape[:2] != x.shape[:2]:
-                raise ValueError(
-                    f"sensor {name!r} has (B, T) = {tuple(v.shape[:2])}, others {tuple(x.shape[:2])}"
-                )
-            if not torch.isfinite(v).all():
-                bad = (~torch.isfinite(v)).nonzero()[0].tolist()
-                raise ValueError(f"sensor {name!r} has a non-finite value (NaN/inf) at index {bad}")
+        present = self.present_inputs(batch, channels)
+        v = present[0][1]
+        x = torch.zeros(*v.shape[:2], self.num_channels, device=v.device)  # (B, T, C)
+        missing = torch.ones(self.num_channels, dtype=torch.bool, device=v.device)  # (C,)
+        for name, v, idx in present:
             cols = idx + self.offsets[name]
-            x[:, :, cols] = self._zscore(name, v, idx)
+            x[:, :, cols] = self._scaled(name, v, idx)
             missing[cols] = False
-        pad = self._pad(batch, x.shape[:2])
+        pad = self.pad_mask(batch, x.shape[:2])
         if pad is not None and (pad[:, 1:] & ~pad[:, :-1]).any():
             raise ValueError(
                 "'pad' must mark a prefix of each window (steps before the episode start)"
             )
         return TimestepInputs(x, missing, pad)
 
-    def _zscore(self, name: str, v: Tensor, idx: Tensor) -> Tensor:
-        spec = sensors.get(name)
-        if spec.binary:
-            return (v > 0.5).float() * 2.0 - 1.0  # (B, T, c) in {-1, +1}
-        mean, std = self._tensors(spec.column, v.device)
-        return ((v.float() - mean[idx]) / std[idx]).clamp(-self.clip_std, self.clip_std)
+    def _scaled(self, name: str, v: Tensor, idx: Tensor) -> Tensor:
+        if sensors.get(name).binary:
+            return self.binary(v).float() * 2.0 - 1.0  # (B, T, c) in {-1, +1}
+        return self.zscore(name, v, idx).clamp(-self.clip_std, self.clip_std)  # (B, T, c)
 
 
 def action_head(width: int, hidden: int, action_dim: int) -> nn.Module:
@@ -278,17 +177,9 @@ class TimestepPolicy(StudentPolicy):
 
     def __init__(self, config: TimestepConfig, processor: TimestepProcessor) -> None:
         super().__init__(config, processor)
-        if tuple(processor.input_sensors) != tuple(config.input_sensors):
-            raise ValueError(
-                f"processor sensors {processor.input_sensors} != config {config.input_sensors}"
-            )
         self.num_inputs = processor.num_channels
         #: learnable value per input channel (normalized units) used where a scalar is missing
         self.placeholder = nn.Parameter(torch.zeros(self.num_inputs))
-
-    @property
-    def required_sensors(self) -> tuple[str, ...]:
-        return self.config.input_sensors
 
     def encode(self, x: Tensor, pad: Tensor | None) -> Tensor:
         raise NotImplementedError

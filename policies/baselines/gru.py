@@ -12,21 +12,20 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.base import PolicyConfig
 from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
+from policies.config import check_fraction
 from policies.factory import register_policy
 
 
-@PolicyConfig.register_subclass("gru")
 @dataclass
 class GRUConfig(TimestepConfig):
-    """GRU student (the paper's GRU baseline; sizes are not stated there, ours below).
+    """GRU student (the paper's GRU baseline; sizes are not stated there, ours below;
+    shared fields: :class:`policies.config.PolicyConfig`'s).
 
     Args:
         hidden_dim: GRU state width.
         num_layers: stacked GRU layers.
         dropout: dropout between GRU layers (only used when num_layers > 1).
-        (shared fields: see :class:`TimestepConfig`.)
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
@@ -45,8 +44,7 @@ class GRUConfig(TimestepConfig):
             raise ValueError(
                 f"hidden_dim and num_layers must be >= 1, got {self.hidden_dim}, {self.num_layers}"
             )
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        check_fraction(dropout=self.dropout)
 
 
 @register_policy("gru")

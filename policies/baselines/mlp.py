@@ -14,19 +14,17 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.base import PolicyConfig
 from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor
 from policies.factory import register_policy
 
 
-@PolicyConfig.register_subclass("mlp")
 @dataclass
 class MLPConfig(TimestepConfig):
-    """Window MLP student.
+    """Window MLP student (shared fields: :class:`policies.config.PolicyConfig`'s;
+    ``head_hidden_dim`` is unused).
 
     Args:
         hidden_dims: widths of the hidden ELU layers.
-        (shared fields: see :class:`TimestepConfig`; ``head_hidden_dim`` is unused.)
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
@@ -44,7 +42,7 @@ class MLPConfig(TimestepConfig):
             raise ValueError(f"hidden_dims must be one or more widths >= 1, got {self.hidden_dims}")
 
 
-@register_policy("mlp")
+@register_policy("mlp", kind="reference")
 class MLPPolicy(TimestepPolicy):
     """Window MLP student.
 

@@ -17,17 +17,16 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.base import PolicyConfig
 from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
 from policies.factory import register_policy
 
 READOUTS = ("flatten", "mean")
 
 
-@PolicyConfig.register_subclass("rma_tcn")
 @dataclass
 class TCNConfig(TimestepConfig):
-    """RMA's TCN adaptation module as a student.
+    """RMA's TCN adaptation module as a student (shared fields:
+    :class:`policies.config.PolicyConfig`'s).
 
     Args:
         embed_hidden_dim: hidden width of the per-step embedding MLP.
@@ -36,7 +35,6 @@ class TCNConfig(TimestepConfig):
         conv_kernels: kernel size of each convolution.
         conv_strides: stride of each convolution (same length as conv_kernels).
         readout: "flatten" (RMA; fixed T = history) or "mean" (any T >= min_steps).
-        (shared fields: see :class:`TimestepConfig`.)
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = {

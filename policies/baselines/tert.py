@@ -9,31 +9,31 @@ masked scalars replaced by their channel's learnable placeholder before the proj
 
 pos(age) is a fixed 1-D sin-cos code of age_t = T - 1 - t (0 = newest step), so any window
 length works and the newest steps keep their codes. A learnable state token <S> is appended;
-pre-norm transformer blocks (the same blocks as MSTA, scaled-dot-product attention) and an
+pre-norm transformer blocks (policies/transformer.py, shared with MSTA) and an
 MLP head on <S> give the 12 joint targets. Padded steps (before the episode start) are hidden
 from attention, so a padded window acts exactly like its shorter unpadded one.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import torch
 from torch import Tensor, nn
 
-from policies.base import PolicyConfig
 from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
+from policies.config import check_fraction, check_positive
 from policies.factory import register_policy
-from policies.msta.modeling_msta import Block, sincos_1d
+from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d
 
 ACTION_SENSOR = "last_action"
 
 
 @dataclass
 class TERTConfig(TimestepConfig):
-    """Transformer over timestep tokens (base of the TERT configs; not registered itself).
+    """Transformer over timestep tokens (base of the TERT configs; not registered itself;
+    shared fields: :class:`policies.config.PolicyConfig`'s).
 
     Args:
         dim: token width d.
@@ -42,7 +42,6 @@ class TERTConfig(TimestepConfig):
         mlp_ratio: hidden width of each block's MLP relative to dim.
         dropout: dropout in attention and MLPs.
         pos_base: base of the sin-cos frequencies.
-        (shared fields: see :class:`TimestepConfig`.)
     """
 
     #: one action token and one observation token per step (2T tokens) instead of one
@@ -62,15 +61,13 @@ class TERTConfig(TimestepConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        for key in ("dim", "num_layers", "num_heads", "mlp_ratio", "pos_base"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"{key} must be > 0, got {getattr(self, key)}")
+        check_positive(dim=self.dim, num_layers=self.num_layers, num_heads=self.num_heads,
+                       mlp_ratio=self.mlp_ratio, pos_base=self.pos_base)
         if self.dim % self.num_heads:
             raise ValueError(f"dim {self.dim} is not divisible by num_heads {self.num_heads}")
         if self.dim % 2:
             raise ValueError(f"dim {self.dim} must be even (sin-cos positions)")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        check_fraction(dropout=self.dropout)
         if self.SEPARATE_ACTION and (
             ACTION_SENSOR not in self.input_sensors or len(self.input_sensors) < 2
         ):
@@ -80,13 +77,11 @@ class TERTConfig(TimestepConfig):
             )
 
 
-@PolicyConfig.register_subclass("tert_concat")
 @dataclass
 class TERTConcatConfig(TERTConfig):
     """TERT with one token per step (concatenated observation and last action)."""
 
 
-@PolicyConfig.register_subclass("tert_separate")
 @dataclass
 class TERTSeparateConfig(TERTConfig):
     """TERT with separate observation and action tokens per step (2T tokens)."""
@@ -94,7 +89,6 @@ class TERTSeparateConfig(TERTConfig):
     SEPARATE_ACTION: ClassVar[bool] = True
 
 
-@PolicyConfig.register_subclass("tert_mask")
 @dataclass
 class TERTMaskConfig(TERTConfig):
     """The paper's "TERT w/ learnable mask": tert_concat trained with masked inputs replaced
@@ -123,20 +117,14 @@ class TERTPolicy(TimestepPolicy):
         self.proj = nn.ModuleList(nn.Linear(len(cols), d) for cols in groups)
         self.type_embed = nn.Parameter(torch.zeros(len(groups), d))
         self.state_token = nn.Parameter(torch.zeros(d))
-        self.blocks = nn.ModuleList(Block(config) for _ in range(config.num_layers))
+        self.blocks = make_blocks(config)
         self.ln_f = nn.LayerNorm(d)
         self.head = action_head(d, config.head_hidden_dim, config.action_dim)
         self._init_weights()
 
     def _init_weights(self) -> None:
-        for m in [*self.proj, *self.blocks]:
-            for lin in m.modules():
-                if isinstance(lin, nn.Linear):
-                    nn.init.normal_(lin.weight, std=0.02)
-                    nn.init.zeros_(lin.bias)
-        for block in self.blocks:  # GPT-2: scale residual projections by depth
-            for lin in (block.attn.proj, block.mlp[2]):
-                nn.init.normal_(lin.weight, std=0.02 / math.sqrt(2 * self.config.num_layers))
+        init_linears([*self.proj, *self.blocks], 0.02)
+        scale_residuals(self.blocks, 0.02)  # GPT-2: residual projections scaled by depth
         nn.init.normal_(self.type_embed, std=0.02)
         nn.init.normal_(self.state_token, std=0.02)
 

@@ -1,26 +1,41 @@
-"""MSTA config: a draccus dataclass registered as ``msta`` (``--policy.type=msta``).
+"""MSTA config: a draccus dataclass registered as ``msta`` (``--policy.type=msta``) by
+:func:`policies.factory.register_policy` on :class:`~policies.msta.modeling_msta.MSTAPolicy`.
 
 Defaults are the ``paper`` preset. The paper fixes d = 128, 256 bins, T = 15 and MLP
 ratio 2.0; it does not state layer or head counts: we use 4 layers and 4 heads
-(see docs/msta_model.md).
+(see docs/msta_model.md). The fields every student has (sensors, history, mask ratio,
+action target, presets) are :class:`policies.config.PolicyConfig`'s.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from msta_data import sensors
-from policies.base import PolicyConfig
+from policies.config import PolicyConfig, check_fraction, check_positive
+
+#: Choices of ``value_embedding``.
+VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
+#: Choices of ``value_init``.
+VALUE_INITS = ("sincos", "linear", "arc")
+
+#: Preset name -> field overrides of the (paper) defaults.
+PRESETS: dict[str, dict[str, Any]] = {
+    # The paper: d = 128, 256 bins, T = 15, MLP ratio 2; 4 layers x 4 heads is our choice.
+    "paper": {},
+    # The CPU demo: same tokenization, a quarter of the width-depth compute.
+    "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 64},
+    # Unit tests only.
+    "tiny": {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32},
+}
 
 
-@PolicyConfig.register_subclass("msta")
 @dataclass
 class MSTAConfig(PolicyConfig):
-    """Masked Sensory-Temporal Attention student.
+    """Masked Sensory-Temporal Attention student (registered as ``msta`` with its policy).
+    Fields every student has are :class:`policies.config.PolicyConfig`'s.
 
     Args:
-        input_sensors: registry names the student reads (its sensor-type vocabulary).
         history: window length T used in training (inference accepts any T).
         num_bins: discretization bins per scalar.
         clip_std: bins cover z-scores in [-clip_std, clip_std]; values beyond are clipped.
@@ -43,22 +58,19 @@ class MSTAConfig(PolicyConfig):
             monotone, bound to its table), ``linear`` (z times a random direction per table)
             or ``sincos`` (a 1-D sin-cos code of the bin index, the same in every table).
         init_std: std of the initial weights of every linear layer (0: 1/sqrt(fan-in)).
-        action_key: dataset column of the target action.
-        action_dim: number of joint targets.
-        normalize_action: train on z-scored actions (the processor maps back).
     """
 
-    input_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
-    history: int = 15
+    PRESETS: ClassVar[dict[str, dict[str, Any]]] = PRESETS  # the module's PRESETS above
+    LEGACY_DEFAULTS: ClassVar[dict[str, Any]] = {
+        "value_embedding": "shared", "value_init": "sincos", "init_std": 0.02}
+
+    mask_ratio: float = 0.75
     num_bins: int = 256
-    clip_std: float = 4.0
     dim: int = 128
     num_layers: int = 4
     num_heads: int = 4
     mlp_ratio: float = 2.0
-    head_hidden_dim: int = 128
     dropout: float = 0.0
-    mask_ratio: float = 0.75
     learnable_mask: bool = False
     pos_base: float = 10000.0
     value_embedding: str = "channel"
@@ -66,47 +78,18 @@ class MSTAConfig(PolicyConfig):
     value_init: str = "arc"
     init_std: float = 0.0
 
-    #: A config.json written before a field existed means that field's first-design value
-    #: (checkpoints saved then keep loading with the shapes and init they were trained with).
-    LEGACY_DEFAULTS: ClassVar[dict[str, Any]] = {
-        "value_embedding": "shared", "value_init": "sincos", "init_std": 0.02}
-    action_key: str = "action"
-    action_dim: int = sensors.ACTION_DIM
-    normalize_action: bool = True
-
     def __post_init__(self) -> None:
-        self.input_sensors = tuple(self.input_sensors)
-        if not self.input_sensors:
-            raise ValueError("input_sensors is empty")
-        if len(set(self.input_sensors)) != len(self.input_sensors):
-            raise ValueError(f"input_sensors has duplicates: {self.input_sensors}")
-        for name in self.input_sensors:
-            spec = sensors.get(name)  # KeyError lists the known sensors
-            if not spec.is_student_input:
-                raise ValueError(
-                    f"sensor {name!r} is privileged (teacher only), not a student input"
-                )
-        _positive(
-            history=self.history,
-            num_bins=self.num_bins,
-            dim=self.dim,
-            num_layers=self.num_layers,
-            num_heads=self.num_heads,
-            action_dim=self.action_dim,
-            clip_std=self.clip_std,
-            mlp_ratio=self.mlp_ratio,
-            pos_base=self.pos_base,
-        )
+        super().__post_init__()
+        check_positive(num_bins=self.num_bins, dim=self.dim, num_layers=self.num_layers,
+                       num_heads=self.num_heads, mlp_ratio=self.mlp_ratio,
+                       pos_base=self.pos_base)
         if self.num_bins < 2:
             raise ValueError(f"num_bins must be >= 2, got {self.num_bins}")
         if self.dim % self.num_heads:
             raise ValueError(f"dim {self.dim} is not divisible by num_heads {self.num_heads}")
         if self.dim % 4:
             raise ValueError(f"dim {self.dim} must be divisible by 4 (2-D sin-cos embedding)")
-        if self.head_hidden_dim < 0:
-            raise ValueError(f"head_hidden_dim must be >= 0, got {self.head_hidden_dim}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        check_fraction(dropout=self.dropout)
         if self.value_embedding not in VALUE_EMBEDDINGS:
             raise ValueError(f"value_embedding must be one of {VALUE_EMBEDDINGS}, "
                              f"got {self.value_embedding!r}")
@@ -116,40 +99,3 @@ class MSTAConfig(PolicyConfig):
             raise ValueError(f"init_std must be >= 0, got {self.init_std}")
         if self.sensor_embed_std < 0:
             raise ValueError(f"sensor_embed_std must be >= 0, got {self.sensor_embed_std}")
-        if not 0.0 <= self.mask_ratio < 1.0:
-            raise ValueError(f"mask_ratio must be in [0, 1), got {self.mask_ratio}")
-
-    @classmethod
-    def from_preset(cls, name: str, **overrides: Any) -> MSTAConfig:
-        """A named preset with optional field overrides.
-
-        Args:
-            name: one of :data:`PRESETS` (``paper``, ``cpu``, ``tiny``).
-            overrides: field values replacing the preset's.
-        """
-        if name not in PRESETS:
-            raise KeyError(f"unknown msta preset {name!r}; known presets: {sorted(PRESETS)}")
-        return replace(cls(**PRESETS[name]), **overrides)
-
-
-#: Choices of ``value_embedding``.
-VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
-#: Choices of ``value_init``.
-VALUE_INITS = ("sincos", "linear", "arc")
-
-
-def _positive(**values: float) -> None:
-    for key, value in values.items():
-        if not value > 0:
-            raise ValueError(f"{key} must be > 0, got {value}")
-
-
-#: Preset name -> field overrides of the (paper) defaults.
-PRESETS: dict[str, dict[str, Any]] = {
-    # The paper: d = 128, 256 bins, T = 15, MLP ratio 2; 4 layers x 4 heads is our choice.
-    "paper": {},
-    # The CPU demo: same tokenization, a quarter of the width-depth compute.
-    "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 64},
-    # Unit tests only.
-    "tiny": {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32},
-}

@@ -27,72 +27,31 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor, nn
 
+from msta_data.sensors import get
 from policies.base import Batch, Channels, StudentPolicy
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
+from policies.transformer import (
+    Block,
+    SelfAttention,
+    init_linears,
+    make_blocks,
+    scale_residuals,
+    sincos_1d,
+    sincos_2d,
+)
 
-
-def sincos_1d(pos: Tensor, dim: int, base: float) -> Tensor:
-    """Fixed sin-cos code. pos (n,) float -> (n, dim)."""
-    half = dim // 2
-    omega = 1.0 / base ** (
-        torch.arange(half, dtype=torch.float64, device=pos.device) / half
-    )  # (dim/2,)
-    angle = pos.double()[:, None] * omega[None, :]  # (n, dim/2)
-    return torch.cat([angle.sin(), angle.cos()], dim=1).float()  # (n, dim)
-
-
-def sincos_2d(channel: Tensor, age: Tensor, dim: int, base: float) -> Tensor:
-    """2-D sin-cos over (channel index, age): half the width each. -> (n, dim)."""
-    return torch.cat([sincos_1d(channel, dim // 2, base), sincos_1d(age, dim // 2, base)], dim=1)
+#: re-exported: the shared pieces live in policies/transformer.py
+__all__ = ["Block", "MSTAPolicy", "MSTATransformer", "SelfAttention", "num_kept", "sincos_1d",
+           "sincos_2d"]
 
 
 def num_kept(num_tokens: int, mask_ratio: float) -> int:
     """Tokens kept per sample after removing round(mask_ratio * N) (at least one)."""
     return max(1, num_tokens - round(mask_ratio * num_tokens))
-
-
-class SelfAttention(nn.Module):
-    def __init__(self, cfg: MSTAConfig) -> None:
-        super().__init__()
-        self.num_heads, self.dropout = cfg.num_heads, cfg.dropout
-        self.qkv = nn.Linear(cfg.dim, 3 * cfg.dim)
-        self.proj = nn.Linear(cfg.dim, cfg.dim)
-
-    def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
-        B, L, D = x.shape  # (B, L, d)
-        q, k, v = self.qkv(x).split(D, dim=2)
-        q, k, v = (
-            z.view(B, L, self.num_heads, D // self.num_heads).transpose(1, 2) for z in (q, k, v)
-        )  # (B, nh, L, hs)
-        y = F.scaled_dot_product_attention(
-            q, k, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
-        )  # (B, nh, L, hs)
-        return self.proj(y.transpose(1, 2).reshape(B, L, D))  # (B, L, d)
-
-
-class Block(nn.Module):
-    """Pre-norm transformer block: x + attn(ln(x)), then x + mlp(ln(x))."""
-
-    def __init__(self, cfg: MSTAConfig) -> None:
-        super().__init__()
-        hidden = round(cfg.mlp_ratio * cfg.dim)
-        self.ln1, self.ln2 = nn.LayerNorm(cfg.dim), nn.LayerNorm(cfg.dim)
-        self.attn = SelfAttention(cfg)
-        self.mlp = nn.Sequential(
-            nn.Linear(cfg.dim, hidden),
-            nn.GELU(approximate="tanh"),
-            nn.Linear(hidden, cfg.dim),
-            nn.Dropout(cfg.dropout),
-        )
-
-    def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
-        x = x + self.attn(self.ln1(x), attn_mask)  # (B, L, d)
-        return x + self.mlp(self.ln2(x))  # (B, L, d)
 
 
 class MSTATransformer(nn.Module):
@@ -108,7 +67,7 @@ class MSTATransformer(nn.Module):
         )
         self.state_token = nn.Parameter(torch.zeros(d))
         self.mask_token = nn.Parameter(torch.zeros(d)) if cfg.learnable_mask else None
-        self.blocks = nn.ModuleList(Block(cfg) for _ in range(cfg.num_layers))
+        self.blocks = make_blocks(cfg)
         self.ln_f = nn.LayerNorm(d)
         h = cfg.head_hidden_dim
         self.head = (
@@ -122,8 +81,6 @@ class MSTATransformer(nn.Module):
         self._init_weights()
 
     def _num_tables(self) -> int:
-        from msta_data.sensors import get
-
         if self.cfg.value_embedding == "sensor":
             return len(self.cfg.input_sensors)
         if self.cfg.value_embedding == "channel":
@@ -132,8 +89,6 @@ class MSTATransformer(nn.Module):
 
     def _table_of(self, name: str, ch: Tensor) -> Tensor:
         """Value-table index of channels ``ch`` of sensor ``name`` (0 when shared)."""
-        from msta_data.sensors import get
-
         sensors_ = self.cfg.input_sensors
         if self.cfg.value_embedding == "channel":
             return sum(get(n).dim for n in sensors_[:sensors_.index(name)]) + ch
@@ -145,13 +100,8 @@ class MSTATransformer(nn.Module):
         def std(lin: nn.Linear) -> float:
             return self.cfg.init_std or 1.0 / math.sqrt(lin.in_features)
 
-        for m in self.modules():
-            if isinstance(m, nn.Linear):
-                nn.init.normal_(m.weight, std=std(m))
-                nn.init.zeros_(m.bias)
-        for block in self.blocks:  # GPT-2: scale residual projections by depth
-            for lin in (block.attn.proj, block.mlp[2]):
-                nn.init.normal_(lin.weight, std=std(lin) / math.sqrt(2 * self.cfg.num_layers))
+        init_linears([self], std)
+        scale_residuals(self.blocks, std)  # GPT-2: residual projections scaled by depth
         # Value tables start smooth in the bin (neighbouring bins similar); trained after.
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
@@ -261,8 +211,6 @@ class MSTATransformer(nn.Module):
         """Learnable-mask variant: every configured sensor and channel gets a token; the ones
         absent from the input (a removed sensor, a dead joint encoder) are flagged missing and
         later replaced by the mask token, as the paper's "w/ learnable mask" ablation does."""
-        from msta_data.sensors import get
-
         any_bins = next(iter(inputs.bins.values()))  # (B, T, c)
         B, T, dev = any_bins.shape[0], any_bins.shape[1], any_bins.device
         bins, channels, missing = {}, {}, {}
@@ -333,7 +281,7 @@ class MSTATransformer(nn.Module):
         return self.head(self.ln_f(x[:, -1]))  # (B, action_dim) from <S>
 
 
-@register_policy("msta")
+@register_policy("msta", kind="method")
 class MSTAPolicy(StudentPolicy):
     """MSTA student: processor (statistics, bins) + transformer.
 
@@ -347,15 +295,7 @@ class MSTAPolicy(StudentPolicy):
 
     def __init__(self, config: MSTAConfig, processor: MSTAProcessor) -> None:
         super().__init__(config, processor)
-        if tuple(processor.input_sensors) != tuple(config.input_sensors):
-            raise ValueError(
-                f"processor sensors {processor.input_sensors} != config {config.input_sensors}"
-            )
         self.model = MSTATransformer(config)
-
-    @property
-    def required_sensors(self) -> tuple[str, ...]:
-        return self.config.input_sensors
 
     def forward(
         self,
