@@ -123,20 +123,18 @@ def load_weights(module: nn.Module, path: Path) -> None:
 
 
 def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None) -> Path:
-    """A local checkpoint directory for ``path_or_repo_id``.
+    """A local checkpoint directory for ``path_or_repo_id`` (``msta_data.locate``, the one
+    path-or-hub-id resolver).
 
     Args:
         path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
             (once per commit, hash-verified) through ``msta_data.hub.materialize`` from
             ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
-    """
-    from msta_data.locate import locate
 
-    spec = str(path_or_repo_id)
-    if revision and "@" not in spec and not Path(spec).expanduser().exists():
-        spec = f"{spec}@{revision}"
-    path = locate(spec, "model", "checkpoint")
-    if not path.is_dir():
-        raise CheckpointError(f"{path}: not a checkpoint directory")
-    return path
+    Raises:
+        FileNotFoundError: no such directory, or a file (path named).
+    """
+    from msta_data.locate import locate_checkpoint  # the hub client loads only when used
+
+    return locate_checkpoint(str(path_or_repo_id), "checkpoint", revision)
