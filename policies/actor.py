@@ -18,6 +18,7 @@ import torch
 
 from msta_data.robot import NUM_JOINTS
 from msta_data.sensors import get
+from policies.config import check_fraction
 
 #: sensors whose channels are per joint (a dead joint encoder removes q_j and qdot_j)
 JOINT_ENCODER_SENSORS = ("joint_pos", "joint_vel")
@@ -51,8 +52,7 @@ class InputSpec:
             raise ValueError(f"dead joint index {bad[0]} out of range [0, {NUM_JOINTS})")
         if self.T is not None and self.T < 1:
             raise ValueError(f"T={self.T} must be >= 1")
-        if not 0.0 <= self.mask_ratio < 1.0:
-            raise ValueError(f"mask_ratio={self.mask_ratio} must be in [0, 1)")
+        check_fraction(mask_ratio=self.mask_ratio)
 
 
 class StudentActor:
