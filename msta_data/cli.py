@@ -10,6 +10,9 @@ unknown key is an error) plus what a user expects of a command line:
 * A misspelled option exits 2 with one line and the closest known options
   ("did you mean --steps?") instead of a page of usage.
 * An invalid value exits 2 with one line naming the field and the reason, no traceback.
+* Spelling a command line the argparse way works too: ``--move-tag`` for ``--move_tag``, a
+  bare boolean flag (``--overwrite``) for ``--overwrite=true``, and, for a command that names
+  ``positionals``, leading bare words for those fields (``msta-hub pull SPEC DEST``).
 """
 
 from __future__ import annotations
@@ -218,7 +221,8 @@ def _one_line_error(parser: argparse.ArgumentParser, prog: str) -> Callable[[str
 
 def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
                     extra_options: Sequence[tuple[str, str]] = (),
-                    aliases: dict[str, str] | None = None) -> T:
+                    aliases: dict[str, str] | None = None,
+                    positionals: Sequence[str] = ()) -> T:
     """Parse ``argv`` (default ``sys.argv[1:]``) into ``config_class`` (see the module doc).
 
     Args:
@@ -231,6 +235,8 @@ def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str
             ``seed`` where the command sets ``env.seed`` from ``seed``): the nested flag is
             read as the top-level one, and giving both is an error, so an option the user
             gave is never silently overridden.
+        positionals: fields that bare words on the command line fill, in order
+            (``SPEC DEST`` for ``--spec=SPEC --dest=DEST``); listed in the usage line.
 
     Raises:
         SystemExit: 0 after ``--help``; 2 with a one-line message for an unknown option or
@@ -240,19 +246,69 @@ def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str
     try:
         wrapper = draccus.argparsing.ArgumentParser(config_class, prog=prog,
                                                     formatter_class=HelpFormatter)
+        args = _argparse_spellings(args, wrapper.parser, positionals, prog)
         if "-h" in args or "--help" in args:
             document(wrapper.parser, config_class)
+            _document_positionals(wrapper.parser, positionals)
         for a in wrapper.parser._actions:
             if a.dest in (aliases or {}):
                 a.help = f"the same as --{aliases[a.dest]} (which see)"  # type: ignore[index]
         for flag, text in extra_options:
             wrapper.parser.add_argument(flag, metavar="str", default=argparse.SUPPRESS,
                                         help=text.replace("%", "%%"))
-        wrapper.parser.usage = f"{prog} [-h] [--<option>=<value> ...]"
+        words = "".join(f" {name.upper()}" for name in positionals)
+        wrapper.parser.usage = f"{prog} [-h]{words} [--<option>=<value> ...]"
         wrapper.parser.error = _one_line_error(wrapper.parser, prog)  # type: ignore[method-assign]
         return wrapper.parse_args(args)
     except VALUE_ERRORS as e:
-        raise usage_error(f"{prog}: error: {describe(e)}") from None
+        raise usage_error(f"{prog}: error: {' '.join(describe(e).split())}") from None
+
+
+def _document_positionals(parser: argparse.ArgumentParser, positionals: Sequence[str]) -> None:
+    for a in parser._actions:
+        if a.dest in positionals and isinstance(a.help, str):
+            k = positionals.index(a.dest) + 1
+            a.help = re.sub(r"\(default: [^)]*\)$", f"(required: argument {k}, or --{a.dest})",
+                            a.help)
+
+
+_BOOL_WORDS = frozenset({"true", "false", "yes", "no", "on", "off", "1", "0"})
+
+
+def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
+                        positionals: Sequence[str], prog: str) -> list[str]:
+    """``--a-b`` -> ``--a_b`` (when only the latter exists), a bare boolean flag ->
+    ``--flag=true``, bare words -> the ``positionals`` fields in order."""
+    options = {s: a for a in parser._actions for s in a.option_strings}
+    out: list[str] = []
+    words = iter(positionals)
+    i = 0
+    while i < len(args):
+        arg = args[i]
+        i += 1
+        if arg.startswith("--"):
+            flag, sep, value = arg.partition("=")
+            if flag not in options and flag[2:].replace("-", "_") != flag[2:]:
+                underscored = "--" + flag[2:].replace("-", "_")
+                flag = underscored if underscored in options else flag
+            action = options.get(flag)
+            if action is not None and action.type is bool and not sep and (
+                    i == len(args) or args[i].lower() not in _BOOL_WORDS):
+                sep, value = "=", "true"
+            out.append(f"{flag}{sep}{value}")
+            if action is not None and not sep and action.nargs != 0 and i < len(args):
+                out.append(args[i])  # --option value
+                i += 1
+        elif arg.startswith("-") or not positionals:
+            out.append(arg)
+        else:
+            name = next(words, None)
+            if name is None:
+                raise usage_error(f"{prog}: error: unexpected argument {arg!r} (takes "
+                                  f"{' '.join(p.upper() for p in positionals)}); "
+                                  f"see {prog} --help")
+            out.append(f"--{name}={arg}")
+    return out
 
 
 def _resolve_aliases(args: list[str], aliases: dict[str, str], prog: str) -> list[str]:

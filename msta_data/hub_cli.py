@@ -1,28 +1,34 @@
 """``msta-hub``: run a local hub server, push/pull checkpoints and datasets, list versions.
 
-The client commands talk to HF_ENDPOINT with the token in HF_TOKEN (never on the command
-line, so it stays out of shell history and process lists).
+Each command parses its own typed config through :func:`msta_data.cli.parse_config` (every
+option described in ``msta-hub <command> --help`` with its default; a bad option or value is
+one line, exit 2). The client commands talk to HF_ENDPOINT with the token in HF_TOKEN (never
+on the command line, so it stays out of shell history and process lists).
 """
 
 from __future__ import annotations
 
-import argparse
+import difflib
 import json
 import logging
 import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from huggingface_hub.errors import HfHubHTTPError
 
+from msta_data.cli import parse_config, usage_error
 from msta_data.errors import DirectoryLockedError
 from msta_data.hub_cards import CardInfo
 from msta_data.hub_ids import HubError
 from msta_data.hub_pull import pull
 from msta_data.hub_push import push, push_dataset
+from msta_data.hub_server.protocol import Limits
 from msta_data.hub_versions import versions
 
 _EPILOG = """examples:
-  msta-hub serve --root /srv/msta-hub --port 8008 --token-file /etc/msta-hub/tokens
+  msta-hub serve --root /srv/msta-hub --port 8008 --token_file /etc/msta-hub/tokens
   export HF_ENDPOINT=http://127.0.0.1:8008 HF_TOKEN=...   # then:
   msta-hub push runs/stage1 alice/msta-a1 --tag stage1-r0 --stage 1 --round 0
   msta-hub push-dataset data/a1-teacher alice/a1-teacher
@@ -30,184 +36,330 @@ _EPILOG = """examples:
   msta-hub pull datasets/alice/a1-teacher@v3.0 data/a1-teacher
   msta-hub versions alice/msta-a1
 """
+_LIMITS = Limits()
 
 
-def _serve(args: argparse.Namespace) -> int:
-    from msta_data.hub_server import HubServer, Limits, ServerConfig
+@dataclass
+class ServeConfig:
+    """Args:
+        root: directory holding the repos and blobs (created when missing).
+        host: interface to bind (127.0.0.1: this machine only).
+        port: TCP port; 0 picks a free one (printed, and written to --port_file).
+        token: users and their tokens, ``["NAME:SECRET", ...]`` (--token may be repeated);
+            prefer --token_file, which keeps secrets out of the process list.
+        token_file: file with one ``NAME:SECRET`` a line.
+        org: organisations, ``["ORG:USER1,USER2", ...]`` (--org may be repeated); members
+            may write in namespace ORG.
+        lfs_threshold: upload files of at least this many bytes through Git LFS (clients need
+            HF_HUB_DISABLE_XET=1); null: every file inline in its commit.
+        public_url: base URL for links when the server is behind a proxy.
+        port_file: write the bound port to this file.
+        max_body_bytes: largest JSON request body; larger ones get 413 before they are read.
+        max_commit_bytes: largest commit body, inline files base64-encoded (use
+            --lfs_threshold for bigger files).
+        read_timeout: seconds a client may stay silent before it is dropped; a body must
+            also average 1 KiB/s after that.
+        max_card_bytes: largest README.md YAML front matter the server parses.
+        max_connections: connections served at once; more get 503.
+        verbose: log requests and progress (serve always logs requests).
+    """
 
-    if not args.token and args.token_file is None:
+    root: Path | None = None
+    host: str = "127.0.0.1"
+    port: int = 0
+    token: list[str] = field(default_factory=list)
+    token_file: Path | None = None
+    org: list[str] = field(default_factory=list)
+    lfs_threshold: int | None = None
+    public_url: str | None = None
+    port_file: Path | None = None
+    max_body_bytes: int = _LIMITS.max_body_bytes
+    max_commit_bytes: int = _LIMITS.max_commit_bytes
+    read_timeout: float = _LIMITS.read_timeout_s
+    max_card_bytes: int = _LIMITS.max_card_bytes
+    max_connections: int = _LIMITS.max_connections
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if self.root is None:
+            raise ValueError("--root is required (the directory holding the hub's data)")
+        self.limits()  # the same checks as the server's
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port={self.port} must be in [0, 65535]")
+
+    def limits(self) -> Limits:
+        return Limits(max_body_bytes=self.max_body_bytes, max_commit_bytes=self.max_commit_bytes,
+                      read_timeout_s=self.read_timeout, max_card_bytes=self.max_card_bytes,
+                      max_connections=self.max_connections)
+
+
+@dataclass
+class ClientConfig:
+    """Args:
+        endpoint: hub URL; empty: HF_ENDPOINT.
+        verbose: log requests and progress.
+    """
+
+    endpoint: str = ""
+    verbose: bool = False
+
+
+def _required(**values: object) -> None:
+    for name, value in values.items():
+        if value is None or value == "":
+            raise ValueError(f"{name.upper()} is required (see --help)")
+
+
+@dataclass
+class CardOptions(ClientConfig):
+    """What the pushed commit's card (README.md front matter) records.
+
+    Args:
+        tag: tag for this version, e.g. stage1-r0.
+        private: create the repo as private (only when it is created).
+        message: commit message; null: "push <directory name>".
+        dataset_repo: hub id of the training / source dataset.
+        dataset_revision: commit sha or tag of that dataset.
+        stage: training stage (1 offline, 2 online correction).
+        round: correction round.
+        config_json: config to record; null: the checkpoint's config.json.
+        eval_json: metrics JSON, ``{metric: value}`` or ``{row: {metric: value}}``.
+    """
+
+    tag: str | None = None
+    private: bool = False
+    message: str | None = None
+    dataset_repo: str | None = None
+    dataset_revision: str | None = None
+    stage: int | None = None
+    round: int | None = None
+    config_json: Path | None = None
+    eval_json: Path | None = None
+
+
+@dataclass
+class PushConfig(CardOptions):
+    """Args:
+        checkpoint_dir: directory to push (config.json, model.safetensors, ...).
+        repo_id: ``user/name`` of the model repo (created when missing).
+        move_tag: move --tag when it already points to another commit.
+        branch: branch to commit to (created from main when missing).
+    """
+
+    checkpoint_dir: Path | None = None
+    repo_id: str = ""
+    move_tag: bool = False
+    branch: str = "main"
+
+    def __post_init__(self) -> None:
+        _required(checkpoint_dir=self.checkpoint_dir, repo_id=self.repo_id)
+
+
+@dataclass
+class PushDatasetConfig(CardOptions):
+    """Args:
+        root: LeRobot dataset root (holds meta/info.json).
+        repo_id: ``user/name`` of the dataset repo (created when missing).
+    """
+
+    root: Path | None = None
+    repo_id: str = ""
+
+    def __post_init__(self) -> None:
+        _required(root=self.root, repo_id=self.repo_id)
+
+
+@dataclass
+class PullConfig(ClientConfig):
+    """Args:
+        spec: ``[datasets/]user/name[@branch|tag|sha]``.
+        dest: directory to create (it must not exist or be empty unless --overwrite).
+        dataset: the repo is a dataset repo (as the ``datasets/`` prefix says).
+        overwrite: replace DEST if it exists (only after a verified download).
+    """
+
+    spec: str = ""
+    dest: Path | None = None
+    dataset: bool = False
+    overwrite: bool = False
+
+    def __post_init__(self) -> None:
+        _required(spec=self.spec, dest=self.dest)
+
+
+@dataclass
+class VersionsConfig(ClientConfig):
+    """Args:
+        repo_id: ``[datasets/]user/name``.
+        dataset: the repo is a dataset repo.
+        json: print JSON (every metric, the cards' front matter) instead of text lines.
+        no_metrics: skip reading each commit's card (one request fewer per commit).
+    """
+
+    repo_id: str = ""
+    dataset: bool = False
+    json: bool = False
+    no_metrics: bool = False
+
+    def __post_init__(self) -> None:
+        _required(repo_id=self.repo_id)
+
+
+def _serve(cfg: ServeConfig) -> int:
+    from msta_data.hub_server import HubServer, ServerConfig
+
+    if not cfg.token and cfg.token_file is None:
         print("warning: no tokens given: the server is read-only (nobody can push)", file=sys.stderr)
-    limits = Limits(max_body_bytes=args.max_body_bytes, max_commit_bytes=args.max_commit_bytes,
-                    read_timeout_s=args.read_timeout, max_card_bytes=args.max_card_bytes,
-                    max_connections=args.max_connections)
-    config = ServerConfig(root=args.root, host=args.host, port=args.port, tokens=args.token,
-                          token_file=args.token_file, orgs=args.org, lfs_threshold=args.lfs_threshold,
-                          public_url=args.public_url, limits=limits)
+    config = ServerConfig(root=cfg.root, host=cfg.host, port=cfg.port, tokens=cfg.token,
+                          token_file=cfg.token_file, orgs=cfg.org, lfs_threshold=cfg.lfs_threshold,
+                          public_url=cfg.public_url, limits=cfg.limits())
     server = HubServer(config)
     print(f"msta-hub serving {config.root} at {server.url}", flush=True)
-    if args.port_file is not None:
-        args.port_file.write_text(f"{server.port}\n")
+    if cfg.port_file is not None:
+        cfg.port_file.write_text(f"{server.port}\n")
     server.serve_forever()
     return 0
 
 
-def _card(args: argparse.Namespace, checkpoint: Path | None = None) -> CardInfo | None:
+def _card(cfg: CardOptions, checkpoint: Path | None = None) -> CardInfo | None:
     config = None
-    if args.config_json is not None:
-        config = json.loads(args.config_json.read_text())
+    if cfg.config_json is not None:
+        config = json.loads(cfg.config_json.read_text())
     elif checkpoint is not None and (checkpoint / "config.json").is_file():
         config = json.loads((checkpoint / "config.json").read_text())
     table, metrics = None, None
-    if args.eval_json is not None:
-        data = json.loads(args.eval_json.read_text())
+    if cfg.eval_json is not None:
+        data = json.loads(cfg.eval_json.read_text())
         if not isinstance(data, dict):
-            raise ValueError(f"{args.eval_json}: expected a JSON object of metrics or of table rows")
+            raise ValueError(f"{cfg.eval_json}: expected a JSON object of metrics or of table rows")
         if all(isinstance(v, dict) for v in data.values()):
             table = data
         else:
             metrics = {k: v for k, v in data.items() if isinstance(v, (int, float))}
-    fields = (args.dataset_repo, args.dataset_revision, args.stage, args.round, config, table, metrics)
+    fields = (cfg.dataset_repo, cfg.dataset_revision, cfg.stage, cfg.round, config, table, metrics)
     if all(f is None for f in fields):
         return None
-    return CardInfo(dataset_repo=args.dataset_repo, dataset_revision=args.dataset_revision, config=config,
-                        stage=args.stage, round=args.round, eval_table=table, metrics=metrics)
+    return CardInfo(dataset_repo=cfg.dataset_repo, dataset_revision=cfg.dataset_revision,
+                    config=config, stage=cfg.stage, round=cfg.round, eval_table=table,
+                    metrics=metrics)
 
 
-def _push(args: argparse.Namespace) -> int:
-    sha = push(args.checkpoint_dir, args.repo_id, tag=args.tag, private=args.private,
-                   card=_card(args, args.checkpoint_dir), branch=args.branch, message=args.message,
-                   move_tag=args.move_tag, endpoint=args.endpoint)
-    print(sha)
+def _push(cfg: PushConfig) -> int:
+    assert cfg.checkpoint_dir is not None
+    print(push(cfg.checkpoint_dir, cfg.repo_id, tag=cfg.tag, private=cfg.private,
+               card=_card(cfg, cfg.checkpoint_dir), branch=cfg.branch, message=cfg.message,
+               move_tag=cfg.move_tag, endpoint=cfg.endpoint or None))
     return 0
 
 
-def _push_dataset(args: argparse.Namespace) -> int:
-    sha = push_dataset(args.root, args.repo_id, private=args.private, card=_card(args), tag=args.tag,
-                           message=args.message, endpoint=args.endpoint)
-    print(sha)
+def _push_dataset(cfg: PushDatasetConfig) -> int:
+    assert cfg.root is not None
+    print(push_dataset(cfg.root, cfg.repo_id, private=cfg.private, card=_card(cfg), tag=cfg.tag,
+                       message=cfg.message, endpoint=cfg.endpoint or None))
     return 0
 
 
-def _pull(args: argparse.Namespace) -> int:
-    path = pull(args.spec, args.dest, repo_type="dataset" if args.dataset else None,
-                    overwrite=args.overwrite, endpoint=args.endpoint)
-    print(path)
+def _pull(cfg: PullConfig) -> int:
+    assert cfg.dest is not None
+    print(pull(cfg.spec, cfg.dest, repo_type="dataset" if cfg.dataset else None,
+               overwrite=cfg.overwrite, endpoint=cfg.endpoint or None))
     return 0
 
 
-def _versions(args: argparse.Namespace) -> int:
-    result = versions(args.repo_id, repo_type="dataset" if args.dataset else "model",
-                          with_metrics=not args.no_metrics, endpoint=args.endpoint)
-    print(json.dumps(result.to_dict(), indent=2) if args.json else result.to_text())
+def _versions(cfg: VersionsConfig) -> int:
+    result = versions(cfg.repo_id, repo_type="dataset" if cfg.dataset else "model",
+                      with_metrics=not cfg.no_metrics, endpoint=cfg.endpoint or None)
+    print(json.dumps(result.to_dict(), indent=2) if cfg.json else result.to_text())
     return 0
 
 
-def _card_options(p: argparse.ArgumentParser) -> None:
-    g = p.add_argument_group("card (README.md front matter)")
-    g.add_argument("--dataset-repo", help="hub id of the training/source dataset")
-    g.add_argument("--dataset-revision", help="commit sha or tag of that dataset")
-    g.add_argument("--stage", type=int, help="training stage (1 offline, 2 online correction)")
-    g.add_argument("--round", type=int, help="correction round")
-    g.add_argument("--config-json", type=Path, help="config to record (default: the checkpoint's config.json)")
-    g.add_argument("--eval-json", type=Path, help="metrics JSON: {metric: value} or {row: {metric: value}}")
+@dataclass(frozen=True)
+class Command:
+    """One ``msta-hub`` command: its config, the bare words it takes, what it does."""
+
+    summary: str
+    config: type
+    positionals: tuple[str, ...]
+    run: Callable
 
 
-def _limit_arguments(g: argparse._ArgumentGroup) -> None:
-    """The request limits of ``msta-hub serve`` (defaults: msta_data.hub_server.Limits)."""
-    from msta_data.hub_server.protocol import Limits
-
-    d = Limits()
-    g.add_argument("--max-body-bytes", type=int, default=d.max_body_bytes, metavar="BYTES",
-                   help=f"largest JSON request body; larger ones get 413 before they are read "
-                        f"(default {d.max_body_bytes})")
-    g.add_argument("--max-commit-bytes", type=int, default=d.max_commit_bytes, metavar="BYTES",
-                   help=f"largest commit body, inline files base64-encoded (default {d.max_commit_bytes}; "
-                        "use --lfs-threshold for bigger files)")
-    g.add_argument("--read-timeout", type=float, default=d.read_timeout_s, metavar="SECONDS",
-                   help=f"drop a client silent this long; a body must also average 1 KiB/s after it "
-                        f"(default {d.read_timeout_s:g})")
-    g.add_argument("--max-card-bytes", type=int, default=d.max_card_bytes, metavar="BYTES",
-                   help=f"largest README.md YAML front matter parsed (default {d.max_card_bytes})")
-    g.add_argument("--max-connections", type=int, default=d.max_connections, metavar="N",
-                   help=f"connections served at once; more get 503 (default {d.max_connections})")
+COMMANDS: dict[str, Command] = {
+    "serve": Command("run a persistent Hugging Face-compatible hub server", ServeConfig, (),
+                     _serve),
+    "push": Command("push a checkpoint directory as a new commit of a model repo", PushConfig,
+                    ("checkpoint_dir", "repo_id"), _push),
+    "push-dataset": Command("push a LeRobot dataset root (tagged with its codebase version)",
+                            PushDatasetConfig, ("root", "repo_id"), _push_dataset),
+    "pull": Command("download user/name[@revision] into DEST, verified against the hub's "
+                    "hashes", PullConfig, ("spec", "dest"), _pull),
+    "versions": Command("list tags, branches and commits with the metrics from their cards",
+                        VersionsConfig, ("repo_id",), _versions),
+}
+#: options a command takes as a list, which may also be given once per value (--token A --token B)
+_REPEATABLE = ("--token", "--org")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``msta-hub`` argument parser."""
-    parser = argparse.ArgumentParser(prog="msta-hub", description=__doc__, epilog=_EPILOG,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("-v", "--verbose", action="store_true", help="log requests and progress")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    p = sub.add_parser("serve", help="run a persistent Hugging Face-compatible hub server")
-    p.add_argument("--root", type=Path, required=True, help="directory holding repos and blobs")
-    p.add_argument("--host", default="127.0.0.1", help="interface to bind (default: loopback only)")
-    p.add_argument("--port", type=int, default=0, help="TCP port; 0 = pick a free one (printed)")
-    p.add_argument("--token", action="append", default=[], metavar="NAME:SECRET",
-                   help="a user and its token (repeatable); prefer --token-file")
-    p.add_argument("--token-file", type=Path, help="file with one NAME:SECRET per line")
-    p.add_argument("--org", action="append", default=[], metavar="ORG:USER1,USER2",
-                   help="organisation whose members may write in namespace ORG (repeatable)")
-    p.add_argument("--lfs-threshold", type=int, metavar="BYTES",
-                   help="upload files >= BYTES through Git LFS (clients need HF_HUB_DISABLE_XET=1)")
-    p.add_argument("--public-url", help="base URL for links when behind a proxy")
-    p.add_argument("--port-file", type=Path, help="write the bound port to this file")
-    _limit_arguments(p.add_argument_group("limits (docs/security.md)"))
-    p.set_defaults(func=_serve)
-
-    def client(name: str, help_: str) -> argparse.ArgumentParser:
-        c = sub.add_parser(name, help=help_)
-        c.add_argument("--endpoint", help="hub URL (default: HF_ENDPOINT)")
-        return c
-
-    p = client("push", "push a checkpoint directory as a new commit of a model repo")
-    p.add_argument("checkpoint_dir", type=Path)
-    p.add_argument("repo_id", help="user/name")
-    p.add_argument("--tag", help="tag for this version, e.g. stage1-r0")
-    p.add_argument("--move-tag", action="store_true", help="move --tag if it exists on another commit")
-    p.add_argument("--branch", default="main")
-    p.add_argument("--private", action="store_true", help="create the repo as private")
-    p.add_argument("--message", help="commit message")
-    _card_options(p)
-    p.set_defaults(func=_push)
-
-    p = client("push-dataset", "push a LeRobot dataset root (tagged with its codebase version)")
-    p.add_argument("root", type=Path)
-    p.add_argument("repo_id", help="user/name")
-    p.add_argument("--tag", help="extra tag for this version")
-    p.add_argument("--private", action="store_true")
-    p.add_argument("--message", help="commit message")
-    _card_options(p)
-    p.set_defaults(func=_push_dataset)
-
-    p = client("pull", "download user/name[@revision] into DIR, verified against the hub's hashes")
-    p.add_argument("spec", help="[datasets/]user/name[@branch|tag|sha]")
-    p.add_argument("dest", type=Path)
-    p.add_argument("--dataset", action="store_true", help="the repo is a dataset repo")
-    p.add_argument("--overwrite", action="store_true", help="replace DEST if it exists")
-    p.set_defaults(func=_pull)
-
-    p = client("versions", "list tags, branches and commits with the metrics from their cards")
-    p.add_argument("repo_id", help="[datasets/]user/name")
-    p.add_argument("--dataset", action="store_true", help="the repo is a dataset repo")
-    p.add_argument("--json", action="store_true", help="print JSON")
-    p.add_argument("--no-metrics", action="store_true", help="skip reading each commit's card")
-    p.set_defaults(func=_versions)
-    return parser
+def _overview() -> str:
+    width = max(map(len, COMMANDS))
+    lines = ["usage: msta-hub [-h] COMMAND [...]   (msta-hub COMMAND --help for its options)",
+             "", "run a local hub server, push/pull checkpoints and datasets, list versions",
+             "", "commands:"]
+    lines += [f"  {name:<{width}}  {c.summary}" for name, c in COMMANDS.items()]
+    return "\n".join([*lines, "", _EPILOG])
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``msta-hub``."""
-    args = build_parser().parse_args(argv)
-    level = logging.INFO if args.verbose or args.command == "serve" else logging.WARNING
+def _repeated_lists(args: list[str]) -> list[str]:
+    """``--token A --token=B`` -> ``--token=["A", "B"]`` (a list given as ``[...]`` stays)."""
+    out, values = [], {flag: [] for flag in _REPEATABLE}
+    it = iter(args)
+    for arg in it:
+        flag, sep, value = arg.partition("=")
+        flag = "--" + flag[2:].replace("-", "_") if flag.startswith("--") else flag
+        if flag in values and not value.startswith("["):
+            values[flag].append(value if sep else next(it, ""))
+        else:
+            out.append(arg)
+    return out + [f"{flag}={json.dumps(v)}" for flag, v in values.items() if v]
+
+
+def parse_command(argv: Sequence[str]) -> tuple[str, object]:
+    """``(command, its parsed config)`` from ``argv``; exits 0 after help, 2 on a bad line."""
+    args, verbose = list(argv), []
+    while args and args[0] in ("-v", "--verbose"):  # msta-hub -v COMMAND ...
+        args, verbose = args[1:], ["--verbose=true"]
+    if not args or args[0] in ("-h", "--help"):
+        if args:
+            print(_overview())
+            raise SystemExit(0)
+        raise usage_error("msta-hub: error: give a command: " + ", ".join(COMMANDS)
+                          + "; see msta-hub --help")
+    name = args[0]
+    rest = ["--verbose=true" if a == "-v" else a for a in args[1:]] + verbose
+    if name not in COMMANDS:
+        close = difflib.get_close_matches(name, list(COMMANDS), n=1, cutoff=0.5)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise usage_error(f"msta-hub: error: unknown command {name!r}{hint}; commands: "
+                          + ", ".join(COMMANDS))
+    command = COMMANDS[name]
+    if name == "serve":
+        rest = _repeated_lists(rest)
+    return name, parse_config(command.config, rest, prog=f"msta-hub {name}",
+                              positionals=command.positionals)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``msta-hub``: 0 done, 1 the operation failed, 2 a bad command line."""
+    name, cfg = parse_command(list(sys.argv[1:] if argv is None else argv))
+    verbose = getattr(cfg, "verbose", False)
+    level = logging.INFO if verbose or name == "serve" else logging.WARNING
     logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    if args.command != "serve" and not args.verbose:
+    if name != "serve" and not verbose:
         logging.getLogger("httpx").setLevel(logging.WARNING)
     try:
-        return args.func(args)
+        return COMMANDS[name].run(cfg)
     except (HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError,
             DirectoryLockedError) as err:
-        print(f"msta-hub {args.command}: error: {err}", file=sys.stderr)
+        print(f"msta-hub {name}: error: {err}", file=sys.stderr)
         return 1
 
 

@@ -45,7 +45,7 @@ def _set_tag(api: HfApi, repo_id: str, repo_type: str, tag: str, sha: str, move:
     if tag in current:
         if not move:
             raise HubError(f"tag '{tag}' of {repo_id} already points to {current[tag][:12]}; "
-                           "pass move_tag=True (--move-tag) to move it")
+                           "pass move_tag=True (--move_tag) to move it")
         api.delete_tag(repo_id, tag=tag, repo_type=repo_type)
     api.create_tag(repo_id, tag=tag, revision=sha, repo_type=repo_type)
 

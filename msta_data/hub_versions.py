@@ -42,14 +42,37 @@ class RepoVersions:
         return {"repo_id": self.repo_id, "repo_type": self.repo_type, "tags": self.tags,
                 "branches": self.branches, "commits": [vars(c) for c in self.commits]}
 
-    def to_text(self) -> str:
+    def to_text(self, width: int = 100, metric_lines: int = 3) -> str:
+        """One line per commit (sha, date, title, refs), then its metrics on up to
+        ``metric_lines`` indented lines of at most ``width`` characters (the rest counted;
+        ``to_dict`` / ``msta-hub versions --json`` has them all)."""
         lines = [f"{self.repo_type} {self.repo_id}"]
         for c in self.commits:
             refs = ", ".join([f"branch {b}" for b in c.branches] + [f"tag {t}" for t in c.tags])
-            metrics = " ".join(f"{k}={v:.4g}" for k, v in c.metrics.items())
-            lines.append(f"{c.sha[:12]}  {c.date[:19]}  {c.title}" + (f"  [{refs}]" if refs else "")
-                         + (f"  {metrics}" if metrics else ""))
+            head = f"{c.sha[:12]}  {c.date[:19]}  "
+            tail = f"  [{refs}]" if refs else ""
+            room = max(width - len(head) - len(tail), 20)
+            title = c.title if len(c.title) <= room else c.title[: room - 3] + "..."
+            lines.append(head + title + tail)
+            lines += _metric_lines(c.metrics, width, metric_lines)
         return "\n".join(lines)
+
+
+def _metric_lines(metrics: dict[str, float], width: int, max_lines: int,
+                  indent: str = "    ") -> list[str]:
+    """``name=value`` items packed into indented lines; past ``max_lines`` a count."""
+    rows: list[list[str]] = []
+    for item in (f"{k}={v:.4g}" for k, v in metrics.items()):
+        if rows and len(indent) + len(" ".join([*rows[-1], item])) <= width:
+            rows[-1].append(item)
+        else:
+            rows.append([item])
+    if len(rows) <= max_lines:
+        return [indent + " ".join(r) for r in rows]
+    shown = rows[: max_lines - 1] if max_lines > 1 else []
+    hidden = sum(map(len, rows)) - sum(map(len, shown))
+    return ([indent + " ".join(r) for r in shown]
+            + [f"{indent}... {hidden} more metrics (--json lists them all)"])
 
 
 def _card_at(api: HfApi, repo_id: str, repo_type: str, sha: str, cache: dict[str, dict]) -> dict[str, Any]:

@@ -25,7 +25,7 @@ MIN_UPLOAD_RATE = 1024  # bytes/s a body must average once its first read_timeou
 
 @dataclass(frozen=True)
 class Limits:
-    """Request limits of the server (``msta-hub serve --max-body-bytes`` ...).
+    """Request limits of the server (``msta-hub serve --max_body_bytes`` ...).
 
     Args:
         max_body_bytes: largest body of a JSON request (everything but commits and LFS uploads);

@@ -12,6 +12,8 @@ from collect.simulate import main as sim_main
 from eval.compare import main as compare_main
 from eval.evaluate import main as eval_main
 from msta_data.cli import args_doc, field_help, parse_config
+from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
+from msta_data.hub_cli import main as hub_main
 from train.offline import main as train_main
 from train.online import main as correct_main
 
@@ -24,6 +26,23 @@ SCRIPTS = {
     "msta-compare": (compare_main, "--preset", "--collect_envs=x"),
     "msta-sim": (sim_main, "--seconds", "--env.num_envs=-1"),
 }
+
+
+def hub_command(command: str):
+    """``msta-hub <command>`` as an entry point taking the rest of the command line."""
+    return lambda argv: hub_main([command, *argv])
+
+
+#: msta-hub's sub-commands, each parsed by the same layer as the scripts above
+HUB = {
+    "msta-hub serve": (hub_command("serve"), "--port", "--port=abc"),
+    "msta-hub push": (hub_command("push"), "--tag", "--stage=abc"),
+    "msta-hub push-dataset": (hub_command("push-dataset"), "--message", "--round=x"),
+    "msta-hub pull": (hub_command("pull"), "--overwrite", "--overwrite=maybe"),
+    "msta-hub versions": (hub_command("versions"), "--json", "--dataset=maybe"),
+}
+assert {k.split()[1] for k in HUB} == set(HUB_COMMANDS)
+SCRIPTS.update(HUB)
 
 
 def options(help_text: str) -> dict[str, str]:
