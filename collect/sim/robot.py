@@ -8,7 +8,7 @@ from importlib import resources
 import mujoco
 import numpy as np
 
-from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, SPAWN_HEIGHT
+from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, SIM_DT, SPAWN_HEIGHT
 from msta_data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
 
 ASSET = "a1.xml"
@@ -73,7 +73,7 @@ def check_collision_set(name: str) -> None:
         raise ValueError(f"collision={name!r} is not one of {COLLISION_SETS}")
 
 
-def build_model(hfield: dict | None, timestep: float = 0.005,
+def build_model(hfield: dict | None, timestep: float = SIM_DT,
                 collision: str = "fast") -> mujoco.MjModel:
     """Compile the robot with a terrain heightfield (or a plane when ``hfield`` is None).
 
