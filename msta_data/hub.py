@@ -10,9 +10,8 @@ msta_data.hub_pull     resolve, pull, materialize, default_cache_dir
 msta_data.hub_versions versions, Version, RepoVersions
 =====================  ==================================================================
 
-This module only re-exports those names for callers not yet moved (train/push.py,
-train/online.py, eval/demo.py, tests/train/test_push.py); it is deleted once they import
-from the modules above.
+This module only re-exports those names for callers not yet moved (eval/demo.py,
+eval/evaluate.py); it is deleted once they import from the modules above.
 """
 
 from msta_data.hub_cards import CardInfo, card_metadata, card_metrics, dataset_card, model_card

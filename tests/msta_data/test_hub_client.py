@@ -1,4 +1,4 @@
-"""msta_data.hub (push / pull / versions / cards) and the msta-hub CLI against the real server."""
+"""The hub client (msta_data.hub_push / hub_pull / hub_versions / hub_cards) and the msta-hub CLI against the real server."""
 
 from __future__ import annotations
 
