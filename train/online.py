@@ -57,7 +57,7 @@ import policies.teacher.gait  # noqa: F401  (registers "gait", the default teach
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.features import load_info
-from msta_data.hub import materialize
+from msta_data.locate import locate_checkpoint
 from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
 from policies.actor import InputSpec, StudentActor
@@ -313,15 +313,7 @@ def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, local dataset root to append to)."""
     from train.offline import resolve_dataset
 
-    if not cfg.policy:
-        raise ValueError("--policy is required (a stage-1 checkpoint directory or hub id)")
-    ckpt = Path(cfg.policy).expanduser()
-    if not ckpt.is_dir():
-        try:
-            ckpt = materialize(cfg.policy, repo_type="model")
-        except Exception as e:  # any hub failure: say what was tried
-            raise FileNotFoundError(f"--policy {cfg.policy!r} is not a checkpoint directory "
-                                    f"and fetching it as a hub id failed: {e}") from e
+    ckpt = locate_checkpoint(cfg.policy, "--policy")  # msta's one path-or-hub-id rule
     PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
     if local.is_dir():  # a hub dataset copied by an earlier run

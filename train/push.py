@@ -3,7 +3,7 @@
 ``msta-train --push_to=user/name`` pushes ``output_dir/final`` with tag ``stage1``;
 ``msta-correct --push_to=user/name`` pushes ``output_dir/round_<r>`` with tag ``stage2-r<r>``
 after the round's evaluation. The endpoint and token come from ``HF_ENDPOINT`` / ``HF_TOKEN``
-(``msta_data.hub``); the token is never printed.
+(``msta_data.hub_push``); the token is never printed.
 
 Tags are moved when they already exist (``move_tag=True``): a tag names the newest push of
 that stage and round to the repo, and the commit sha (printed, and listed by
@@ -34,7 +34,13 @@ import re
 from pathlib import Path
 from typing import Any
 
+import draccus
+
 from eval.metrics import HEADLINE_FIGURES, headline
+from msta_data.hub_cards import CardInfo
+from msta_data.hub_ids import parse_hub_id
+from msta_data.hub_pull import resolve
+from msta_data.hub_push import push
 
 _SHA = re.compile(r"^[0-9a-f]{40}$")
 
@@ -51,8 +57,6 @@ def check_push_to(value: str) -> None:
     """
     if not value:
         return
-    from msta_data.hub import parse_hub_id
-
     try:
         hub_id = parse_hub_id(value, "model")
     except ValueError:
@@ -76,10 +80,8 @@ def dataset_source(spec: str, root: Path) -> dict[str, Any]:
         meta = root / "meta" / "msta.json"
         repo = json.loads(meta.read_text()).get("repo_id") if meta.is_file() else None
         return {"repo": repo or str(root), "revision": None, "path": str(root.resolve())}
-    from msta_data import hub
-
-    hub_id = hub.parse_hub_id(spec, "dataset")
-    rev = root.name if _SHA.match(root.name) else hub.resolve(hub_id).revision
+    hub_id = parse_hub_id(spec, "dataset")
+    rev = root.name if _SHA.match(root.name) else resolve(hub_id).revision
     return {"repo": hub_id.repo_id, "revision": rev, "path": None}
 
 
@@ -91,7 +93,7 @@ def push_checkpoint(ckpt: Path, repo_id: str, tag: str, card: Any, private: bool
         ckpt: the saved checkpoint directory.
         repo_id: ``user/name``.
         tag: moved to the new commit when it exists.
-        card: a ``msta_data.hub.CardInfo`` for README.md.
+        card: a ``msta_data.hub_cards.CardInfo`` for README.md.
         private: create the repo as private.
         retry_hint: how to retry, for the error message.
 
@@ -101,10 +103,8 @@ def push_checkpoint(ckpt: Path, repo_id: str, tag: str, card: Any, private: bool
     Raises:
         PushError: the push failed (``ckpt`` is untouched).
     """
-    from msta_data import hub
-
     try:
-        sha = hub.push(ckpt, repo_id, tag=tag, private=private, card=card, move_tag=True,
+        sha = push(ckpt, repo_id, tag=tag, private=private, card=card, move_tag=True,
                        message=f"{tag}: {ckpt.parent.name}/{ckpt.name}")
     except Exception as e:  # any client / HTTP failure: the checkpoint is safe on disk
         raise PushError(f"the checkpoint is saved at {ckpt}, but pushing it to {repo_id}@{tag} "
@@ -120,9 +120,7 @@ def _finite(d: dict[str, Any]) -> dict[str, float]:
 
 def _card(src: dict[str, Any], config: dict[str, Any], stage: int, round_: int | None,
           metrics: dict[str, float], table: dict[str, dict[str, float]] | None,
-          notes: str) -> Any:
-    from msta_data.hub import CardInfo
-
+          notes: str) -> CardInfo:
     if src.get("path"):
         notes = f"Local training dataset: `{src['path']}`. {notes}"
     return CardInfo(dataset_repo=src["repo"], dataset_revision=src["revision"], config=config,
@@ -156,8 +154,6 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
         out: the run directory (metrics.csv).
         final: the saved final policy directory.
     """
-    import draccus
-
     card = _card(dataset_source(cfg.dataset, root), draccus.encode(cfg), 1, None,
                  stage1_metrics(out), None, "Stage 1: offline behaviour cloning of the teacher.")
     return push_checkpoint(final, cfg.push_to, "stage1", card, cfg.push_private,
@@ -226,8 +222,6 @@ def push_round(cfg: Any, prog: dict[str, Any], r: int) -> dict[str, str]:
         prog: progress.json content (``dataset_source``, the round's train/eval records).
         r: the round.
     """
-    import draccus
-
     ckpt = Path(cfg.output_dir) / f"round_{r}"
     src = prog.get("dataset_source") or dataset_source(cfg.dataset, Path(prog["dataset"]))
     metrics, table = round_eval(prog, r)

@@ -12,8 +12,12 @@ from huggingface_hub.errors import HfHubHTTPError
 from collect.sim.env import EnvConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
-from msta_data import hub
+from msta_data.hub_cards import card_metadata
+from msta_data.hub_ids import hub_api
+from msta_data.hub_pull import pull
+from msta_data.hub_push import push_dataset
 from msta_data.hub_server import HubServer, ServerConfig
+from msta_data.hub_versions import versions
 from policies.msta import MSTAPolicy
 from policies.teacher.config import TeacherConfig
 from train.common import parse_cli
@@ -43,8 +47,8 @@ def small_env(**kw) -> EnvConfig:
 
 
 def card_at(repo: str, revision: str) -> dict:
-    path = hub.hub_api().hf_hub_download(repo, "README.md", revision=revision)
-    return hub.card_metadata(Path(path).read_text())
+    path = hub_api().hf_hub_download(repo, "README.md", revision=revision)
+    return card_metadata(Path(path).read_text())
 
 
 def correct_cfg(tmp_path: Path, **kw) -> CorrectConfig:
@@ -60,7 +64,7 @@ def correct_cfg(tmp_path: Path, **kw) -> CorrectConfig:
 
 def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset, server, tmp_path,
                                                                monkeypatch, capsys):
-    ds_sha = hub.push_dataset(synthetic_dataset, "alice/ds")
+    ds_sha = push_dataset(synthetic_dataset, "alice/ds")
 
     # stage 1: the dataset comes from the hub; final/ is pushed with tag stage1
     main(["--dataset=datasets/alice/ds@v3.0", f"--output_dir={tmp_path / 'stage1'}", *FAST,
@@ -74,7 +78,7 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert msta["config"]["policy"]["history"] == 5
     assert msta["metrics"]["step"] == 4 and msta["metrics"]["train_loss"] > 0
     assert msta["metrics"]["val_loss"] > 0
-    pulled = hub.pull("alice/msta@stage1", tmp_path / "pulled1")
+    pulled = pull("alice/msta@stage1", tmp_path / "pulled1")
     assert MSTAPolicy.from_pretrained(pulled).config.history == 5
 
     # stage 2 from the hub checkpoint; bob's token may not write to alice/: the push fails
@@ -110,13 +114,13 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert set(msta["eval_table"]) == {"flat", "stairs_up", "average"}
     assert msta["eval_table"]["average"]["trials"] == 2
     assert "total_vs_teacher@mask0.5" in msta["eval_table"]["average"]
-    readme = Path(hub.hub_api().hf_hub_download("alice/msta", "README.md", revision="stage2-r1"))
+    readme = Path(hub_api().hf_hub_download("alice/msta", "README.md", revision="stage2-r1"))
     assert ("msta-eval --policies teacher,alice/msta@stage2-r1 --scenarios token_removal --suite "
             "quick --trials 2 --terrains flat,stairs_up --levels 0 --episode_s 0.3 --seed 0"
             ) in readme.read_text().replace("\n", " ")
 
     # versions: both tags with their metrics; the tagged commits are the pushed ones
-    v = hub.versions("alice/msta")
+    v = versions("alice/msta")
     assert set(v.tags) == {"stage1", "stage2-r1"} and v.tags["stage2-r1"] == rec["pushed"]["commit"]
     by_tag = {t: c for c in v.commits for t in c.tags}
     assert by_tag["stage1"].metrics["train_loss"] > 0
@@ -143,9 +147,9 @@ def test_failed_stage1_push_keeps_the_checkpoint(synthetic_dataset, server, tmp_
     train(cfg)
     msta = card_at("alice/m", "stage1")["msta"]
     assert msta["dataset"] == {"repo": "local/train_test", "revision": None}
-    assert hub.hub_api().repo_info("alice/m").private
+    assert hub_api().repo_info("alice/m").private
     with pytest.raises(HfHubHTTPError):  # private: anonymous reads are refused
-        hub.hub_api(token=False).repo_info("alice/m")
+        hub_api(token=False).repo_info("alice/m")
 
 
 def test_local_source_and_bad_push_to(synthetic_dataset, tmp_path):
