@@ -2,8 +2,9 @@
 
 A teacher maps a batch of observations (student sensors plus privileged signals, keyed by
 registry name, each (N, dim) float32) to actions in the simulator's convention: (N, 12)
-offsets from the default pose in units of ``ControlConfig.action_scale``
-(joint target = DEFAULT_POSE + action_scale * action). Teachers are deterministic and
+offsets from the default pose in units of the simulator's ``control.action_scale``
+(joint target = DEFAULT_POSE + action_scale * action; default
+``msta_data.robot.ACTION_SCALE``). Teachers are deterministic and
 batched over environments; stateful ones (e.g. a gait phase) are told about episode
 starts through ``reset``.
 """
