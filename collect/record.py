@@ -278,8 +278,6 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_s: float,
         episode_s: episode time limit (s).
         repo_id: the dataset's ``repo_id``.
     """
-    from collect.sim.terrain import TerrainConfig
-
     return collect(CollectConfig(
         teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_s, seed=0,

@@ -12,9 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+import policies.teacher  # noqa: F401  (registers the built-in teachers)
 from collect.rollout import ZeroPolicy, run
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.cli import parse_config
+from policies.teacher.base import make_teacher
 
 
 @dataclass
@@ -42,9 +44,6 @@ def make_policy(name: str):
     """'zero' or a registered teacher."""
     if name == "zero":
         return ZeroPolicy()
-    import policies.teacher  # noqa: F401  (registers the built-in teachers)
-    from policies.teacher.base import make_teacher
-
     return make_teacher(name)
 
 

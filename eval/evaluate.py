@@ -7,7 +7,7 @@
 ``--policies`` entries: ``teacher`` (the reference teacher of ``--teacher.type``, rolled out
 again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input row, e.g.
 ``teacher:zero`` holds the default pose), a checkpoint directory, or a hub id
-``user/name[@revision]`` (pulled through ``msta_data.hub.materialize``).
+``user/name[@revision]`` (pulled by msta's one path-or-hub rule, ``msta_data.locate``).
 
 Writes into ``--out``: ``metrics.json`` (every number with its trial count and 95 %
 interval per cell, the configuration, each policy's source and revision), ``report.md``
@@ -57,7 +57,11 @@ from eval.scenarios import (
     split_csv,
 )
 from msta_data.cli import parse_config
+from msta_data.hub_ids import is_hub_id
+from msta_data.locate import locate
+from msta_data.sensors import STUDENT_SENSORS
 from policies.actor import InputSpec, StudentActor
+from policies.factory import load_policy
 from policies.teacher.base import TEACHERS
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -171,9 +175,6 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
         tcfg = TeacherConfig(type=source.split(":", 1)[1])
         return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg),
                            build_teacher(tcfg))
-    from msta_data.hub import is_hub_id
-    from msta_data.locate import locate
-
     try:  # msta's one path-or-hub rule (msta_data/locate.py)
         path = locate(source, "model", "--policies")
     except FileNotFoundError as e:
@@ -193,8 +194,6 @@ def student_entry(path: Path, name: str, source: str,
         source: how the user named it (directory or hub id).
         train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
     """
-    from policies.factory import load_policy
-
     return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
                        load_policy(path), train_masks)
 
@@ -343,8 +342,6 @@ class Evaluator:
 
 def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
     """Every (policy, condition) pair, policies in --policies order."""
-    from msta_data.sensors import STUDENT_SENSORS
-
     suite = get_suite(cfg.suite)
     out = []
     for e in entries:

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from eval.metrics import RETURNS
+from eval.scenarios import SCENARIOS
 
 METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":
                  "angular-velocity tracking", "total": "total reward"}
@@ -289,8 +290,6 @@ def level_table(metrics: dict, metric: str = "total") -> str:
 
 def markdown(metrics: dict) -> str:
     """The whole report.md."""
-    from eval.scenarios import SCENARIOS
-
     cfg = metrics["config"]
     intro = (f"{trials_note(metrics)} (terrains {', '.join(cfg['terrains'])}; levels "
              f"{', '.join(map(str, cfg['levels']))}; one trial = one {cfg['episode_s']:g} s "
@@ -357,8 +356,6 @@ def _pyplot():
 
 def _sweep_plot(metrics: dict, scenario: str, path: Path, bars: bool) -> Path:
     """One subplot per return; x = conditions, one line (or bar group) per policy."""
-    from eval.scenarios import SCENARIOS
-
     plt = _pyplot()
     runs = _runs(metrics, scenario)
     conds = _conditions(runs)

@@ -26,15 +26,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from eval.metrics import TrialLayout
 from policies.actor import InputSpec
-
-if TYPE_CHECKING:
-    from eval.metrics import TrialLayout
 
 #: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
 PAPER_TERRAINS: tuple[str, ...] = (
@@ -308,8 +306,6 @@ class TrialConfig:
 
     def layout(self) -> TrialLayout:
         """The trial layout these options describe."""
-        from eval.metrics import TrialLayout
-
         return TrialLayout(tuple(self.terrain_list), tuple(self.level_list), self.num_trials)
 
     def resolved(self) -> dict[str, Any]:

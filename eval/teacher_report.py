@@ -16,15 +16,18 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
 from collect.rollout import Step, rollout
+from collect.sim.commands import CommandConfig
 from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
@@ -134,7 +137,6 @@ def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
 def _bar(total: int, progress: bool, terrain: str):
     if not progress:
         return None
-    from tqdm import tqdm
     return tqdm(total=total, unit="step/env", desc=f"teacher report {terrain}", smoothing=0.1)
 
 
@@ -233,7 +235,6 @@ def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, second
     import mujoco
     from PIL import Image
 
-    from collect.sim.commands import CommandConfig
     cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),
                     randomization=RandomizationConfig(enabled=False),
@@ -302,7 +303,6 @@ def _levels(text: str) -> tuple[int, ...]:
 
 def main(argv: list[str] | None = None) -> None:
     """Run the report and write the Markdown (and the stairs image)."""
-    import sys
     a = _parse(argv)
     types = tuple(t for t in a.types.split(",") if t)
     for t in types:
