@@ -1,9 +1,9 @@
 """``msta-compare``: train MSTA and every baseline on one dataset with the same budgets, then
 evaluate them together and print the paper's Table I.
 
-    msta-compare --collect_episodes=48 --out=outputs/compare --preset=cpu \\
+    msta-compare --collect_episodes=48 --output_dir=outputs/compare --preset=cpu \\
         --stage1_steps=800 --stage2_rounds=1 --episodes_per_round=16 --stage2_steps=300
-    msta-compare --dataset=outputs/datasets/a1_teacher --policies=msta,gru --out=...
+    msta-compare --dataset=outputs/datasets/a1_teacher --policies=msta,gru --output_dir=...
 
 For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered policy type):
 
@@ -12,13 +12,13 @@ For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered p
    (``shutil.copytree`` before the first round), ``--stage2_rounds`` rounds of
    ``--episodes_per_round`` student episodes and ``--stage2_steps`` steps: every policy
    appends its own correction episodes, and the shared dataset is never written;
-3. the final checkpoint is copied to ``out/checkpoints/<policy>`` (the row name in the
+3. the final checkpoint is copied to ``output_dir/checkpoints/<policy>`` (the row name in the
    table). A policy whose final checkpoint exists is skipped when the command is rerun;
    a killed stage resumes (``--resume=true`` of msta-train / msta-correct).
 
 Then one ``msta-eval`` run (``eval.evaluate``) over the teacher and all final checkpoints on
-the same trials writes ``out/eval/`` and the table is printed and saved as
-``out/comparison.md``. See docs/baselines_comparison.md.
+the same trials writes ``output_dir/eval/`` and the table is printed and saved as
+``output_dir/comparison.md``. See docs/baselines_comparison.md.
 """
 
 from __future__ import annotations
@@ -35,28 +35,23 @@ from typing import Any
 import draccus
 
 from msta_data.cli import parse_config
+from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "msta": ("msta", {}),
     "msta_mask": ("msta", {"learnable_mask": True}),  # the paper's "MSTA w/ learnable mask"
-    "tert_concat": ("tert_concat", {}),
-    "tert_separate": ("tert_separate", {}),
-    "tert_mask": ("tert_mask", {}),
-    "gru": ("gru", {}),
-    "rma_tcn": ("rma_tcn", {}),
 }
 #: The paper's Table I averages (normalized total reward at test masks 0 / 25 / 50 %).
 PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {
     "msta": (0.97, 0.95, 0.94), "gru": (0.94, 0.92, 0.79), "tert_mask": (0.87, 0.90, 0.83),
     "msta_mask": (0.30, 0.80, 0.82), "rma_tcn": (0.98, None, None),
     "tert_concat": (1.01, None, None), "tert_separate": (1.00, None, None)}
-#: Fields that must match out/compare_config.json when a run is continued.
-RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_s", "collect_envs", "preset",
+#: Fields that must match output_dir/compare_config.json when a run is continued.
+RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collect_num_envs", "preset",
               "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
-              "episodes_per_round", "stage2_episode_s", "stage2_envs", "stage2_mask_ratio",
+              "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs", "stage2_mask_ratio",
               "batch_size", "seed")
 
 
@@ -64,73 +59,76 @@ RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_s", "collect_envs"
 class CompareConfig:
     """Args:
         dataset: teacher dataset root (with ``collect_episodes`` > 0: where to record it;
-            default ``out/teacher_dataset``).
+            default ``output_dir/teacher_dataset``).
         collect_episodes: record (or extend up to) this many teacher episodes first (0: use
             ``dataset`` as it is).
-        collect_episode_s: episode length of the recorded teacher episodes (s).
-        collect_envs: environments simulated together while recording.
-        policies: comma-separated names: msta, msta_mask (MSTA w/ learnable mask),
-            tert_concat, tert_separate, tert_mask, gru, rma_tcn (or any registered type).
+        collect_episode_length_s: episode length of the recorded teacher episodes (s).
+        collect_num_envs: environments simulated together while recording.
+        policies: comma-separated names: msta_mask (MSTA w/ learnable mask) or any
+            registered policy type (msta, gru, rma_tcn, tert_concat, tert_separate, tert_mask,
+            mlp, ...); empty = msta, msta_mask and every registered baseline.
         preset: policy preset for every policy (paper, cpu, tiny).
         teacher: the teacher that records, labels stage 2 and is the eval reference.
         stage1_steps: optimizer steps of stage 1 (every policy).
         stage2_rounds: correction rounds (0: no stage 2).
         stage2_steps: optimizer steps per correction round.
         episodes_per_round: student episodes appended per round.
-        stage2_episode_s: time limit of the student episodes (s).
-        stage2_envs: environments rolled out together in stage 2 (0: episodes_per_round,
+        stage2_episode_length_s: time limit of the student episodes (s).
+        stage2_num_envs: environments rolled out together in stage 2 (0: episodes_per_round,
             at most 32).
         stage2_mask_ratio: training mask ratio in stage 2 for policies trained with masking
             (config ``mask_ratio`` > 0; the paper: 0.5); the others keep 0.
         batch_size: windows per optimizer step (both stages).
-        out: output directory (per-policy runs, checkpoints/, eval/, comparison.md).
+        output_dir: output directory (per-policy runs, checkpoints/, eval/, comparison.md).
         seed: seeds training, rollouts and evaluation.
         eval_suite: msta-eval suite (quick, paper).
         eval_scenarios: msta-eval scenarios (token_removal = Table I).
         trials: evaluation trials per (policy, condition); 0 = the suite's.
         eval_terrains: comma-separated terrains; empty = the suite's.
-        eval_episode_s: evaluation episode length (s); 0 = the suite's.
+        eval_episode_length_s: evaluation episode length (s); 0 = the suite's.
         num_threads: torch threads for training (0 = torch's default).
         progress: progress bars.
     """
 
     dataset: str = ""
     collect_episodes: int = 0
-    collect_episode_s: float = 10.0
-    collect_envs: int = 16
-    policies: str = "msta,msta_mask,tert_concat,tert_separate,tert_mask,gru,rma_tcn"
+    collect_episode_length_s: float = 10.0
+    collect_num_envs: int = 16
+    policies: str = ""
     preset: str = "cpu"
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     stage1_steps: int = 800
     stage2_rounds: int = 1
     stage2_steps: int = 300
     episodes_per_round: int = 16
-    stage2_episode_s: float = 10.0
-    stage2_envs: int = 0
+    stage2_episode_length_s: float = 10.0
+    stage2_num_envs: int = 0
     stage2_mask_ratio: float = 0.5
     batch_size: int = 64
-    out: str = "outputs/compare"
+    output_dir: str = "outputs/compare"
     seed: int = 0
     eval_suite: str = "quick"
     eval_scenarios: str = "token_removal"
     trials: int = 0
     eval_terrains: str = ""
-    eval_episode_s: float = 0.0
+    eval_episode_length_s: float = 0.0
     num_threads: int = 0
     progress: bool = True
 
     def __post_init__(self) -> None:
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()]
+        if not self.policies:
+            self.policy_list = ["msta", "msta_mask", *registered_policies("baseline")]
         if not self.policy_list:
             raise ValueError("--policies is empty")
         if len(set(self.policy_list)) != len(self.policy_list):
             raise ValueError(f"--policies {self.policies!r} has duplicates")
         for name in self.policy_list:
             policy_config(name, self.preset)  # unknown names / presets fail before any work
-        for name in ("stage1_steps", "batch_size", "episodes_per_round", "collect_envs"):
+        for name in ("stage1_steps", "batch_size", "episodes_per_round", "collect_num_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("stage2_rounds", "stage2_steps", "collect_episodes", "stage2_envs",
+        for name in ("stage2_rounds", "stage2_steps", "collect_episodes", "stage2_num_envs",
                      "trials", "num_threads"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
@@ -141,7 +139,7 @@ class CompareConfig:
 
     @property
     def dataset_root(self) -> Path:
-        return Path(self.dataset or Path(self.out) / "teacher_dataset")
+        return Path(self.dataset or Path(self.output_dir) / "teacher_dataset")
 
 
 def policy_config(name: str, preset: str) -> Any:
@@ -151,11 +149,9 @@ def policy_config(name: str, preset: str) -> Any:
         name: a :data:`VARIANTS` key or a registered policy type.
         preset: preset name of that policy type.
     """
-    from policies.factory import get_config_class, known_policies
-
     ptype, overrides = VARIANTS.get(name, (name, {}))
-    if ptype not in known_policies():
-        known = sorted(set(VARIANTS) | set(known_policies()))
+    if ptype not in registered_policies():
+        known = sorted(set(VARIANTS) | set(registered_policies()))
         raise ValueError(f"unknown policy {name!r}; known: {known}")
     cls = get_config_class(ptype)
     try:
@@ -166,7 +162,7 @@ def policy_config(name: str, preset: str) -> Any:
 
 # ----- phases ----------------------------------------------------------------------------
 class Progress:
-    """One line per phase with the elapsed time; phase durations go to ``out/timing.json``."""
+    """One line per phase with the elapsed time; phase durations go to ``output_dir/timing.json``."""
 
     def __init__(self, out: Path) -> None:
         self.path = out / "timing.json"
@@ -212,10 +208,10 @@ def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
         from collect.record import CollectConfig, collect
 
         t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.type} episodes of "
-                       f"{cfg.collect_episode_s:g} s -> {root}")
+                       f"{cfg.collect_episode_length_s:g} s -> {root}")
         collect(CollectConfig(teacher=cfg.teacher, episodes=cfg.collect_episodes,
-                              num_envs=cfg.collect_envs, root=str(root), resume=True,
-                              seed=cfg.seed, episode_length_s=cfg.collect_episode_s,
+                              num_envs=cfg.collect_num_envs, root=str(root), resume=True,
+                              seed=cfg.seed, episode_length_s=cfg.collect_episode_length_s,
                               progress=cfg.progress))
         prog.done("collect", t)
     check_dataset(root)
@@ -275,14 +271,14 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     own = copy_dataset(root, run / "dataset")
     resume = (out / "progress.json").exists()
     mask = cfg.stage2_mask_ratio if policy_config(name, cfg.preset).mask_ratio > 0 else 0.0
-    envs = cfg.stage2_envs or min(cfg.episodes_per_round, 32)
+    envs = cfg.stage2_num_envs or min(cfg.episodes_per_round, 32)
     t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"
                    f"{' (resumed)' if resume else ''}")
     correct(CorrectConfig(
         policy=str(start), dataset=str(own), output_dir=str(out), rounds=cfg.stage2_rounds,
         episodes_per_round=cfg.episodes_per_round, num_envs=envs,
-        episode_length_s=cfg.stage2_episode_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
+        episode_length_s=cfg.stage2_episode_length_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed,
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
         eval=EvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
@@ -293,7 +289,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
 
 def train_policy(cfg: CompareConfig, name: str, root: Path, prog: Progress) -> Path:
     """Both stages of one policy; the result is copied to ``out/checkpoints/<name>``."""
-    out = Path(cfg.out)
+    out = Path(cfg.output_dir)
     ckpt = out / "checkpoints" / name
     if (ckpt / "config.json").is_file():
         print(f"[msta-compare] {name}: final checkpoint {ckpt} exists, skipped", flush=True)
@@ -315,9 +311,9 @@ def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str,
     from eval.evaluate import EvalConfig, evaluate
 
     ecfg = EvalConfig(policies=",".join(["teacher", *map(str, ckpts)]), suite=cfg.eval_suite,
-                      out=str(Path(cfg.out) / "eval"), trials=cfg.trials,
+                      out=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
                       terrains=cfg.eval_terrains, scenarios=cfg.eval_scenarios,
-                      episode_s=cfg.eval_episode_s, seed=cfg.seed, teacher=cfg.teacher,
+                      episode_s=cfg.eval_episode_length_s, seed=cfg.seed, teacher=cfg.teacher,
                       progress=cfg.progress)
     t = prog.start("eval", f"suite {cfg.eval_suite}, scenarios {cfg.eval_scenarios}, "
                    f"{ecfg.num_trials} trials of {ecfg.episode:g} s, {len(ckpts)} policies "
@@ -356,14 +352,14 @@ def paper_table(metrics: dict[str, Any]) -> str:
 
 def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: str,
                         timing: dict[str, float]) -> str:
-    """``out/comparison.md``: the command, the budgets, Table I (three returns), timings."""
+    """``output_dir/comparison.md``: the command, the budgets, Table I (three returns), timings."""
     from eval.report import table_one
 
     ec = metrics["config"]
     setup = (
         f"Teacher `{cfg.teacher.type}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
         f"stage 1 {cfg.stage1_steps} steps; stage 2 {cfg.stage2_rounds} round(s) x "
-        f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_s:g} s + {cfg.stage2_steps} "
+        f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_length_s:g} s + {cfg.stage2_steps} "
         f"steps (mask {cfg.stage2_mask_ratio:g} for masked-trained policies); batch "
         f"{cfg.batch_size}; seed {cfg.seed}. Evaluation: suite `{cfg.eval_suite}`, "
         f"{ec['trials']} trials of {ec['episode_s']:g} s per (policy, test mask), terrains "
@@ -389,7 +385,7 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     """
     from eval.report import table_one
 
-    out = Path(cfg.out)
+    out = Path(cfg.output_dir)
     if not cfg.collect_episodes:
         check_dataset(cfg.dataset_root)  # before anything is written
     check_run_config(cfg, out)
@@ -410,14 +406,10 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-compare``); bad flags and inputs exit with one line."""
     args = sys.argv[1:] if argv is None else argv
+    cfg = parse_config(CompareConfig, args, "msta-compare")  # bad flags: one line, exit 2
     try:
-        cfg = parse_config(CompareConfig, args, "msta-compare")
         compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
-    except (draccus.utils.ParsingError, draccus.utils.DecodingError, ValueError,
-            FileNotFoundError) as e:
-        while e.__cause__ is not None and isinstance(e, (draccus.utils.ParsingError,
-                                                         draccus.utils.DecodingError)):
-            e = e.__cause__  # draccus wraps our validation errors
+    except (ValueError, FileNotFoundError) as e:
         print(f"msta-compare: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
 

@@ -14,9 +14,9 @@ from eval.compare import CompareConfig, main
 from msta_data.features import load_info
 
 TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_steps=2",
-        "--episodes_per_round=2", "--stage2_episode_s=0.3", "--stage2_envs=2",
-        "--batch_size=8", "--trials=2", "--eval_terrains=flat", "--eval_episode_s=1.0",
-        "--collect_envs=2", "--collect_episode_s=0.4", "--progress=false"]
+        "--episodes_per_round=2", "--stage2_episode_length_s=0.3", "--stage2_num_envs=2",
+        "--batch_size=8", "--trials=2", "--eval_terrains=flat", "--eval_episode_length_s=1.0",
+        "--collect_num_envs=2", "--collect_episode_length_s=0.4", "--progress=false"]
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def run(tmp_path_factory) -> tuple[Path, Path, str]:
 
 
 def args(out: Path, *extra: str) -> list[str]:
-    return [f"--out={out}", "--collect_episodes=3", "--teacher.type=gait",
+    return [f"--output_dir={out}", "--collect_episodes=3", "--teacher.type=gait",
             "--policies=msta,gru", *TINY, *extra]
 
 
@@ -52,7 +52,7 @@ def test_table_has_a_row_per_policy_and_metrics(run) -> None:
         assert len(avg) == 3 and all(v >= 0.0 for v in avg)
         row = f"| {name} | " + " | ".join(f"{v:.2f}" for v in avg) + " | "
         assert row in stdout and row in md
-    assert "msta-compare --out=" in md and "--policies=msta,gru" in md
+    assert "msta-compare --output_dir=" in md and "--policies=msta,gru" in md
     timing = json.loads((out / "timing.json").read_text())
     assert {"collect", "msta stage 1", "msta stage 2", "gru stage 1", "gru stage 2",
             "eval"} <= set(timing)
@@ -94,6 +94,6 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
     with pytest.raises(SystemExit):
         main(["--dataset=/nonexistent/ds", "--policies=msta", "--bogus=1"])
     with pytest.raises(SystemExit):
-        main([f"--dataset={tmp_path / 'missing'}", "--policies=msta", f"--out={tmp_path / 'o'}"])
+        main([f"--dataset={tmp_path / 'missing'}", "--policies=msta", f"--output_dir={tmp_path / 'o'}"])
     assert f"{tmp_path / 'missing'}" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
