@@ -46,7 +46,7 @@ bench-learn: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench_learn
 
 docs-terrain: $(STAMP)
-	$(PY) -m collect.sim.terrain --docs docs/
+	$(PY) -m collect.sim.terrain_docs --docs docs/
 
 # A local Hugging Face-compatible hub for air-gapped labs (see docs/hub.md).
 hub: $(STAMP)

@@ -28,10 +28,11 @@ from tqdm import tqdm
 from collect.rollout import Step, as_policy, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.terrain import TerrainConfig
-from msta_data import cli
+from msta_data import cli, layout
 from msta_data.errors import DatasetError, DirectoryLockedError
 from msta_data.features import NON_SENSOR_FEATURES, load_info
-from msta_data.locking import LOCK_NAME
+from msta_data.layout import LOCK_NAME
+from msta_data.robot import NUM_JOINTS
 from msta_data.sensors import SENSORS
 from msta_data.writer import DatasetWriter
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
@@ -100,7 +101,7 @@ class LabelledActor:
         self._lab_act, self._lab_reset = (as_policy(label) if label is not None
                                           else (None, lambda ids: None))
         self.beta, self.rng = beta, np.random.default_rng(seed)
-        self.label_action = np.zeros((0, 12), dtype=np.float32)
+        self.label_action = np.zeros((0, NUM_JOINTS), dtype=np.float32)
         self.label_share = [0, 0]  # label-executed env steps, all env steps
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
@@ -214,7 +215,7 @@ class CollectConfig:
 
 def _existing_dataset(cfg: CollectConfig, root: Path) -> DatasetWriter | None:
     """The verified writer of the dataset at ``root`` to extend, or None for a new one."""
-    if (root / "meta" / "info.json").exists():
+    if layout.is_dataset_root(root):
         have = int(load_info(root)["total_episodes"])
         if cfg.resume or have == 0:  # an empty dataset is what a failed first run leaves
             return DatasetWriter.open(root, flush_every_frames=cfg.flush_every_frames)

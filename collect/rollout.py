@@ -20,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 from collect.sim.env import REASONS, QuadrupedEnv, StepResult
+from msta_data.robot import NUM_JOINTS
 
 
 class ZeroPolicy:
@@ -29,7 +30,7 @@ class ZeroPolicy:
     sensors: tuple[str, ...] = ()
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        return np.zeros((len(next(iter(obs.values()))), 12))
+        return np.zeros((len(next(iter(obs.values()))), NUM_JOINTS))
 
     def reset(self, ids: np.ndarray) -> None:
         pass

@@ -35,6 +35,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from msta_data import layout
+
 SEED = 0
 #: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
 VAL = 512
@@ -47,7 +49,7 @@ def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
 
     from collect.record import easy_terrain_dataset
 
-    if (root / "meta" / "info.json").is_file():
+    if layout.is_dataset_root(root):
         shutil.rmtree(root)
     return easy_terrain_dataset(root, episodes, seconds, "bench/a1_teacher")
 

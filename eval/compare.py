@@ -34,6 +34,7 @@ from typing import Any
 
 import draccus
 
+from msta_data import layout
 from msta_data.cli import parse_config
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
@@ -220,8 +221,8 @@ def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
 
 def check_dataset(root: Path) -> None:
     """Raise, naming the path, unless ``root`` holds a dataset."""
-    if not (root / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"--dataset {str(root)!r}: {root / 'meta' / 'info.json'} "
+    if not layout.is_dataset_root(root):
+        raise FileNotFoundError(f"--dataset {str(root)!r}: {layout.info_path(root)} "
                                 "missing (not a dataset; use --collect_episodes=N to record one)")
 
 
@@ -254,7 +255,7 @@ def copy_dataset(root: Path, dest: Path) -> Path:
     tmp = dest.with_name(dest.name + ".tmp")
     if tmp.exists():
         shutil.rmtree(tmp)
-    shutil.copytree(root, tmp, ignore=shutil.ignore_patterns(".msta.lock"))
+    shutil.copytree(root, tmp, ignore=shutil.ignore_patterns(*layout.LOCAL_ONLY_FILES))
     tmp.rename(dest)
     return dest
 

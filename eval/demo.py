@@ -82,10 +82,10 @@ def start_hub(out: Path):
 
 
 def step_push(dataset: Path) -> str:
-    from msta_data import hub
+    from msta_data.hub_push import push_dataset
 
     print("\n== 3. local hub: push the dataset ==")
-    sha = hub.push_dataset(dataset, f"{HUB_USER}/a1_teacher")
+    sha = push_dataset(dataset, f"{HUB_USER}/a1_teacher")
     print(f"dataset  {HUB_USER}/a1_teacher  commit {sha[:12]} (tag v3.0)")
     return f"datasets/{HUB_USER}/a1_teacher@{sha}"
 
@@ -145,13 +145,13 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
 
 def step_eval(out: Path, best: int, trials: int, episode_s: float, threads: int) -> dict:
     from eval.evaluate import EvalConfig, evaluate
-    from msta_data import hub
+    from msta_data.hub_pull import pull
 
     tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
           f"0 / 25 / 50 %, {trials} trials of {episode_s:g} s over the five terrains at levels "
           "0-2) ==")
-    pulled = hub.pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
+    pulled = pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
     print(f"pulled to {pulled}")
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
                                   scenarios="token_removal", out=str(out / "eval"),

@@ -19,7 +19,6 @@ docs/eval.md for the metric definitions.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import sys
 import time
@@ -57,8 +56,8 @@ from eval.scenarios import (
     split_csv,
 )
 from msta_data.cli import parse_config
-from msta_data.hub_ids import is_hub_id
-from msta_data.locate import locate
+from msta_data.locate import locate, reads_as_hub_id
+from msta_data.revision import content_revision, file_parts
 from msta_data.sensors import STUDENT_SENSORS
 from policies.actor import InputSpec, StudentActor
 from policies.factory import load_policy
@@ -159,11 +158,7 @@ class PolicyEntry:
 
 def dir_revision(path: Path) -> str:
     """Short sha256 over a checkpoint directory's file names and bytes."""
-    h = hashlib.sha256()
-    for f in sorted(p for p in path.rglob("*") if p.is_file()):
-        h.update(str(f.relative_to(path)).encode())
-        h.update(f.read_bytes())
-    return h.hexdigest()[:12]
+    return content_revision(file_parts(path))
 
 
 def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
@@ -180,7 +175,7 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     except FileNotFoundError as e:
         raise FileNotFoundError(f"{e} (teachers: 'teacher' or 'teacher:<type>' with type in "
                                 f"{sorted(TEACHERS)})") from None
-    name = source if is_hub_id(source) else Path(source).resolve().name
+    name = source if reads_as_hub_id(source) else Path(source).resolve().name
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source))
 
 
@@ -250,7 +245,7 @@ def torch_eval_settings(threads: int) -> Iterator[None]:
 
 
 def _digest(key: tuple) -> str:
-    return hashlib.sha256(repr(key).encode()).hexdigest()[:12]
+    return content_revision([repr(key)])
 
 
 class Evaluator:

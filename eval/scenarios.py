@@ -32,6 +32,7 @@ import numpy as np
 
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialLayout
+from msta_data.robot import NUM_JOINTS
 from policies.actor import InputSpec
 
 #: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
@@ -118,12 +119,12 @@ def dead_joint_set(k: int, seed: int) -> tuple[int, ...]:
     """The k dead joints for ``seed``: the first k of one seeded permutation of 0..11 (sorted).
 
     Args:
-        k: number of dead joint encoders (0..12).
+        k: number of dead joint encoders (0..NUM_JOINTS).
         seed: fixes the permutation.
     """
-    if not 0 <= k <= 12:
-        raise ValueError(f"dead joint count k={k} must be in [0, 12]")
-    perm = np.random.default_rng([seed, 0xDEAD]).permutation(12)
+    if not 0 <= k <= NUM_JOINTS:
+        raise ValueError(f"dead joint count k={k} must be in [0, {NUM_JOINTS}]")
+    perm = np.random.default_rng([seed, 0xDEAD]).permutation(NUM_JOINTS)
     return tuple(sorted(int(j) for j in perm[:k]))
 
 

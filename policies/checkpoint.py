@@ -128,7 +128,7 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None)
 
     Args:
         path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
-            (once per commit, hash-verified) through ``msta_data.hub.materialize`` from
+            (once per commit, hash-verified) through ``msta_data.hub_pull.materialize`` from
             ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
 

@@ -10,7 +10,7 @@ from dataclasses import replace
 from msta_data.cli import parse_config, usage_error
 from msta_data.errors import DatasetError, DirectoryLockedError
 from policies.base import CheckpointError
-from policies.factory import known_policies
+from policies.factory import registered_policies
 from train.push import PushError
 
 _PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
@@ -31,7 +31,7 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
         prog: program name for the usage message.
         aliases: nested option -> the top-level option that decides it (parse_config).
     """
-    known_policies()  # registers every built-in policy type with draccus before parsing
+    registered_policies()  # registers every built-in policy type with draccus before parsing
     args = list(sys.argv[1:] if argv is None else argv)
     preset, rest = None, []
     for i, a in enumerate(args):
@@ -51,8 +51,6 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
     if preset is not None:
         explicit = {a.split("=", 1)[0][len("--policy."):] for a in policy_flags} - {"type"}
         policy = cfg.policy  # type: ignore[attr-defined]
-        if not hasattr(type(policy), "from_preset"):
-            raise usage_error(f"{prog}: error: policy type {policy.type!r} has no presets")
         try:
             new = type(policy).from_preset(preset, **{k: getattr(policy, k) for k in explicit})
         except (KeyError, ValueError) as e:

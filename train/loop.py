@@ -204,13 +204,12 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
 
 
 def _mask(policy: StudentPolicy, mask_ratio: float | None) -> float:
-    return float(getattr(policy.config, "mask_ratio", 0.0) if mask_ratio is None else mask_ratio)
+    return float(policy.config.mask_ratio if mask_ratio is None else mask_ratio)
 
 
 def load_windows(root: Path, policy: StudentPolicy, episodes: Sequence[int]) -> Any:
     """A ``WindowDataset`` of the policy's sensors, window and action column."""
-    T = int(getattr(policy.config, "history", 15))
-    key = getattr(policy.config, "action_key", "action")
+    T, key = policy.config.history, policy.config.action_key
     return WindowDataset(root, policy.required_sensors, T, extra_columns=(key,),
                          episodes=episodes)
 

@@ -29,7 +29,9 @@ from pathlib import Path
 import draccus
 import torch
 
-from msta_data.locking import LOCK_NAME, lock_directory
+from msta_data.layout import LOCK_NAME
+from msta_data.locate import locate_dataset
+from msta_data.locking import lock_directory
 from msta_data.stats import load_stats
 from msta_data.windows import episode_split
 from policies.base import PolicyConfig
@@ -82,31 +84,6 @@ class TrainConfig(LoopConfig):
 
 
 # ----- dataset and output directory ------------------------------------------------------
-def resolve_dataset(spec: str) -> Path:
-    """A local, verified dataset root for ``spec`` (a directory, or a hub id pulled once).
-
-    Args:
-        spec: a directory, or ``[datasets/]user/name[@revision]`` (``msta_data.locate``: a
-            spec written as a path is never looked up on a hub, and no hub is asked unless
-            ``HF_ENDPOINT`` is set).
-
-    Raises:
-        FileNotFoundError: no such directory (absolute path named) or not a dataset.
-        DatasetIntegrityError: a committed file is missing or changed (file named).
-    """
-    from msta_data.integrity import verify_dataset
-    from msta_data.locate import locate
-
-    if not spec:
-        raise ValueError("--dataset is required (a dataset root or a hub id)")
-    path = locate(spec, "dataset", "--dataset")
-    if not (path / "meta" / "info.json").is_file():
-        raise FileNotFoundError(f"--dataset {spec!r}: {path / 'meta' / 'info.json'} missing "
-                                "(not a LeRobot v3.0 dataset)")
-    verify_dataset(path, "full")
-    return path
-
-
 #: What a run directory holds besides checkpoints (a run killed before its first checkpoint
 #: leaves only these, and starts again from step 0).
 RUN_ARTIFACTS = frozenset({"train_config.json", "metrics.csv", "tensorboard", "checkpoints",
@@ -172,12 +149,12 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
         cfg: the parsed configuration.
         on_step: forwarded to :func:`fit` (tests use it to interrupt a run).
 
-    The dataset is verified (``resolve_dataset``) before ``output_dir`` is created; the
+    The dataset is verified (``msta_data.locate.locate_dataset``) before ``output_dir`` is created; the
     run directory is then locked (``output_dir/.msta.lock``: a second msta-train on it gets
     a one-line error and changes nothing) until the run ends.
     """
     out = Path(cfg.output_dir)
-    root = resolve_dataset(cfg.dataset)  # verified before anything is created
+    root = locate_dataset(cfg.dataset, "--dataset")  # verified before anything is created
     lock = lock_run(out)
     try:
         return _train_locked(cfg, root, out, on_step)

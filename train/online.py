@@ -16,7 +16,7 @@ Each round r = 1..R:
 3. **append** the round's episodes in one writer session (provenance source=student,
    round=r, policy=<type>, policy_revision=hash of the weights that drove);
 4. **retrain** from the current weights on all episodes (``--recent_weight`` < 1 favours
-   recent rounds), with :func:`train.offline.fit` (mask ratio: the paper's 0.5, capped at
+   recent rounds), with :func:`train.loop.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
    (:mod:`train.evaluation`: ``eval.evaluate.Evaluator`` on the trials of ``--eval.*``, the
@@ -40,7 +40,6 @@ Killed during retraining, the round resumes from its last training checkpoint
 
 from __future__ import annotations
 
-import hashlib
 import json
 import shutil
 import time
@@ -57,16 +56,21 @@ import policies.teacher.gait  # noqa: F401  (registers "gait", the default teach
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.features import load_info
-from msta_data.locate import locate_checkpoint
+from msta_data.locate import locate_checkpoint, locate_dataset
+from msta_data.revision import content_revision
 from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
 from policies.actor import InputSpec, StudentActor
 from policies.base import PolicyConfig, StudentPolicy
 from policies.factory import load_policy
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
-from train.common import LoopConfig, atomic_json, parse_cli, seed_everything, select_device
+from train.cli import USER_ERRORS, parse_cli
+from train.config import LoopConfig
 from train.evaluation import EvalConfig, RoundEvaluator, print_table
+from train.loop import fit, load_windows
+from train.optim import seed_everything, select_device
 from train.push import check_push_to, dataset_source, push_round
+from train.state import atomic_json
 
 PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
@@ -173,12 +177,12 @@ class CorrectConfig(LoopConfig):
 # ----- the student and its revision ------------------------------------------------------
 def policy_revision(policy: StudentPolicy) -> str:
     """``<type>-<12 hex>``: a hash of the weights (names, dtypes, shapes, bytes)."""
-    h = hashlib.sha256()
+    parts: list[bytes | str] = []
     for name, t in sorted(policy.state_dict().items()):
         t = t.detach().cpu().contiguous()
-        h.update(f"{name}:{t.dtype}:{tuple(t.shape)}".encode())
-        h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
-    return f"{policy.config.type}-{h.hexdigest()[:12]}"
+        parts += [f"{name}:{t.dtype}:{tuple(t.shape)}",
+                  t.view(torch.uint8).numpy().tobytes() if t.numel() else b""]
+    return content_revision(parts, prefix=policy.config.type)
 
 
 #: The paper's stage-2 training mask ratio (stage 1 uses 0.75).
@@ -190,7 +194,7 @@ def stage2_mask_ratio(requested: float | None, policy: StudentPolicy) -> float:
     policy was trained with (retraining a never-masked GRU at 0.5 wrecks it: FACTS §5)."""
     if requested is not None:
         return float(requested)
-    return min(STAGE2_MASK_RATIO, float(getattr(policy.config, "mask_ratio", 0.0)))
+    return min(STAGE2_MASK_RATIO, float(policy.config.mask_ratio))
 
 
 def student_actor(policy: StudentPolicy, n: int, spec: InputSpec) -> StudentActor:
@@ -265,8 +269,7 @@ def check_tail(root: Path, before: int, expected: int, r: int, revision: str) ->
 
 def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path
             ) -> dict[str, float]:
-    """Phase 4: :func:`train.offline.fit` on the aggregate, from the current weights."""
-    from train.offline import fit, load_windows
+    """Phase 4: :func:`train.loop.fit` on the aggregate, from the current weights."""
 
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed + r)
     train_ds = load_windows(root, policy, train_eps)
@@ -311,14 +314,12 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, local dataset root to append to)."""
-    from train.offline import resolve_dataset
-
     ckpt = locate_checkpoint(cfg.policy, "--policy")  # msta's one path-or-hub-id rule
     PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
     if local.is_dir():  # a hub dataset copied by an earlier run
         return ckpt, local
-    root = resolve_dataset(cfg.dataset)
+    root = locate_dataset(cfg.dataset, "--dataset")
     if not Path(cfg.dataset).expanduser().is_dir():  # pulled from the hub: append to a copy
         shutil.copytree(root, local)
         root = local
@@ -442,8 +443,6 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(CorrectConfig, argv, prog="msta-correct", aliases={
         "env.num_envs": "num_envs", "env.episode_length_s": "episode_length_s"})
-    from train.offline import USER_ERRORS
-
     try:
         prog = correct(cfg)
     except USER_ERRORS as e:  # one line naming the file, no traceback

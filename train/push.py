@@ -37,6 +37,7 @@ from typing import Any
 import draccus
 
 from eval.metrics import HEADLINE_FIGURES, headline
+from msta_data import layout
 from msta_data.hub_cards import CardInfo
 from msta_data.hub_ids import parse_hub_id
 from msta_data.hub_pull import resolve
@@ -77,7 +78,7 @@ def dataset_source(spec: str, root: Path) -> dict[str, Any]:
             directory name is the commit sha, or a copy of it).
     """
     if Path(spec).expanduser().is_dir():
-        meta = root / "meta" / "msta.json"
+        meta = root / layout.MSTA_META_PATH
         repo = json.loads(meta.read_text()).get("repo_id") if meta.is_file() else None
         return {"repo": repo or str(root), "revision": None, "path": str(root.resolve())}
     hub_id = parse_hub_id(spec, "dataset")

@@ -26,10 +26,10 @@ from mujoco import rollout
 from collect.sim import robot
 from collect.sim.commands import CommandSampler
 from collect.sim.env_config import ControlConfig, EnvConfig, NoiseConfig
-from collect.sim.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
 from collect.sim.randomization import build_pool
 from collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
 from collect.sim.terrain import Terrain, sample_initial, update_levels
+from msta_data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
 from msta_data.robot import DEFAULT_POSE, SPAWN_HEIGHT
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 

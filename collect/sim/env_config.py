@@ -9,6 +9,7 @@ from collect.sim.commands import CommandConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.rewards import RewardConfig
 from collect.sim.terrain import TerrainConfig
+from msta_data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
 
 
 @dataclass
@@ -21,12 +22,12 @@ class ControlConfig:
         decimation: physics steps per control step (0.005 s x 4 -> 50 Hz).
     """
 
-    kp: float = 30.0
-    kd: float = 0.7
-    action_scale: float = 0.25
-    clip_actions: float = 100.0
-    sim_dt: float = 0.005
-    decimation: int = 4
+    kp: float = KP
+    kd: float = KD
+    action_scale: float = ACTION_SCALE
+    clip_actions: float = CLIP_ACTIONS
+    sim_dt: float = SIM_DT
+    decimation: int = DECIMATION
 
     def __post_init__(self) -> None:
         for name in ("kp", "kd", "action_scale", "clip_actions", "sim_dt"):

@@ -18,7 +18,7 @@ import torch
 from msta_data import sensors
 from policies.factory import make_policy
 from policies.msta import MSTAConfig
-from train.common import make_optimizer
+from train.optim import make_optimizer
 from train.step import train_step
 
 SENSORS = ("joint_pos", "joint_vel", "last_action")

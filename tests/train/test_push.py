@@ -20,7 +20,7 @@ from msta_data.hub_server import HubServer, ServerConfig
 from msta_data.hub_versions import versions
 from policies.msta import MSTAPolicy
 from policies.teacher.config import TeacherConfig
-from train.common import parse_cli
+from train.cli import parse_cli
 from train.offline import TrainConfig, main, train
 from train.online import PROGRESS, CorrectConfig, EvalConfig, correct
 from train.push import PushError, dataset_source
