@@ -20,20 +20,6 @@ import numpy as np
 from tqdm import tqdm
 
 from collect.sim.env import REASONS, QuadrupedEnv, StepResult
-from msta_data.robot import NUM_JOINTS
-
-
-class ZeroPolicy:
-    """Holds the default pose (action 0): the teacher-less baseline."""
-
-    name = "zero"
-    sensors: tuple[str, ...] = ()
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        return np.zeros((len(next(iter(obs.values()))), NUM_JOINTS))
-
-    def reset(self, ids: np.ndarray) -> None:
-        pass
 
 
 def as_policy(policy: Any) -> tuple[Callable, Callable]:

@@ -1,7 +1,11 @@
-"""``msta-sim``: roll a policy in the batched simulator, print a per-terrain table, save pictures.
+"""``msta-sim``: roll a teacher in the batched simulator, print a per-terrain table, save pictures.
 
-    msta-sim --policy=zero --seconds=5 --env.num_envs=64 --out=outputs/sim
-    msta-sim --policy=gait --env.terrain.types='[flat,stairs_up]'
+    msta-sim --teacher.type=zero --seconds=5 --env.num_envs=64 --output_dir=outputs/sim
+    msta-sim --teacher.type=gait --env.terrain.types='[flat,stairs_up]'
+
+The teacher is chosen as everywhere else (``--teacher.type``, ``--teacher.path``: the same
+:class:`~policies.teacher.config.TeacherConfig` as msta-collect, msta-correct and msta-eval);
+``zero`` holds the default pose.
 """
 
 from __future__ import annotations
@@ -13,49 +17,43 @@ from pathlib import Path
 import numpy as np
 
 import policies.teacher  # noqa: F401  (registers the built-in teachers)
-from collect.rollout import ZeroPolicy, run
+from collect.rollout import run
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.cli import parse_config
-from policies.teacher.base import make_teacher
+from policies.teacher.config import TeacherConfig, build_teacher
 
 
 @dataclass
 class SimRunConfig:
     """Args:
         env: simulator configuration.
-        policy: "zero" (hold the default pose) or a registered teacher name (e.g. "gait").
+        teacher: the teacher that drives (``--teacher.type=gait``; ``zero`` holds the
+            default pose).
         seconds: simulated time per environment.
-        out: folder for the image strip (and video with ``video=True``).
+        output_dir: folder for the image strip (and video with ``video=True``).
         image: save an image strip of environment 0.
         video: also save an MP4 of environment 0.
         progress: show a progress bar.
     """
 
     env: EnvConfig = field(default_factory=lambda: EnvConfig(num_envs=64))
-    policy: str = "zero"
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
     seconds: float = 5.0
-    out: str = "outputs/sim"
+    output_dir: str = "outputs/sim"
     image: bool = True
     video: bool = False
     progress: bool = True
-
-
-def make_policy(name: str):
-    """'zero' or a registered teacher."""
-    if name == "zero":
-        return ZeroPolicy()
-    return make_teacher(name)
 
 
 def simulate(cfg: SimRunConfig) -> str:
     """Run, print and return the Markdown summary table."""
     env = QuadrupedEnv(cfg.env)
     env.reset()
-    policy = make_policy(cfg.policy)
+    policy = build_teacher(cfg.teacher)
     steps = max(1, int(round(cfg.seconds / env.dt)))
     summary = run(env, policy, steps, progress=cfg.progress)
     table = summary.table()
-    print(f"\npolicy={cfg.policy}  envs={env.num_envs}  {cfg.seconds:.1f} s each "
+    print(f"\nteacher={cfg.teacher.type}  envs={env.num_envs}  {cfg.seconds:.1f} s each "
           f"({steps * env.num_envs:,} env steps); episode ends by reason "
           f"{dict(zip(('running', 'fall', 'timeout', 'nan'), env.resets_by_reason.tolist()))}")
     print(table)
@@ -68,11 +66,11 @@ def simulate(cfg: SimRunConfig) -> str:
         if hasattr(policy, "reset"):
             policy.reset(np.arange(env.num_envs))
         frames = record(env, act, steps=min(steps, 150), every=5)
-        out = Path(cfg.out)
+        out = Path(cfg.output_dir)
         if cfg.image:
-            print(f"image strip: {save_strip(frames, out / f'{cfg.policy}_strip.png')}")
+            print(f"image strip: {save_strip(frames, out / f'{cfg.teacher.type}_strip.png')}")
         if cfg.video:
-            print(f"video: {save_video(frames, out / f'{cfg.policy}.mp4')}")
+            print(f"video: {save_video(frames, out / f'{cfg.teacher.type}.mp4')}")
     return table
 
 

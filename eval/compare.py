@@ -36,6 +36,7 @@ import draccus
 
 from msta_data import layout
 from msta_data.cli import parse_config
+from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
 
@@ -196,7 +197,7 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
         bad = [k for k in RUN_FIELDS if saved.get(k) != encoded.get(k)]
         if bad:
             raise ValueError(f"{out} holds a comparison with different {bad} "
-                             f"(see {path}); choose another --out")
+                             f"(see {path}); choose another --output_dir")
     else:
         out.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(encoded, indent=1) + "\n")
@@ -277,7 +278,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"
                    f"{' (resumed)' if resume else ''}")
     correct(CorrectConfig(
-        policy=str(start), dataset=str(own), output_dir=str(out), rounds=cfg.stage2_rounds,
+        policy=PolicyPath(str(start)), dataset=str(own), output_dir=str(out),
+        rounds=cfg.stage2_rounds,
         episodes_per_round=cfg.episodes_per_round, num_envs=envs,
         episode_length_s=cfg.stage2_episode_length_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed,
@@ -312,9 +314,9 @@ def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str,
     from eval.evaluate import EvalConfig, evaluate
 
     ecfg = EvalConfig(policies=",".join(["teacher", *map(str, ckpts)]), suite=cfg.eval_suite,
-                      out=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
+                      output_dir=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
                       terrains=cfg.eval_terrains, scenarios=cfg.eval_scenarios,
-                      episode_s=cfg.eval_episode_length_s, seed=cfg.seed, teacher=cfg.teacher,
+                      episode_length_s=cfg.eval_episode_length_s, seed=cfg.seed, teacher=cfg.teacher,
                       progress=cfg.progress)
     t = prog.start("eval", f"suite {cfg.eval_suite}, scenarios {cfg.eval_scenarios}, "
                    f"{ecfg.num_trials} trials of {ecfg.episode:g} s, {len(ckpts)} policies "
@@ -363,7 +365,7 @@ def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: st
         f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_length_s:g} s + {cfg.stage2_steps} "
         f"steps (mask {cfg.stage2_mask_ratio:g} for masked-trained policies); batch "
         f"{cfg.batch_size}; seed {cfg.seed}. Evaluation: suite `{cfg.eval_suite}`, "
-        f"{ec['trials']} trials of {ec['episode_s']:g} s per (policy, test mask), terrains "
+        f"{ec['trials']} trials of {ec['episode_length_s']:g} s per (policy, test mask), terrains "
         f"{', '.join(ec['terrains'])}, levels {ec['levels']}.")
     lines = [
         "# MSTA vs baselines (msta-compare)", "", "```bash", command, "```", "", setup, "",

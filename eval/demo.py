@@ -38,12 +38,14 @@ HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
 def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
     from collect.simulate import SimRunConfig, simulate
+    from policies.teacher.config import TeacherConfig
 
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
     cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
                                      terrain=terrain),
-                       policy="gait", seconds=seconds, out=str(out / "teacher"), progress=False)
+                       teacher=TeacherConfig(type="gait"), seconds=seconds,
+                       output_dir=str(out / "teacher"), progress=False)
     print(f"\n== 1. the gait teacher on every terrain type ({envs_per_type} robots per type, "
           f"levels 0-2, {seconds:.0f} s) ==")
     simulate(cfg)
@@ -77,7 +79,7 @@ def start_hub(out: Path):
     server.start()
     os.environ["HF_ENDPOINT"] = server.url
     os.environ["HF_TOKEN"] = HUB_SECRET
-    os.environ["MSTA_HUB_CACHE"] = str(out / "hub_cache")  # the pulled dataset stays in --out
+    os.environ["MSTA_HUB_CACHE"] = str(out / "hub_cache")  # the pulled dataset stays in --output_dir
     return server
 
 
@@ -117,20 +119,21 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     survival (docs/training.md)."""
     import json
 
+    from policies.checkpoint import PolicyPath
     from train.evaluation import EvalConfig
     from train.online import CorrectConfig, correct
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
           "student drives alone (DAgger beta 0), the teacher labels every step; retrain "
           f"{steps} steps at lr 1e-3, mask ratio {mask:g}) ==")
-    cfg = CorrectConfig(policy=str(stage1), dataset=dataset, output_dir=str(out / "stage2"),
+    cfg = CorrectConfig(policy=PolicyPath(str(stage1)), dataset=dataset, output_dir=str(out / "stage2"),
                         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
                         eval=EvalConfig(trials=select_trials, levels="0,1,2",
-                                        episode_s=select_s, seed=SELECT_SEED, threads=threads),
+                                        episode_length_s=select_s, seed=SELECT_SEED, num_threads=threads),
                         progress=False)
     correct(cfg)
     scores = round_scores(json.loads((out / "stage2" / "progress.json").read_text()))
@@ -143,20 +146,20 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     return best
 
 
-def step_eval(out: Path, best: int, trials: int, episode_s: float, threads: int) -> dict:
+def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int) -> dict:
     from eval.evaluate import EvalConfig, evaluate
     from msta_data.hub_pull import pull
 
     tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
-          f"0 / 25 / 50 %, {trials} trials of {episode_s:g} s over the five terrains at levels "
+          f"0 / 25 / 50 %, {trials} trials of {episode_length_s:g} s over the five terrains at levels "
           "0-2) ==")
     pulled = pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
     print(f"pulled to {pulled}")
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
-                                  scenarios="token_removal", out=str(out / "eval"),
-                                  trials=trials, levels="0,1,2", episode_s=episode_s,
-                                  threads=threads, progress=False))
+                                  scenarios="token_removal", output_dir=str(out / "eval"),
+                                  trials=trials, levels="0,1,2", episode_length_s=episode_length_s,
+                                  num_threads=threads, progress=False))
     report = out / "eval" / "report.md"
     if report.exists():
         print(report.read_text())

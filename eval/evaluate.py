@@ -1,6 +1,6 @@
 """``msta-eval``: the paper's experiments on any checkpoints, as one command.
 
-    msta-eval --policies teacher,CKPT_A,user/ckpt_b@v1 --suite quick --out outputs/eval
+    msta-eval --policies teacher,CKPT_A,user/ckpt_b@v1 --suite quick --output_dir outputs/eval
     msta-eval --policies teacher,CKPT --suite paper --trials 500 --terrains stairs_up,discrete
     msta-eval --policies teacher,A,B,C,D --scenarios mask_matrix --matrix A=0.75:0.5,B=0.5:0.5,...
 
@@ -9,7 +9,7 @@ again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input
 ``teacher:zero`` holds the default pose), a checkpoint directory, or a hub id
 ``user/name[@revision]`` (pulled by msta's one path-or-hub rule, ``msta_data.locate``).
 
-Writes into ``--out``: ``metrics.json`` (every number with its trial count and 95 %
+Writes into ``--output_dir``: ``metrics.json`` (every number with its trial count and 95 %
 interval per cell, the configuration, each policy's source and revision), ``report.md``
 (Table I layout and one table per scenario, trials per cell, intervals, a warning for a
 student whose figures do not change with its inputs), PNG
@@ -74,7 +74,7 @@ class EvalConfig(TrialConfig):
     policies: str = "teacher"
     """comma-separated entries: teacher, teacher:<type>, checkpoint dirs, hub ids
     user/name[@revision]."""
-    out: str = "outputs/eval"
+    output_dir: str = "outputs/eval"
     """output directory."""
     scenarios: str = ""
     """comma-separated scenario names; empty = the suite's."""
@@ -358,7 +358,7 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     ev = Evaluator(cfg, cfg.teacher, cfg.progress)
     pairs = plan(cfg, entries)
     t0 = time.perf_counter()
-    with torch_eval_settings(cfg.threads):
+    with torch_eval_settings(cfg.num_threads):
         ev.run_reference()
         runs = [ev.condition(e, c) for e, c in tqdm(pairs, desc="msta-eval", unit="run",
                                                      disable=not cfg.progress)]
@@ -372,7 +372,7 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
         "levels": cfg.level_list,
         "runs": runs,
     }
-    out = Path(cfg.out)
+    out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
     ev.timing["total"] = round(time.perf_counter() - t0, 3)
@@ -400,7 +400,7 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
     if terrain not in cfg.terrain_list:
         raise ValueError(f"--video terrain {terrain!r} is not evaluated ({cfg.terrain_list})")
     entry = by_name[name]
-    env = make_env(replace(cfg, episode_s=max(cfg.video_s, cfg.episode)), 1)
+    env = make_env(replace(cfg, episode_length_s=max(cfg.video_s, cfg.episode)), 1)
     start_trials(env, np.array([0]), np.array([cfg.terrain_list.index(terrain)]),
                  np.array([level]))
     # teachers keep per-env state sized at first use: build a fresh one for one robot
@@ -426,7 +426,7 @@ def main(argv: list[str] | None = None) -> None:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-eval: error: {msg}", file=sys.stderr)
         raise SystemExit(2) from None
-    out = Path(cfg.out)
+    out = Path(cfg.output_dir)
     print(report.table_one(metrics, "total"))
     print(f"\nmsta-eval: wrote {out / 'metrics.json'}, {out / 'report.md'} and the plots in {out}/")
 

@@ -112,10 +112,10 @@ class TrialLayout:
         return np.asarray(self.levels)[(np.asarray(trials) // len(self.terrains))
                                        % len(self.levels)]
 
-    def rounds(self, max_envs: int) -> list[np.ndarray]:
+    def rounds(self, num_envs: int) -> list[np.ndarray]:
         """Trial ids per round (equal sizes; the last round is topped up with extra trials
         beyond ``trials`` whose results are discarded)."""
-        n_rounds = math.ceil(self.trials / max_envs)
+        n_rounds = math.ceil(self.trials / num_envs)
         size = math.ceil(self.trials / n_rounds)
         return [np.arange(r * size, (r + 1) * size) for r in range(n_rounds)]
 

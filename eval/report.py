@@ -292,7 +292,7 @@ def markdown(metrics: dict) -> str:
     """The whole report.md."""
     cfg = metrics["config"]
     intro = (f"{trials_note(metrics)} (terrains {', '.join(cfg['terrains'])}; levels "
-             f"{', '.join(map(str, cfg['levels']))}; one trial = one {cfg['episode_s']:g} s "
+             f"{', '.join(map(str, cfg['levels']))}; one trial = one {cfg['episode_length_s']:g} s "
              f"episode); seed {cfg['seed']}; reference teacher `{cfg['teacher']['type']}` "
              f"({metrics['reference']['revision']}). Returns are per-step means normalized by "
              "the teacher's on identical trials; see docs/eval.md.")

@@ -172,8 +172,8 @@ class Suite:
         trials: episodes per (policy, condition), spread evenly over terrains x levels.
         terrains: terrain types.
         levels: difficulty levels.
-        episode_s: episode time limit (s).
-        max_envs: environments simulated together (trials run in rounds of this many).
+        episode_length_s: episode time limit (s).
+        num_envs: environments simulated together (trials run in rounds of this many).
         values: scenario name -> sweep values (empty tuple for sensor_removal: every sensor).
     """
 
@@ -181,8 +181,8 @@ class Suite:
     trials: int
     terrains: tuple[str, ...]
     levels: tuple[int, ...]
-    episode_s: float
-    max_envs: int
+    episode_length_s: float
+    num_envs: int
     values: dict[str, tuple] = field(default_factory=dict)
 
     @property
@@ -193,14 +193,14 @@ class Suite:
 SUITES: dict[str, Suite] = {
     # The paper: 5000 trials over the five terrains and their levels, every sweep value.
     "paper": Suite(
-        "paper", trials=5000, terrains=PAPER_TERRAINS, levels=tuple(range(10)), episode_s=20.0,
-        max_envs=250,
+        "paper", trials=5000, terrains=PAPER_TERRAINS, levels=tuple(range(10)), episode_length_s=20.0,
+        num_envs=250,
         values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
                 "dead_joints": (0, 1, 2, 3, 4, 5, 6), "history": (3, 5, 7, 10, 15, 20),
                 "mask_matrix": (0.0, 0.25, 0.5)}),
     # `make demo`: a few minutes on two CPU cores with the cpu MSTA preset.
     "quick": Suite(
-        "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_s=3.0, max_envs=50,
+        "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_length_s=3.0, num_envs=50,
         values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
                 "dead_joints": (0, 3, 6), "history": (3, 7, 15, 20),
                 "mask_matrix": (0.0, 0.25, 0.5)}),
@@ -235,7 +235,7 @@ def build_conditions(scenarios: Sequence[str], suite: Suite, sensors: Sequence[s
 
 
 #: config fields that do not change any number (left out of metrics.json)
-_NOT_RESULTS = ("out", "progress", "video", "video_s", "nthread")
+_NOT_RESULTS = ("output_dir", "progress", "video", "video_s", "nthread")
 
 
 def split_csv(text: str) -> list[str]:
@@ -263,9 +263,9 @@ class TrialConfig:
     """comma-separated terrain types; empty = the suite's (the paper's five)."""
     levels: str = ""
     """comma-separated terrain levels (0-9); empty = the suite's."""
-    episode_s: float = 0.0
+    episode_length_s: float = 0.0
     """episode time limit (s); 0 = the suite's."""
-    max_envs: int = 0
+    num_envs: int = 0
     """robots simulated together (trials run in rounds of this many); 0 = the suite's."""
     seed: int = 0
     """seeds the trials (tiles are pinned; spawns, commands, noise, pushes) and the
@@ -277,7 +277,7 @@ class TrialConfig:
     heading_commands: bool = True
     """yaw-rate command steers to a sampled heading (paper); false samples the yaw rate
     directly (then command sequences do not depend on the policy at all)."""
-    threads: int = 1
+    num_threads: int = 1
     """torch threads while evaluating (figures are bit-identical for the same value)."""
     nthread: int = 2
     """MuJoCo rollout threads (do not change any figure)."""
@@ -297,13 +297,13 @@ class TrialConfig:
         if bad:
             raise ValueError(f"level {bad[0]} out of range [0, {TerrainConfig().num_levels})")
         self.num_trials = self.trials or suite.trials
-        self.episode = self.episode_s or suite.episode_s
-        self.envs = self.max_envs or suite.max_envs
-        for name in ("num_trials", "envs", "threads"):
+        self.episode = self.episode_length_s or suite.episode_length_s
+        self.envs = self.num_envs or suite.num_envs
+        for name in ("num_trials", "envs", "num_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
         if self.episode <= 0:
-            raise ValueError(f"episode_s={self.episode} must be > 0")
+            raise ValueError(f"episode_length_s={self.episode} must be > 0")
 
     def layout(self) -> TrialLayout:
         """The trial layout these options describe."""
@@ -315,5 +315,5 @@ class TrialConfig:
         d = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
              if k not in _NOT_RESULTS}  # JSON-shaped: equal to itself read back
         d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
-                 episode_s=self.episode, max_envs=self.envs)
+                 episode_length_s=self.episode, num_envs=self.envs)
         return d

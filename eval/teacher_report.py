@@ -63,7 +63,7 @@ class ReportConfig:
     envs_per_tile: int = 10
     types: tuple[str, ...] = TERRAIN_TYPES
     levels: tuple[int, ...] = tuple(range(10))
-    episode_s: float = 20.0
+    episode_length_s: float = 20.0
     randomization: bool = True
     noise: bool = True
     seed: int = 0
@@ -97,7 +97,7 @@ def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
     :class:`eval.metrics.TrialResults`, summarized per tile by :func:`eval.metrics.summarize`."""
     k = cfg.envs_per_tile
     n = len(cfg.levels) * k
-    env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_s,
+    env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
                         nthread=cfg.nthread,
                         terrain=TerrainConfig(types=(terrain,), columns_per_type=cfg.columns,
                                               curriculum=False),
@@ -156,7 +156,7 @@ def render_markdown(stats: Stats, cfg: ReportConfig, command: str,
     """The report as Markdown (tables per terrain, summary, minimums)."""
     lines = [f"# Teacher quality: `{cfg.teacher}`", "",
              f"Regenerate: `{command}`", "",
-             f"{cfg.episodes} episodes of {cfg.episode_s:g} s per terrain type and level "
+             f"{cfg.episodes} episodes of {cfg.episode_length_s:g} s per terrain type and level "
              f"({cfg.envs_per_tile} environments per tile), each terrain type on its own grid "
              f"({cfg.columns} columns of that type x 10 levels, so a robot walking along x "
              f"stays on its type; walking along y moves it to neighbouring levels of the same "
@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None) -> None:
             raise SystemExit(f"unknown terrain type {t!r}; known: {TERRAIN_TYPES}")
     cfg = ReportConfig(teacher=a.teacher, episodes=a.episodes,
                        envs_per_tile=min(a.envs_per_tile, a.episodes), types=types,
-                       levels=_levels(a.levels), episode_s=a.seconds,
+                       levels=_levels(a.levels), episode_length_s=a.seconds,
                        randomization=not a.no_randomization, noise=not a.no_noise, seed=a.seed)
     t0 = time.time()
     stats = evaluate(cfg, progress=not a.no_progress)

@@ -243,6 +243,7 @@ def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str
             an invalid value.
     """
     args = _resolve_aliases(list(sys.argv[1:] if argv is None else argv), aliases or {}, prog)
+    _check_groups(config_class, args, prog)
     try:
         wrapper = draccus.argparsing.ArgumentParser(config_class, prog=prog,
                                                     formatter_class=HelpFormatter)
@@ -309,6 +310,27 @@ def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
                                   f"see {prog} --help")
             out.append(f"--{name}={arg}")
     return out
+
+
+def _check_groups(config_class: type, args: Sequence[str], prog: str) -> None:
+    """``--policy=x`` where ``policy`` is a group of options (a nested config): one line
+    naming the group's options instead of draccus' decoding error."""
+    groups = {name: tp for name, tp in _field_types(config_class).items() if _dataclasses_of(tp)}
+    for a in args:
+        name = a[2:].partition("=")[0] if a.startswith("--") else None
+        if name in groups:
+            classes = _dataclasses_of(groups[name])
+            choices = getattr(classes[0], "get_known_choices", None)
+            fields = sorted({f.name for c in classes for f in dataclasses.fields(c)})
+            if choices is not None:
+                hint = f"--{name}.type=<{'|'.join(choices())}> and --{name}.<field>=..."
+            elif len(fields) == 1:
+                hint = f"--{name}.{fields[0]}=..."
+            else:
+                hint = ", ".join(f"--{name}.{f}" for f in fields[:6]) + (
+                    ", ..." if len(fields) > 6 else "")
+            raise usage_error(f"{prog}: error: --{name} is a group of options; give "
+                              f"{hint} (see {prog} --help)")
 
 
 def _resolve_aliases(args: list[str], aliases: dict[str, str], prog: str) -> list[str]:

@@ -14,6 +14,7 @@ import json
 import os
 import struct
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,19 @@ MAX_JSON_BYTES = {CONFIG_NAME: 1 << 20, PROCESSOR_NAME: 64 << 20}
 DEFAULT_MAX_PARAMS = 100_000_000
 _SAFETENSORS_DTYPES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2,
                        "I8": 1, "U8": 1, "BOOL": 1}
+
+
+@dataclass
+class PolicyPath:
+    """A trained student to start from, as LeRobot names one: ``--policy.path=<checkpoint>``
+    (``--policy.type`` is for a new one).
+
+    Args:
+        path: a student checkpoint directory (config.json + model.safetensors, e.g. a
+            stage-1 ``final/``) or a hub id ``user/name[@revision]``.
+    """
+
+    path: str = ""
 
 
 class CheckpointError(ValueError):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import sys
 from collections.abc import Sequence
@@ -9,7 +10,7 @@ from dataclasses import replace
 
 from msta_data.cli import parse_config, usage_error
 from msta_data.errors import DatasetError, DirectoryLockedError
-from policies.base import CheckpointError
+from policies.base import CheckpointError, PolicyConfig
 from policies.factory import registered_policies
 from train.push import PushError
 
@@ -18,7 +19,8 @@ _PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
 
 def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
                  aliases: dict[str, str] | None = None) -> T:
-    """:func:`msta_data.cli.parse_config` plus two conveniences for the ``policy`` field.
+    """:func:`msta_data.cli.parse_config` plus two conveniences for a ``policy`` field that
+    configures a new student (a :class:`PolicyConfig`; a ``--policy.path`` field is parsed as is).
 
     ``--policy.preset=<name>`` starts from a named preset (``MSTAConfig.from_preset``);
     ``--policy.<field>=...`` flags given explicitly still override it. Without
@@ -33,6 +35,8 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
     """
     registered_policies()  # registers every built-in policy type with draccus before parsing
     args = list(sys.argv[1:] if argv is None else argv)
+    if not builds_a_policy(config_class):  # --policy.path (a trained student): plain parsing
+        return parse_config(config_class, args, prog, aliases=aliases)
     preset, rest = None, []
     for i, a in enumerate(args):
         m = _PRESET.match(a)
@@ -57,6 +61,14 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
             raise usage_error(f"{prog}: error: {e.args[0]}") from None
         cfg = replace(cfg, policy=new)  # type: ignore[type-var]
     return cfg
+
+
+def builds_a_policy(config_class: type) -> bool:
+    """Whether ``config_class.policy`` configures a new student (``--policy.type``), not a
+    trained one (``--policy.path``)."""
+    f = {f.name: f for f in dataclasses.fields(config_class)}.get("policy")
+    return f is not None and f.default_factory is not dataclasses.MISSING and isinstance(
+        f.default_factory(), PolicyConfig)
 
 
 #: Errors a user's input causes (a damaged dataset, a locked directory, a bad checkpoint or

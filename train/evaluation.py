@@ -29,7 +29,7 @@ class EvalConfig(TrialConfig):
     on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
     figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
-    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_s and
+    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s and
     seed; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
     episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
     simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
@@ -67,7 +67,7 @@ class RoundEvaluator:
         """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
         if self.ev is None:
             ev = Evaluator(self.cfg, self.teacher_cfg, progress=False)
-            with torch_eval_settings(self.cfg.threads):
+            with torch_eval_settings(self.cfg.num_threads):
                 ev.run_reference()
             self.ev = ev
         return {"config": self.cfg.resolved(), **self.ev.reference}
@@ -79,7 +79,7 @@ class RoundEvaluator:
         entry = student_entry(ckpt, ckpt.name, str(ckpt))
         ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.mask_ratios,
                               self.cfg.seed)
-        with torch_eval_settings(self.cfg.threads):
+        with torch_eval_settings(self.cfg.num_threads):
             return {f"{c.value:g}": self.ev.condition(entry, c)
                     for c in get_scenario("token_removal").build(ctx)}
 
@@ -120,7 +120,7 @@ def print_table(prog: dict[str, Any]) -> None:
     ref = prog.get("teacher_eval")
     if ref:
         c, a = ref["config"], ref["per_terrain"]["average"]
-        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_s']:g} s "
+        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_length_s']:g} s "
               f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
               f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
               f"{a['survival']:.2f}, total {a['total']:.3f}/step")

@@ -1,6 +1,6 @@
 """``msta-correct``: stage 2, online correction (TERT / DAgger style).
 
-    msta-correct --policy=outputs/train/msta_cpu/final --dataset=outputs/datasets/a1_teacher \\
+    msta-correct --policy.path=outputs/train/msta_cpu/final --dataset=outputs/datasets/a1_teacher \\
         --output_dir=outputs/correct/msta_cpu --rounds=3 --episodes_per_round=64 \\
         --teacher.type=gait --steps=500
     msta-correct ... --resume=true        # after a kill: continue at the unfinished round
@@ -24,7 +24,7 @@ Each round r = 1..R:
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
    --scenarios token_removal`` with the same suite / trials / terrains / levels /
-   episode_s / seed reports the same figures, and so does the model card (``--push_to``).
+   episode_length_s / seed reports the same figures, and so does the model card (``--push_to``).
 
 Resume and crash windows (``progress.json``, written atomically after every phase):
 the round's episodes are kept in memory until all are collected, then appended by a single
@@ -62,6 +62,7 @@ from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
 from policies.actor import InputSpec, StudentActor
 from policies.base import PolicyConfig, StudentPolicy
+from policies.checkpoint import PolicyPath
 from policies.factory import load_policy
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 from train.cli import USER_ERRORS, parse_cli
@@ -80,6 +81,8 @@ RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs
                  "levels_from_dataset", "teacher_follows_robot")
 #: Values of RESUME_FIELDS in progress.json files written before the field existed.
 RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False}
+#: progress.json files written before ``--policy.path`` stored the checkpoint as a string.
+LEGACY_POLICY = str
 
 
 @dataclass
@@ -91,7 +94,8 @@ class CorrectConfig(LoopConfig):
         mask_ratio: retraining token-removal ratio; null = the paper's stage-2 ratio 0.5,
             capped at the ratio the student was trained with (a student trained without
             masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
-        policy: the starting student checkpoint (stage-1 ``final/``) or a hub id.
+        policy: the starting student: ``--policy.path=<checkpoint directory or hub id>``
+            (stage 1's ``final/``).
         dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
         output_dir: round checkpoints, training runs and progress.json.
         rounds: correction rounds (raise it on ``--resume`` to run more). DAgger needs
@@ -137,7 +141,7 @@ class CorrectConfig(LoopConfig):
     steps: int = 1000
     lr: float = 1e-3
     mask_ratio: float | None = None
-    policy: str = ""
+    policy: PolicyPath = field(default_factory=PolicyPath)
     dataset: str = ""
     output_dir: str = "outputs/correct/msta"
     rounds: int = 4
@@ -305,8 +309,10 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
         raise FileExistsError(f"{path} exists; pass --resume=true to continue that run or "
                               "choose another --output_dir")
     prog = json.loads(path.read_text())
-    bad = [k for k in RESUME_FIELDS
-           if prog["config"].get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
+    saved = dict(prog["config"])
+    if isinstance(saved.get("policy"), LEGACY_POLICY):  # before --policy.path
+        saved["policy"] = {"path": saved["policy"]}
+    bad = [k for k in RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
     if bad:
         raise ValueError(f"--resume=true with different {bad} than {path}")
     return prog
@@ -314,7 +320,7 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, local dataset root to append to)."""
-    ckpt = locate_checkpoint(cfg.policy, "--policy")  # msta's one path-or-hub-id rule
+    ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
     PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
     if local.is_dir():  # a hub dataset copied by an earlier run

@@ -206,12 +206,12 @@ def eval_note(prog: dict[str, Any], r: int, ckpt: str) -> str:
         return ""
     masks = ", ".join(f"{float(m):.0%}" for m in prog["rounds"][str(r)].get("eval", {}))
     return (f"Evaluation (test masks {masks}): msta-eval's trials, {c['trials']} episodes of "
-            f"{c['episode_s']:g} s over {', '.join(c['terrains'])} at levels "
+            f"{c['episode_length_s']:g} s over {', '.join(c['terrains'])} at levels "
             f"{', '.join(map(str, c['levels']))}, seed {c['seed']}; returns normalized by the "
             "teacher's on the same trials, 95 % intervals in the `_ci95_` metrics. "
             f"`msta-eval --policies teacher,{ckpt} --scenarios token_removal --suite "
             f"{c['suite']} --trials {c['trials']} --terrains {','.join(c['terrains'])} --levels "
-            f"{','.join(map(str, c['levels']))} --episode_s {c['episode_s']:g} --seed "
+            f"{','.join(map(str, c['levels']))} --episode_length_s {c['episode_length_s']:g} --seed "
             f"{c['seed']}` reports the same figures.")
 
 
@@ -229,7 +229,7 @@ def push_round(cfg: Any, prog: dict[str, Any], r: int) -> dict[str, str]:
     notes = (f"Stage 2: online correction round {r}, retrained on the dataset plus the "
              f"student episodes of rounds 1-{r} labelled by the teacher "
              f"({prog['rounds'][str(r)].get('episodes_after')} episodes); started from "
-             f"`{cfg.policy}`. {eval_note(prog, r, f'{cfg.push_to}@stage2-r{r}')}")
+             f"`{cfg.policy.path}`. {eval_note(prog, r, f'{cfg.push_to}@stage2-r{r}')}")
     card = _card(src, draccus.encode(cfg), 2, r, metrics, table, notes)
     return push_checkpoint(ckpt, cfg.push_to, f"stage2-r{r}", card, cfg.push_private,
                            "the round is finished; rerun with --resume=true to push it")

@@ -18,7 +18,7 @@ FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progr
 
 def test_teacher_is_exactly_one_and_the_default_pose_far_below(tmp_path):
     cfg = EvalConfig(policies="teacher,teacher:zero", scenarios="token_removal", trials=4,
-                     episode_s=3.0, out=str(tmp_path), **FAST)
+                     episode_length_s=3.0, output_dir=str(tmp_path), **FAST)
     metrics = evaluate(cfg)
     runs = {(r["policy"], r["condition"]): r for r in metrics["runs"]}
     teacher = runs[("teacher", "mask 0%")]
@@ -70,7 +70,7 @@ def _token_counts(ev: Evaluator, entry, spec: InputSpec) -> int:
 
 
 def test_removed_sensors_and_joints_remove_tokens(tiny_ckpt, tmp_path):
-    cfg = EvalConfig(policies=str(tiny_ckpt), trials=2, episode_s=0.5, out=str(tmp_path),
+    cfg = EvalConfig(policies=str(tiny_ckpt), trials=2, episode_length_s=0.5, output_dir=str(tmp_path),
                      **FAST)
     [entry] = load_entries(cfg)
     ev = Evaluator(cfg, cfg.teacher, progress=False)
@@ -89,8 +89,8 @@ ALL = "token_removal,sensor_removal,dead_joints,history,mask_matrix"
 
 def _cli(out, ckpts, seed=0, scenarios=ALL, extra=()):
     a, b = ckpts
-    main(["--policies", f"teacher,{a},{b}", "--suite", "quick", "--out", str(out),
-          "--terrains", "flat,stairs_up", "--levels", "0,1", "--trials", "2", "--episode_s",
+    main(["--policies", f"teacher,{a},{b}", "--suite", "quick", "--output_dir", str(out),
+          "--terrains", "flat,stairs_up", "--levels", "0,1", "--trials", "2", "--episode_length_s",
           "0.5", "--seed", str(seed), "--progress", "false", "--scenarios", scenarios,
           "--matrix", f"{a}=0.75:0.5,{b}=0.5:0.5", *extra])
     return (out / "metrics.json").read_bytes()
@@ -134,7 +134,7 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
             p.zero_()
     deaf_dir = deaf.save_pretrained(tmp_path / "deaf")
     cfg = EvalConfig(policies=f"teacher,{deaf_dir},{tiny_ckpt}", scenarios="token_removal",
-                     trials=2, episode_s=0.5, out=str(tmp_path / "out"), **FAST)
+                     trials=2, episode_length_s=0.5, output_dir=str(tmp_path / "out"), **FAST)
     metrics = evaluate(cfg)
     line = ("deaf: the student's figures are identical across token_removal conditions "
             "mask 0%, mask 25%, mask 50%: it may ignore its inputs")
@@ -156,6 +156,6 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
 ])
 def test_clear_errors(args, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
-        main(["--out", str(tmp_path), "--progress", "false", *args])
+        main(["--output_dir", str(tmp_path), "--progress", "false", *args])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err

@@ -14,7 +14,7 @@ from eval import teacher_report as tr
 
 def tiny(**kw) -> tr.ReportConfig:
     base = {"teacher": "zero", "episodes": 3, "envs_per_tile": 2, "types": ("flat",),
-            "levels": (0, 3), "episode_s": 0.3, "nthread": 1, "columns": 1}
+            "levels": (0, 3), "episode_length_s": 0.3, "nthread": 1, "columns": 1}
     base.update(kw)
     return tr.ReportConfig(**base)
 
@@ -37,7 +37,7 @@ def test_errors_are_the_per_step_means_of_the_shared_quantities():
     vel_err over every step of its environments (the same figure msta-eval sums)."""
     cfg = tiny(episodes=1, envs_per_tile=1, levels=(2,))
     row = tr.evaluate(cfg, progress=False)[("flat", 2)]
-    env = QuadrupedEnv(EnvConfig(num_envs=1, seed=cfg.seed, episode_length_s=cfg.episode_s,
+    env = QuadrupedEnv(EnvConfig(num_envs=1, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
                                  nthread=1, terrain=TerrainConfig(types=("flat",),
                                                                   columns_per_type=1,
                                                                   curriculum=False)))

@@ -190,7 +190,7 @@ def test_msta_correct_refuses(damaged, checkpoint, tmp_path):
     root, name, before = damaged
     out = tmp_path / "correct"
     with pytest.raises(SystemExit) as err:
-        main([f"--policy={checkpoint}", f"--dataset={root}", f"--output_dir={out}",
+        main([f"--policy.path={checkpoint}", f"--dataset={root}", f"--output_dir={out}",
               "--episodes_per_round=1", "--num_envs=1", "--steps=1", "--progress=false"])
     message = str(err.value)
     assert message.startswith("msta-correct: error: ") and "\n" not in message

@@ -17,6 +17,7 @@ from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
 from msta_data.stats import load_stats
 from msta_data.windows import WindowDataset, load_episode_table
+from policies.checkpoint import PolicyPath
 from policies.factory import make_policy
 from policies.msta import MSTAConfig, MSTAPolicy
 from policies.teacher.config import TeacherConfig, build_teacher
@@ -29,7 +30,7 @@ EPISODE_S = 0.3
 
 
 #: the per-round evaluation of the two-round run: 4 trials of 1 s on two terrains
-EVAL = EvalConfig(trials=4, episode_s=1.0, terrains="flat,stairs_up", levels="0",
+EVAL = EvalConfig(trials=4, episode_length_s=1.0, terrains="flat,stairs_up", levels="0",
                   mask_ratios=(0.0, 0.5))
 
 
@@ -53,7 +54,7 @@ def make_cfg(base, tmp_path: Path, **kw) -> CorrectConfig:
     root = tmp_path / "ds"
     if not root.exists():
         shutil.copytree(base[0], root)
-    defaults = {"policy": str(base[1]), "dataset": str(root),
+    defaults = {"policy": PolicyPath(str(base[1])), "dataset": str(root),
                 "output_dir": str(tmp_path / "out"), "rounds": 2, "episodes_per_round": E,
                 "num_envs": 4, "episode_length_s": EPISODE_S, "env": small_env(),
                 "teacher": TeacherConfig(type="gait"), "steps": 3, "batch_size": 8,
@@ -106,7 +107,7 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
         run = prog["rounds"][r]["eval"]["0.5"]
         assert run["status"] == "ok" and run["spec"]["mask_ratio"] == 0.5
         assert run["normalized"]["per_terrain"]["average"]["trials"] == 4
-        assert prog["rounds"][r]["eval_config"]["episode_s"] == 1.0
+        assert prog["rounds"][r]["eval_config"]["episode_length_s"] == 1.0
     assert prog["rounds"]["1"]["rollout"]["env_steps_per_s"] > 0
     assert prog["rounds"]["1"]["train"]["train_samples_per_s"] > 0
     # labels: the teacher's action on the recorded (privileged) observation, replayed
@@ -136,8 +137,8 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
     cfg, prog, _ = two_rounds
     ckpt = Path(cfg.output_dir) / "round_2"
     msta_eval(["--policies", f"teacher,{ckpt}", "--scenarios", "token_removal", "--trials", "4",
-               "--episode_s", "1", "--terrains", "flat,stairs_up", "--levels", "0", "--seed",
-               "0", "--progress", "false", "--out", str(tmp_path / "eval")])
+               "--episode_length_s", "1", "--terrains", "flat,stairs_up", "--levels", "0", "--seed",
+               "0", "--progress", "false", "--output_dir", str(tmp_path / "eval")])
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     runs = {r["condition"]: r for r in metrics["runs"] if r["policy"] == "round_2"}
     card, _ = round_eval(prog, 2)
@@ -163,7 +164,7 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
 
 def test_beta_one_reproduces_teacher_rollouts(base, tmp_path):
     cfg = make_cfg(base, tmp_path, rounds=1, beta=1.0, teacher_follows_robot=False)
-    args = [f"--policy={cfg.policy}", f"--dataset={cfg.dataset}",
+    args = [f"--policy.path={cfg.policy.path}", f"--dataset={cfg.dataset}",
             f"--output_dir={cfg.output_dir}", "--rounds=1", f"--episodes_per_round={E}",
             "--num_envs=4", f"--episode_length_s={EPISODE_S}", "--env.nthread=1",
             "--env.terrain.types=[flat,stairs_up]", "--env.terrain.num_levels=2",
@@ -256,10 +257,10 @@ def test_resume_after_a_kill_during_evaluation_only_evaluates(base, tmp_path):
 def test_bad_inputs(base, tmp_path):
     with pytest.raises(FileNotFoundError, match="nothing to resume"):
         correct(make_cfg(base, tmp_path, resume=True))
-    with pytest.raises(ValueError, match="--policy is required"):
-        correct(make_cfg(base, tmp_path, policy=""))
+    with pytest.raises(ValueError, match="--policy.path is required"):
+        correct(make_cfg(base, tmp_path, policy=PolicyPath("")))
     with pytest.raises(FileNotFoundError, match="no config.json"):
-        correct(make_cfg(base, tmp_path, policy=str(tmp_path)))
+        correct(make_cfg(base, tmp_path, policy=PolicyPath(str(tmp_path))))
     assert not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="beta"):
         make_cfg(base, tmp_path, beta=1.5)

@@ -18,6 +18,7 @@ from msta_data.hub_pull import pull
 from msta_data.hub_push import push_dataset
 from msta_data.hub_server import HubServer, ServerConfig
 from msta_data.hub_versions import versions
+from policies.checkpoint import PolicyPath
 from policies.msta import MSTAPolicy
 from policies.teacher.config import TeacherConfig
 from train.cli import parse_cli
@@ -53,11 +54,11 @@ def card_at(repo: str, revision: str) -> dict:
 
 def correct_cfg(tmp_path: Path, **kw) -> CorrectConfig:
     return CorrectConfig(
-        policy="alice/msta@stage1", dataset="datasets/alice/ds@v3.0",
+        policy=PolicyPath("alice/msta@stage1"), dataset="datasets/alice/ds@v3.0",
         output_dir=str(tmp_path / "stage2"), rounds=1, episodes_per_round=2, num_envs=2,
         episode_length_s=0.3, env=small_env(), teacher=TeacherConfig(type="gait"), steps=3,
         batch_size=8, warmup_steps=1, progress=False, device="cpu", push_to="alice/msta",
-        eval=EvalConfig(trials=2, episode_s=0.3, terrains="flat,stairs_up", levels="0",
+        eval=EvalConfig(trials=2, episode_length_s=0.3, terrains="flat,stairs_up", levels="0",
                         mask_ratios=(0.0, 0.5)),
         **kw)
 
@@ -99,7 +100,7 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     msta = card_at("alice/msta", "stage2-r1")["msta"]
     assert (msta["stage"], msta["round"]) == (2, 1)
     assert msta["dataset"] == {"repo": "alice/ds", "revision": ds_sha}
-    assert msta["config"]["policy"] == "alice/msta@stage1" and msta["config"]["rounds"] == 1
+    assert msta["config"]["policy"] == {"path": "alice/msta@stage1"} and msta["config"]["rounds"] == 1
     # the card shows msta-correct's figures, which are msta-eval's on the same trials
     for m in ("0", "0.5"):
         norm = rec["eval"][m]["normalized"]["per_terrain"]
@@ -116,7 +117,7 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert "total_vs_teacher@mask0.5" in msta["eval_table"]["average"]
     readme = Path(hub_api().hf_hub_download("alice/msta", "README.md", revision="stage2-r1"))
     assert ("msta-eval --policies teacher,alice/msta@stage2-r1 --scenarios token_removal --suite "
-            "quick --trials 2 --terrains flat,stairs_up --levels 0 --episode_s 0.3 --seed 0"
+            "quick --trials 2 --terrains flat,stairs_up --levels 0 --episode_length_s 0.3 --seed 0"
             ) in readme.read_text().replace("\n", " ")
 
     # versions: both tags with their metrics; the tagged commits are the pushed ones
