@@ -1,12 +1,12 @@
 """Are a teacher's labels sound on the states a student drives into? (stage 2's premise)
 
-    python -m eval.label_check --policy outputs/demo/stage1/final --robots 60 \\
-        --student_s 3 --total_s 5
+    python -m eval.label_check --policy.path=outputs/demo/stage1/final --robots=60 \\
+        --student_seconds=3 --episode_length_s=5
 
-The student drives every robot for ``--student_s`` seconds while the teacher sees every
+The student drives every robot for ``--student_seconds`` while the teacher sees every
 observation (as it does when it labels in msta-correct); then the teacher takes over and
-drives to ``--total_s``. If its labels on the student's states are sound, the takeover
-keeps the robots up about as well as a teacher restarted at that moment. Rows:
+drives to ``--episode_length_s``. If its labels on the student's states are sound, the
+takeover keeps the robots up about as well as a teacher restarted at that moment. Rows:
 
 * ``teacher``: the teacher alone (the reference of the tracking ratio);
 * ``student``: the student alone;
@@ -15,72 +15,143 @@ keeps the robots up about as well as a teacher restarted at that moment. Rows:
   default labelling; teachers without that attribute skip the row);
 * ``takeover reset``: the teacher restarted at the takeover.
 
-Every row runs on the same robots, terrains (levels 0 to ``--max_level``), commands and
-seeds. Survival has a 95 % Wilson interval; linear tracking (the per-step return over the
-whole episode, a fallen robot scoring 0 from its fall on) is divided by the teacher's on the
-same robots, with a 95 % delta-method interval over the paired robots (eval/intervals.py).
+Every row runs through msta's one rollout loop (:func:`collect.rollout.rollout`) on the
+same robots, terrains (levels 0 to ``--max_level``), commands and seeds. Survival has a
+95 % Wilson interval; linear tracking (the per-step return over the whole episode,
+:func:`collect.rollout.step_quantities`' ``lin``, a fallen robot scoring 0 from its fall
+on) is divided by the teacher's on the same robots, with a 95 % delta-method interval over
+the paired robots (eval/intervals.py).
 """
 
 from __future__ import annotations
 
-import argparse
-import os
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
+from collect.rollout import Step, rollout, step_quantities
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
 from eval.intervals import ratio_interval, wilson_interval
+from msta_data.cli import parse_config, usage_error
+from msta_data.locate import locate_checkpoint
+from msta_data.robot import CONTROL_DT
 from policies.actor import StudentActor
+from policies.checkpoint import PolicyPath
 from policies.factory import load_policy
 from policies.teacher.config import TeacherConfig, build_teacher
 
+PROG = "python -m eval.label_check"
 MODES = ("teacher", "student", "takeover shadow", "takeover follow", "takeover reset")
 
 
-def run_mode(mode: str, policy: Any, teacher_cfg: TeacherConfig, robots: int,
-             switch: int, steps: int, max_level: int, seed: int) -> dict[str, Any] | None:
+@dataclass
+class LabelCheckConfig:
+    """Args:
+        policy: the trained student (``--policy.path``: a checkpoint directory or a hub id
+            ``user/name[@revision]``).
+        teacher: the teacher whose labels are checked (``--teacher.type``, ``--teacher.path``).
+        robots: robots per row (every row drives the same robots).
+        student_seconds: seconds the student drives before the teacher takes over.
+        episode_length_s: episode length (s); the teacher drives from ``student_seconds`` on.
+        max_level: robots start on terrain levels 0..max_level.
+        seed: terrain, spawns, commands and noise (the same in every row).
+        num_threads: torch threads.
+    """
+
+    policy: PolicyPath = field(default_factory=PolicyPath)
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    robots: int = 60
+    student_seconds: float = 3.0
+    episode_length_s: float = 5.0
+    max_level: int = 2
+    seed: int = 123
+    num_threads: int = 1
+
+    def __post_init__(self) -> None:
+        for name in ("robots", "num_threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.max_level < 0:
+            raise ValueError(f"max_level={self.max_level} must be >= 0")
+        if not 0 < self.student_seconds < self.episode_length_s:
+            raise ValueError(f"need 0 < student_seconds < episode_length_s, got "
+                             f"{self.student_seconds} and {self.episode_length_s}")
+
+
+class TakeoverDriver:
+    """Teacher and student both act on every observation (the teacher's clock and plan
+    advance as when it labels); ``mode`` says whose action is executed at each step.
+
+    Args:
+        mode: one of :data:`MODES`.
+        teacher: the teacher.
+        student: the student's actor.
+        switch: the step from which the teacher drives in the takeover modes.
+    """
+
+    def __init__(self, mode: str, teacher: Any, student: StudentActor, switch: int) -> None:
+        self.mode, self.teacher, self.student, self.switch = mode, teacher, student, switch
+        self.t = 0
+
+    def reset(self, ids: np.ndarray) -> None:
+        self.teacher.reset(ids)
+        self.student.reset(ids)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self.mode == "takeover reset" and self.t == self.switch:
+            self.teacher.reset(np.arange(self.student.num_envs))
+        a_teacher = self.teacher.act(obs)     # called every step: its clock and plan advance
+        a_student = self.student.act(obs)
+        drive = self.mode == "teacher" or (self.mode.startswith("takeover")
+                                           and self.t >= self.switch)
+        self.t += 1
+        return a_teacher if drive else a_student
+
+
+def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | None:
     """One row: survival and per-robot linear-tracking return of ``mode`` (None: skipped)."""
-    env = QuadrupedEnv(EnvConfig(num_envs=robots, seed=seed, nthread=1,
-                                 episode_length_s=steps * 0.02 + 1.0,
-                                 terrain=TerrainConfig(max_init_level=max_level)))
-    obs = env.reset()
-    teacher = build_teacher(teacher_cfg)
+    switch = round(cfg.student_seconds / CONTROL_DT)
+    steps = round(cfg.episode_length_s / CONTROL_DT)
+    env = QuadrupedEnv(EnvConfig(num_envs=cfg.robots, seed=cfg.seed, nthread=1,
+                                 episode_length_s=steps * CONTROL_DT + 1.0,
+                                 terrain=TerrainConfig(max_init_level=cfg.max_level)))
+    env.reset()
+    teacher = build_teacher(cfg.teacher)
     if mode == "takeover follow":
         if not hasattr(teacher, "follow_robot"):
             return None
         teacher.follow_robot = True
-    student = StudentActor(policy, robots)
-    alive, lin = np.ones(robots, dtype=bool), np.zeros(robots)
-    everyone = np.arange(robots)
-    for t in range(steps):
-        if mode == "takeover reset" and t == switch:
-            teacher.reset(everyone)
-        a_teacher = teacher.act(obs)          # called every step: its clock and plan advance
-        a_student = student.act(obs)
-        drive = mode == "teacher" or (mode.startswith("takeover") and t >= switch)
-        res = env.step(a_teacher if drive else a_student)
-        lin[alive] += res.metrics["lin_vel_tracking"][alive]
-        alive &= ~res.terminated              # a fallen robot scores nothing afterwards
-        obs = res.obs
-    return {"survived": int(alive.sum()), "robots": robots, "lin": lin / steps}
+    driver = TakeoverDriver(mode, teacher, StudentActor(policy, cfg.robots), switch)
+    alive, lin = np.ones(cfg.robots, dtype=bool), np.zeros(cfg.robots)
+
+    def on_step(step: Step) -> None:
+        lin[alive] += step_quantities(step)["lin"][alive]
+        alive[step.res.terminated] = False    # a fallen robot scores nothing afterwards
+
+    rollout(env, driver, on_step, max_steps=steps, reset_done=False)
+    return {"survived": int(alive.sum()), "robots": cfg.robots, "lin": lin / steps}
 
 
-def label_check(policy_path: str, teacher_cfg: TeacherConfig | None = None, robots: int = 60,
-                student_s: float = 3.0, total_s: float = 5.0, max_level: int = 2,
-                seed: int = 123) -> dict[str, dict[str, Any]]:
-    """Every row of the module docstring: {mode: {survival, survival_ci, lin_tracking,
-    lin_tracking_ci, robots}}; linear tracking is normalized by the ``teacher`` row."""
-    if not 0 < student_s < total_s:
-        raise ValueError(f"need 0 < student_s < total_s, got {student_s} and {total_s}")
-    policy = load_policy(policy_path)
+def load_student(spec: str) -> Any:
+    """The student at a checkpoint directory or hub id (``--policy.path``), in eval mode."""
+    policy = load_policy(locate_checkpoint(spec, "--policy.path"))
     policy.eval()
-    teacher_cfg = teacher_cfg or TeacherConfig()
-    switch, steps = round(student_s / 0.02), round(total_s / 0.02)
-    raw = {m: run_mode(m, policy, teacher_cfg, robots, switch, steps, max_level, seed)
-           for m in MODES}
+    return policy
+
+
+def label_check(cfg: LabelCheckConfig, policy: Any = None) -> dict[str, dict[str, Any]]:
+    """Every row of the module docstring: {mode: {survival, survival_ci, lin_tracking,
+    lin_tracking_ci, robots}}; linear tracking is normalized by the ``teacher`` row.
+
+    Args:
+        cfg: what to run.
+        policy: the loaded student (default: :func:`load_student` of ``cfg.policy.path``).
+    """
+    policy = load_student(cfg.policy.path) if policy is None else policy
+    raw = {m: run_mode(m, policy, cfg) for m in MODES}
     ref = raw["teacher"]["lin"]
     rows = {}
     for mode, r in raw.items():
@@ -109,29 +180,14 @@ def render(rows: dict[str, dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--policy", required=True, help="student checkpoint directory")
-    p.add_argument("--teacher", default="gait", help="registered teacher type")
-    p.add_argument("--teacher_path", default="", help="teacher checkpoint (rma) or spec")
-    p.add_argument("--robots", type=int, default=60, help="robots per row")
-    p.add_argument("--student_s", type=float, default=3.0, help="seconds the student drives")
-    p.add_argument("--total_s", type=float, default=5.0, help="episode length (s)")
-    p.add_argument("--max_level", type=int, default=2, help="terrain levels 0..max_level")
-    p.add_argument("--seed", type=int, default=123, help="terrain, spawns, commands, noise")
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
-    args = p.parse_args(argv)
-    if args.robots < 1:
-        p.error("--robots must be >= 1")
-    if not os.path.isdir(args.policy):
-        p.error(f"--policy {args.policy!r} is not a checkpoint directory")
-    torch.set_num_threads(args.threads)
+    """Run the label check and print its table (``python -m eval.label_check --help``)."""
+    cfg = parse_config(LabelCheckConfig, argv, PROG)
+    torch.set_num_threads(cfg.num_threads)
     try:
-        rows = label_check(args.policy, TeacherConfig(type=args.teacher, path=args.teacher_path),
-                           args.robots, args.student_s, args.total_s, args.max_level, args.seed)
-    except ValueError as e:
-        p.error(str(e))
-    print(render(rows))
+        policy = load_student(cfg.policy.path)
+    except (ValueError, FileNotFoundError) as e:  # CheckpointError is a ValueError
+        raise usage_error(f"{PROG}: error: {e}") from None
+    print(render(label_check(cfg, policy)))
 
 
 if __name__ == "__main__":

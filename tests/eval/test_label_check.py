@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import pytest
 
-from eval.label_check import label_check, main, render
+from eval.label_check import LabelCheckConfig, label_check, main, render
+from policies.checkpoint import PolicyPath
 
 
 def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):
-    rows = label_check(str(tiny_ckpt), robots=3, student_s=0.2, total_s=0.4, max_level=0)
+    cfg = LabelCheckConfig(policy=PolicyPath(str(tiny_ckpt)), robots=3, student_seconds=0.2,
+                           episode_length_s=0.4, max_level=0)
+    rows = label_check(cfg)
     assert list(rows) == ["teacher", "student", "takeover shadow", "takeover follow",
                           "takeover reset"]
     assert rows["teacher"]["lin_tracking"] == pytest.approx(1.0)
@@ -21,13 +24,27 @@ def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):
     assert table.count("\n") == 6 and "| takeover follow | 3 |" in table
 
 
+def test_the_command_line_prints_the_table(tiny_ckpt, capsys):
+    main([f"--policy.path={tiny_ckpt}", "--teacher.type=zero", "--robots=2",
+          "--student_seconds=0.04", "--episode_length_s=0.1", "--max_level=0"])
+    out = capsys.readouterr().out
+    assert "| takeover reset | 2 |" in out
+    assert "takeover follow" not in out  # the zero teacher has no follow_robot: row skipped
+
+
 @pytest.mark.parametrize("args, message", [
-    (["--policy", "/no/such/ckpt"], "is not a checkpoint directory"),
-    (["--student_s", "5", "--total_s", "3"], "need 0 < student_s < total_s"),
-    (["--robots", "0"], "--robots must be >= 1"),
+    (["--policy.path=/no/such/ckpt"], "--policy.path '/no/such/ckpt': no such checkpoint"),
+    ([], "--policy.path is required"),
+    (["--policy=x"], "--policy is a group of options; give --policy.path=..."),
+    (["--student_seconds=5", "--episode_length_s=3"],
+     "need 0 < student_seconds < episode_length_s"),
+    (["--robots=0"], "robots=0 must be >= 1"),
+    (["--teacher.type=nope"], "unknown teacher type 'nope'"),
 ])
 def test_clear_errors(args, message, tiny_ckpt, capsys):
-    argv = args if args[0] == "--policy" else ["--policy", str(tiny_ckpt), *args]
+    argv = args if not args or args[0].startswith("--policy") else [
+        f"--policy.path={tiny_ckpt}", *args]
     with pytest.raises(SystemExit) as exc:
         main(argv)
-    assert exc.value.code == 2 and message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
