@@ -28,7 +28,6 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 import torch
 from tqdm import tqdm
@@ -415,14 +414,10 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-eval``)."""
+    cfg = parse_config(EvalConfig, argv, "msta-eval")  # bad flags: one line, exit 2
     try:
-        cfg = parse_config(EvalConfig, argv, "msta-eval")
         metrics = evaluate(cfg)
-    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError,
-            draccus.utils.ParsingError, draccus.utils.DecodingError) as e:
-        while isinstance(e, (draccus.utils.ParsingError, draccus.utils.DecodingError)) \
-                and e.__cause__ is not None:  # draccus wraps our validation errors
-            e = e.__cause__
+    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-eval: error: {msg}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -1,12 +1,14 @@
-"""Imports run one way (README, "What is where"): a module may import its own layer and
-the layers below it, never one above.
+"""Imports run one way (README, "What is where"): each layer may import only the layers
+listed for it in ``MAY_IMPORT`` (itself and some of those below it), never one above or a
+sibling.
 
-    msta_data  <-  collect.sim  <-  policies  <-  collect (record, rollout, simulate)
-               <-  train / eval
-
-train and eval form one top layer for now: stage 2's round table uses msta-eval's
-Evaluator (one metric path) while msta-compare runs stage 1 and 2 (issue 16 asks to split
-them; until then this test keeps every layer below them clean).
+    msta_data                       the bottom: data format, sensors, robot constants, hub
+    collect.sim    policies         the simulator; the students and teachers (siblings:
+                                    neither imports the other)
+    collect                         recording, the one rollout loop, msta-sim
+    eval                            the evaluation library (metrics, msta-eval, reports)
+    train                           stage 1 and 2 (its round table uses eval's metrics)
+    eval apps                       msta-compare, the demo, bench-learn: run train and eval
 """
 
 from __future__ import annotations
@@ -15,17 +17,30 @@ import ast
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-RANK = {"msta_data": 0, "collect.sim": 1, "policies": 2, "collect": 3, "train": 4, "eval": 4}
+#: eval modules that drive training (a layer above train).
+EVAL_APPS = frozenset({"eval.compare", "eval.demo", "eval.bench_learn"})
+_BASE = {"msta_data"}
+MAY_IMPORT: dict[str, set[str]] = {
+    "msta_data": _BASE,
+    "collect.sim": _BASE | {"collect.sim"},
+    "policies": _BASE | {"policies"},
+    "collect": _BASE | {"collect.sim", "policies", "collect"},
+    "eval": _BASE | {"collect.sim", "policies", "collect", "eval"},
+    "train": _BASE | {"collect.sim", "policies", "collect", "eval", "train"},
+    "eval apps": _BASE | {"collect.sim", "policies", "collect", "eval", "train", "eval apps"},
+}
 
 
 def layer(module: str) -> str | None:
     if module == "collect.sim" or module.startswith("collect.sim."):
         return "collect.sim"
+    if module in EVAL_APPS:
+        return "eval apps"
     top = module.split(".")[0]
-    return top if top in RANK else None
+    return top if top in MAY_IMPORT else None
 
 
-def imports_above(root: Path = REPO) -> list[str]:
+def forbidden_imports(root: Path = REPO) -> list[str]:
     bad = []
     for top in ("msta_data", "collect", "policies", "train", "eval"):
         for path in sorted((root / top).rglob("*.py")):
@@ -37,26 +52,41 @@ def imports_above(root: Path = REPO) -> list[str]:
                     names = [a.name for a in node.names]
                 elif isinstance(node, ast.ImportFrom) and node.module and not node.level:
                     names = [node.module]
+                    if node.module == "eval":  # from eval import compare
+                        names = [f"eval.{a.name}" for a in node.names]
                 else:
                     continue
                 for name in names:
                     other = layer(name)
-                    if other is not None and RANK[other] > RANK[me]:
+                    if other is not None and other not in MAY_IMPORT[me]:
                         bad.append(f"{path.relative_to(root)}:{node.lineno} ({me}) imports "
                                    f"{name} ({other})")
     return bad
 
 
-def test_no_package_imports_a_layer_above_it():
-    assert imports_above() == []
+def test_no_package_imports_a_layer_it_may_not():
+    assert forbidden_imports() == []
 
 
-def test_the_check_sees_a_violation(tmp_path):
-    """The walk really parses imports: a layer-0 module importing policies is reported."""
-    fake = tmp_path / "msta_data"
-    fake.mkdir()
-    (fake / "bad.py").write_text("def f():\n    from policies.factory import load_policy\n")
-    for top in ("collect", "policies", "train", "eval"):
+def test_every_layer_may_import_only_itself_and_layers_below():
+    order = list(MAY_IMPORT)
+    for i, me in enumerate(order):
+        assert me in MAY_IMPORT[me]
+        assert MAY_IMPORT[me] <= set(order[:i + 1]), me
+
+
+def test_the_check_sees_violations(tmp_path):
+    """The walk really parses imports: a layer-0 module importing policies, a policy
+    importing the simulator (siblings) and train importing an eval app are reported."""
+    for top in ("msta_data", "collect", "policies", "train", "eval"):
         (tmp_path / top).mkdir()
-    assert imports_above(tmp_path) == ["msta_data/bad.py:2 (msta_data) imports policies.factory "
-                               "(policies)"]
+    (tmp_path / "msta_data" / "bad.py").write_text(
+        "def f():\n    from policies.factory import load_policy\n")
+    (tmp_path / "policies" / "bad.py").write_text("import collect.sim.env\n")
+    (tmp_path / "train" / "bad.py").write_text("from eval.demo import main\n")
+    (tmp_path / "eval" / "demo.py").write_text("from train.offline import train\n")  # allowed
+    assert forbidden_imports(tmp_path) == [
+        "msta_data/bad.py:2 (msta_data) imports policies.factory (policies)",
+        "policies/bad.py:1 (policies) imports collect.sim.env (collect.sim)",
+        "train/bad.py:1 (train) imports eval.demo (eval apps)",
+    ]

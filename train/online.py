@@ -446,9 +446,15 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     print_table(prog)
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    cfg = parse_cli(CorrectConfig, argv, prog="msta-correct", aliases={
+def parse_args(argv: Sequence[str] | None = None) -> CorrectConfig:
+    """msta-correct's command line: ``--env.num_envs`` / ``--env.episode_length_s`` are read
+    as ``--num_envs`` / ``--episode_length_s`` (which set them every round)."""
+    return parse_cli(CorrectConfig, argv, prog="msta-correct", aliases={
         "env.num_envs": "num_envs", "env.episode_length_s": "episode_length_s"})
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    cfg = parse_args(argv)
     try:
         prog = correct(cfg)
     except USER_ERRORS as e:  # one line naming the file, no traceback

@@ -1,0 +1,153 @@
+"""Every command line written in README.md and docs/ parses as written.
+
+Each ``msta-*`` / ``python -m <tool>`` command of a code block or inline code span is split
+like a shell would (continuation lines joined) and given to that command's own parser,
+without running it: a renamed or removed option in the code fails here, naming the file and
+the line. Commands with placeholders (``<checkpoint>``, ``...``) are checked for their
+option names only.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from collect.record import parse_config as collect_args
+from collect.simulate import SimRunConfig
+from eval.bench_data import BenchDataConfig
+from eval.bench_learn import BenchLearnConfig
+from eval.bench_sim import BenchSimConfig
+from eval.bench_train import BenchTrainConfig
+from eval.compare import CompareConfig
+from eval.demo import DemoConfig
+from eval.evaluate import EvalConfig
+from msta_data.cli import parse_config
+from msta_data.hub_cli import parse_command
+from train.cli import parse_cli
+from train.offline import TrainConfig
+from train.online import parse_args as correct_args
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _config(cls: type, prog: str) -> Callable[[list[str]], Any]:
+    return lambda argv: parse_config(cls, argv, prog)
+
+
+#: command (as written in the docs, after an optional ``.venv/bin/``) -> its parser
+PARSERS: dict[str, Callable[[list[str]], Any]] = {
+    "msta-collect": lambda argv: collect_args(argv),
+    "msta-train": lambda argv: parse_cli(TrainConfig, argv, "msta-train"),
+    "msta-correct": correct_args,
+    "msta-eval": _config(EvalConfig, "msta-eval"),
+    "msta-compare": _config(CompareConfig, "msta-compare"),
+    "msta-sim": _config(SimRunConfig, "msta-sim"),
+    "msta-hub": parse_command,
+    "msta-demo": _config(DemoConfig, "msta-demo"),
+    "python -m eval.demo": _config(DemoConfig, "python -m eval.demo"),
+    "python -m eval.bench_learn": _config(BenchLearnConfig, "python -m eval.bench_learn"),
+    "python -m eval.bench_train": _config(BenchTrainConfig, "python -m eval.bench_train"),
+    "python -m eval.bench_sim": _config(BenchSimConfig, "python -m eval.bench_sim"),
+    "python -m eval.bench_data": _config(BenchDataConfig, "python -m eval.bench_data"),
+}
+_START = re.compile(r"(?:^|[\s`(])(?:\.venv/bin/)?(msta-[a-z]+|python -m [\w.]+)(?=[\s`]|$)")
+
+
+def documented_commands(root: Path = REPO) -> list[tuple[str, str, str]]:
+    """(where, command, argument text) for every command line in README.md and docs/."""
+    found = []
+    for path in [root / "README.md", *sorted((root / "docs").rglob("*.md"))]:
+        lines = path.read_text().splitlines()
+        in_block = False
+        i = 0
+        while i < len(lines):
+            line = lines[i]
+            if line.lstrip().startswith("```"):
+                in_block = not in_block
+                i += 1
+                continue
+            where = f"{path.relative_to(root)}:{i + 1}"
+            if in_block:
+                text = line
+                while text.rstrip().endswith("\\") and i + 1 < len(lines):
+                    i += 1
+                    text = text.rstrip()[:-1] + " " + lines[i]
+                for m in _START.finditer(text):
+                    if m.group(1) in PARSERS:
+                        found.append((where, m.group(1), _args_text(text[m.end():])))
+            else:
+                for span in re.findall(r"`([^`]+)`", line):
+                    m = _START.match(span)
+                    if m and m.group(1) in PARSERS:
+                        found.append((where, m.group(1), _args_text(span[m.end():])))
+            i += 1
+    return found
+
+
+def _args_text(rest: str) -> str:
+    """The command's own arguments: up to a comment, a pipe or a chained command."""
+    return re.split(r"\s#|\s\||&&|;|`", rest)[0].strip()
+
+
+def _options_only(argv: list[str]) -> list[str]:
+    """For a command with placeholders: its option names with a neutral value dropped."""
+    return [a.split("=", 1)[0] + "=" for a in argv if a.startswith("--")]
+
+
+COMMANDS = documented_commands()
+
+
+def test_the_docs_show_commands(tmp_path, capsys):
+    """The extraction works: the README's pipeline is found; in a planted doc, a continued
+    block line and an inline span are read whole, and a renamed option fails to parse."""
+    names = {c for _, c, _ in COMMANDS}
+    assert {"msta-collect", "msta-train", "msta-correct", "msta-eval", "msta-hub"} <= names
+    assert len(COMMANDS) > 20
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "README.md").write_text(
+        "```bash\n.venv/bin/msta-train --steps=3 \\\n    --threads=2   # old name\n```\n"
+        "Run `msta-eval --trials=4 --output_dir=x` or read about `msta-compare`.\n")
+    found = documented_commands(tmp_path)
+    assert found == [("README.md:2", "msta-train", "--steps=3      --threads=2"),
+                     ("README.md:5", "msta-eval", "--trials=4 --output_dir=x"),
+                     ("README.md:5", "msta-compare", "")]
+    with pytest.raises(SystemExit):
+        PARSERS["msta-train"](shlex.split(found[0][2]))
+    assert "did you mean --num_threads" in capsys.readouterr().err
+
+
+def is_mention(command: str, argv: list[str]) -> bool:
+    """A command named in prose (`msta-compare`, `msta-hub push-dataset`), not run."""
+    return not argv or command == "msta-hub" and len(argv) == 1 and not argv[0].startswith("-")
+
+
+@pytest.mark.parametrize(("where", "command", "args"), COMMANDS,
+                         ids=[f"{w} {c}" for w, c, _ in COMMANDS])
+def test_documented_command_parses(where, command, args, capsys):
+    argv = shlex.split(args)
+    if is_mention(command, argv) or "--help" in argv:
+        return
+    if any(p in args for p in ("<", "...", "*")) or "[" in args and "=[" not in args:
+        known = parse_help_options(command, capsys)
+        unknown = [a for a in _options_only(argv) if a.rstrip("=").split(".")[0] not in known]
+        assert not unknown, f"{where}: {command} has no option {unknown}"
+        return
+    try:
+        PARSERS[command](argv)
+    except SystemExit as e:
+        err = capsys.readouterr().err.strip()
+        pytest.fail(f"{where}: `{command} {args}` does not parse (exit {e.code}): {err}")
+
+
+def parse_help_options(command: str, capsys) -> set[str]:
+    """Top-level option names (``--policy`` for ``--policy.path``) from ``--help``."""
+    argv = ["push", "--help"] if command == "msta-hub" else ["--help"]
+    with pytest.raises(SystemExit):
+        PARSERS[command](argv)
+    text = capsys.readouterr().out
+    return {m.split(".")[0] for m in re.findall(r"^\s+(--[\w.]+)", text, re.MULTILINE)}
