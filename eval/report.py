@@ -1,6 +1,7 @@
 """Markdown tables and PNG plots from a metrics.json written by ``msta-eval``.
 
     python -m eval.report outputs/eval/metrics.json      # rewrite report.md and the plots
+    python -m eval.report outputs/eval/metrics.json --output_dir=outputs/eval_restyled
 
 Everything here reads only the metrics dictionary, so reports can be regenerated (or
 restyled) without rerunning the simulator. n/a runs stay visible: "n/a" in tables, an
@@ -17,9 +18,9 @@ printed by msta-eval.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from eval.metrics import RETURNS
 from eval.scenarios import SCENARIOS
+from msta_data.cli import parse_config
 
 METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":
                  "angular-velocity tracking", "total": "total reward"}
@@ -443,17 +445,34 @@ def write_plots(metrics: dict, out: Path) -> list[Path]:
     return written
 
 
+@dataclass
+class EvalReportConfig:
+    """``python -m eval.report``: rewrite report.md and the plots from a metrics.json.
+
+    Args:
+        metrics: a metrics.json written by msta-eval (also the first bare word).
+        output_dir: folder for report.md and the plots (empty: the metrics file's folder).
+    """
+
+    metrics: str = ""
+    output_dir: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.metrics:
+            raise ValueError("give the metrics.json to report on (--metrics=PATH or a bare PATH)")
+        if not Path(self.metrics).is_file():
+            raise FileNotFoundError(f"--metrics {self.metrics!r}: no such file")
+
+
 def main(argv: list[str] | None = None) -> None:
-    p = argparse.ArgumentParser(description="Rewrite report.md and plots from a metrics.json.")
-    p.add_argument("metrics", type=Path)
-    p.add_argument("--out", type=Path, default=None, help="default: the metrics file's folder")
-    args = p.parse_args(argv)
-    metrics = json.loads(args.metrics.read_text())
-    for f in write_report(metrics, args.out or args.metrics.parent):
+    """Rewrite report.md and the plots (``python -m eval.report METRICS [--output_dir=DIR]``)."""
+    cfg = parse_config(EvalReportConfig, argv, "python -m eval.report", positionals=("metrics",))
+    path = Path(cfg.metrics)
+    metrics = json.loads(path.read_text())
+    for f in write_report(metrics, Path(cfg.output_dir) if cfg.output_dir else path.parent):
         print(f)
     for line in identical_warnings(metrics):
         print(f"warning: {line}")
-
 
 if __name__ == "__main__":
     main()
