@@ -30,7 +30,7 @@ from collect.sim.randomization import build_pool
 from collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
 from collect.sim.terrain import Terrain, sample_initial, update_levels
 from msta_data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
-from msta_data.robot import DEFAULT_POSE, SPAWN_HEIGHT
+from msta_data.robot import DEFAULT_POSE, NUM_JOINTS, SPAWN_HEIGHT
 from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 
 PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
@@ -116,9 +116,9 @@ class QuadrupedEnv:
         self._control = np.zeros((n, d, self.model.nu))
         self.variant = np.zeros(n, dtype=np.int64)
         self._models = [self.pool[0]] * n
-        self.action = np.zeros((n, 12))
-        self.last_action = np.zeros((n, 12))
-        self.last_joint_vel = np.zeros((n, 12))
+        self.action = np.zeros((n, NUM_JOINTS))
+        self.last_action = np.zeros((n, NUM_JOINTS))
+        self.last_joint_vel = np.zeros((n, NUM_JOINTS))
         self.air_time = np.zeros((n, 4))
         self.last_contact = np.zeros((n, 4), dtype=bool)
         self.episode_step = np.zeros(n, dtype=np.int64)
@@ -207,8 +207,8 @@ class QuadrupedEnv:
     # ------------------------------------------------------------------ internals
     def _check_action(self, action: np.ndarray) -> np.ndarray:
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != (self.num_envs, 12):
-            raise ValueError(f"action has shape {a.shape}, expected ({self.num_envs}, 12)")
+        if a.shape != (self.num_envs, NUM_JOINTS):
+            raise ValueError(f"action has shape {a.shape}, expected ({self.num_envs}, {NUM_JOINTS})")
         bad = ~np.isfinite(a).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])

@@ -8,7 +8,7 @@ from importlib import resources
 import mujoco
 import numpy as np
 
-from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, SIM_DT, SPAWN_HEIGHT
+from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, NUM_JOINTS, SIM_DT, SPAWN_HEIGHT
 from msta_data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
 
 ASSET = "a1.xml"
@@ -144,7 +144,7 @@ def _add_visuals(spec: mujoco.MjSpec) -> None:
 
 
 def _check_names(model: mujoco.MjModel) -> None:
-    joints = [model.joint(i + 1).name for i in range(12)]
+    joints = [model.joint(i + 1).name for i in range(NUM_JOINTS)]
     if tuple(joints) != JOINT_NAMES:
         raise RuntimeError(f"robot joint order {joints} differs from the registry {JOINT_NAMES}")
     foot_sensors = [model.sensor(i).name for i in range(4)]

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from msta_data.revision import content_revision, file_parts
+from msta_data.robot import NUM_JOINTS
 from policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
 
 
@@ -20,7 +21,7 @@ class ZeroTeacher:
     sensors: tuple[str, ...] = ("joint_pos",)
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        return np.zeros((len(obs["joint_pos"]), 12), dtype=np.float32)
+        return np.zeros((len(obs["joint_pos"]), NUM_JOINTS), dtype=np.float32)
 
     def reset(self, ids: np.ndarray) -> None:
         pass

@@ -41,6 +41,7 @@ from msta_data.robot import (
     FOOT_RADIUS,
     HIP_OFFSETS,
     KP,
+    NUM_JOINTS,
     THIGH_OFFSET_Y,
     foot_positions_body,
 )
@@ -223,7 +224,7 @@ class GaitTeacher:
         self.liftoff = np.zeros((0, 4, 3))   # H-frame foot position at lift-off
         self.stance = np.zeros((0, 4), dtype=bool)
         self.fresh = np.zeros(0, dtype=bool)
-        self.q_prev = np.zeros((0, 12))
+        self.q_prev = np.zeros((0, NUM_JOINTS))
         self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
         self.caution = np.zeros((0, 1))      # 0 flat-ground gait .. 1 rough-ground gait

@@ -13,6 +13,7 @@ import numpy as np
 from msta_data.robot import (
     CALF_LENGTH,
     HIP_OFFSETS,
+    NUM_JOINTS,
     THIGH_LENGTH,
     THIGH_OFFSET_Y,
     foot_positions_body,
@@ -51,7 +52,7 @@ def leg_ik(feet: np.ndarray) -> np.ndarray:
     calf = -np.arccos(cos_c)
     a, b = l1 + l2 * np.cos(calf), l2 * np.sin(calf)
     thigh = np.arctan2(-x, -z_leg) - np.arctan2(b, a)
-    return np.stack([hip, thigh, calf], axis=-1).reshape(len(feet), 12)
+    return np.stack([hip, thigh, calf], axis=-1).reshape(len(feet), NUM_JOINTS)
 
 
 def foot_jacobian(q: np.ndarray, eps: float = 1e-5) -> np.ndarray:
@@ -66,7 +67,7 @@ def foot_jacobian(q: np.ndarray, eps: float = 1e-5) -> np.ndarray:
     n = len(q)
     jac = np.empty((n, 4, 3, 3))
     for j in range(3):
-        dq = np.zeros(12)
+        dq = np.zeros(NUM_JOINTS)
         dq[j::3] = eps
         plus = foot_positions_body(q + dq).reshape(n, 4, 3)
         minus = foot_positions_body(q - dq).reshape(n, 4, 3)
