@@ -1,38 +1,42 @@
 """Quality report of a teacher: survival and command tracking per terrain type and level.
 
-    python -m eval.teacher_report --episodes 100 --out docs/teacher_quality.md
+    python -m eval.teacher_report --episodes=100 --envs_per_tile=20 \\
+        --report=docs/teacher_quality.md --image=docs/teacher_stairs_up.png
+    python -m eval.teacher_report --teacher.type=rma --teacher.path=CKPT --terrains=flat \\
+        --levels=0-4 --report=outputs/rma_quality.md --image=''
 
-Every terrain type runs on its own grid (``columns`` columns of that type x the levels),
-and every (type, level) tile gets ``--envs-per-tile`` environments pinned to it (terrain
-curriculum off); each environment runs the same number of 20 s episodes, so
-falls do not bias the count. Commands come from the simulator's defaults (the paper's
+Every terrain type runs on its own grid (``--columns`` columns of that type x the levels),
+and every (type, level) tile gets ``--envs_per_tile`` environments pinned to it (terrain
+curriculum off); each environment runs the same number of ``--episode_length_s`` episodes,
+so falls do not bias the count. Commands come from the simulator's defaults (the paper's
 ranges: vx, vy in [-1, 1] m/s, yaw rate from a sampled heading capped to [-1, 1] rad/s);
-domain randomization and observation noise are on unless disabled. The image strip shows
+domain randomization and observation noise are on unless disabled (``--randomization=false``,
+``--noise=false``). The image strip shows
 the teacher climbing stairs (MuJoCo offscreen, ``MUJOCO_GL=egl``).
 """
 
 from __future__ import annotations
 
-import argparse
 import math
 import os
-import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
-import policies.teacher.gait  # noqa: F401  (registers "gait")
 from collect.rollout import Step, rollout
 from collect.sim.commands import CommandConfig
 from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialResults, summarize
-from policies.teacher.base import TEACHERS, make_teacher
+from msta_data.cli import parse_config
+from policies.teacher.config import TeacherConfig, build_teacher
+
+PROG = "python -m eval.teacher_report"
 
 MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival
 MINIMUM_LOW_LEVELS = 3           # every type, levels 0-2: >= 80 % survival
@@ -57,22 +61,73 @@ Stats = dict[tuple[str, int], dict[str, Any]]
 
 
 @dataclass
-class ReportConfig:
-    teacher: str = "gait"
+class TeacherReportConfig:
+    """What the report runs and where it writes it (``python -m eval.teacher_report``).
+
+    Args:
+        teacher: the teacher to report on (``--teacher.type``, ``--teacher.path``).
+        episodes: episodes per (terrain type, level) tile.
+        envs_per_tile: environments pinned to each tile (at most ``episodes``); each runs
+            ceil(episodes / envs_per_tile) episodes.
+        terrains: comma-separated terrain types (empty: all six).
+        levels: terrain levels, a range ``0-9`` or a list ``0,1,2``.
+        episode_length_s: episode length (s).
+        randomization: domain randomization (dynamics, pushes, latency) on.
+        noise: observation noise on.
+        seed: simulator seed (terrain, spawns, commands, noise), also of the image strip.
+        nthread: MuJoCo rollout threads.
+        columns: columns of each terrain type in its grid.
+        report: the Markdown file to write.
+        image: the stairs-up image strip to write ('' skips it).
+        progress: show a progress bar per terrain type.
+    """
+
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
     episodes: int = 100
     envs_per_tile: int = 10
-    types: tuple[str, ...] = TERRAIN_TYPES
-    levels: tuple[int, ...] = tuple(range(10))
+    terrains: str = ""
+    levels: str = "0-9"
     episode_length_s: float = 20.0
     randomization: bool = True
     noise: bool = True
     seed: int = 0
     nthread: int = 2
     columns: int = 3
-    extra: dict = field(default_factory=dict)
+    report: str = "docs/teacher_quality.md"
+    image: str = "docs/teacher_stairs_up.png"
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("episodes", "envs_per_tile", "nthread", "columns"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        if not self.episode_length_s > 0:
+            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
+        if not self.report:
+            raise ValueError("report is the Markdown file to write; it cannot be empty")
+        self.envs_per_tile = min(self.envs_per_tile, self.episodes)
+        # what evaluate() runs: the parsed terrains and levels
+        self.terrain_list = tuple(t for t in self.terrains.split(",") if t) or TERRAIN_TYPES
+        for t in self.terrain_list:
+            if t not in TERRAIN_TYPES:
+                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
+        self.level_list = parse_levels(self.levels)
 
 
-def evaluate(cfg: ReportConfig, progress: bool = True) -> Stats:
+def parse_levels(text: str) -> tuple[int, ...]:
+    """``"0-9"`` (a range, both ends included) or ``"0,1,2"`` -> level numbers."""
+    words = [w.strip() for w in text.split("-" if "-" in text else ",") if w.strip()]
+    if not all(w.isdigit() for w in words) or ("-" in text and len(words) != 2):
+        raise ValueError(f"levels {text!r}: write a range (0-9) or a list (0,1,2)")
+    numbers = [int(w) for w in words]
+    levels = tuple(range(numbers[0], numbers[1] + 1)) if "-" in text else tuple(numbers)
+    n = TerrainConfig().num_levels
+    if not levels or not all(0 <= lv < n for lv in levels):
+        raise ValueError(f"levels {text!r}: give levels in [0, {n - 1}]")
+    return levels
+
+
+def evaluate(cfg: TeacherReportConfig) -> Stats:
     """Roll the teacher on every (type, level) tile; see the module docstring.
 
     Each terrain type runs on its own grid (``columns_per_type`` columns of that type
@@ -80,23 +135,22 @@ def evaluate(cfg: ReportConfig, progress: bool = True) -> Stats:
     between neighbouring levels of the same type.
 
     Args:
-        cfg: what to run.
-        progress: show a tqdm bar over control steps.
+        cfg: what to run (``cfg.progress``: a tqdm bar over control steps).
     Returns:
         report rows (:func:`tile_row`) per (type name, level).
     """
     stats: Stats = {}
-    for t in cfg.types:
-        stats.update(_evaluate_type(cfg, t, progress))
+    for t in cfg.terrain_list:
+        stats.update(_evaluate_type(cfg, t))
     return stats
 
 
-def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
+def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
     """One terrain type: every environment runs ``ceil(episodes / envs_per_tile)`` episodes
     through :func:`collect.rollout.rollout`; each finished episode is one trial of
     :class:`eval.metrics.TrialResults`, summarized per tile by :func:`eval.metrics.summarize`."""
     k = cfg.envs_per_tile
-    n = len(cfg.levels) * k
+    n = len(cfg.level_list) * k
     env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
                         nthread=cfg.nthread,
                         terrain=TerrainConfig(types=(terrain,), columns_per_type=cfg.columns,
@@ -104,14 +158,14 @@ def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
                         randomization=RandomizationConfig(enabled=cfg.randomization),
                         noise=NoiseConfig(enabled=cfg.noise))
     env = QuadrupedEnv(env_cfg)
-    env.reset(type_idx=np.zeros(n, dtype=np.int64), level=np.repeat(np.asarray(cfg.levels), k))
-    teacher = make_teacher(cfg.teacher)
+    env.reset(type_idx=np.zeros(n, dtype=np.int64), level=np.repeat(np.asarray(cfg.level_list), k))
+    teacher = build_teacher(cfg.teacher)
     per_env = math.ceil(cfg.episodes / k)
     done_eps = np.zeros(n, dtype=np.int64)
     episodes = TrialResults.zeros(n * per_env, env.max_steps)  # env e's j-th: e * per_env + j
     fell = np.isin(np.arange(len(REASONS)), [REASONS.index("fall"), REASONS.index("nan")])
     total = per_env * env.max_steps
-    bar = _bar(total, progress, terrain)
+    bar = _bar(total, cfg.progress, terrain)
 
     def on_step(step: Step) -> bool:
         active = done_eps < per_env
@@ -129,9 +183,9 @@ def _evaluate_type(cfg: ReportConfig, terrain: str, progress: bool) -> Stats:
     rollout(env, teacher, on_step)
     if bar is not None:
         bar.close()
-    tile_of_episode = np.repeat(np.arange(len(cfg.levels)), k * per_env)
+    tile_of_episode = np.repeat(np.arange(len(cfg.level_list)), k * per_env)
     return {(terrain, lv): tile_row(summarize(episodes, [np.flatnonzero(tile_of_episode == i)]))
-            for i, lv in enumerate(cfg.levels)}
+            for i, lv in enumerate(cfg.level_list)}
 
 
 def _bar(total: int, progress: bool, terrain: str):
@@ -151,10 +205,10 @@ def highest_level(stats: Stats, terrain: str, levels: tuple[int, ...],
     return best
 
 
-def render_markdown(stats: Stats, cfg: ReportConfig, command: str,
+def render_markdown(stats: Stats, cfg: TeacherReportConfig, command: str,
                     seconds: float, image: str | None) -> str:
     """The report as Markdown (tables per terrain, summary, minimums)."""
-    lines = [f"# Teacher quality: `{cfg.teacher}`", "",
+    lines = [f"# Teacher quality: `{cfg.teacher.type}`", "",
              f"Regenerate: `{command}`", "",
              f"{cfg.episodes} episodes of {cfg.episode_length_s:g} s per terrain type and level "
              f"({cfg.envs_per_tile} environments per tile), each terrain type on its own grid "
@@ -171,16 +225,16 @@ def render_markdown(stats: Stats, cfg: ReportConfig, command: str,
              "|w err| = mean |w_z - cmd_wz| (rad/s), over all steps of all episodes.", ""]
     lines += ["## Summary", "", "| terrain | highest level with >= 80 % survival | "
               "survival L0-4 | mean abs(v err) L0-4 |", "|---|---|---|---|"]
-    for t in cfg.types:
-        low = [stats[(t, lv)] for lv in cfg.levels if lv < 5]
+    for t in cfg.terrain_list:
+        low = [stats[(t, lv)] for lv in cfg.level_list if lv < 5]
         surv = np.mean([r["survival"] for r in low]) if low else float("nan")
         err = np.mean([r["lin_err"] for r in low]) if low else float("nan")
-        lines.append(f"| {t} | {highest_level(stats, t, cfg.levels)} | {surv:.1%} | {err:.3f} |")
+        lines.append(f"| {t} | {highest_level(stats, t, cfg.level_list)} | {surv:.1%} | {err:.3f} |")
     lines += ["", "## Minimums (issue 3)", ""] + _minimums(stats, cfg) + [""]
-    for t in cfg.types:
+    for t in cfg.terrain_list:
         lines += [f"## {t}", "", "| level | episodes | survival | lin track | ang track | "
                   "abs(v err) m/s | abs(w err) rad/s |", "|---|---|---|---|---|---|---|"]
-        for lv in cfg.levels:
+        for lv in cfg.level_list:
             r = stats[(t, lv)]
             lines.append(f"| {lv} | {r['episodes']} | {r['survival']:.1%} | "
                          f"{r['lin_reward'] / (env_scale('lin')):.3f} | "
@@ -199,7 +253,7 @@ def env_scale(which: str) -> float:
     return (s.tracking_lin_vel if which == "lin" else s.tracking_ang_vel) * cfg.dt
 
 
-def _minimums(stats: Stats, cfg: ReportConfig) -> list[str]:
+def _minimums(stats: Stats, cfg: TeacherReportConfig) -> list[str]:
     out = []
     for t in ("flat", "smooth_slope"):
         for lv in range(MINIMUM_FLAT_LEVELS):
@@ -208,7 +262,7 @@ def _minimums(stats: Stats, cfg: ReportConfig) -> list[str]:
                 ok = r["survival"] >= 0.95 and r["lin_err"] <= 0.25
                 out.append(f"- {t} L{lv}: survival {r['survival']:.1%} (>= 95 %), |v err| "
                            f"{r['lin_err']:.3f} (<= 0.25): {'met' if ok else 'NOT met'}")
-    for t in cfg.types:
+    for t in cfg.terrain_list:
         for lv in range(MINIMUM_LOW_LEVELS):
             if (t, lv) in stats:
                 r = stats[(t, lv)]
@@ -219,13 +273,13 @@ def _minimums(stats: Stats, cfg: ReportConfig) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- image
-def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, seconds: float = 6.0,
-                  frames: int = 6, seed: int = 0) -> Path:
+def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int = 4,
+                  seconds: float = 6.0, frames: int = 6, seed: int = 0) -> Path:
     """Image strip of the teacher walking out of the stairs-up pit (forward command).
 
     Args:
         path: PNG to write.
-        teacher_name: registered teacher.
+        teacher: the teacher (default: gait).
         level: stairs-up level (step height 0.05 + 0.18 level / 10 m).
         seconds: simulated time covered by the strip.
         frames: pictures in the strip.
@@ -242,7 +296,7 @@ def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, second
     env = QuadrupedEnv(cfg)
     obs = env.reset(type_idx=np.array([cfg.terrain.types.index("stairs_up")]),
                     level=np.array([level]))
-    teacher = make_teacher(teacher_name)
+    policy = build_teacher(teacher or TeacherConfig())
     command = np.array([[0.6, 0.0, 0.0]])
     renderer = mujoco.Renderer(env.model, 360, 480)
     data = mujoco.MjData(env.model)
@@ -264,9 +318,9 @@ def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, second
                 cam.azimuth = float(np.degrees(env.meas["yaw"][0])) + 90.0
                 renderer.update_scene(data, camera=cam)
                 images.append(renderer.render().copy())
-            res = env.step(teacher.act(obs))
+            res = env.step(policy.act(obs))
             obs = res.obs
-            teacher.reset(np.flatnonzero(res.done))
+            policy.reset(np.flatnonzero(res.done))
     finally:
         renderer.close()
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -275,51 +329,43 @@ def render_stairs(path: Path, teacher_name: str = "gait", level: int = 4, second
 
 
 # ----------------------------------------------------------------------------- CLI
-def _parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m eval.teacher_report", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--teacher", default="gait", help=f"registered teacher {sorted(TEACHERS)}")
-    p.add_argument("--episodes", type=int, default=100, help="episodes per (terrain, level)")
-    p.add_argument("--envs-per-tile", type=int, default=10)
-    p.add_argument("--types", default=",".join(TERRAIN_TYPES), help="comma-separated types")
-    p.add_argument("--levels", default="0-9", help="e.g. 0-9 or 0,1,2")
-    p.add_argument("--seconds", type=float, default=20.0, help="episode length (s)")
-    p.add_argument("--no-randomization", action="store_true")
-    p.add_argument("--no-noise", action="store_true")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default="docs/teacher_quality.md")
-    p.add_argument("--image", default="docs/teacher_stairs_up.png",
-                   help="image strip path ('' to skip)")
-    p.add_argument("--no-progress", action="store_true")
-    return p.parse_args(argv)
+#: Options the Regenerate line always shows (the others only where they differ from the
+#: defaults; ``progress`` never: it changes no figure).
+ALWAYS_SHOWN = ("teacher", "episodes", "envs_per_tile")
 
 
-def _levels(text: str) -> tuple[int, ...]:
-    if "-" in text:
-        lo, hi = (int(v) for v in text.split("-"))
-        return tuple(range(lo, hi + 1))
-    return tuple(int(v) for v in text.split(","))
+def command_line(cfg: TeacherReportConfig) -> str:
+    """The command that regenerates ``cfg``'s report (the report's "Regenerate:" line)."""
+    default = TeacherReportConfig()
+    parts = [PROG]
+    for f in fields(cfg):
+        value, base = getattr(cfg, f.name), getattr(default, f.name)
+        if f.name == "progress" or (value == base and f.name not in ALWAYS_SHOWN):
+            continue
+        if f.name == "teacher":
+            parts += [f"--teacher.{k}={_word(v)}" for k, v in asdict(value).items()
+                      if k == "type" or v != getattr(base, k)]
+        else:
+            parts.append(f"--{f.name}={_word(value)}")
+    return " ".join(parts)
+
+
+def _word(value: object) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    return "''" if value == "" else str(value)
 
 
 def main(argv: list[str] | None = None) -> None:
     """Run the report and write the Markdown (and the stairs image)."""
-    a = _parse(argv)
-    types = tuple(t for t in a.types.split(",") if t)
-    for t in types:
-        if t not in TERRAIN_TYPES:
-            raise SystemExit(f"unknown terrain type {t!r}; known: {TERRAIN_TYPES}")
-    cfg = ReportConfig(teacher=a.teacher, episodes=a.episodes,
-                       envs_per_tile=min(a.envs_per_tile, a.episodes), types=types,
-                       levels=_levels(a.levels), episode_length_s=a.seconds,
-                       randomization=not a.no_randomization, noise=not a.no_noise, seed=a.seed)
+    cfg = parse_config(TeacherReportConfig, argv, PROG)
     t0 = time.time()
-    stats = evaluate(cfg, progress=not a.no_progress)
+    stats = evaluate(cfg)
     image = None
-    if a.image:
-        image = str(render_stairs(Path(a.image), a.teacher, seed=a.seed))
-    command = "python -m eval.teacher_report " + " ".join(sys.argv[1:] if argv is None else argv)
-    md = render_markdown(stats, cfg, command.strip(), time.time() - t0, image)
-    out = Path(a.out)
+    if cfg.image:
+        image = str(render_stairs(Path(cfg.image), cfg.teacher, seed=cfg.seed))
+    md = render_markdown(stats, cfg, command_line(cfg), time.time() - t0, image)
+    out = Path(cfg.report)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(md)
     print(md.split("## Minimums")[0])

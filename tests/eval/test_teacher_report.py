@@ -5,23 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import policies.teacher.config  # noqa: F401  (registers "zero")
 from collect.rollout import rollout, step_quantities
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
 from eval import teacher_report as tr
+from policies.teacher.config import TeacherConfig, build_teacher
 
 
-def tiny(**kw) -> tr.ReportConfig:
-    base = {"teacher": "zero", "episodes": 3, "envs_per_tile": 2, "types": ("flat",),
-            "levels": (0, 3), "episode_length_s": 0.3, "nthread": 1, "columns": 1}
+def tiny(**kw) -> tr.TeacherReportConfig:
+    base = {"teacher": TeacherConfig(type="zero"), "episodes": 3, "envs_per_tile": 2,
+            "terrains": "flat", "levels": "0,3", "episode_length_s": 0.3, "nthread": 1,
+            "columns": 1, "progress": False}
     base.update(kw)
-    return tr.ReportConfig(**base)
+    return tr.TeacherReportConfig(**base)
 
 
 def test_every_tile_counts_its_episodes_and_figures():
     cfg = tiny()
-    stats = tr.evaluate(cfg, progress=False)
+    stats = tr.evaluate(cfg)
     assert set(stats) == {("flat", 0), ("flat", 3)}
     for row in stats.values():
         assert row["episodes"] == 4        # 2 envs x ceil(3 / 2) episodes, none cut short
@@ -29,20 +30,51 @@ def test_every_tile_counts_its_episodes_and_figures():
         assert row["lin_err"] > 0 and row["ang_err"] >= 0
         assert 0 < row["lin_reward"] <= tr.env_scale("lin")
     md = tr.render_markdown(stats, cfg, "cmd", 1.0, None)
-    assert "| 3 | 4 | 100.0% |" in md and tr.highest_level(stats, "flat", cfg.levels) == 3
+    assert "| 3 | 4 | 100.0% |" in md and tr.highest_level(stats, "flat", cfg.level_list) == 3
 
 
 def test_errors_are_the_per_step_means_of_the_shared_quantities():
     """One episode per environment: the tile's |v err| is the mean of step_quantities'
     vel_err over every step of its environments (the same figure msta-eval sums)."""
-    cfg = tiny(episodes=1, envs_per_tile=1, levels=(2,))
-    row = tr.evaluate(cfg, progress=False)[("flat", 2)]
+    cfg = tiny(episodes=1, envs_per_tile=1, levels="2")
+    row = tr.evaluate(cfg)[("flat", 2)]
     env = QuadrupedEnv(EnvConfig(num_envs=1, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
                                  nthread=1, terrain=TerrainConfig(types=("flat",),
                                                                   columns_per_type=1,
                                                                   curriculum=False)))
     env.reset(type_idx=np.zeros(1, dtype=np.int64), level=np.array([2]))
     errs = []
-    rollout(env, tr.make_teacher("zero"),
+    rollout(env, build_teacher(TeacherConfig(type="zero")),
             lambda s: errs.append(step_quantities(s)["vel_err"][0]) or bool(s.res.done[0]))
     assert row["lin_err"] == pytest.approx(np.mean(errs), rel=1e-12)
+
+
+def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, capsys):
+    out = tmp_path / "q.md"
+    argv = ["--teacher.type=zero", "--episodes=2", "--envs_per_tile=5", "--terrains=flat",
+            "--levels=0-1", "--episode_length_s=0.1", "--nthread=1", "--columns=1",
+            f"--report={out}", "--image=", "--progress=false"]
+    tr.main(argv)
+    md = out.read_text()
+    # the options as parsed (envs_per_tile capped at episodes), progress left out
+    assert (f"Regenerate: `python -m eval.teacher_report --teacher.type=zero --episodes=2 "
+            f"--envs_per_tile=2 --terrains=flat --levels=0-1 --episode_length_s=0.1 "
+            f"--nthread=1 --columns=1 --report={out} --image=''`") in md
+    assert "| 1 | 2 | 100.0% |" in md and f"wrote {out}" in capsys.readouterr().out
+    assert tr.command_line(tr.TeacherReportConfig()) == (
+        "python -m eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
+
+
+@pytest.mark.parametrize("arg, message", [
+    ("--levels=3-12", "levels '3-12': give levels in [0, 9]"),
+    ("--levels=a,b", "write a range (0-9) or a list (0,1,2)"),
+    ("--terrains=flat,lava", "unknown terrain 'lava'"),
+    ("--episodes=0", "episodes=0 must be >= 1"),
+    ("--teacher.type=rma", "teacher type 'rma' needs --teacher.path"),
+    ("--no-progress", "did you mean --progress?"),
+])
+def test_clear_errors(arg, message, capsys):
+    with pytest.raises(SystemExit) as e:
+        tr.main([arg])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
