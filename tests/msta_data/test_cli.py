@@ -16,6 +16,9 @@ from eval.bench_train import main as bench_train_main
 from eval.compare import main as compare_main
 from eval.demo import main as demo_main
 from eval.evaluate import main as eval_main
+from eval.label_check import main as label_check_main
+from eval.report import main as report_main
+from eval.teacher_report import main as teacher_report_main
 from msta_data.cli import args_doc, field_help, parse_config
 from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
 from msta_data.hub_cli import main as hub_main
@@ -35,6 +38,9 @@ SCRIPTS = {
     "python -m eval.bench_train": (bench_train_main, "--rounds", "--seconds=0"),
     "python -m eval.bench_sim": (bench_sim_main, "--nthread", "--collision=fastt"),
     "python -m eval.bench_data": (bench_data_main, "--frames", "--frames=0"),
+    "python -m eval.label_check": (label_check_main, "--robots", "--robots=0"),
+    "python -m eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),
+    "python -m eval.teacher_report": (teacher_report_main, "--envs_per_tile", "--levels=3-12"),
 }
 
 
