@@ -293,8 +293,9 @@ def level_table(metrics: dict, metric: str = "total") -> str:
 def markdown(metrics: dict) -> str:
     """The whole report.md."""
     cfg = metrics["config"]
+    episode = cfg.get("episode_length_s", cfg.get("episode_s", 0))  # files before the rename
     intro = (f"{trials_note(metrics)} (terrains {', '.join(cfg['terrains'])}; levels "
-             f"{', '.join(map(str, cfg['levels']))}; one trial = one {cfg['episode_length_s']:g} s "
+             f"{', '.join(map(str, cfg['levels']))}; one trial = one {episode:g} s "
              f"episode); seed {cfg['seed']}; reference teacher `{cfg['teacher']['type']}` "
              f"({metrics['reference']['revision']}). Returns are per-step means normalized by "
              "the teacher's on identical trials; see docs/eval.md.")
