@@ -95,7 +95,7 @@ class CorrectConfig(LoopConfig):
             capped at the ratio the student was trained with (a student trained without
             masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
         policy: the starting student: ``--policy.path=<checkpoint directory or hub id>``
-            (stage 1's ``final/``).
+            (stage 1's ``final/``; in Python a plain path is accepted too).
         dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
         output_dir: round checkpoints, training runs and progress.json.
         rounds: correction rounds (raise it on ``--resume`` to run more). DAgger needs
@@ -166,6 +166,8 @@ class CorrectConfig(LoopConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
+            self.policy = PolicyPath(str(self.policy))
         check_push_to(self.push_to)
         for name in ("rounds", "episodes_per_round", "num_envs"):
             if getattr(self, name) < 1:

@@ -34,19 +34,9 @@ from policies.base import Batch, Channels, StudentPolicy
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
-from policies.transformer import (
-    Block,
-    SelfAttention,
-    init_linears,
-    make_blocks,
-    scale_residuals,
-    sincos_1d,
-    sincos_2d,
-)
+from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d, sincos_2d
 
-#: re-exported: the shared pieces live in policies/transformer.py
-__all__ = ["Block", "MSTAPolicy", "MSTATransformer", "SelfAttention", "num_kept", "sincos_1d",
-           "sincos_2d"]
+__all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
 
 
 def num_kept(num_tokens: int, mask_ratio: float) -> int:

@@ -17,10 +17,10 @@ from typing import Any
 from torch import Tensor
 
 from msta_data import sensors
-from policies.processor import MIN_STD, PAD_KEY, Batch, Channels, StudentProcessor, read_stats
+from policies.processor import Batch, Channels, StudentProcessor
 
 FORMAT = "msta-processor/1"
-__all__ = ["FORMAT", "MIN_STD", "PAD_KEY", "MSTAInputs", "MSTAProcessor", "read_stats"]
+__all__ = ["FORMAT", "MSTAInputs", "MSTAProcessor"]
 
 
 @dataclass
