@@ -113,6 +113,16 @@ def card_metadata(text: str) -> dict[str, Any]:
     return RepoCard(text, ignore_metadata_errors=True).data.to_dict()
 
 
+def card_info(metadata: dict[str, Any]) -> CardInfo:
+    """The :class:`CardInfo` an msta card's front matter records (its ``msta`` block), so
+    the card can be rebuilt with new figures."""
+    msta = metadata.get("msta") or {}
+    dataset = msta.get("dataset") or {}
+    return CardInfo(dataset_repo=dataset.get("repo"), dataset_revision=dataset.get("revision"),
+                    config=msta.get("config"), stage=msta.get("stage"), round=msta.get("round"),
+                    metrics=msta.get("metrics"), eval_table=msta.get("eval_table"))
+
+
 def card_metrics(metadata: dict[str, Any]) -> dict[str, float]:
     """Metrics recorded in a card: ``msta.metrics`` plus ``msta.eval_table`` as ``row/column``."""
     msta = metadata.get("msta") or {}

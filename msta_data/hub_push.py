@@ -16,7 +16,7 @@ from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
 
 from msta_data import layout as L
 from msta_data.errors import DatasetLockedError
-from msta_data.hub_cards import CardInfo, dataset_card, model_card
+from msta_data.hub_cards import CardInfo, card_info, card_metadata, dataset_card, model_card
 from msta_data.hub_ids import HubError, hub_api
 from msta_data.integrity import verify_for_publish
 from msta_data.locking import lock_directory
@@ -131,7 +131,8 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
         repo_id: ``user/name`` of the dataset repo.
         private: create the repo as private.
         card: dataset card content; default: a card built from meta/info.json when the root
-            has no README.md.
+            has no README.md, or msta's card of the root (say, pulled and then appended to)
+            rebuilt with the current meta/info.json; a README.md of the user's own is kept.
         tag: extra tag for this version.
         message: commit message.
         endpoint: hub URL (default HF_ENDPOINT).
@@ -156,8 +157,13 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
         verify_for_publish(root)  # refuses, naming the file, before anything is uploaded
         api = hub_api(endpoint, token)
         text = None
-        if card is not None or not (root / L.CARD_NAME).exists():
+        existing = root / L.CARD_NAME
+        if card is not None or not existing.exists():
             text = dataset_card(card or CardInfo(), info, repo_id)
+        else:  # msta's own card (e.g. pulled, then appended to): its figures follow info.json
+            meta = card_metadata(existing.read_text())
+            if "msta" in meta:
+                text = dataset_card(card_info(meta), info, repo_id)
         sha = _commit_dir(api, root, repo_id, "dataset", branch="main", private=private,
                           card_text=text, message=message or f"push dataset {root.name}",
                           allow_pickle=False)

@@ -273,3 +273,26 @@ def test_materialize_caches_by_commit(server, tmp_path):
     got = materialize("alice/mat@t", cache_dir=tmp_path / "cache")
     assert got == tmp_path / "cache" / "models" / "alice" / "mat" / sha
     assert materialize(f"alice/mat@{sha[:9]}", cache_dir=tmp_path / "cache") == got
+
+
+def test_a_dataset_card_follows_the_data_after_an_append(server, tmp_path, write_dataset):
+    """Pulled, appended to and pushed again: msta's card is rebuilt from the new info.json
+    (it kept saying the old episode count); a README.md of the user's own is kept as is."""
+    root = tmp_path / "ds"
+    write_dataset(root, [3])
+    push_dataset(root, "alice/grow", card=CardInfo(config={"episodes": 1}))
+    copy = pull("datasets/alice/grow", tmp_path / "copy")
+    assert card_metadata((copy / "README.md").read_text())["msta"]["lerobot"][
+        "total_episodes"] == 1
+    write_dataset(copy, [4, 2], seed0=5, append=True)
+    push_dataset(copy, "alice/grow")
+    again = pull("datasets/alice/grow", tmp_path / "again")
+    meta = card_metadata((again / "README.md").read_text())
+    assert meta["msta"]["lerobot"]["total_episodes"] == 3
+    assert meta["msta"]["lerobot"]["total_frames"] == 3 + 4 + 2
+    assert meta["msta"]["config"] == {"episodes": 1}  # what the card recorded stays
+
+    (copy / "README.md").write_text("# my own notes\n")
+    push_dataset(copy, "alice/grow")
+    mine = pull("datasets/alice/grow", tmp_path / "mine")
+    assert (mine / "README.md").read_text() == "# my own notes\n"
