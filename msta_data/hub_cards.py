@@ -72,18 +72,31 @@ def _render_card(metadata: dict[str, Any], title: str, info: CardInfo, extra: st
     return f"---\n{CardData(**metadata).to_yaml()}\n---\n\n" + "\n".join(body).rstrip() + "\n"
 
 
-def model_card(info: CardInfo, repo_id: str = "") -> str:
-    """README.md text (YAML front matter + markdown) for a checkpoint.
+#: The license of msta's checkpoints and datasets (the project's, pyproject.toml).
+LICENSE = "apache-2.0"
+
+
+def model_card(info: CardInfo, repo_id: str = "", revision: str | None = None) -> str:
+    """README.md text (YAML front matter + markdown) for a checkpoint: what it was trained
+    on, its figures, a usage snippet and the license; local paths are never written.
 
     Args:
         info: what to record.
-        repo_id: used in the default title.
+        repo_id: used in the default title and the usage snippet.
+        revision: the tag the checkpoint is pushed with (in the usage snippet).
     """
-    meta: dict[str, Any] = {"library_name": "msta", "tags": ["msta", "robotics", "quadruped", "lerobot"]}
+    meta: dict[str, Any] = {"library_name": "msta", "license": LICENSE,
+                            "tags": ["msta", "robotics", "quadruped", "lerobot"]}
     if info.dataset_repo:
         meta["datasets"] = [info.dataset_repo]
     meta["msta"] = info.msta_metadata()
-    return _render_card(meta, info.title or f"MSTA checkpoint {repo_id}".strip(), info)
+    ref = f"{repo_id}@{revision}" if repo_id and revision else repo_id or "<user/name@tag>"
+    usage = "\n".join([
+        "## Usage", "", "```python", "from policies.factory import load_policy", "",
+        f'policy = load_policy("{ref}")  # or a local checkpoint directory',
+        "actions = policy.act(batch)  # batch: sensor windows, see docs/msta_model.md", "```",
+        "", "```bash", f"msta-eval --policies teacher,{ref} --suite quick", "```", ""])
+    return _render_card(meta, info.title or f"MSTA checkpoint {repo_id}".strip(), info, usage)
 
 
 def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, repo_id: str = "") -> str:
@@ -94,7 +107,7 @@ def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, rep
         dataset_info: the dataset's meta/info.json (robot type, fps, sizes, features).
         repo_id: used in the default title.
     """
-    meta: dict[str, Any] = {"tags": ["LeRobot", "msta", "robotics", "quadruped"],
+    meta: dict[str, Any] = {"license": LICENSE, "tags": ["LeRobot", "msta", "robotics", "quadruped"],
                             "task_categories": ["robotics"],
                             "configs": [{"config_name": "default", "data_files": L.DATA_FILES_GLOB}]}
     msta = info.msta_metadata()

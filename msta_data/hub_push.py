@@ -103,7 +103,7 @@ def push(checkpoint_dir: str | os.PathLike, repo_id: str, tag: str | None = None
     """
     root = Path(checkpoint_dir)
     api = hub_api(endpoint, token)
-    text = model_card(card, repo_id) if card is not None else None
+    text = model_card(card, repo_id, tag) if card is not None else None
     sha = _commit_dir(api, root, repo_id, "model", branch=branch, private=private, card_text=text,
                       message=message or f"push {root.name}", allow_pickle=allow_pickle)
     if tag:

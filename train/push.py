@@ -11,8 +11,8 @@ that stage and round to the repo, and the commit sha (printed, and listed by
 earlier versions stay in the history.
 
 The model card records the training dataset (hub id and the commit sha it resolved to, or
-for a local dataset the ``repo_id`` of its ``meta/msta.json``, with the local path in the
-notes and the config), the training configuration, stage, round, summary metrics (stage 1:
+for a local dataset the ``repo_id`` of its ``meta/msta.json``; local paths are never written:
+:func:`portable`), the training configuration, stage, round, summary metrics (stage 1:
 the last train and validation losses of ``metrics.csv``; stage 2: msta-correct's per-round
 figures, which are msta-eval's on the same trials: linear-velocity tracking and total
 reward normalized by the teacher's, survival, their 95 % intervals and the trial count, at
@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import re
 from pathlib import Path
 from typing import Any
@@ -119,14 +120,25 @@ def _finite(d: dict[str, Any]) -> dict[str, float]:
             if isinstance(v, (int, float)) and math.isfinite(float(v))}
 
 
+def portable(obj: Any) -> Any:
+    """``obj`` (a JSON-like config) as a public card may show it: no ``output_dir``, and an
+    absolute local path becomes ``<local>/<its last part>``."""
+    if isinstance(obj, dict):
+        return {k: portable(v) for k, v in obj.items() if k != "output_dir"}
+    if isinstance(obj, list):
+        return [portable(v) for v in obj]
+    if isinstance(obj, str) and (os.path.isabs(obj) or obj.startswith("~")):
+        return f"<local>/{Path(obj).name}"
+    return obj
+
+
 def _card(src: dict[str, Any], config: dict[str, Any], stage: int, round_: int | None,
           metrics: dict[str, float], table: dict[str, dict[str, float]] | None,
           notes: str) -> CardInfo:
-    if src.get("path"):
-        notes = f"Local training dataset: `{src['path']}`. {notes}"
-    return CardInfo(dataset_repo=src["repo"], dataset_revision=src["revision"], config=config,
-                    stage=stage, round=round_, metrics=metrics or None, eval_table=table,
-                    notes=notes.strip())
+    """The card of a pushed checkpoint; local paths are left out (:func:`portable`)."""
+    return CardInfo(dataset_repo=src["repo"], dataset_revision=src["revision"],
+                    config=portable(config), stage=stage, round=round_,
+                    metrics=metrics or None, eval_table=table, notes=notes.strip())
 
 
 # ----- stage 1 -----------------------------------------------------------------------------
@@ -229,7 +241,7 @@ def push_round(cfg: Any, prog: dict[str, Any], r: int) -> dict[str, str]:
     notes = (f"Stage 2: online correction round {r}, retrained on the dataset plus the "
              f"student episodes of rounds 1-{r} labelled by the teacher "
              f"({prog['rounds'][str(r)].get('episodes_after')} episodes); started from "
-             f"`{cfg.policy.path}`. {eval_note(prog, r, f'{cfg.push_to}@stage2-r{r}')}")
+             f"`{portable(cfg.policy.path)}`. {eval_note(prog, r, f'{cfg.push_to}@stage2-r{r}')}")
     card = _card(src, draccus.encode(cfg), 2, r, metrics, table, notes)
     return push_checkpoint(ckpt, cfg.push_to, f"stage2-r{r}", card, cfg.push_private,
                            "the round is finished; rerun with --resume=true to push it")

@@ -148,6 +148,13 @@ def test_failed_stage1_push_keeps_the_checkpoint(synthetic_dataset, server, tmp_
     train(cfg)
     msta = card_at("alice/m", "stage1")["msta"]
     assert msta["dataset"] == {"repo": "local/train_test", "revision": None}
+    # a public card: the license, how to use it, and no path of this machine
+    text = Path(hub_api().hf_hub_download("alice/m", "README.md", revision="stage1")).read_text()
+    assert card_metadata(text)["license"] == "apache-2.0"
+    assert 'load_policy("alice/m@stage1")' in text and "msta-eval --policies teacher,alice/m@stage1" in text
+    assert str(tmp_path) not in text and str(synthetic_dataset) not in text
+    assert msta["config"]["dataset"] == f"<local>/{synthetic_dataset.name}"
+    assert "output_dir" not in msta["config"]
     assert hub_api().repo_info("alice/m").private
     with pytest.raises(HfHubHTTPError):  # private: anonymous reads are refused
         hub_api(token=False).repo_info("alice/m")
