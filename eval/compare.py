@@ -35,7 +35,7 @@ from typing import Any
 import draccus
 
 from msta_data import layout
-from msta_data.cli import parse_config
+from msta_data.cli import check_at_least, parse_config
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
@@ -127,13 +127,10 @@ class CompareConfig:
             raise ValueError(f"--policies {self.policies!r} has duplicates")
         for name in self.policy_list:
             policy_config(name, self.preset)  # unknown names / presets fail before any work
-        for name in ("stage1_steps", "batch_size", "episodes_per_round", "collect_num_envs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("stage2_rounds", "stage2_steps", "collect_episodes", "stage2_num_envs",
-                     "trials", "num_threads"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+        check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
+                       "collect_num_envs")
+        check_at_least(self, 0, "stage2_rounds", "stage2_steps", "collect_episodes",
+                       "stage2_num_envs", "trials", "num_threads")
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
         if not self.dataset and not self.collect_episodes:

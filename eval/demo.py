@@ -32,6 +32,7 @@ from pathlib import Path
 
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
+from msta_data.cli import check_at_least
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
@@ -250,10 +251,8 @@ class DemoConfig:
     num_threads: int = 2
 
     def __post_init__(self) -> None:
-        for name in ("episodes", "train_steps", "correct_steps", "correct_episodes",
-                     "envs_per_type", "eval_trials", "select_trials", "num_threads"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        check_at_least(self, 1, "episodes", "train_steps", "correct_steps", "correct_episodes",
+                       "envs_per_type", "eval_trials", "select_trials", "num_threads")
         for name in ("episode_length_s", "select_episode_length_s", "teacher_seconds",
                      "eval_episode_length_s"):
             if not getattr(self, name) > 0:

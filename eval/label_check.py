@@ -35,7 +35,7 @@ from collect.rollout import Step, rollout, step_quantities
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
 from eval.intervals import ratio_interval, wilson_interval
-from msta_data.cli import parse_config, usage_error
+from msta_data.cli import check_at_least, parse_config, usage_error
 from msta_data.locate import locate_checkpoint
 from msta_data.robot import CONTROL_DT
 from policies.actor import StudentActor
@@ -71,9 +71,7 @@ class LabelCheckConfig:
     num_threads: int = 1
 
     def __post_init__(self) -> None:
-        for name in ("robots", "num_threads"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        check_at_least(self, 1, "robots", "num_threads")
         if self.max_level < 0:
             raise ValueError(f"max_level={self.max_level} must be >= 0")
         if not 0 < self.student_seconds < self.episode_length_s:

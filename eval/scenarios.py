@@ -32,6 +32,7 @@ import numpy as np
 
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialLayout
+from msta_data.cli import check_at_least
 from msta_data.robot import NUM_JOINTS
 from policies.actor import InputSpec
 
@@ -299,9 +300,7 @@ class TrialConfig:
         self.num_trials = self.trials or suite.trials
         self.episode = self.episode_length_s or suite.episode_length_s
         self.envs = self.num_envs or suite.num_envs
-        for name in ("num_trials", "envs", "num_threads"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        check_at_least(self, 1, "num_trials", "envs", "num_threads")
         if self.episode <= 0:
             raise ValueError(f"episode_length_s={self.episode} must be > 0")
 

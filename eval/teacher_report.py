@@ -33,7 +33,7 @@ from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialResults, summarize
-from msta_data.cli import parse_config
+from msta_data.cli import check_at_least, parse_config
 from policies.teacher.config import TeacherConfig, build_teacher
 
 PROG = "python -m eval.teacher_report"
@@ -98,9 +98,7 @@ class TeacherReportConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("episodes", "envs_per_tile", "nthread", "columns"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        check_at_least(self, 1, "episodes", "envs_per_tile", "nthread", "columns")
         if not self.episode_length_s > 0:
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
         if not self.report:

@@ -312,6 +312,14 @@ def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
     return out
 
 
+def check_at_least(config: Any, minimum: float, *names: str) -> None:
+    """Raise ``ValueError("<name>=<value> must be >= <minimum>")`` for the first of the config's
+    fields ``names`` below ``minimum`` (the range check every command's config makes)."""
+    for name in names:
+        if getattr(config, name) < minimum:
+            raise ValueError(f"{name}={getattr(config, name)} must be >= {minimum}")
+
+
 def _check_groups(config_class: type, args: Sequence[str], prog: str) -> None:
     """``--policy=x`` where ``policy`` is a group of options (a nested config): one line
     naming the group's options instead of draccus' decoding error."""

@@ -14,7 +14,8 @@ Checkpoint layout (LeRobot-style), written by :meth:`StudentPolicy.save_pretrain
 Loading a checkpoint from someone else is checked before anything is allocated (file size
 limits, a parameter limit, the safetensors header against the model; one-line
 :class:`CheckpointError` naming the file): :mod:`policies.checkpoint` holds those checks,
-:mod:`policies.config` the config every student starts from; both are re-exported here.
+:mod:`policies.config` the config every student starts from; the names students and
+trainers use from both are re-exported here.
 """
 
 from __future__ import annotations
@@ -31,12 +32,9 @@ from torch import Tensor, nn
 
 from policies.checkpoint import (
     CONFIG_NAME,
-    DEFAULT_MAX_PARAMS,
-    MAX_JSON_BYTES,
     PROCESSOR_NAME,
     WEIGHTS_NAME,
     CheckpointError,
-    check_safetensors,
     load_weights,
     param_limit,
     read_json_file,
@@ -46,11 +44,11 @@ from policies.config import PolicyConfig, check_fraction
 from policies.processor import Batch, Channels, StudentProcessor
 
 __all__ = [
-    "CONFIG_NAME", "DEFAULT_MAX_PARAMS", "MAX_JSON_BYTES", "PROCESSOR_NAME", "WEIGHTS_NAME",
-    "Batch", "Channels", "CheckpointError", "Policy", "PolicyConfig", "Processor",
-    "StudentPolicy", "StudentProcessor", "check_safetensors", "load_weights", "param_limit", "read_json_file",
+    "CONFIG_NAME", "PROCESSOR_NAME", "WEIGHTS_NAME", "Batch", "Channels", "CheckpointError",
+    "Policy", "PolicyConfig", "Processor", "StudentPolicy", "StudentProcessor", "load_weights",
     "resolve_pretrained",
 ]
+
 
 @runtime_checkable
 class Processor(Protocol):

@@ -93,11 +93,6 @@ def registered_policies(kind: str | None = None) -> list[str]:
     return sorted(n for n in _POLICIES if kind is None or _KIND[n] == kind)
 
 
-def known_policies() -> list[str]:
-    """Every registered policy name, sorted (:func:`registered_policies` of any kind)."""
-    return registered_policies()
-
-
 def policy_kind(name: str) -> str:
     """The kind (:data:`KINDS`) policy ``name`` was registered with."""
     get_policy_class(name)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from msta_data.cli import check_at_least
+
 
 @dataclass
 class LoopConfig:
@@ -44,12 +46,9 @@ class LoopConfig:
     ema_decay: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("steps", "batch_size", "log_every", "val_samples"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("warmup_steps", "eval_every", "save_every", "grad_clip", "weight_decay"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 0")
+        check_at_least(self, 1, "steps", "batch_size", "log_every", "val_samples")
+        check_at_least(self, 0, "warmup_steps", "eval_every", "save_every", "grad_clip",
+                       "weight_decay")
         if not self.lr > 0:
             raise ValueError(f"lr={self.lr} must be > 0")
         if not 0.0 <= self.ema_decay < 1.0:

@@ -25,6 +25,7 @@ from train.step import train_step, validate
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
               "val_loss", "val_loss_unmasked", "val_action_mse")
 
+
 @dataclass
 class FitResult:
     """What :func:`fit` reports."""
@@ -150,8 +151,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     """
     out.mkdir(parents=True, exist_ok=True)
     mask_ratio = _mask(policy, cfg.mask_ratio)
-    if hasattr(policy.config, "mask_ratio"):  # the saved config.json says what was used
-        policy.config.mask_ratio = mask_ratio
+    policy.config.mask_ratio = mask_ratio  # the saved config.json says what was used
     optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay)
     scheduler = make_scheduler(optimizer, cfg)
     sampler = WindowSampler(len(train_ds), cfg.batch_size, cfg.seed, weights)

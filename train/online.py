@@ -55,6 +55,7 @@ import torch
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
+from msta_data.cli import check_at_least
 from msta_data.features import load_info
 from msta_data.locate import locate_checkpoint, locate_dataset
 from msta_data.revision import content_revision
@@ -81,8 +82,6 @@ RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs
                  "levels_from_dataset", "teacher_follows_robot")
 #: Values of RESUME_FIELDS in progress.json files written before the field existed.
 RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False}
-#: progress.json files written before ``--policy.path`` stored the checkpoint as a string.
-LEGACY_POLICY = str
 
 
 @dataclass
@@ -169,9 +168,7 @@ class CorrectConfig(LoopConfig):
         if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
             self.policy = PolicyPath(str(self.policy))
         check_push_to(self.push_to)
-        for name in ("rounds", "episodes_per_round", "num_envs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name}={getattr(self, name)} must be >= 1")
+        check_at_least(self, 1, "rounds", "episodes_per_round", "num_envs")
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
             raise ValueError(f"beta={self.beta} and beta_decay={self.beta_decay} must be in [0, 1]")
         if not 0.0 < self.recent_weight <= 1.0:
@@ -312,7 +309,7 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
                               "choose another --output_dir")
     prog = json.loads(path.read_text())
     saved = dict(prog["config"])
-    if isinstance(saved.get("policy"), LEGACY_POLICY):  # before --policy.path
+    if isinstance(saved.get("policy"), str):  # before --policy.path
         saved["policy"] = {"path": saved["policy"]}
     bad = [k for k in RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
     if bad:

@@ -136,7 +136,7 @@ def _card(src: dict[str, Any], config: dict[str, Any], stage: int, round_: int |
           metrics: dict[str, float], table: dict[str, dict[str, float]] | None,
           notes: str) -> CardInfo:
     """The card of a pushed checkpoint; local paths are left out (:func:`portable`)."""
-    return CardInfo(dataset_repo=src["repo"], dataset_revision=src["revision"],
+    return CardInfo(dataset_repo=portable(src["repo"]), dataset_revision=src["revision"],
                     config=portable(config), stage=stage, round=round_,
                     metrics=metrics or None, eval_table=table, notes=notes.strip())
 

@@ -15,7 +15,13 @@ from msta_data import sensors
 from policies.base import PolicyConfig
 from policies.baselines import BASELINES, REFERENCES, TCNConfig, TERTMaskConfig, TimestepPolicy
 from policies.baselines.common import random_input_mask
-from policies.factory import get_config_class, known_policies, load_policy, make_config, make_policy
+from policies.factory import (
+    get_config_class,
+    load_policy,
+    make_config,
+    make_policy,
+    registered_policies,
+)
 
 T = 15  # the paper's window (RMA's convolutions need >= 12 steps)
 #: every registered baseline and reference learner, plus the TCN variant that accepts any
@@ -75,7 +81,7 @@ def raw_placeholder(policy: TimestepPolicy, name: str, B: int, steps: int) -> to
 
 # --- registry, presets, config --------------------------------------------------------
 def test_registry_presets_and_draccus() -> None:
-    assert set(BASELINES + REFERENCES) <= set(known_policies())
+    assert set(BASELINES + REFERENCES) <= set(registered_policies())
     for name in BASELINES + REFERENCES:
         cls = get_config_class(name)
         assert {"paper", "cpu", "tiny"} <= set(cls.PRESETS)

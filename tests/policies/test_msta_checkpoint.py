@@ -12,7 +12,13 @@ import torch
 
 from msta_data import sensors
 from policies.base import Policy, PolicyConfig
-from policies.factory import get_config_class, known_policies, load_policy, make_config, make_policy
+from policies.factory import (
+    get_config_class,
+    load_policy,
+    make_config,
+    make_policy,
+    registered_policies,
+)
 from policies.msta import PRESETS, MSTAConfig, MSTAPolicy
 
 
@@ -106,7 +112,7 @@ def test_loading_errors(tmp_path: Path) -> None:
 
 
 def test_registry_and_draccus_cli() -> None:
-    assert "msta" in known_policies() and get_config_class("msta") is MSTAConfig
+    assert "msta" in registered_policies() and get_config_class("msta") is MSTAConfig
     with pytest.raises(KeyError, match="'nope'"):
         get_config_class("nope")
     assert make_config("msta", dim=64).dim == 64

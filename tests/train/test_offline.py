@@ -11,7 +11,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from policies.factory import get_config_class, known_policies, load_policy
+from policies.factory import get_config_class, load_policy, registered_policies
 from policies.msta import MSTAPolicy
 from train.cli import parse_cli
 from train.offline import TrainConfig, main, train
@@ -59,7 +59,7 @@ def test_every_policy_type_parses_in_a_fresh_process(tmp_path):
                                   "rma_tcn:TCNConfig"]
 
 
-@pytest.mark.parametrize("policy_type", known_policies())
+@pytest.mark.parametrize("policy_type", registered_policies())
 def test_every_registered_policy_trains_two_steps_through_msta_train(policy_type, synthetic_dataset,
                                                                       tmp_path):
     """Adding a policy is one registration: msta-train then trains it (tiny preset where the
