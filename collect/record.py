@@ -110,6 +110,9 @@ class LabelledActor:
             self.label_action = executed
             return executed
         self.label_action = np.asarray(self._lab_act(obs), dtype=np.float32)
+        if self.beta <= 0:  # the usual case: the actor drives, no coin flips needed
+            self.label_share[1] += len(executed)
+            return executed
         use = self.rng.random(len(executed)) < self.beta          # (N,)
         self.label_share[0] += int(use.sum())
         self.label_share[1] += len(use)

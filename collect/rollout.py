@@ -178,9 +178,7 @@ class RolloutSummary:
         return "\n".join(lines)
 
 
-def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True,
-        on_step: Callable[[dict, np.ndarray, StepResult], None] | None = None,
-        ) -> RolloutSummary:
+def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True) -> RolloutSummary:
     """:func:`rollout` for ``steps`` control steps, summarized per terrain type (msta-sim).
 
     Args:
@@ -188,7 +186,6 @@ def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True,
         policy: object with act/reset, or a callable obs -> actions.
         steps: control steps (each advances all ``env.num_envs`` environments).
         progress: show a tqdm bar with env steps/s.
-        on_step: called with (obs before the step, actions, result) after every step.
     Returns:
         per-terrain-type statistics.
     """
@@ -198,8 +195,6 @@ def run(env: QuadrupedEnv, policy: Any, steps: int, progress: bool = True,
 
     def hook(step: Step) -> None:
         summary.add(step)
-        if on_step is not None:
-            on_step(step.obs, step.action, step.res)
         bar.update(env.num_envs)
 
     rollout(env, policy, hook, max_steps=steps)
