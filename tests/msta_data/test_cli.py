@@ -24,11 +24,13 @@ from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
 from msta_data.hub_cli import main as hub_main
 from train.offline import main as train_main
 from train.online import main as correct_main
+from train.teacher.cli import main as train_teacher_main
 
 #: console script -> (entry point, an option it has, a bad value for an option)
 SCRIPTS = {
     "msta-train": (train_main, "--steps", "--steps=abc"),
     "msta-correct": (correct_main, "--rounds", "--env.collision=fastt"),
+    "msta-train-teacher": (train_teacher_main, "--seed", "--ppo.init_std=0"),
     "msta-collect": (collect_main, "--episodes", "--episodes=0"),
     "msta-eval": (eval_main, "--trials", "--terrains=lava"),
     "msta-compare": (compare_main, "--preset", "--collect_num_envs=x"),

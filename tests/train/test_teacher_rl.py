@@ -1,0 +1,166 @@
+"""The RMA teacher's training path: msta's simulator as an rsl_rl VecEnv, the RMA actor,
+the DAgger warm start from the gait controller and msta-train-teacher (resumable)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from rsl_rl.env import VecEnv
+from rsl_rl.runners import OnPolicyRunner
+
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from policies.teacher.config import TeacherConfig, build_teacher
+from policies.teacher.imported import InputScaler
+from policies.teacher.rma import RMAConfig, RMATeacher
+from train.teacher.cli import PPOConfig, TrainTeacherConfig, latest_checkpoint, train_teacher
+from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
+from train.teacher.model import RMAActor, load_from_teacher, to_teacher
+from train.teacher.warmstart import WarmStartConfig, warm_start
+
+
+def small_env(n: int = 8, seconds: float = 1.0, **kw) -> EnvConfig:
+    return EnvConfig(num_envs=n, episode_length_s=seconds, nthread=1,
+                     terrain=TerrainConfig(types=("flat", "smooth_slope"), num_levels=3,
+                                           max_init_level=1), **kw)
+
+
+def test_the_simulator_is_an_rsl_rl_vec_env_with_the_teachers_scaling():
+    env = RslVecEnv(small_env(seconds=0.2))
+    assert isinstance(env, VecEnv) and env.num_actions == 12 and env.max_episode_length == 10
+    obs = env.get_observations()
+    rma = RMAConfig()
+    priv, prop = InputScaler(rma.privileged)(env.raw_obs), InputScaler(rma.proprio)(env.raw_obs)
+    assert obs[PRIVILEGED].shape == (8, 205) and obs[PROPRIO].shape == (8, 49)
+    np.testing.assert_array_equal(obs[PRIVILEGED].numpy(), priv)
+    np.testing.assert_array_equal(obs[PROPRIO].numpy(), prop)
+    timeouts = []
+    for _ in range(10):
+        obs, rew, dones, extras = env.step(torch.zeros(8, 12))
+        assert rew.shape == (8,) and rew.dtype == torch.float32 and dones.dtype == torch.bool
+        assert "/terrain_level" in extras["log"]
+        timeouts.append(extras["time_outs"])
+    # standing still on easy ground: every episode ends by the time limit at step 10
+    assert bool(timeouts[-1].all()) and not any(bool(t.any()) for t in timeouts[:-1])
+    assert (env.episode_length_buf == 0).all()           # auto-reset
+    env.episode_length_buf = torch.full((8,), 8)         # rsl_rl's init_at_random_ep_len
+    assert bool(env.step(torch.zeros(8, 12))[3]["time_outs"].any()) is False
+    assert bool(env.step(torch.zeros(8, 12))[3]["time_outs"].all())
+    assert env.take_stats()["episodes"] == 16
+
+
+def test_rsl_rls_runner_trains_the_rma_actor_and_it_exports_to_an_rma_teacher(tmp_path):
+    env = RslVecEnv(small_env())
+    rma = RMAConfig()
+    cfg = PPOConfig(num_steps_per_env=4).runner_cfg(rma)
+    runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")
+    actor = runner.alg.get_policy()
+    assert isinstance(actor, RMAActor)
+    before = {k: v.clone() for k, v in actor.state_dict().items()}
+    runner.learn(2)
+    assert any(not torch.equal(before[k], v) for k, v in actor.state_dict().items())
+    teacher = to_teacher(actor, rma)
+    obs = env.get_observations()
+    with torch.no_grad():
+        np.testing.assert_array_equal(actor(obs).numpy(),
+                                      teacher(obs[PRIVILEGED], obs[PROPRIO]).numpy())
+    teacher.save_pretrained(tmp_path / "t")
+    loaded = build_teacher(TeacherConfig(type="rma", path=str(tmp_path / "t")))
+    np.testing.assert_allclose(loaded.act(env.raw_obs), teacher.act(env.raw_obs), atol=0)
+    fresh = RMATeacher(rma)
+    load_from_teacher(actor, fresh)
+    with torch.no_grad():
+        np.testing.assert_array_equal(actor(obs).numpy(),
+                                      fresh(obs[PRIVILEGED], obs[PROPRIO]).numpy())
+
+
+def label_mse(net: RMATeacher, seed: int) -> float:
+    """MSE between the network and the gait controller on the controller's own rollout."""
+    env = RslVecEnv(small_env(16, 2.0, seed=seed))
+    gait = build_teacher(TeacherConfig())
+    gait.reset(np.arange(16))
+    obs, errs = env.raw_obs, []
+    for _ in range(50):
+        label = gait.act(obs)
+        errs.append(float(((net.act(obs) - label) ** 2).mean()))
+        res = env.sim.step(label)
+        obs = res.obs
+        if res.done.any():
+            gait.reset(np.flatnonzero(res.done))
+    return float(np.mean(errs))
+
+
+def test_the_dagger_warm_start_imitates_the_gait_controller(tmp_path):
+    torch.manual_seed(0)
+    untrained = label_mse(RMATeacher(RMAConfig()), seed=5)
+    cfg = WarmStartConfig(iterations=2, steps=100, fit_steps=300, batch_size=512)
+    net = warm_start(small_env(16, 2.0), RMAConfig(), cfg, tmp_path / "ws", log=lambda s: None)
+    trained = label_mse(net, seed=5)   # held-out episodes (another seed)
+    assert trained < 0.5 * untrained, (trained, untrained)
+    history = json.loads((tmp_path / "ws" / "warmstart.json").read_text())["history"]
+    assert [h["beta"] for h in history] == [1.0, 0.5]
+    assert history[-1]["fit_mse"] < history[0]["label_mse_on_rollout"]
+    # a finished warm start is loaded, not trained again
+    again = warm_start(small_env(16, 2.0), RMAConfig(), cfg, tmp_path / "ws", log=lambda s: None)
+    o = RslVecEnv(small_env(4)).raw_obs
+    np.testing.assert_array_equal(again.act(o), net.act(o))
+
+
+def test_msta_train_teacher_runs_both_stages_and_resumes(tmp_path):
+    def cfg(iterations: int) -> TrainTeacherConfig:
+        return TrainTeacherConfig(
+            output_dir=str(tmp_path), num_threads=1, device="cpu",
+            warmstart=WarmStartConfig(iterations=1, steps=20, fit_steps=5),
+            ppo=PPOConfig(iterations=iterations, num_steps_per_env=4, save_interval=2,
+                          critic_warmup=2),
+            env=small_env())
+
+    logs: list[str] = []
+    path = train_teacher(cfg(4), log=logs.append)
+    assert any("(critic only)" in line for line in logs)
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    assert [r["iteration"] for r in curve] == [2, 4] and curve[0]["critic_only"]
+    assert curve[1]["env_steps"] == 4 * 4 * 8
+    assert latest_checkpoint(tmp_path / "ppo")[1] == 3
+    assert len(list((tmp_path / "ppo").glob("model_*.pt"))) == 2        # pruned
+    assert list((tmp_path / "ppo").glob("events.out.tfevents.*"))          # TensorBoard
+    first = build_teacher(TeacherConfig(type="rma", path=str(path)))
+    # the same command with a larger total continues from iteration 4
+    logs.clear()
+    train_teacher(cfg(6), log=logs.append)
+    assert any("resuming from model_3.pt (4/6" in line for line in logs)
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    assert [r["iteration"] for r in curve] == [2, 4, 6]
+    assert curve[2]["env_steps"] == 6 * 4 * 8
+    obs = RslVecEnv(small_env(4)).raw_obs
+    assert not np.array_equal(build_teacher(TeacherConfig(type="rma", path=str(path))).act(obs),
+                              first.act(obs))
+
+
+def test_bad_settings_are_one_line_errors():
+    with pytest.raises(ValueError, match="init_std"):
+        PPOConfig(init_std=0)
+    with pytest.raises(ValueError, match="beta_decay"):
+        WarmStartConfig(beta_decay=2)
+
+
+def test_an_interrupted_warm_start_continues_after_its_last_iteration(tmp_path):
+    cfg = WarmStartConfig(iterations=2, steps=10, fit_steps=3, batch_size=64)
+
+    def killed_in_iteration_2(line: str) -> None:
+        if line.startswith("warm start 2/2"):   # after iteration 2's fit, before its save
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        warm_start(small_env(), RMAConfig(), cfg, tmp_path, log=killed_in_iteration_2)
+    assert (tmp_path / "partial.pt").is_file() and not (tmp_path / "config.json").exists()
+    logs: list[str] = []
+    warm_start(small_env(), RMAConfig(), cfg, tmp_path, log=logs.append)
+    assert logs[0] == "warm start: resuming after iteration 1/2"
+    assert [line[:14] for line in logs[1:]] == ["warm start 2/2"]
+    history = json.loads((tmp_path / "warmstart.json").read_text())["history"]
+    assert [h["iteration"] for h in history] == [0, 1]
+    assert not (tmp_path / "partial.pt").exists()   # a finished warm start cleans up
