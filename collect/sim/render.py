@@ -31,6 +31,25 @@ def _camera(distance: float = 1.6, azimuth: float = 135.0, elevation: float = -2
     return cam
 
 
+def render_state(renderer: mujoco.Renderer, model: mujoco.MjModel, data: mujoco.MjData,
+                 state: np.ndarray, camera: mujoco.MjvCamera | None = None) -> np.ndarray:
+    """One picture of a simulator state, the camera following the trunk.
+
+    Args:
+        renderer: from ``make_renderer(model, ...)``.
+        model: the env's model (``QuadrupedEnv.model``).
+        data: scratch ``MjData`` of ``model`` (overwritten).
+        state: one row of ``QuadrupedEnv.state`` (MuJoCo's full-physics state).
+        camera: default: a tracking camera 1.6 m away, looking down 20 degrees.
+    Returns:
+        (height, width, 3) uint8 frame (a copy).
+    """
+    mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    mujoco.mj_forward(model, data)
+    renderer.update_scene(data, camera=camera or _camera())
+    return renderer.render().copy()
+
+
 def record(env, policy: Callable[[dict], np.ndarray], steps: int, env_id: int = 0,
            every: int = 5, height: int = 360, width: int = 480) -> list[np.ndarray]:
     """Run ``policy`` on all envs for ``steps`` control steps, rendering env ``env_id``.
@@ -51,11 +70,7 @@ def record(env, policy: Callable[[dict], np.ndarray], steps: int, env_id: int = 
     try:
         for t in range(steps):
             if t % every == 0:
-                mujoco.mj_setState(env.model, data, env.state[env_id],
-                                   mujoco.mjtState.mjSTATE_FULLPHYSICS)
-                mujoco.mj_forward(env.model, data)
-                renderer.update_scene(data, camera=cam)
-                frames.append(renderer.render().copy())
+                frames.append(render_state(renderer, env.model, data, env.state[env_id], cam))
             obs = env.step(policy(obs)).obs
     finally:
         renderer.close()
