@@ -12,6 +12,9 @@ Nothing is created before the configuration, the teacher and the simulator are c
 existing dataset is verified (every committed file against the sha256 recorded at commit)
 before it is extended, and a damaged one is refused with one line naming the file. A
 dataset left empty by a run that recorded nothing is reused by the next run.
+
+Episodes carry the per-sensor columns only; the writer adds ``observation.state`` and
+``observation.environment_state`` for stock LeRobot policies (:mod:`msta_data.derived`).
 """
 
 from __future__ import annotations

@@ -5,6 +5,10 @@ Columns of ``data/chunk-*/file-*.parquet`` (one row per control step, 50 Hz):
 * one float32 vector column per registry sensor (``SensorSpec.column``): student inputs
   ``observation.<name>``, privileged signals ``privileged.<name>``, channel names from the
   registry;
+* ``observation.state`` (the student sensors concatenated) and
+  ``observation.environment_state`` (the velocity command), computed by the writer from the
+  sensor columns so that stock LeRobot policies (ACT, diffusion) train on the dataset
+  unchanged (:mod:`msta_data.derived`; schema 2 on);
 * ``action`` (12): the teacher's label for this step; ``executed_action`` (12): the
   action actually applied (equal to ``action`` for teacher rollouts, the student's action
   in stage 2);
@@ -23,7 +27,9 @@ columns and ``LeRobotDataset(..., episode_filter=lambda ep: ep["provenance/terra
 episodes by terrain type.
 
 ``meta/msta.json`` records the msta schema version and the sensor list; ``info.json`` is
-left exactly as lerobot writes it (lerobot warns about unknown keys there).
+left exactly as lerobot writes it (lerobot warns about unknown keys there). Schema 1 (before
+the derived columns) is still read and appended to in its own layout, so every file of a
+dataset has the same columns.
 """
 
 from __future__ import annotations
@@ -39,12 +45,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from msta_data import derived as D
 from msta_data import layout as L
 from msta_data import sensors as registry
 from msta_data.errors import DatasetFormatError, EpisodeValidationError
 
 CODEBASE_VERSION = "v3.0"
-MSTA_SCHEMA_VERSION = 1
+#: Schema of new datasets: 2 adds the derived columns (msta_data.derived) to schema 1.
+MSTA_SCHEMA_VERSION = 2
+#: Schemas the writer appends to (each in its own layout) and the readers read.
+SCHEMA_VERSIONS: tuple[int, ...] = (1, 2)
 DEFAULT_FPS = 50
 DEFAULT_ROBOT_TYPE = "a1"
 
@@ -151,20 +161,26 @@ def resolve_sensors(sensors: Sequence[str] | None) -> tuple[str, ...]:
     return tuple(n for n in registry.SENSORS if n in set(sensors))
 
 
-def build_features(sensors: Sequence[str] | None = None) -> dict[str, dict[str, Any]]:
+def build_features(sensors: Sequence[str] | None = None,
+                   derived: bool = False) -> dict[str, dict[str, Any]]:
     """The lerobot ``features`` dict (as in ``meta/info.json``) for the given sensors.
 
     Args:
         sensors: registry names; ``None`` = the whole registry.
+        derived: include ``observation.state`` / ``observation.environment_state``
+            (:mod:`msta_data.derived`), as a schema-2 dataset (every new one) does;
+            ``False`` gives a schema-1 dataset's features.
 
     Returns:
-        column -> {"dtype", "shape", "names"}: sensors, then the non-sensor columns, then
-        lerobot's default columns (the same order as the Parquet columns).
+        column -> {"dtype", "shape", "names"}: sensors, the derived columns, then the
+        non-sensor columns, then lerobot's default columns (the Parquet column order).
     """
     feats: dict[str, dict[str, Any]] = {}
     for name in resolve_sensors(sensors):
         spec = registry.get(name)
         feats[spec.column] = {"dtype": "float32", "shape": (spec.dim,), "names": list(spec.names)}
+    if derived:
+        feats.update(D.features(feats))
     for col, ft in {**NON_SENSOR_FEATURES, **LEROBOT_DEFAULT_FEATURES}.items():
         feats[col] = {"dtype": ft["dtype"], "shape": tuple(ft["shape"]),
                       "names": None if ft["names"] is None else list(ft["names"])}
@@ -172,8 +188,9 @@ def build_features(sensors: Sequence[str] | None = None) -> dict[str, dict[str, 
 
 
 def input_columns(features: dict[str, dict[str, Any]]) -> list[str]:
-    """Columns the collector supplies per episode (everything but lerobot's defaults)."""
-    return [c for c in features if c not in LEROBOT_DEFAULT_FEATURES]
+    """Columns the collector supplies per episode (all but lerobot's defaults and the
+    derived columns, which the writer fills)."""
+    return [c for c in features if c not in LEROBOT_DEFAULT_FEATURES and c not in D.COLUMNS]
 
 
 def sensor_column_to_name(features: dict[str, dict[str, Any]]) -> dict[str, str]:
@@ -291,7 +308,7 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
 def check_column_feature(info: dict[str, Any], column: str, root: str | Path) -> None:
     """Raise unless ``info.json`` declares ``column`` as the registry / schema expects."""
     path = Path(root) / L.INFO_PATH
-    expected = build_features().get(column)
+    expected = build_features(derived=True).get(column)
     actual = info["features"].get(column)
     if actual is None:
         raise DatasetFormatError(
@@ -386,7 +403,7 @@ def validate_episode(frames: dict[str, np.ndarray],
     missing = [c for c in expected if c not in frames]
     extra = sorted(set(frames) - set(expected))
     if missing or extra:
-        auto = [c for c in extra if c in LEROBOT_DEFAULT_FEATURES]
+        auto = [c for c in extra if c in LEROBOT_DEFAULT_FEATURES or c in D.COLUMNS]
         raise EpisodeValidationError(
             f"episode columns do not match the dataset: missing {missing}, unknown {extra}"
             + (f" ({auto} are filled by the writer)" if auto else ""))

@@ -29,6 +29,11 @@ manifest (and refuses, naming the file, when one is missing, truncated or change
 ``info.json`` matches no recorded commit), then deletes the files of an unfinished commit
 and ``.tmp`` leftovers — never a file the manifest lists as committed — and recomputes
 ``stats.json`` from the committed per-episode stats when it is not the committed one.
+
+The writer also fills ``observation.state`` and ``observation.environment_state`` from the
+sensor columns, with their statistics (:mod:`msta_data.derived`). A dataset written before
+them (msta schema 1) is appended to in its own layout, without them, so all its files keep
+the same columns; re-record it to give it the derived columns.
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from msta_data import derived as D
 from msta_data import features as F
 from msta_data import integrity as I
 from msta_data import layout as L
@@ -154,7 +160,7 @@ class DatasetWriter:
             if leftovers:
                 raise FileExistsError(
                     f"{root}: not empty ({sorted(leftovers)[:5]}); use DatasetWriter.open to append")
-            feats = F.build_features(sensors)
+            feats = F.build_features(sensors, derived=True)
             info = {
                 "codebase_version": F.CODEBASE_VERSION, "fps": int(fps), "features": feats,
                 "total_episodes": 0, "total_frames": 0, "total_tasks": 0, "chunks_size": 1000,
@@ -295,7 +301,7 @@ class DatasetWriter:
         Args:
             frames: column -> ``(L, dim)`` array for every column of
                 ``features.input_columns`` (float32; ``next.done`` bool; scalars may be
-                ``(L,)``). Timestamps and indices are filled by the writer.
+                ``(L,)``). Timestamps, indices and the derived columns are filled by the writer.
             provenance: the :class:`~msta_data.features.Provenance` fields as a dict.
 
         Returns:
@@ -312,6 +318,8 @@ class DatasetWriter:
                       task=task, columns=cols, stats={}, provenance=prov)
         ep.columns.update(self._auto_columns(ep, self.num_frames))
         ep.stats = S.episode_stats(ep.columns)
+        ep.stats.update(D.derive_stats(ep.stats, self.features))
+        ep.columns.update(D.derive(ep.columns, self.features))
         ep.stats = {c: ep.stats[c] for c in self.features}  # schema order
         self._buffer.append(ep)
         self._buffered_frames += length
@@ -466,11 +474,12 @@ def _read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
         raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
     if not isinstance(msta_meta, dict) or not isinstance(msta_meta.get("sensors"), list):
         raise DatasetFormatError(f"{msta_path}: not an msta metadata object")
-    if msta_meta.get("msta_schema_version") != F.MSTA_SCHEMA_VERSION:
+    version = msta_meta.get("msta_schema_version")
+    if version not in F.SCHEMA_VERSIONS:
         raise DatasetFormatError(
-            f"{msta_path}: msta_schema_version {msta_meta.get('msta_schema_version')!r}"
-            f", expected {F.MSTA_SCHEMA_VERSION}")
-    expected = F.build_features(msta_meta["sensors"])
+            f"{msta_path}: msta_schema_version {version!r}, expected one of "
+            f"{list(F.SCHEMA_VERSIONS)}")
+    expected = F.build_features(msta_meta["sensors"], derived=version >= 2)
     if info["features"] != expected:
         bad = sorted(k for k in set(expected) | set(info["features"])
                      if expected.get(k) != info["features"].get(k))

@@ -81,7 +81,7 @@ def test_stats_loaded_by_lerobot_match_data(written):
     root, eps = written
     ds = LeRobotDataset("local/test", root=root)
     stats = ds.meta.stats
-    assert set(stats) == set(F.build_features())
+    assert set(stats) == set(F.build_features(derived=True))
     for col in ("observation.joint_pos", "privileged.height_scan", "next.reward", "action"):
         x = _source(eps, col).astype(np.float64).reshape(sum(LENGTHS), -1)
         st = stats[col]
@@ -106,11 +106,13 @@ def test_provenance_round_trip_and_episode_filter(written, synth):
     assert len(stairs) == LENGTHS[2]
 
 
-def test_student_columns_are_the_only_observation_inputs(written):
+def test_observation_inputs_are_student_columns_and_their_concatenation(written):
+    """No privileged signal reaches lerobot's policy inputs (every ``observation.*``)."""
     root, _ = written
     ds = LeRobotDataset("local/test", root=root)
     obs = sorted(k for k in ds.features if k.startswith("observation."))
-    assert obs == sorted(SENSORS[s].column for s in STUDENT_SENSORS)
+    assert obs == sorted([SENSORS[s].column for s in STUDENT_SENSORS]
+                         + ["observation.state", "observation.environment_state"])
 
 
 def test_schema_and_stats_aggregation_agree_with_lerobot(synth):
