@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from msta_data import features as F
+from msta_data.derived import derive
 from msta_data.sensors import SENSORS, STUDENT_SENSORS
 from msta_data.windows import WindowDataset
 from msta_data.writer import DatasetWriter
@@ -64,10 +65,12 @@ def bench_write_ours(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
 def bench_write_lerobot(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    feats = {c: ft for c, ft in F.build_features().items()
+    # the same columns msta's writer writes: the sensors and the derived state columns
+    feats = {c: ft for c, ft in F.build_features(derived=True).items()
              if c not in F.LEROBOT_DEFAULT_FEATURES}
     frames = []  # per-frame dicts prepared outside the timed region
     for ep in eps:
+        ep = {**ep, **derive(ep, feats)}
         n = len(ep["action"])
         frames.append([{c: (v[t] if v.ndim == 2 else v[t:t + 1]) for c, v in ep.items()}
                        for t in range(n)])
@@ -154,7 +157,7 @@ def main(argv: list[str] | None = None) -> None:
                      for ep in eps[:args.stock_episodes]]
         ours_w = bench_write_ours(tmp / "ours", eps)
         print(f"write  msta DatasetWriter : {ours_w:12,.0f} frames/s "
-              f"({args.episodes} x {args.frames} frames, {len(F.build_features())} columns)")
+              f"({args.episodes} x {args.frames} frames, {len(F.build_features(derived=True))} columns)")
         stock_w = bench_write_lerobot(tmp / "stock", stock_eps)
         print(f"write  lerobot add_frame  : {stock_w:12,.0f} frames/s "
               f"({args.stock_episodes} x {args.stock_frames} frames)")

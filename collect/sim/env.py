@@ -159,6 +159,31 @@ class QuadrupedEnv:
         self.last_obs = self._observe()
         return self.last_obs
 
+    def restart(self, ids: np.ndarray) -> dict[str, np.ndarray]:
+        """Start new episodes for envs ``ids`` now, between steps, as the auto-reset does
+        (spawn, variant, command, latency, buffers); returns their first observation (rows
+        of ``ids``), also written into ``last_obs``.
+
+        Args:
+            ids: environment indices.
+        """
+        ids = np.asarray(ids, dtype=np.int64)
+        self._reset_ids(ids)
+        # The latency history holds each reset env's (noisy) first frame; observing it here
+        # ends the "just reset" state, so the next step appends to it.
+        first = self._obs_dict(self._hist[ids, -1], {k: v[ids] for k, v in self.meas.items()},
+                               ids)
+        self._hist_fresh = np.zeros(0, dtype=np.int64)
+        for k, v in first.items():
+            self.last_obs[k][ids] = v
+        return first
+
+    @property
+    def step_end_state(self) -> np.ndarray:
+        """(N, nstate) physics state at the end of the last step, before any auto-reset
+        replaced it by a spawn (what ended an episode, for rendering)."""
+        return self._out_state[:, -1]
+
     def _make_streams(self, keys: np.ndarray) -> list[np.random.Generator]:
         if self.cfg.terrain.curriculum:
             raise ValueError("per-environment streams need terrain.curriculum=False (the "

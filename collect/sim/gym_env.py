@@ -130,7 +130,7 @@ class _View:
         the physics state that ended it (the simulator has already replaced it by a spawn)."""
         self._ended = done.copy()
         if done.any():
-            last = self.sim._out_state[done, -1]  # the step's last physics state (pre-reset)
+            last = self.sim.step_end_state[done]  # the step's last physics state (pre-reset)
             ok = np.isfinite(last).all(axis=1)    # a blown-up one: show the reset state
             self._final_state[done] = np.where(ok[:, None], last, self.sim.state[done])
 
@@ -324,7 +324,7 @@ class MstaVectorEnv(_View, VectorEnv):
 
         ``QuadrupedEnv`` reset them in the previous step and has just stepped their new
         episode; that step is undone by resetting them again the way the simulator resets
-        (``_reset_ids``) and observing only them. If the thrown-away step ended one of them,
+        (``QuadrupedEnv.restart``). If the thrown-away step ended one of them,
         its end is taken off ``resets_by_reason`` and its curriculum level restored.
         Returns their first observation (rows of ``ids``), also written to ``sim.last_obs``.
         """
@@ -332,14 +332,7 @@ class MstaVectorEnv(_View, VectorEnv):
         ended = ids[res.done[ids]]
         np.subtract.at(sim.resets_by_reason, res.reason[ended], 1)
         sim.level[ended] = level[ended]
-        sim._reset_ids(ids)
-        # The simulator's latency history holds the new first frame (noisy) of every reset
-        # env; observing it now ends the "just reset" state, so the next step appends to it.
-        first = sim._obs_dict(sim._hist[ids, -1], {k: v[ids] for k, v in sim.meas.items()}, ids)
-        sim._hist_fresh = np.zeros(0, dtype=np.int64)
-        for k, v in first.items():
-            sim.last_obs[k][ids] = v
-        return self._select(first)
+        return self._select(sim.restart(ids))
 
     def render(self) -> tuple[np.ndarray, ...] | None:
         """One (height, width, 3) uint8 frame per env (None without ``render_mode``)."""
