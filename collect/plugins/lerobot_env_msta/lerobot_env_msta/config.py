@@ -1,0 +1,156 @@
+"""``--env.type=msta_a1``: the LeRobot env config of msta's simulator.
+
+lerobot-eval builds the envs through :meth:`MstaA1EnvConfig.create_envs`: one task group
+per terrain type (lerobot-eval prints "Aggregated Metrics for <terrain>" and an overall
+line), each a batched :class:`~lerobot_env_msta.vector_env.A1VectorEnv` (all robots of a
+batch in one simulator, so ``--eval.use_async_envs`` changes nothing). The features are
+those of an msta dataset: ``agent_pos`` -> ``observation.state`` (the 49 student scalars),
+``environment_state`` -> ``observation.environment_state`` (the velocity command), and the
+12-dim action (the simulator's: offsets from the default pose in units of action_scale).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from lerobot.configs import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+
+from collect.sim.terrain import LEGGED_GYM_TYPE_WEIGHTS, TERRAIN_TYPES, TerrainConfig
+from msta_data import derived
+from msta_data.robot import DECIMATION, SIM_DT
+from msta_data.sensors import ACTION_DIM, SENSORS
+
+if TYPE_CHECKING:
+    from collect.sim.env import EnvConfig as SimConfig
+
+#: The paper's five terrain types (the default task groups).
+PAPER_TERRAINS: tuple[str, ...] = tuple(LEGGED_GYM_TYPE_WEIGHTS)
+#: Control rate of the simulator (Hz): 0.005 s physics steps x 4.
+CONTROL_FPS = int(round(1.0 / (SIM_DT * DECIMATION)))
+#: Env observation keys (what lerobot's ``preprocess_observation`` maps) -> dataset columns.
+OBS_KEYS: dict[str, str] = {"agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
+
+
+def observation_features() -> dict[str, PolicyFeature]:
+    """``agent_pos`` / ``environment_state`` features: the derived columns of a dataset that
+    records every sensor (:mod:`msta_data.derived`, the same order and sizes)."""
+    columns = [s.column for s in SENSORS.values()]
+    feats = derived.features(columns)
+    kinds = {OBS_STATE: FeatureType.STATE, OBS_ENV_STATE: FeatureType.ENV}
+    return {key: PolicyFeature(type=kinds[col], shape=tuple(feats[col]["shape"]))
+            for key, col in OBS_KEYS.items()}
+
+
+@EnvConfig.register_subclass("msta_a1")
+@dataclass
+class MstaA1EnvConfig(EnvConfig):
+    """msta's A1 quadruped in MuJoCo on legged_gym terrains (``--env.type=msta_a1``).
+
+    An episode succeeds when the robot is still up at the time limit (the simulator's
+    ``timeout`` end); the reward is the simulator's per-step reward (``collect/sim/rewards.py``).
+    A batch of episodes shares one random stream seeded by its first seed (lerobot-eval's
+    ``--seed`` + the batch offset), and episode k of a batch runs on level
+    ``levels[seed_k mod len(levels)]``.
+    """
+
+    task: str | None = "A1-v0"
+    """a label only (lerobot logs it); the terrains are the tasks."""
+    fps: int = CONTROL_FPS
+    """control rate (Hz); fixed by the simulator (0.005 s physics steps x 4)."""
+    terrains: tuple[str, ...] = PAPER_TERRAINS
+    """terrain types, one lerobot-eval task group each (``--eval.n_episodes`` per terrain);
+    known: flat, smooth_slope, rough_slope, stairs_up, stairs_down, discrete."""
+    levels: tuple[int, ...] = (0, 1, 2)
+    """terrain difficulty levels (0-9) the episodes cycle through."""
+    episode_length_s: float = 20.0
+    """episode time limit (s); lerobot-eval runs at most this many seconds x fps steps."""
+    noise: bool = True
+    """observation noise on."""
+    randomization: bool = True
+    """domain randomization (dynamics, pushes, latency) on."""
+    heading_commands: bool = True
+    """the yaw-rate command steers to a sampled heading (paper); false samples it directly."""
+    video: bool = True
+    """film the robot for lerobot-eval's videos (it films up to 10 episodes per terrain, one
+    frame per control step; with software OpenGL that is ~0.1-0.3 s per frame); false
+    returns small gray frames, so an evaluation costs only simulation and the policy."""
+    video_width: int = 320
+    """video frame width (pixels)."""
+    video_height: int = 240
+    """video frame height (pixels)."""
+    nthread: int = 1
+    """MuJoCo rollout threads per simulator."""
+    features: dict[str, PolicyFeature] = field(default_factory=lambda: {
+        ACTION: PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
+        **observation_features()})
+    """env features (the policy's, before ``features_map``): action, agent_pos,
+    environment_state."""
+    features_map: dict[str, str] = field(default_factory=lambda: {ACTION: ACTION, **OBS_KEYS})
+    """env feature -> policy feature name."""
+
+    def __post_init__(self) -> None:
+        self.terrains, self.levels = tuple(self.terrains), tuple(int(v) for v in self.levels)
+        if self.fps != CONTROL_FPS:
+            raise ValueError(f"fps={self.fps}: msta_a1 runs at {CONTROL_FPS} Hz (fixed by the "
+                             "simulator)")
+        if not self.terrains:
+            raise ValueError("terrains is empty; name at least one terrain type")
+        for t in self.terrains:
+            if t not in TERRAIN_TYPES:
+                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
+        if len(set(self.terrains)) != len(self.terrains):
+            raise ValueError(f"terrains has duplicates: {list(self.terrains)}")
+        num_levels = TerrainConfig().num_levels
+        if not self.levels or not all(0 <= v < num_levels for v in self.levels):
+            raise ValueError(f"levels {list(self.levels)} must be levels in [0, {num_levels})")
+        if not self.episode_length_s > 0:
+            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
+        if self.video_width < 2 or self.video_height < 2:
+            raise ValueError(f"video size {self.video_width}x{self.video_height} must be >= 2x2")
+        if self.nthread < 1:
+            raise ValueError(f"nthread={self.nthread} must be >= 1")
+
+    @property
+    def gym_kwargs(self) -> dict[str, Any]:
+        """The settings :meth:`create_envs` passes to each env (no gym id is involved)."""
+        return {"levels": self.levels, "video": self.video,
+                "width": self.video_width, "height": self.video_height}
+
+    def sim_config(self, terrain: str, num_envs: int) -> SimConfig:
+        """The simulator config of one task group.
+
+        Args:
+            terrain: its terrain type (only that column of tiles is built, curriculum off).
+            num_envs: robots simulated together (lerobot-eval's ``--eval.batch_size``).
+        """
+        from collect.sim.commands import CommandConfig
+        from collect.sim.env import EnvConfig as SimConfig
+        from collect.sim.env import NoiseConfig
+        from collect.sim.randomization import RandomizationConfig
+
+        return SimConfig(
+            num_envs=num_envs, episode_length_s=self.episode_length_s, nthread=self.nthread,
+            terrain=TerrainConfig(types=(terrain,), curriculum=False),
+            commands=CommandConfig(use_heading=self.heading_commands),
+            noise=NoiseConfig(enabled=self.noise),
+            randomization=RandomizationConfig(enabled=self.randomization))
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False
+                    ) -> dict[str, dict[int, Any]]:
+        """``{terrain: {0: A1VectorEnv}}``, one batched simulator of ``n_envs`` robots per
+        terrain.
+
+        Args:
+            n_envs: robots per simulator (lerobot-eval's ``--eval.batch_size``).
+            use_async_envs: ignored: the batched simulator already steps every robot of a
+                batch at once, in this process.
+        """
+        from lerobot_env_msta.vector_env import A1VectorEnv
+
+        if n_envs < 1:
+            raise ValueError(f"n_envs={n_envs} must be >= 1")
+        return {t: {0: A1VectorEnv(self.sim_config(t, n_envs), task=t, **self.gym_kwargs)}
+                for t in self.terrains}

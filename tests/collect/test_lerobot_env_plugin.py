@@ -1,0 +1,134 @@
+"""lerobot_env_msta: msta's simulator as LeRobot's ``--env.type=msta_a1`` (the contract
+lerobot-eval relies on, and lerobot-eval itself on a stock ACT policy in a subprocess)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lerobot.envs.configs import EnvConfig
+from lerobot.envs.utils import (
+    NEW_ROLLOUT_OPTION,
+    check_env_attributes_and_types,
+    env_to_policy_features,
+    preprocess_observation,
+)
+from lerobot_env_msta import MstaA1EnvConfig  # installed by the Makefile's venv step
+
+from msta_data import derived
+from msta_data.sensors import SENSORS, STUDENT_SENSORS
+
+LEROBOT_EVAL = Path(sys.executable).with_name("lerobot-eval")
+
+
+def offline_env(tmp_path: Path) -> dict[str, str]:
+    """Environment of a lerobot subprocess: offline, caches under tmp_path."""
+    return {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1",
+            "WANDB_MODE": "disabled", "HF_HOME": str(tmp_path / "hf"),
+            "HF_LEROBOT_HOME": str(tmp_path / "lerobot"), "TORCH_HOME": str(tmp_path / "torch")}
+
+
+def test_env_type_is_registered_with_the_dataset_features():
+    cfg = EnvConfig.get_choice_class("msta_a1")()
+    assert isinstance(cfg, MstaA1EnvConfig) and cfg.fps == 50
+    feats = env_to_policy_features(cfg)
+    want = derived.features([s.column for s in SENSORS.values()])
+    assert feats[derived.STATE_COLUMN].shape == tuple(want[derived.STATE_COLUMN]["shape"]) == (49,)
+    assert feats[derived.ENV_STATE_COLUMN].shape == (3,)
+    assert feats["action"].shape == (12,)
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    ({"terrains": ("ice",)}, "unknown terrain 'ice'"),
+    ({"terrains": ()}, "terrains is empty"),
+    ({"levels": (0, 10)}, r"levels \[0, 10\] must be levels in \[0, 10\)"),
+    ({"fps": 30}, "runs at 50 Hz"),
+    ({"episode_length_s": 0.0}, "episode_length_s=0.0 must be > 0"),
+])
+def test_bad_options_are_one_line_errors(option, message):
+    with pytest.raises(ValueError, match=message):
+        MstaA1EnvConfig(**option)
+
+
+def test_vector_env_gives_lerobot_what_the_datasets_hold():
+    cfg = MstaA1EnvConfig(terrains=("flat", "stairs_up"), levels=(0, 3), episode_length_s=0.1,
+                          video=False, randomization=False)
+    envs = cfg.create_envs(n_envs=3)
+    assert list(envs) == ["flat", "stairs_up"]
+    env = envs["flat"][0]
+    try:
+        obs, _ = env.reset(seed=[7, 8, 9], options={NEW_ROLLOUT_OPTION: True})
+        raw = env.sim_env.sim.last_obs
+        np.testing.assert_array_equal(
+            obs["agent_pos"], np.concatenate([raw[s] for s in STUDENT_SENSORS], axis=1))
+        np.testing.assert_array_equal(obs["environment_state"], raw["command"])
+        assert env.sim_env.sim.level.tolist() == [3, 0, 3]  # levels[seed % 2]
+        assert env.observation_space.contains(obs)
+        again, _ = env.reset(seed=[7, 8, 9])
+        np.testing.assert_array_equal(again["agent_pos"], obs["agent_pos"])
+
+        lerobot_obs = preprocess_observation(obs)
+        assert {k: tuple(v.shape) for k, v in lerobot_obs.items()} == {
+            derived.STATE_COLUMN: (3, 49), derived.ENV_STATE_COLUMN: (3, 3)}
+        assert env.call("_max_episode_steps") == (5, 5, 5)
+        assert env.call("task") == ("flat",) * 3
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            check_env_attributes_and_types(env)  # task and task_description are there
+        for step in range(5):
+            _, reward, term, trunc, info = env.step(np.zeros((3, 12), np.float32))
+            assert reward.shape == (3,)
+            assert info["is_success"].tolist() == [step == 4] * 3  # standing at the time limit
+        assert trunc.all() and not term.any()
+        assert [f.shape for f in env.call("render")] == [(16, 16, 3)] * 3  # video off
+    finally:
+        for group in envs.values():
+            group[0].close()
+
+
+@pytest.fixture(scope="module")
+def act_checkpoint(tmp_path_factory) -> Path:
+    """A small stock ACT policy with an msta dataset's features (untrained, its processors
+    saved as lerobot-train saves them)."""
+    from lerobot.configs import FeatureType, PolicyFeature
+    from lerobot.policies import ACTConfig, make_pre_post_processors
+    from lerobot.policies.act.modeling_act import ACTPolicy
+
+    dims = {derived.STATE_COLUMN: 49, derived.ENV_STATE_COLUMN: 3, "action": 12}
+    cfg = ACTConfig(
+        device="cpu", push_to_hub=False, dim_model=32, dim_feedforward=64, n_heads=2,
+        chunk_size=8, n_action_steps=8, latent_dim=8,
+        input_features={derived.STATE_COLUMN: PolicyFeature(FeatureType.STATE, (49,)),
+                        derived.ENV_STATE_COLUMN: PolicyFeature(FeatureType.ENV, (3,))},
+        output_features={"action": PolicyFeature(FeatureType.ACTION, (12,))})
+    stats = {k: {"mean": np.zeros(d), "std": np.ones(d)} for k, d in dims.items()}
+    out = tmp_path_factory.mktemp("act") / "pretrained_model"
+    ACTPolicy(cfg).save_pretrained(out)
+    for processor in make_pre_post_processors(cfg, dataset_stats=stats):
+        processor.save_pretrained(out)
+    return out
+
+
+def test_lerobot_eval_runs_a_stock_policy_in_the_simulator(act_checkpoint, tmp_path):
+    """lerobot-eval finds the plugin by itself, films the robot (video on) and writes its
+    usual summary."""
+    out = tmp_path / "eval"
+    args = [str(LEROBOT_EVAL), "--env.type=msta_a1", f"--policy.path={act_checkpoint}",
+            "--eval.n_episodes=2", "--eval.batch_size=2", "--env.terrains=[flat]",
+            "--env.episode_length_s=0.1", "--env.video_width=64", "--env.video_height=48",
+            "--policy.device=cpu", f"--output_dir={out}"]
+    proc = subprocess.run(args, env=offline_env(tmp_path), capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "Overall Aggregated Metrics" in proc.stdout + proc.stderr
+    info = json.loads((out / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2
+    assert set(info["per_group"]) == {"flat"}
+    assert 0.0 <= info["overall"]["pc_success"] <= 100.0
+    assert [Path(p).is_file() for p in info["overall"]["video_paths"]] == [True, True]
