@@ -164,3 +164,4 @@ def test_an_interrupted_warm_start_continues_after_its_last_iteration(tmp_path):
     history = json.loads((tmp_path / "warmstart.json").read_text())["history"]
     assert [h["iteration"] for h in history] == [0, 1]
     assert not (tmp_path / "partial.pt").exists()   # a finished warm start cleans up
+
