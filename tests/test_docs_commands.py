@@ -34,6 +34,7 @@ from msta_data.hub_cli import parse_command
 from train.cli import parse_cli
 from train.offline import TrainConfig
 from train.online import parse_args as correct_args
+from train.teacher.cli import TrainTeacherConfig
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -47,6 +48,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "msta-collect": lambda argv: collect_args(argv),
     "msta-train": lambda argv: parse_cli(TrainConfig, argv, "msta-train"),
     "msta-correct": correct_args,
+    "msta-train-teacher": lambda argv: parse_config(TrainTeacherConfig, argv, "msta-train-teacher",
+                                                    aliases={"env.seed": "seed"}),
     "msta-eval": _config(EvalConfig, "msta-eval"),
     "msta-compare": _config(CompareConfig, "msta-compare"),
     "msta-sim": _config(SimRunConfig, "msta-sim"),
@@ -65,7 +68,7 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
 }
 #: A parse that fails only because an example input does not exist here.
 MISSING_INPUT = re.compile(r"no such (file|checkpoint)|does not exist")
-_START = re.compile(r"(?:^|[\s`(])(?:\.venv/bin/)?(msta-[a-z]+|python -m [\w.]+)(?=[\s`]|$)")
+_START = re.compile(r"(?:^|[\s`(])(?:\.venv/bin/)?(msta-[a-z]+(?:-[a-z]+)*|python -m [\w.]+)(?=[\s`]|$)")
 
 
 def documented_commands(root: Path = REPO) -> list[tuple[str, str, str]]:
