@@ -8,7 +8,8 @@ Two resumable stages under ``--output_dir``:
    legged_gym rewards and randomization, the terrain curriculum), in chunks of
    ``--ppo.save_interval`` iterations; each chunk ends with rsl_rl's checkpoint
    (``model_<it>.pt``, optimizer included), TensorBoard events, a row of ``curve.json``
-   (environment steps, survival, level, tracking) and the exported teacher.
+   (environment steps, falls per 1000 robot steps and the survival of a full episode at
+   that rate, level, tracking) and the exported teacher.
 
 The result, ``teacher/`` (config.json + model.safetensors), is an ``rma`` teacher:
 ``--teacher.type=rma --teacher.path=<output_dir>/teacher`` works wherever a teacher does.
@@ -25,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from collect.sim.env import EnvConfig
@@ -50,7 +52,8 @@ class PPOConfig:
         learning_rate: Adam learning rate at the start (then adapted to desired_kl).
             legged_gym's 1e-3 suits a policy starting from noise; on the warm-started one
             the first update moved the mean far past the KL target (the schedule cut the
-            rate to 1e-5 at once) and survival fell 0.61 -> 0.19 within 10 iterations.
+            rate to 1e-5 at once) and the share of episodes ending in a fall rose from 0.39
+            to 0.81 within 10 iterations.
         desired_kl: target KL of the adaptive learning-rate schedule.
         entropy_coef: entropy bonus.
         init_std: initial action noise std (action units); small after a warm start, so
@@ -210,7 +213,7 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
     curve = json.loads(curve_path.read_text()) if curve_path.is_file() and done else []
     steps_so_far = curve[-1]["env_steps"] if curve else 0
     actor = runner.alg.get_policy()
-    first = done == 0
+    first = True  # spread the time-outs (rsl_rl's init_at_random_ep_len), also on a resume
     while done < cfg.ppo.iterations:
         chunk = min(cfg.ppo.save_interval, cfg.ppo.iterations - done)
         frozen = done < cfg.ppo.critic_warmup and start_net is not None
@@ -226,19 +229,24 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
         runner.current_learning_iteration = done
         st = env.take_stats()
         steps_so_far += st["env_steps"]
-        eps = max(st["episodes"], 1)
+        eps, robot_steps = max(st["episodes"], 1), max(st["env_steps"], 1)
+        hazard = st["falls"] / robot_steps
         row = {"iteration": done, "env_steps": steps_so_far, "seconds": round(time.time() - t0, 1),
-               "critic_only": frozen, "episodes": st["episodes"],
-               "survival": 1.0 - st["falls"] / eps, "mean_level_at_end": st["level"] / eps,
-               "distance_m": st["distance"] / eps,
-               "lin_vel_tracking_per_step": st["lin_vel_tracking"] / max(st["env_steps"], 1)}
+               "critic_only": frozen, "episodes": st["episodes"], "falls": st["falls"],
+               "falls_per_1000_steps": 1000.0 * hazard,
+               # survival of a full episode at this chunk's fall rate (the share of ended
+               # episodes that timed out depends on where the episodes' clocks stand)
+               "survival_per_episode": float(np.exp(-hazard * env.max_episode_length)),
+               "mean_level_at_end": st["level"] / eps, "distance_m": st["distance"] / eps,
+               "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps}
         curve.append(row)
         curve_path.write_text(json.dumps(curve, indent=1) + "\n")
         to_teacher(actor, rma).save_pretrained(teacher_dir)
         _save_levels(env, ppo_dir)
         _prune(ppo_dir, keep=2)
         log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
-            f"{row['survival']:.3f} over {st['episodes']} episodes, level "
+            f"{row['survival_per_episode']:.3f} per {cfg.env.episode_length_s:g} s episode "
+            f"({st['falls']} falls), level "
             f"{row['mean_level_at_end']:.2f}" + (" (critic only)" if frozen else ""))
     for p in actor.parameters():
         p.requires_grad_(True)
