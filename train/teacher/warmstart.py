@@ -15,7 +15,7 @@ takes the robot off its path. DAgger proper (beta decaying to 0) was measured wo
 the controller runs its own gait clock, so a robot driven by the network drifts out of phase
 with it and the labels contradict the robot's gait (6 iterations of beta = 0.5^k: 273 of
 512 robots fell within 5 s in the last one, and the fit got worse each iteration). The
-comparison is in docs/teacher_quality.md.
+comparison is in docs/teacher_quality_rma.md.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class WarmStartConfig:
         buffer_size: newest samples kept for fitting.
     """
 
-    iterations: int = 6
+    iterations: int = 10
     steps: int = 250
     beta_decay: float = 1.0
     beta_min: float = 0.0
