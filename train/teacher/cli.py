@@ -2,8 +2,9 @@
 
 Two resumable stages under ``--output_dir``:
 
-1. ``warmstart/``: DAgger from the gait controller into the RMA MLP with privileged inputs
-   (``train.teacher.warmstart``), so PPO starts from a walking policy, not from noise.
+1. ``warmstart/``: imitation of the gait controller (DART by default) by the RMA MLP with
+   privileged inputs (``train.teacher.warmstart``), so PPO starts from a walking policy,
+   not from noise.
 2. ``ppo/``: rsl_rl's ``OnPolicyRunner`` with rsl_rl's PPO on ``RslVecEnv`` (the paper's
    legged_gym rewards and randomization, the terrain curriculum), in chunks of
    ``--ppo.save_interval`` iterations; each chunk ends with rsl_rl's checkpoint
@@ -121,7 +122,7 @@ class TrainTeacherConfig:
         seed: seeds torch, the warm start and the simulator (env.seed follows it).
         device: torch device for PPO: auto (CUDA when present), cpu, cuda.
         num_threads: torch threads (0: one per core).
-        warmstart: the DAgger warm start from the gait controller.
+        warmstart: the warm start: imitation of the gait controller (DART by default).
         ppo: rsl_rl PPO settings.
         env: the simulator (robots, terrains and curriculum, rewards, randomization);
             env.nthread 0 uses every core for physics.
@@ -184,7 +185,7 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
     (out / "train_teacher.json").write_text(json.dumps(asdict(cfg), indent=2, default=str) + "\n")
     start_net = None
     if cfg.warmstart.iterations:
-        log(f"== warm start: {cfg.warmstart.iterations} DAgger iterations from the gait "
+        log(f"== warm start: {cfg.warmstart.iterations} imitation iterations from the gait "
             f"controller, {cfg.env.num_envs} robots x {cfg.warmstart.steps} steps each ==")
         start_net = warm_start(cfg.env, rma, cfg.warmstart, out / "warmstart", cfg.seed, log)
     teacher_dir = out / "teacher"

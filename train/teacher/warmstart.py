@@ -42,7 +42,7 @@ _FALL = REASONS.index("fall")
 @dataclass
 class WarmStartConfig:
     """Args:
-        iterations: DAgger iterations (0 skips the warm start: PPO starts from noise).
+        iterations: imitation iterations (0 skips the warm start: PPO starts from noise).
         steps: control steps per iteration (every robot; 50 per simulated second).
         beta_decay: beta_k = max(beta_min, beta_decay ** k), the share of steps the gait
             controller drives in iteration k (k = 0: all of them).
@@ -161,7 +161,7 @@ def _dagger_rollout(vec: RslVecEnv, net: RMATeacher, gait, buffer: _Buffer, beta
 
 def warm_start(env_cfg: EnvConfig, rma: RMAConfig, cfg: WarmStartConfig, out: Path,
                seed: int = 0, log: Callable[[str], None] = print) -> RMATeacher:
-    """Run the DAgger warm start; write the ``rma`` checkpoint to ``out`` (with
+    """Run the warm start; write the ``rma`` checkpoint to ``out`` (with
     ``warmstart.json``: per-iteration label loss, fall rate and beta) and return it.
     A finished ``out`` (config.json present) is loaded instead of trained again; an
     interrupted one continues after its last finished iteration (``out/partial.pt``: the
