@@ -21,7 +21,8 @@ $(STAMP): pyproject.toml
 	echo "using $$PYBIN"; \
 	[ -x $(PY) ] || "$$PYBIN" -m venv $(VENV); \
 	$(PY) -m pip install --quiet --upgrade pip; \
-	$(PY) -m pip install --quiet -e ".[dev]" -e collect/plugins/lerobot_env_msta; \
+	$(PY) -m pip install --quiet -e ".[dev]" -e collect/plugins/lerobot_env_msta \
+	  -e train/plugins/lerobot_policy_msta; \
 	touch $(STAMP)
 
 demo: $(STAMP)

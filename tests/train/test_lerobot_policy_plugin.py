@@ -1,0 +1,242 @@
+"""lerobot_policy_msta: the MSTA student as LeRobot's ``--policy.type=msta`` (config, processors,
+checkpoint conversion both ways, and lerobot-train / lerobot-eval in subprocesses)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from lerobot.configs import PreTrainedConfig
+from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+from lerobot_policy_msta import MSTAConfig  # installed by the Makefile's venv step
+from lerobot_policy_msta.configuration_msta import state_layout
+from lerobot_policy_msta.convert import checkpoint_format, lerobot_to_msta, main, msta_to_lerobot
+from lerobot_policy_msta.modeling_msta import MSTAPolicy
+from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
+
+from msta_data import derived
+from msta_data.sensors import SENSORS, STUDENT_SENSORS
+from msta_data.stats import load_stats
+from msta_data.windows import WindowDataset
+from policies.factory import load_policy, make_config, make_policy
+from policies.msta import MSTAConfig as NativeMSTAConfig
+from policies.msta import MSTAPolicy as NativeMSTAPolicy
+from train.optim import WarmupCosine, make_optimizer
+
+BIN = Path(sys.executable).parent
+TINY = {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32, "history": 4}
+STATE_NAMES = derived.features([s.column for s in SENSORS.values()])[derived.STATE_COLUMN]["names"]
+
+
+def offline_env(tmp_path: Path) -> dict[str, str]:
+    """Environment of a lerobot subprocess: offline, caches under tmp_path."""
+    return {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1",
+            "WANDB_MODE": "disabled", "HF_HOME": str(tmp_path / "hf"),
+            "HF_LEROBOT_HOME": str(tmp_path / "lerobot"), "TORCH_HOME": str(tmp_path / "torch")}
+
+
+def run(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
+    proc = subprocess.run(args, env=offline_env(tmp_path), capture_output=True, text=True,
+                          timeout=300, check=False)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return proc
+
+
+# ----- config ----------------------------------------------------------------------------
+def test_config_is_msta_config_plus_lerobot():
+    cfg = MSTAConfig(device="cpu")
+    native = {f.name: f.default for f in dataclasses.fields(NativeMSTAConfig)}
+    assert {f.name: f.default for f in dataclasses.fields(MSTAConfig)
+            if f.name in native} == native  # every msta field, same defaults
+    assert cfg.type == "msta" and get_policy_class("msta") is MSTAPolicy
+    assert cfg.observation_delta_indices == list(range(-14, 1))  # msta's T = 15 window
+    assert cfg.to_native() == NativeMSTAConfig()
+    assert state_layout(STATE_NAMES) == STUDENT_SENSORS
+    with pytest.raises(ValueError, match=r"sensor 'command' at channel 0: expected"):
+        state_layout(["command.vx", "command.wz"])
+    with pytest.raises(ValueError, match=r"input sensors \['command'\] are not in"):
+        MSTAConfig(device="cpu", state_sensors=tuple(s for s in STUDENT_SENSORS
+                                                     if s != "command"))
+    with pytest.raises(ValueError, match="num_heads"):  # msta's own checks run
+        MSTAConfig(device="cpu", dim=30, num_heads=4)
+
+
+def test_training_recipe_is_msta_trains():
+    cfg = MSTAConfig(device="cpu", **TINY)
+    policy = MSTAPolicy(cfg)
+    ours = [[id(p) for p in g["params"]] for g in policy.get_optim_params()]
+    theirs = [[id(p) for p in g["params"]] for g in make_optimizer(policy, 1e-3, 0.01).param_groups]
+    assert ours == theirs and len(ours[1]) > 0  # decay / no-decay groups of msta-train
+    sched = cfg.get_scheduler_preset().build(torch.optim.SGD(policy.parameters(), lr=1.0), 300)
+    want = WarmupCosine(100, 300, 0.1)
+    assert [sched.lr_lambdas[0](s) for s in range(0, 300, 7)] == [want(s) for s in range(0, 300, 7)]
+    opt = cfg.get_optimizer_preset()
+    assert (opt.lr, opt.weight_decay, opt.grad_clip_norm) == (1e-3, 0.01, 1.0)
+
+
+def test_processors_refuse_missing_statistics(synthetic_dataset):
+    cfg = MSTAConfig(device="cpu", **TINY)
+    with pytest.raises(KeyError, match="needs the dataset statistics"):
+        make_msta_pre_post_processors(cfg, None)
+    stats = load_stats(synthetic_dataset)
+    del stats["action"]
+    with pytest.raises(KeyError, match="no column 'action' .needed for the action target"):
+        make_msta_pre_post_processors(cfg, stats)
+
+
+# ----- conversion --------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def native_ckpt(synthetic_dataset, tmp_path_factory) -> Path:
+    torch.manual_seed(0)
+    policy = make_policy(make_config("msta", **TINY), load_stats(synthetic_dataset))
+    return policy.save_pretrained(tmp_path_factory.mktemp("native") / "ckpt")
+
+
+def windows(root: Path, T: int = 4) -> dict[str, np.ndarray]:
+    """Raw windows of the first 60 frames (episode starts included, so some steps are pads)."""
+    return WindowDataset(root, STUDENT_SENSORS, T=T).get_batch(np.arange(60))
+
+
+def lerobot_actions(ckpt: Path, batch: dict[str, np.ndarray]) -> torch.Tensor:
+    """Raw actions of a LeRobot checkpoint through LeRobot's own loaders and processors."""
+    cfg = PreTrainedConfig.from_pretrained(ckpt)
+    policy = get_policy_class(cfg.type).from_pretrained(ckpt, config=cfg)
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(ckpt))
+    state = np.concatenate([batch[s] for s in STUDENT_SENSORS], axis=-1)  # observation.state
+    obs = pre({derived.STATE_COLUMN: torch.as_tensor(state),
+               f"{derived.STATE_COLUMN}_is_pad": torch.as_tensor(batch["pad"])})
+    torch.manual_seed(0)  # padded tokens are removed in a random order, as in msta
+    return post(policy.predict_action_chunk(obs)[:, 0])
+
+
+def msta_actions(ckpt: Path, batch: dict[str, np.ndarray]) -> torch.Tensor:
+    torch.manual_seed(0)
+    return load_policy(ckpt).act(batch)
+
+
+def test_conversion_round_trips_actions_exactly(synthetic_dataset, native_ckpt, tmp_path):
+    batch = windows(synthetic_dataset)
+    assert batch["pad"].any()
+    want = msta_actions(native_ckpt, batch)
+    assert checkpoint_format(native_ckpt) == "msta"
+    lr = msta_to_lerobot(native_ckpt, tmp_path / "lerobot")
+    assert checkpoint_format(lr) == "lerobot"
+    assert torch.equal(lerobot_actions(lr, batch), want)
+    back = lerobot_to_msta(lr, tmp_path / "msta")
+    assert torch.equal(msta_actions(back, batch), want)
+    again = msta_to_lerobot(back, tmp_path / "lerobot2")
+    assert torch.equal(lerobot_actions(again, batch), want)
+    with pytest.raises(FileExistsError, match="not empty"):
+        msta_to_lerobot(native_ckpt, tmp_path / "lerobot")
+
+
+def test_native_checkpoint_loads_through_lerobots_api(native_ckpt):
+    """config.json and model.safetensors of msta load as they are (strictly); inference
+    through LeRobot also needs the converted processors."""
+    cfg = PreTrainedConfig.from_pretrained(native_ckpt)
+    assert isinstance(cfg, MSTAConfig) and cfg.to_native() == load_policy(native_ckpt).config
+    policy = MSTAPolicy.from_pretrained(native_ckpt, config=cfg)
+    native = NativeMSTAPolicy.from_pretrained(native_ckpt)
+    for k, v in native.state_dict().items():
+        assert torch.equal(policy.state_dict()[k], v), k
+
+
+def test_select_action_keeps_msta_actors_history(synthetic_dataset, native_ckpt, tmp_path):
+    """Step by step, LeRobot's select_action sees what msta's StudentActor sees."""
+    from policies.actor import StudentActor
+
+    lr = msta_to_lerobot(native_ckpt, tmp_path / "lerobot")
+    cfg = PreTrainedConfig.from_pretrained(lr)
+    policy = MSTAPolicy.from_pretrained(lr, config=cfg)
+    pre, post = make_pre_post_processors(cfg, pretrained_path=str(lr))
+    actor = StudentActor(load_policy(native_ckpt), num_envs=3)
+    frames = WindowDataset(synthetic_dataset, STUDENT_SENSORS, T=1).get_batch(np.arange(18))
+    policy.reset()
+    for t in range(6):  # 3 robots, 6 steps (frames t, 6 + t, 12 + t)
+        obs = {s: frames[s][[t, 6 + t, 12 + t], 0] for s in STUDENT_SENSORS}
+        want = torch.as_tensor(actor.act(obs))
+        state = np.concatenate([obs[s] for s in STUDENT_SENSORS], axis=-1)
+        got = post(policy.select_action(pre({derived.STATE_COLUMN: torch.as_tensor(state)})))
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
+
+
+def test_convert_command_line(native_ckpt, tmp_path, capsys):
+    main([f"--policy.path={native_ckpt}", f"--output_dir={tmp_path / 'out'}"])
+    assert "-> LeRobot checkpoint" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match="neither an msta checkpoint"):
+        main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path / 'x'}"])
+
+
+# ----- the lerobot commands ---------------------------------------------------------------
+def test_lerobot_lists_the_plugins(tmp_path):
+    help_text = run([str(BIN / "lerobot-train"), "--help"], tmp_path).stdout
+    policy_types = next(line for line in help_text.splitlines() if "--policy.type {" in line)
+    env_types = next(line for line in help_text.splitlines() if "--env.type {" in line)
+    assert "msta" in policy_types.split("{")[1].split("}")[0].split(",")
+    assert "msta_a1" in env_types.split("{")[1].split("}")[0].split(",")
+
+
+@pytest.fixture(scope="module")
+def lerobot_trained(synthetic_dataset, tmp_path_factory) -> Path:
+    """A few lerobot-train steps of the tiny MSTA student on an msta dataset."""
+    tmp = tmp_path_factory.mktemp("lerobot_train")
+    out = tmp / "out"
+    run([str(BIN / "lerobot-train"), "--policy.type=msta", "--dataset.repo_id=local/train_test",
+         f"--dataset.root={synthetic_dataset}", "--policy.device=cpu", "--steps=3",
+         "--batch_size=4", "--num_workers=0", "--save_freq=3", "--log_freq=1",
+         f"--output_dir={out}", *[f"--policy.{k}={v}" for k, v in TINY.items()]], tmp)
+    return out / "checkpoints" / "last" / "pretrained_model"
+
+
+def test_lerobot_train_trains_msta(lerobot_trained, synthetic_dataset, tmp_path):
+    config = json.loads((lerobot_trained / "config.json").read_text())
+    assert config["type"] == "msta" and config["history"] == 4
+    assert config["state_sensors"] == list(STUDENT_SENSORS)  # read from the feature names
+    assert set(config["input_features"]) == {derived.STATE_COLUMN}
+    train_cfg = json.loads((lerobot_trained / "train_config.json").read_text())
+    assert train_cfg["scheduler"]["type"] == "msta_warmup_cosine"
+    assert train_cfg["optimizer"]["grad_clip_norm"] == 1.0
+    batch = windows(synthetic_dataset)
+    native = lerobot_to_msta(lerobot_trained, tmp_path / "msta")
+    got = lerobot_actions(lerobot_trained, batch)
+    assert torch.isfinite(got).all() and torch.equal(got, msta_actions(native, batch))
+
+
+def test_lerobot_eval_runs_the_trained_student(lerobot_trained, tmp_path):
+    out = tmp_path / "eval"
+    proc = run([str(BIN / "lerobot-eval"), "--env.type=msta_a1",
+                f"--policy.path={lerobot_trained}", "--eval.n_episodes=2", "--eval.batch_size=2",
+                "--env.terrains=[flat]", "--env.episode_length_s=0.2", "--env.video=false",
+                f"--output_dir={out}"], tmp_path)
+    assert "Overall Aggregated Metrics" in proc.stdout + proc.stderr
+    info = json.loads((out / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2 and np.isfinite(info["overall"]["avg_sum_reward"])
+
+
+def test_documented_plugin_commands_parse():
+    """Every ``python -m lerobot_policy_msta.*`` line of README.md and docs/ parses (the docs
+    check of tests/test_docs_commands.py covers msta's own commands)."""
+    import re
+    import shlex
+
+    from lerobot_policy_msta.compare_trainers import CompareTrainersConfig
+    from lerobot_policy_msta.convert import ConvertConfig
+
+    from msta_data.cli import parse_config
+
+    repo = Path(__file__).resolve().parents[2]
+    configs = {"convert": ConvertConfig, "compare_trainers": CompareTrainersConfig}
+    found = []
+    for path in [repo / "README.md", *sorted((repo / "docs").glob("*.md"))]:
+        text = re.sub(r"\\\n\s*", " ", path.read_text())  # continuation lines joined
+        for m in re.finditer(r"python -m lerobot_policy_msta\.(\w+)([^`#\n]*)", text):
+            found.append(m.group(1))
+            parse_config(configs[m.group(1)], shlex.split(m.group(2)), m.group(1))
+    assert {"convert", "compare_trainers"} <= set(found)

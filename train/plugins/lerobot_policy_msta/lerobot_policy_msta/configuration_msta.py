@@ -1,0 +1,201 @@
+"""``--policy.type=msta`` for LeRobot: msta's MSTA config as a LeRobot ``PreTrainedConfig``.
+
+:class:`MSTAConfig` is LeRobot's ``PreTrainedConfig`` *and* msta's own
+:class:`policies.msta.MSTAConfig` (it inherits every msta field, default and check), plus
+what LeRobot's trainer needs: the T-step history as ``observation_delta_indices`` (so
+lerobot-train feeds the windows msta-train feeds), the layout of ``observation.state``
+(``state_sensors``, read from the dataset's feature names) and msta-train's training recipe
+as the optimizer and scheduler presets (AdamW with msta-train's decay groups, linear
+warm-up then cosine: :class:`WarmupCosineSchedulerConfig`). :meth:`MSTAConfig.to_native`
+gives the plain msta config (what msta's checkpoints store).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+from lerobot.configs import FeatureType, NormalizationMode, PolicyFeature, PreTrainedConfig
+from lerobot.optim import AdamWConfig, LRSchedulerConfig
+from lerobot.utils.constants import ACTION, OBS_STATE
+from torch.optim import Optimizer
+from torch.optim.lr_scheduler import LambdaLR
+
+from msta_data import sensors
+from policies.msta import MSTAConfig as NativeMSTAConfig
+from train.config import LoopConfig
+from train.optim import WarmupCosine
+
+#: msta-train's defaults (``train.config.LoopConfig``), the presets below.
+_LOOP = LoopConfig()
+
+
+@LRSchedulerConfig.register_subclass("msta_warmup_cosine")
+@dataclass
+class WarmupCosineSchedulerConfig(LRSchedulerConfig):
+    """msta-train's schedule (``train.optim.WarmupCosine``): linear warm-up from 0 to the
+    optimizer's lr over ``num_warmup_steps``, then a cosine down to ``lr * min_lr_ratio`` at
+    the last training step."""
+
+    num_warmup_steps: int = _LOOP.warmup_steps
+    min_lr_ratio: float = _LOOP.min_lr_ratio
+
+    def build(self, optimizer: Optimizer, num_training_steps: int) -> LambdaLR:
+        return LambdaLR(optimizer, WarmupCosine(self.num_warmup_steps, num_training_steps,
+                                                self.min_lr_ratio))
+
+
+def state_layout(names: list[str]) -> tuple[str, ...]:
+    """Sensors concatenated in ``observation.state``, from its channel names.
+
+    Args:
+        names: the feature's names, ``<sensor>.<channel>`` (``msta_data.derived``).
+
+    Raises:
+        ValueError: a name is not a registered sensor channel, or the channels of a sensor
+            are not all there, contiguous and in registry order.
+    """
+    layout: list[str] = []
+    i = 0
+    while i < len(names):
+        sensor = str(names[i]).split(".", 1)[0]
+        if sensor not in sensors.SENSORS:
+            raise ValueError(f"observation.state channel {names[i]!r} is not <sensor>.<channel> "
+                             f"of a registered sensor (known: {sorted(sensors.SENSORS)})")
+        spec = sensors.get(sensor)
+        want = [f"{sensor}.{ch}" for ch in spec.names]
+        if list(names[i:i + spec.dim]) != want:
+            raise ValueError(f"observation.state holds part of sensor {sensor!r} at channel {i}: "
+                             f"expected {want}")
+        layout.append(sensor)
+        i += spec.dim
+    return tuple(layout)
+
+
+@PreTrainedConfig.register_subclass("msta")
+@dataclass
+class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
+    """The MSTA student for LeRobot (--policy.type=msta). It has every field of msta's own
+    MSTAConfig (--policy.dim, --policy.mask_ratio, --policy.history, ...) with its default
+    and checks; their descriptions are in `msta-train --help` (the same --policy.* options)
+    and docs/msta_model.md. msta's cpu preset is --policy.dim=64 --policy.num_layers=2
+    --policy.head_hidden_dim=64; the defaults are the paper preset.
+    """
+
+    state_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
+    """sensors concatenated in observation.state, in order; lerobot-train reads them from the
+    dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
+    optimizer_lr: float = _LOOP.lr
+    """peak learning rate (AdamW), msta-train's --lr."""
+    optimizer_weight_decay: float = _LOOP.weight_decay
+    """AdamW decoupled weight decay on matrices (not biases, norms, embeddings), as
+    msta-train's --weight_decay."""
+    optimizer_grad_clip_norm: float = _LOOP.grad_clip
+    """max global gradient norm, msta-train's --grad_clip."""
+    scheduler_warmup_steps: int = _LOOP.warmup_steps
+    """linear warm-up steps, then cosine decay (msta-train's --warmup_steps)."""
+    scheduler_min_lr_ratio: float = _LOOP.min_lr_ratio
+    """the cosine ends at lr * min_lr_ratio (msta-train's --min_lr_ratio)."""
+    push_to_hub: bool = False
+    """push the trained policy to the hub (needs --policy.repo_id)."""
+
+    def __post_init__(self) -> None:
+        PreTrainedConfig.__post_init__(self)  # device, amp
+        NativeMSTAConfig.__post_init__(self)  # msta's checks
+        self.state_sensors = tuple(self.state_sensors)
+        for name in self.state_sensors:
+            sensors.get(name)  # KeyError listing the known sensors
+        missing = [s for s in self.input_sensors if s not in self.state_sensors]
+        if missing:
+            raise ValueError(f"input sensors {missing} are not in observation.state "
+                             f"(state_sensors: {list(self.state_sensors)})")
+
+    # --- what LeRobot's trainer asks ---------------------------------------------------
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        """The T-step window ending at the current frame: [-(T-1), ..., 0]."""
+        return list(range(1 - self.history, 1))
+
+    @property
+    def action_delta_indices(self) -> None:
+        return None
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    @property
+    def normalization_mapping(self) -> dict[FeatureType, NormalizationMode]:
+        """z-scores for the state (binary channels pass through: ``processor_msta``) and,
+        with ``normalize_action``, the action."""
+        action = NormalizationMode.MEAN_STD if self.normalize_action else NormalizationMode.IDENTITY
+        return {FeatureType.STATE: NormalizationMode.MEAN_STD, FeatureType.ACTION: action}
+
+    def get_optimizer_preset(self) -> AdamWConfig:
+        return AdamWConfig(lr=self.optimizer_lr, betas=(0.9, 0.999), eps=1e-8,
+                           weight_decay=self.optimizer_weight_decay,
+                           grad_clip_norm=self.optimizer_grad_clip_norm)
+
+    def get_scheduler_preset(self) -> WarmupCosineSchedulerConfig:
+        return WarmupCosineSchedulerConfig(num_warmup_steps=self.scheduler_warmup_steps,
+                                           min_lr_ratio=self.scheduler_min_lr_ratio)
+
+    def set_dataset_feature_metadata(self, features: dict[str, dict[str, Any]]) -> None:
+        """lerobot's ``make_policy`` hands over the dataset's features: the layout of
+        ``observation.state`` comes from its channel names.
+
+        Args:
+            features: the dataset's ``info.json`` features.
+        """
+        if OBS_STATE not in features:
+            raise ValueError(f"the dataset has no {OBS_STATE} (msta datasets of schema >= 2 "
+                             "have it; append to an old one with msta-collect to add it)")
+        self.state_sensors = state_layout(list(features[OBS_STATE]["names"]))
+        self.__post_init__()
+
+    def msta_features(self) -> tuple[dict[str, PolicyFeature], dict[str, PolicyFeature]]:
+        """The features of an msta dataset for this config: ``observation.state`` of
+        ``state_sensors`` in, a ``(action_dim,)`` action out."""
+        return ({OBS_STATE: PolicyFeature(FeatureType.STATE,
+                                          (sensors.total_dim(self.state_sensors),))},
+                {ACTION: PolicyFeature(FeatureType.ACTION, (self.action_dim,))})
+
+    def validate_features(self) -> None:
+        """Keep only the inputs MSTA reads (``observation.state``; the command is in it) and
+        check its size against ``state_sensors``. Without any features (a config.json
+        written by msta itself) they are :meth:`msta_features`."""
+        if not self.input_features and not self.output_features:  # a native msta config
+            self.input_features, self.output_features = self.msta_features()
+        feats = self.input_features or {}
+        if OBS_STATE not in feats:
+            raise ValueError(f"msta reads {OBS_STATE}; the inputs are {sorted(feats)}")
+        want = sensors.total_dim(self.state_sensors)
+        if tuple(feats[OBS_STATE].shape) != (want,):
+            raise ValueError(f"{OBS_STATE} has shape {tuple(feats[OBS_STATE].shape)}, "
+                             f"state_sensors {list(self.state_sensors)} make ({want},)")
+        self.input_features = {OBS_STATE: feats[OBS_STATE]}
+        act = (self.output_features or {}).get(ACTION)
+        if act is None or tuple(act.shape) != (self.action_dim,):
+            raise ValueError(f"msta predicts a ({self.action_dim},) {ACTION}; the outputs are "
+                             f"{self.output_features}")
+
+    # --- msta's side ---------------------------------------------------------------------
+    def to_native(self) -> NativeMSTAConfig:
+        """The same student as msta's own config (what an msta checkpoint's config.json
+        holds)."""
+        return NativeMSTAConfig(**{f.name: getattr(self, f.name)
+                                   for f in fields(NativeMSTAConfig)})
+
+    @classmethod
+    def from_native(cls, native: NativeMSTAConfig, **lerobot_fields: Any) -> MSTAConfig:
+        """A LeRobot config for msta's ``native`` config, with the standard msta features
+        (``observation.state`` of ``state_sensors``, a 12-dim action).
+
+        Args:
+            native: msta's config (e.g. ``load_policy(path).config``).
+            lerobot_fields: other fields of this class (device, state_sensors, ...).
+        """
+        values = {f.name: getattr(native, f.name) for f in fields(NativeMSTAConfig)}
+        cfg = cls(**values, **lerobot_fields)
+        cfg.input_features, cfg.output_features = cfg.msta_features()
+        return cfg
