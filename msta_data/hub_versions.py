@@ -44,34 +44,57 @@ class RepoVersions:
 
     def to_text(self, width: int = 100, metric_lines: int = 3) -> str:
         """One line per commit (sha, date, title, refs), then its metrics on up to
-        ``metric_lines`` indented lines of at most ``width`` characters (the rest counted;
+        ``metric_lines`` indented lines; no line is longer than ``width`` characters (a long
+        title is cut, refs that leave it no room go on their own lines; 95 % bounds
+        (``*_ci95_*``) follow the other metrics, and those past ``metric_lines`` are counted:
         ``to_dict`` / ``msta-hub versions --json`` has them all)."""
-        lines = [f"{self.repo_type} {self.repo_id}"]
+        lines = [_fit(f"{self.repo_type} {self.repo_id}", width)]
         for c in self.commits:
             refs = ", ".join([f"branch {b}" for b in c.branches] + [f"tag {t}" for t in c.tags])
             head = f"{c.sha[:12]}  {c.date[:19]}  "
             tail = f"  [{refs}]" if refs else ""
-            room = max(width - len(head) - len(tail), 20)
-            title = c.title if len(c.title) <= room else c.title[: room - 3] + "..."
-            lines.append(head + title + tail)
-            lines += _metric_lines(c.metrics, width, metric_lines)
+            if len(head) + MIN_TITLE + len(tail) > width:  # many refs: lines of their own
+                lines.append(_fit(head + c.title, width))
+                names = refs.split(", ")
+                names[0] = "[" + names[0]
+                names[-1] += "]"
+                lines += _packed(names, width, len(names), ", ", keep_end=False)
+            else:
+                lines.append(_fit(c.title, width - len(tail), head) + tail)
+            figures = sorted(c.metrics.items(), key=lambda kv: "_ci95_" in kv[0])  # bounds last
+            lines += _packed([f"{k}={v:.4g}" for k, v in figures], width, metric_lines)
         return "\n".join(lines)
 
 
-def _metric_lines(metrics: dict[str, float], width: int, max_lines: int,
-                  indent: str = "    ") -> list[str]:
-    """``name=value`` items packed into indented lines; past ``max_lines`` a count."""
+#: Characters of a commit title kept on its line before the refs move to lines of their own.
+MIN_TITLE = 20
+
+
+def _fit(text: str, width: int, prefix: str = "") -> str:
+    """``prefix + text``, the text's end cut with ``...`` to fit ``width`` characters."""
+    room = width - len(prefix)
+    return prefix + (text if len(text) <= room else text[: max(room - 3, 0)] + "...")
+
+
+def _packed(items: list[str], width: int, max_lines: int, sep: str = " ",
+            indent: str = "    ", keep_end: bool = True) -> list[str]:
+    """``items`` packed into indented lines of at most ``width`` characters (an item too long
+    for a line alone keeps its end, a metric's value: ``...e_name=0.5``, or with
+    ``keep_end=False`` its start); past ``max_lines``, a count of the rest."""
+    room = width - len(indent)
+    items = [i if len(i) <= room else "..." + i[len(i) - room + 3:] if keep_end
+             else _fit(i, room) for i in items]
     rows: list[list[str]] = []
-    for item in (f"{k}={v:.4g}" for k, v in metrics.items()):
-        if rows and len(indent) + len(" ".join([*rows[-1], item])) <= width:
+    for item in items:
+        if rows and len(sep.join([*rows[-1], item])) <= room:
             rows[-1].append(item)
         else:
             rows.append([item])
     if len(rows) <= max_lines:
-        return [indent + " ".join(r) for r in rows]
+        return [indent + sep.join(r) for r in rows]
     shown = rows[: max_lines - 1] if max_lines > 1 else []
     hidden = sum(map(len, rows)) - sum(map(len, shown))
-    return ([indent + " ".join(r) for r in shown]
+    return ([indent + sep.join(r) for r in shown]
             + [f"{indent}... {hidden} more metrics (--json lists them all)"])
 
 
