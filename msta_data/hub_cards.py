@@ -1,14 +1,29 @@
-"""Model and dataset cards (README.md: YAML front matter plus markdown) and their metrics."""
+"""Model and dataset cards (README.md: YAML front matter plus markdown) and their metrics.
+
+A dataset card follows LeRobot's (``lerobot.datasets.utils.create_lerobot_dataset_card``:
+``license``, ``tags`` starting with ``LeRobot``, ``task_categories: [robotics]``, the
+``configs`` entry the hub's viewer reads) plus ``robot_type`` and ``fps``; its body has a
+usage snippet, the provenance summary (episodes and frames by source, stage-2 round and
+terrain type, counted from the episode table) and a table of every feature. The writer
+rebuilds it after every commit (:func:`write_dataset_card`) and ``push_dataset`` before
+every push, so its counts are those of ``meta/info.json``. A card holds no local path
+(:func:`portable`).
+"""
 
 from __future__ import annotations
 
 import json
+import os
+from collections import Counter
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from huggingface_hub import CardData, RepoCard
 
+from msta_data import features as F
 from msta_data import layout as L
+from msta_data import sensors as registry
 
 
 @dataclass
@@ -40,87 +55,292 @@ class CardInfo:
     def msta_metadata(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         if self.dataset_repo:
-            out["dataset"] = {"repo": self.dataset_repo, "revision": self.dataset_revision}
+            out["dataset"] = {"repo": portable(self.dataset_repo), "revision": self.dataset_revision}
         for key in ("stage", "round", "metrics", "eval_table", "config"):
             value = getattr(self, key)
             if value is not None:
-                out[key] = value
+                out[key] = portable(value) if key == "config" else value
         return out
-
-
-def _markdown_table(table: dict[str, dict[str, float]]) -> str:
-    columns = list(dict.fromkeys(c for row in table.values() for c in row))
-    lines = ["| | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
-    for name, row in table.items():
-        cells = [f"{row[c]:.4g}" if isinstance(row.get(c), (int, float)) else str(row.get(c, "")) for c in columns]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _render_card(metadata: dict[str, Any], title: str, info: CardInfo, extra: str = "") -> str:
-    body = [f"# {title}", ""]
-    if info.dataset_repo:
-        rev = f" @ `{info.dataset_revision}`" if info.dataset_revision else ""
-        body += [f"Trained on dataset `{info.dataset_repo}`{rev}.", ""]
-    if info.stage is not None:
-        body += [f"Stage {info.stage}" + (f", round {info.round}" if info.round is not None else "") + ".", ""]
-    if info.metrics:
-        body += ["## Metrics", "", _markdown_table({"value": info.metrics}), ""]
-    if info.eval_table:
-        body += ["## Evaluation", "", _markdown_table(info.eval_table), ""]
-    body += [extra, info.notes]
-    return f"---\n{CardData(**metadata).to_yaml()}\n---\n\n" + "\n".join(body).rstrip() + "\n"
 
 
 #: The license of msta's checkpoints and datasets (the project's, pyproject.toml).
 LICENSE = "apache-2.0"
+#: What each training stage is (a model card's "Training" section).
+STAGES = {1: "offline behaviour cloning of the teacher's rollouts",
+          2: "online correction: the student drives, the teacher labels, the dataset grows"}
 
 
-def model_card(info: CardInfo, repo_id: str = "", revision: str | None = None) -> str:
-    """README.md text (YAML front matter + markdown) for a checkpoint: what it was trained
-    on, its figures, a usage snippet and the license; local paths are never written.
+def portable(obj: Any) -> Any:
+    """``obj`` (a JSON-like config) as a public card may show it: no ``output_dir``, and an
+    absolute local path becomes ``<local>/<its last part>``."""
+    if isinstance(obj, dict):
+        return {k: portable(v) for k, v in obj.items() if k != "output_dir"}
+    if isinstance(obj, list):
+        return [portable(v) for v in obj]
+    if isinstance(obj, str) and (os.path.isabs(obj) or obj.startswith("~")):
+        return f"<local>/{Path(obj).name}"
+    return obj
+
+
+def _cell(value: Any) -> str:
+    return f"{value:.4g}" if isinstance(value, (int, float)) and not isinstance(value, bool) \
+        else str(value)
+
+
+def _markdown_table(table: dict[str, dict[str, Any]], corner: str = "") -> str:
+    columns = list(dict.fromkeys(c for row in table.values() for c in row))
+    lines = [f"| {corner} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for name, row in table.items():
+        lines.append(f"| {name} | " + " | ".join(_cell(row.get(c, "")) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def _front_matter(metadata: dict[str, Any]) -> str:
+    return f"---\n{CardData(**metadata).to_yaml()}\n---\n\n"
+
+
+# ----- model cards -----------------------------------------------------------------------
+def _usage(ref: str, policy_type: str | None) -> list[str]:
+    repo, _, tag = ref.partition("@")
+    kind = policy_type or "msta"
+    rev = f', revision="{tag}"' if tag else ""
+    lines = ["## Usage", "", "```python", "from policies.factory import get_policy_class, load_policy",
+             "", f'policy = load_policy("{ref}")  # or a local checkpoint directory',
+             f'policy = get_policy_class("{kind}").from_pretrained("{repo}"{rev})  # the same',
+             "actions = policy.act(batch)  # batch: sensor windows, see docs/msta_model.md", "```",
+             "", "```bash", f"msta-eval --policies teacher,{ref} --suite quick"]
+    if kind == "msta":  # LeRobot's format through the converter (msta students only)
+        lines += [f"python -m lerobot_policy_msta.convert --policy.path={ref} "
+                  "--output_dir=msta_lerobot",
+                  "lerobot-eval --env.type=msta_a1 --policy.path=msta_lerobot "
+                  "--eval.n_episodes=10 --eval.batch_size=10 --env.video=false"]
+    return [*lines, "```", ""]
+
+
+def _training(info: CardInfo) -> list[str]:
+    lines = []
+    if info.dataset_repo:
+        rev = (f" at revision `{info.dataset_revision}`" if info.dataset_revision
+               else " (a local dataset: no hub revision)")
+        lines.append(f"- **Training data**: dataset `{portable(info.dataset_repo)}`{rev}")
+    if info.stage is not None:
+        what = STAGES.get(info.stage) if isinstance(info.stage, int) else None
+        rnd = f", round {info.round}" if info.round is not None else ""
+        lines.append(f"- **Stage**: {info.stage}{rnd}" + (f" ({what})" if what else ""))
+    if info.config is not None:
+        lines.append("- **Configuration**: `msta.config` in this card's front matter")
+    if not lines and not info.notes:
+        return []
+    return ["## Training", "", *lines, "", *([info.notes, ""] if info.notes else [])]
+
+
+def _evaluation(info: CardInfo) -> list[str]:
+    out = []
+    if info.metrics:
+        out += ["## Metrics", "", _markdown_table({"value": info.metrics}), ""]
+    if info.eval_table:
+        trials = sorted({int(row["trials"]) for row in info.eval_table.values()
+                         if isinstance(row.get("trials"), (int, float))})
+        count = (f"{trials[0]} trials (episodes) per row" if len(trials) == 1 else
+                 "trials per row in the `trials` column" if trials else "trial count not recorded")
+        out += ["## Evaluation", "", f"{count}.", "", _markdown_table(info.eval_table), ""]
+    return out
+
+
+def model_card(info: CardInfo, repo_id: str = "", revision: str | None = None,
+               policy_type: str | None = None) -> str:
+    """README.md text (YAML front matter + markdown) for a checkpoint: a usage snippet, what
+    it was trained on (dataset repo and revision, stage and round), its figures (the eval
+    table with its trial count) and the license; local paths are never written.
 
     Args:
         info: what to record.
         repo_id: used in the default title and the usage snippet.
         revision: the tag the checkpoint is pushed with (in the usage snippet).
+        policy_type: the checkpoint's registered policy type (``config.json``'s ``type``);
+            the LeRobot lines of the usage snippet are for ``msta`` students (and unknown types).
     """
     meta: dict[str, Any] = {"library_name": "msta", "license": LICENSE,
                             "tags": ["msta", "robotics", "quadruped", "lerobot"]}
     if info.dataset_repo:
-        meta["datasets"] = [info.dataset_repo]
+        meta["datasets"] = [portable(info.dataset_repo)]
     meta["msta"] = info.msta_metadata()
     ref = f"{repo_id}@{revision}" if repo_id and revision else repo_id or "<user/name@tag>"
-    usage = "\n".join([
-        "## Usage", "", "```python", "from policies.factory import load_policy", "",
-        f'policy = load_policy("{ref}")  # or a local checkpoint directory',
-        "actions = policy.act(batch)  # batch: sensor windows, see docs/msta_model.md", "```",
-        "", "```bash", f"msta-eval --policies teacher,{ref} --suite quick", "```", ""])
-    return _render_card(meta, info.title or f"MSTA checkpoint {repo_id}".strip(), info, usage)
+    title = info.title or f"MSTA checkpoint {repo_id}".strip()
+    body = [f"# {title}", "", *_usage(ref, policy_type), *_training(info), *_evaluation(info),
+            "## License", "", f"`{LICENSE}` (Apache License 2.0)."]
+    return _front_matter(meta) + "\n".join(body).rstrip() + "\n"
 
 
-def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, repo_id: str = "") -> str:
+# ----- dataset cards ---------------------------------------------------------------------
+#: What the columns that are not registry sensors hold (a dataset card's features table).
+COLUMN_DESCRIPTIONS = {
+    "observation.state": "the student sensors concatenated",
+    "observation.environment_state": "the velocity command (a copy of command.*)",
+    "action": "the teacher's action label: joint offsets from the default pose",
+    "executed_action": "the action applied (the student's in stage 2)",
+    "next.reward": "total reward of the step",
+    "next.lin_vel_tracking": "linear-velocity tracking reward of the step",
+    "next.ang_vel_tracking": "yaw-rate tracking reward of the step",
+    "next.done": "the episode ended after this step",
+    "timestamp": "time since the episode start (s)",
+    "frame_index": "step within the episode",
+    "episode_index": "episode number",
+    "index": "frame number in the dataset",
+    "task_index": "row of meta/tasks.parquet (one task per terrain type)",
+}
+#: Channel names listed in full up to this many (then the first and last few).
+MAX_LISTED_CHANNELS = 12
+#: Provenance groups of a dataset card: summary key -> episode-table column.
+PROVENANCE_GROUPS = {"by_source": "provenance/source", "by_round": "provenance/round",
+                     "by_terrain": "provenance/terrain"}
+#: Row order of each provenance group: sources as ``features.SOURCES``, rounds by number.
+_ORDER = {
+    "by_source": lambda v: (F.SOURCES.index(v) if v in F.SOURCES else len(F.SOURCES), v),
+    "by_round": lambda v: (int(v) if v.isdigit() else -1, v),
+    "by_terrain": lambda v: (0, v),
+}
+
+
+def _channels(names: list[str] | None) -> str:
+    if not names:
+        return ""
+    if len(names) <= MAX_LISTED_CHANNELS:
+        return f"`{', '.join(names)}`"
+    return f"{len(names)} channels `{', '.join(names[:3])}, ..., {', '.join(names[-2:])}`"
+
+
+def features_table(features: dict[str, dict[str, Any]]) -> str:
+    """Markdown table of every feature: name, dtype, shape, description and channel names."""
+    sensor_of = F.sensor_column_to_name(features)
+    lines = ["| feature | dtype | shape | description; channels |", "|---|---|---|---|"]
+    for col, ft in features.items():
+        desc = (registry.get(sensor_of[col]).description if col in sensor_of
+                else COLUMN_DESCRIPTIONS.get(col, ""))
+        text = "; ".join(p for p in (desc, _channels(ft.get("names"))) if p)
+        shape = "(" + ", ".join(map(str, ft["shape"])) + ("," if len(ft["shape"]) == 1 else "") + ")"
+        lines.append(f"| `{col}` | {ft['dtype']} | {shape} | {text} |")
+    return "\n".join(lines)
+
+
+def provenance_summary(root: str | Path, info: dict[str, Any]) -> dict[str, dict[str, dict]]:
+    """Episodes and frames of the committed episodes by source, stage-2 round and terrain.
+
+    Args:
+        root: dataset root.
+        info: its ``meta/info.json`` (``total_episodes`` bounds the rows counted).
+
+    Returns:
+        ``{"by_source" | "by_round" | "by_terrain": {value: {"episodes", "frames"}}}``;
+        rounds as strings; ``unknown`` where the episode table has no provenance column.
+    """
+    table = F.read_episode_table(root, info)
+    lengths = table.column("length").to_pylist()
+    out: dict[str, dict[str, dict]] = {}
+    for key, col in PROVENANCE_GROUPS.items():
+        values = (table.column(col).to_pylist() if col in table.column_names
+                  else ["unknown"] * len(lengths))
+        episodes, frames = Counter(map(str, values)), Counter()
+        for value, n in zip(values, lengths, strict=True):
+            frames[str(value)] += n
+        out[key] = {v: {"episodes": episodes[v], "frames": frames[v]}
+                    for v in sorted(episodes, key=_ORDER[key])}
+    return out
+
+
+
+def _dataset_body(info: CardInfo, dataset_info: dict[str, Any] | None, repo_id: str,
+                  provenance: dict[str, dict[str, dict]] | None) -> list[str]:
+    repo = repo_id or "<user/name>"
+    body = [f"# {info.title or f'MSTA dataset {repo_id}'.strip()}", "",
+            "A quadruped-locomotion dataset recorded with msta in LeRobot's v3.0 format.", ""]
+    if dataset_info:
+        body += [f"- **Robot**: {dataset_info.get('robot_type')}, {dataset_info.get('fps')} "
+                 f"frames per second", f"- **Episodes**: {dataset_info.get('total_episodes')}, "
+                 f"**frames**: {dataset_info.get('total_frames')}, "
+                 f"**tasks**: {dataset_info.get('total_tasks')}",
+                 f"- **License**: `{LICENSE}` (Apache License 2.0)", ""]
+    body += ["## Usage", "", "```python", "from lerobot.datasets.lerobot_dataset import LeRobotDataset",
+             "", f'dataset = LeRobotDataset("{repo}", revision="{F.CODEBASE_VERSION}")', "```", "",
+             "```bash", f"msta-train --dataset=datasets/{repo}@{F.CODEBASE_VERSION}", "```", ""]
+    if provenance:
+        titles = {"by_source": "source", "by_round": "stage-2 round (0: teacher data)",
+                  "by_terrain": "terrain"}
+        body += ["## Provenance", "", "Counted from the `provenance/*` columns of the episode "
+                 f"table (`{L.EPISODES_DIR}/`).", ""]
+        for key, rows in provenance.items():
+            body += [_markdown_table(rows, titles.get(key, key)), ""]
+    if dataset_info and dataset_info.get("features"):
+        body += ["## Features", "", features_table(dataset_info["features"]), "",
+                 f"Everything else LeRobot records is in [{L.INFO_PATH}]({L.INFO_PATH}).", ""]
+    if info.metrics:
+        body += ["## Metrics", "", _markdown_table({"value": info.metrics}), ""]
+    return [*body, info.notes]
+
+
+def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, repo_id: str = "",
+                 provenance: dict[str, dict[str, dict]] | None = None) -> str:
     """README.md text for a LeRobot dataset root.
 
     Args:
         info: what to record (config = the collection configuration).
         dataset_info: the dataset's meta/info.json (robot type, fps, sizes, features).
-        repo_id: used in the default title.
+        repo_id: used in the default title and the usage snippet.
+        provenance: :func:`provenance_summary` of the dataset.
     """
     meta: dict[str, Any] = {"license": LICENSE, "tags": ["LeRobot", "msta", "robotics", "quadruped"],
                             "task_categories": ["robotics"],
                             "configs": [{"config_name": "default", "data_files": L.DATA_FILES_GLOB}]}
     msta = info.msta_metadata()
     if dataset_info:
-        msta["lerobot"] = {k: dataset_info[k] for k in ("codebase_version", "robot_type", "fps",
-                                                           "total_episodes", "total_frames") if k in dataset_info}
+        meta.update({k: dataset_info[k] for k in ("robot_type", "fps") if k in dataset_info})
+        msta["lerobot"] = {k: dataset_info[k] for k in (
+            "codebase_version", "robot_type", "fps", "total_episodes", "total_frames",
+            "total_tasks") if k in dataset_info}
+    if provenance:
+        msta["provenance"] = provenance
     meta["msta"] = msta
-    extra = ""
-    if dataset_info:
-        extra = f"## {L.INFO_PATH}\n\n```json\n" + json.dumps(dataset_info, indent=2) + "\n```\n"
-    return _render_card(meta, info.title or f"MSTA dataset {repo_id}".strip(), info, extra)
+    body = _dataset_body(info, dataset_info, repo_id, provenance)
+    return _front_matter(meta) + "\n".join(body).rstrip() + "\n"
 
 
+def root_dataset_card(root: str | Path, card: CardInfo | None = None, repo_id: str = ""
+                      ) -> str | None:
+    """The card of dataset ``root`` as its files are now, or None to keep its README.md.
+
+    Args:
+        root: dataset root (meta/info.json, the episode table).
+        card: what to record; default: what msta's card already in ``root`` records. A
+            README.md of the user's own (no ``msta`` block) is kept unless ``card`` is given.
+        repo_id: title and usage snippet; default: ``meta/msta.json``'s ``repo_id``.
+    """
+    root = Path(root)
+    existing = root / L.CARD_NAME
+    if card is None and existing.is_file():
+        meta = card_metadata(existing.read_text(encoding="utf-8"))
+        if "msta" not in meta:
+            return None
+        card = card_info(meta)
+    info = json.loads(L.info_path(root).read_text())
+    if not repo_id and (root / L.MSTA_META_PATH).is_file():
+        repo_id = str(json.loads((root / L.MSTA_META_PATH).read_text()).get("repo_id") or "")
+    return dataset_card(card or CardInfo(), info, repo_id, provenance_summary(root, info))
+
+
+def write_dataset_card(root: str | Path) -> bool:
+    """Rebuild ``root/README.md`` from the dataset's files (the writer calls it after each
+    commit); a README.md of the user's own is kept. Returns whether the card was written."""
+    root = Path(root)
+    text = root_dataset_card(root)
+    if text is None:
+        return False
+    tmp = root / L.META_DIR / f"{L.CARD_NAME}.tmp"  # meta/*.tmp: a writer removes leftovers
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, root / L.CARD_NAME)
+    return True
+
+
+# ----- reading cards back ----------------------------------------------------------------
 def card_metadata(text: str) -> dict[str, Any]:
     """The YAML front matter of a card as a dict ({} when there is none)."""
     return RepoCard(text, ignore_metadata_errors=True).data.to_dict()
@@ -137,11 +357,16 @@ def card_info(metadata: dict[str, Any]) -> CardInfo:
 
 
 def card_metrics(metadata: dict[str, Any]) -> dict[str, float]:
-    """Metrics recorded in a card: ``msta.metrics`` plus ``msta.eval_table`` as ``row/column``."""
+    """Figures recorded in a card: ``msta.metrics``, ``msta.eval_table`` as ``row/column``,
+    and a dataset card's ``episodes`` and ``frames`` (``msta.lerobot``)."""
     msta = metadata.get("msta") or {}
     out = {k: v for k, v in (msta.get("metrics") or {}).items() if isinstance(v, (int, float))}
     for row, cols in (msta.get("eval_table") or {}).items():
         for col, v in (cols or {}).items():
             if isinstance(v, (int, float)):
                 out[f"{row}/{col}"] = v
+    sizes = msta.get("lerobot") or {}
+    for name, key in (("episodes", "total_episodes"), ("frames", "total_frames")):
+        if isinstance(sizes.get(key), int):
+            out[name] = sizes[key]
     return out

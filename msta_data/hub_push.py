@@ -16,7 +16,7 @@ from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
 
 from msta_data import layout as L
 from msta_data.errors import DatasetLockedError
-from msta_data.hub_cards import CardInfo, card_info, card_metadata, dataset_card, model_card
+from msta_data.hub_cards import CardInfo, model_card, root_dataset_card
 from msta_data.hub_ids import HubError, hub_api
 from msta_data.integrity import verify_for_publish
 from msta_data.locking import lock_directory
@@ -48,6 +48,15 @@ def _set_tag(api: HfApi, repo_id: str, repo_type: str, tag: str, sha: str, move:
                            "pass move_tag=True (--move_tag) to move it")
         api.delete_tag(repo_id, tag=tag, repo_type=repo_type)
     api.create_tag(repo_id, tag=tag, revision=sha, repo_type=repo_type)
+
+
+def _policy_type(root: Path) -> str | None:
+    """The ``type`` a checkpoint's config.json names (None when it has none)."""
+    try:
+        kind = json.loads((root / "config.json").read_text()).get("type")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return kind if isinstance(kind, str) else None
 
 
 def _commit_dir(api: HfApi, root: Path, repo_id: str, repo_type: str, *, branch: str, private: bool,
@@ -103,7 +112,7 @@ def push(checkpoint_dir: str | os.PathLike, repo_id: str, tag: str | None = None
     """
     root = Path(checkpoint_dir)
     api = hub_api(endpoint, token)
-    text = model_card(card, repo_id, tag) if card is not None else None
+    text = model_card(card, repo_id, tag, _policy_type(root)) if card is not None else None
     sha = _commit_dir(api, root, repo_id, "model", branch=branch, private=private, card_text=text,
                       message=message or f"push {root.name}", allow_pickle=allow_pickle)
     if tag:
@@ -130,9 +139,11 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
         root: dataset root holding meta/info.json.
         repo_id: ``user/name`` of the dataset repo.
         private: create the repo as private.
-        card: dataset card content; default: a card built from meta/info.json when the root
-            has no README.md, or msta's card of the root (say, pulled and then appended to)
-            rebuilt with the current meta/info.json; a README.md of the user's own is kept.
+        card: dataset card content; default: what msta's card in the root records (none
+            when the root has no README.md). Either way the card is rebuilt from the files
+            pushed (``hub_cards.root_dataset_card``: sizes, provenance counts, features), so
+            a dataset pulled, appended to and pushed again says its true counts; a README.md
+            of the user's own (no ``msta`` block) is kept unless ``card`` is given.
         tag: extra tag for this version.
         message: commit message.
         endpoint: hub URL (default HF_ENDPOINT).
@@ -156,14 +167,7 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
     try:
         verify_for_publish(root)  # refuses, naming the file, before anything is uploaded
         api = hub_api(endpoint, token)
-        text = None
-        existing = root / L.CARD_NAME
-        if card is not None or not existing.exists():
-            text = dataset_card(card or CardInfo(), info, repo_id)
-        else:  # msta's own card (e.g. pulled, then appended to): its figures follow info.json
-            meta = card_metadata(existing.read_text())
-            if "msta" in meta:
-                text = dataset_card(card_info(meta), info, repo_id)
+        text = root_dataset_card(root, card, repo_id)  # None: the user's own README.md
         sha = _commit_dir(api, root, repo_id, "dataset", branch="main", private=private,
                           card_text=text, message=message or f"push dataset {root.name}",
                           allow_pickle=False)

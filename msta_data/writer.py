@@ -34,11 +34,16 @@ The writer also fills ``observation.state`` and ``observation.environment_state`
 sensor columns, with their statistics (:mod:`msta_data.derived`). A dataset written before
 them (msta schema 1) is appended to in its own layout, without them, so all its files keep
 the same columns; re-record it to give it the derived columns.
+
+After each commit the dataset card ``README.md`` is rebuilt from the committed files
+(:func:`msta_data.hub_cards.write_dataset_card`: sizes, provenance counts, features); a
+README.md of the user's own is left alone.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -57,12 +62,14 @@ from msta_data import layout as L
 from msta_data import stats as S
 from msta_data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
 from msta_data.features import validate_episode
+from msta_data.hub_cards import write_dataset_card
 from msta_data.layout import LOCK_NAME
 from msta_data.locking import lock_directory
 
 __all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
 
 DEFAULT_FLUSH_EVERY_FRAMES = 50_000
+logger = logging.getLogger(__name__)
 
 
 @dataclass
@@ -350,6 +357,10 @@ class DatasetWriter:
         self._commit()
         self._buffer.clear()
         self._buffered_frames = 0
+        try:  # the episodes are committed: a card that cannot be written only warns
+            write_dataset_card(self.root)
+        except (OSError, ValueError) as e:
+            logger.warning("%s not rebuilt (%s: %s)", self.root / L.CARD_NAME, type(e).__name__, e)
 
     def close(self) -> None:
         """Flush and release the lock. Idempotent."""

@@ -12,7 +12,7 @@ earlier versions stay in the history.
 
 The model card records the training dataset (hub id and the commit sha it resolved to, or
 for a local dataset the ``repo_id`` of its ``meta/msta.json``; local paths are never written:
-:func:`portable`), the training configuration, stage, round, summary metrics (stage 1:
+:func:`msta_data.hub_cards.portable`), the training configuration, stage, round, summary metrics (stage 1:
 the last train and validation losses of ``metrics.csv``; stage 2: msta-correct's per-round
 figures, which are msta-eval's on the same trials: linear-velocity tracking and total
 reward normalized by the teacher's, survival, their 95 % intervals and the trial count, at
@@ -30,7 +30,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import re
 from pathlib import Path
 from typing import Any
@@ -39,7 +38,7 @@ import draccus
 
 from eval.metrics import HEADLINE_FIGURES, headline
 from msta_data import layout
-from msta_data.hub_cards import CardInfo
+from msta_data.hub_cards import CardInfo, portable
 from msta_data.hub_ids import parse_hub_id
 from msta_data.hub_pull import resolve
 from msta_data.hub_push import push
@@ -120,18 +119,6 @@ def _finite(d: dict[str, Any]) -> dict[str, float]:
             if isinstance(v, (int, float)) and math.isfinite(float(v))}
 
 
-def portable(obj: Any) -> Any:
-    """``obj`` (a JSON-like config) as a public card may show it: no ``output_dir``, and an
-    absolute local path becomes ``<local>/<its last part>``."""
-    if isinstance(obj, dict):
-        return {k: portable(v) for k, v in obj.items() if k != "output_dir"}
-    if isinstance(obj, list):
-        return [portable(v) for v in obj]
-    if isinstance(obj, str) and (os.path.isabs(obj) or obj.startswith("~")):
-        return f"<local>/{Path(obj).name}"
-    return obj
-
-
 def _card(src: dict[str, Any], config: dict[str, Any], stage: int, round_: int | None,
           metrics: dict[str, float], table: dict[str, dict[str, float]] | None,
           notes: str) -> CardInfo:
@@ -168,7 +155,7 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
         final: the saved final policy directory.
     """
     card = _card(dataset_source(cfg.dataset, root), draccus.encode(cfg), 1, None,
-                 stage1_metrics(out), None, "Stage 1: offline behaviour cloning of the teacher.")
+                 stage1_metrics(out), None, "Trained by `msta-train` (stage 1).")
     return push_checkpoint(final, cfg.push_to, "stage1", card, cfg.push_private,
                            "rerun the same command with --resume=true to push it (the "
                            "finished run is not trained again)")
