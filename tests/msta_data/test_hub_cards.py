@@ -12,7 +12,9 @@ import pandas as pd
 import pytest
 import torch
 
+from eval.evaluate import EvalConfig
 from msta_data import features as F
+from msta_data.cli import parse_config
 from msta_data.hub_cards import CardInfo, card_metadata
 from msta_data.hub_cli import main as cli_main
 from msta_data.hub_ids import hub_api
@@ -20,6 +22,8 @@ from msta_data.hub_pull import pull
 from msta_data.hub_push import push, push_dataset
 from msta_data.hub_server import HubServer, ServerConfig
 from msta_data.hub_versions import RepoVersions, Version
+from train.cli import parse_cli
+from train.offline import TrainConfig
 
 SECRET = "alice-secret-0001"
 
@@ -137,6 +141,8 @@ def test_pushed_dataset_cards_say_the_true_counts(server, tmp_path, write_datase
     assert meta["msta"]["provenance"]["by_round"]["1"] == {"episodes": 2, "frames": 7}
     assert meta["msta"]["config"] == {"episodes": 4}
     assert 'LeRobotDataset("alice/grow", revision="v3.0")' in text
+    train = re.search(r"^msta-train .*$", text, re.MULTILINE).group(0).split()
+    assert parse_cli(TrainConfig, train[1:], "msta-train").dataset == "datasets/alice/grow@v3.0"
 
     assert cli_main(["versions", "datasets/alice/grow"]) == 0
     out = capsys.readouterr().out
@@ -191,6 +197,7 @@ def test_the_model_cards_usage_runs_as_written(server, tmp_path, write_dataset):
         assert all(torch.equal(got[k], v) for k, v in policy.state_dict().items())
     shell = re.search(r"```bash\n(.*?)```", text, re.DOTALL).group(1).splitlines()
     assert shell[0] == "msta-eval --policies teacher,alice/m@stage2-r1 --suite quick"
+    assert parse_config(EvalConfig, shell[0].split()[1:], "msta-eval").suite == "quick"
     convert = shell[1].split()
     assert convert[:3] == ["python", "-m", "lerobot_policy_msta.convert"]
     out_dir = tmp_path / "msta_lerobot"
