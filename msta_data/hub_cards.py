@@ -202,9 +202,12 @@ _ORDER = {
 }
 
 
-def _channels(names: list[str] | None) -> str:
+def _channels(names: list[str] | dict[str, Any] | None) -> str:
+    if isinstance(names, dict):  # LeRobot's older {"motors": [...]} form
+        names = [str(n) for v in names.values() for n in (v if isinstance(v, list) else [v])]
     if not names:
         return ""
+    names = [str(n) for n in names]
     if len(names) <= MAX_LISTED_CHANNELS:
         return f"`{', '.join(names)}`"
     return f"{len(names)} channels `{', '.join(names[:3])}, ..., {', '.join(names[-2:])}`"

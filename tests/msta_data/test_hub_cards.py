@@ -257,3 +257,9 @@ def test_features_table_covers_a_schema_1_dataset():
     table = features_table(feats)
     assert [line.split("`")[1] for line in table.splitlines()[2:]] == list(feats)
     assert "observation.state" not in table
+    other = features_table({"observation.images.top": {"dtype": "video", "shape": [96, 96, 3],
+                                                       "names": ["height", "width", "channel"]},
+                            "observation.qpos": {"dtype": "float32", "shape": [2],
+                                                 "names": {"motors": ["m0", "m1"]}}})
+    assert "| `observation.images.top` | video | (96, 96, 3) | `height, width, channel` |" in other
+    assert "| `observation.qpos` | float32 | (2,) | `m0, m1` |" in other
