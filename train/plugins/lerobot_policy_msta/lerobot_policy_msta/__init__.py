@@ -10,5 +10,8 @@ LeRobot's. See docs/lerobot.md.
 """
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig, WarmupCosineSchedulerConfig
+from msta_data.quiet import shorten_torchcodec_warning
 
 __all__ = ["MSTAConfig", "WarmupCosineSchedulerConfig"]
+
+shorten_torchcodec_warning()  # one line, not lerobot's torchcodec traceback
