@@ -83,8 +83,10 @@ def portable(obj: Any) -> Any:
 
 
 def _cell(value: Any) -> str:
-    return f"{value:.4g}" if isinstance(value, (int, float)) and not isinstance(value, bool) \
-        else str(value)
+    """Counts as they are (46653, not 4.665e+04); other numbers to 4 significant digits."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return str(value)
+    return str(value) if isinstance(value, int) else f"{value:.4g}"
 
 
 def _markdown_table(table: dict[str, dict[str, Any]], corner: str = "") -> str:

@@ -263,3 +263,10 @@ def test_features_table_covers_a_schema_1_dataset():
                                                  "names": {"motors": ["m0", "m1"]}}})
     assert "| `observation.images.top` | video | (96, 96, 3) | `height, width, channel` |" in other
     assert "| `observation.qpos` | float32 | (2,) | `m0, m1` |" in other
+
+
+def test_card_tables_print_counts_whole_and_figures_short():
+    from msta_data.hub_cards import _markdown_table
+
+    text = _markdown_table({"teacher": {"episodes": 96, "frames": 46653, "loss": 0.0840239}})
+    assert text.splitlines()[-1] == "| teacher | 96 | 46653 | 0.08402 |"
