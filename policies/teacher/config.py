@@ -29,13 +29,18 @@ class ZeroTeacher:
 
 #: which constructor argument receives ``TeacherConfig.path`` for each teacher type
 PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
+#: The RMA teacher shipped with msta (``--teacher.type=rma`` without ``--teacher.path``): the
+#: gait controller imitated by ``msta-train-teacher --ppo.iterations=0`` (10 DART iterations;
+#: ``produced_by.json`` in the folder; docs/teacher_quality_rma.md).
+SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
 
 
 @dataclass
 class TeacherConfig:
     """Args:
-        type: registered teacher name: gait (default, no training), rma (needs ``path`` to a
-            checkpoint directory), imported (needs ``path`` to a spec file), zero.
+        type: registered teacher name: gait (default, no training), rma (the RMA MLP; without
+            ``path`` the checkpoint shipped with msta), imported (needs ``path`` to a spec
+            file), zero.
         path: checkpoint directory (rma) or spec file (imported).
     """
 
@@ -47,6 +52,8 @@ class TeacherConfig:
 
         if self.type not in TEACHERS:
             raise ValueError(f"unknown teacher type {self.type!r}; registered: {sorted(TEACHERS)}")
+        if self.type == "rma" and not self.path:
+            self.path = str(SHIPPED_RMA)
         if self.type in PATH_ARGUMENT and not self.path:
             raise ValueError(f"teacher type {self.type!r} needs --teacher.path "
                              f"({PATH_ARGUMENT[self.type]})")

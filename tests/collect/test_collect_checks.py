@@ -28,7 +28,7 @@ def _fails(args: list[str]) -> str:
     ("--env.terrain.max_init_level=11", "max_init_level=11: the terrain has levels 0..9"),
     ("--env.terrain.num_levels=0", "TerrainConfig: num_levels=0 must be >= 1"),
     ("--episodes=abc", "`episodes`: Couldn't parse 'abc'"),
-    ("--teacher.type=rma", "teacher type 'rma' needs --teacher.path"),
+    ("--teacher.type=imported", "teacher type 'imported' needs --teacher.path"),
 ])
 def test_config_errors_are_one_line_and_create_nothing(tmp_path, flag, says):
     root = tmp_path / "ds"

@@ -70,7 +70,7 @@ def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, c
     ("--levels=a,b", "write a range (0-9) or a list (0,1,2)"),
     ("--terrains=flat,lava", "unknown terrain 'lava'"),
     ("--episodes=0", "episodes=0 must be >= 1"),
-    ("--teacher.type=rma", "teacher type 'rma' needs --teacher.path"),
+    ("--teacher.type=imported", "teacher type 'imported' needs --teacher.path"),
     ("--no-progress", "did you mean --progress?"),
 ])
 def test_clear_errors(arg, message, capsys):

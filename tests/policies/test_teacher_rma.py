@@ -160,3 +160,36 @@ def test_drives_the_real_env() -> None:
         assert all(np.all(np.isfinite(v)) for v in obs.values())
     # the observations change under the teacher's actions, so do the actions
     assert not np.allclose(actions[0], actions[-1])
+
+
+def _walk(teacher, n: int = 40, seconds: float = 4.0) -> tuple[float, float]:
+    """(survival, mean per-step linear tracking) on flat and smooth slopes, levels 0-1."""
+    from collect.sim.terrain import TerrainConfig
+
+    env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=3, episode_length_s=seconds,
+                                 terrain=TerrainConfig(types=("flat", "smooth_slope"),
+                                                       curriculum=False)))
+    env.set_tiles(np.arange(n) % 2, (np.arange(n) // 2) % 2)
+    obs, alive, fell, lin = env.reset(), np.ones(n, bool), np.zeros(n, bool), []
+    teacher.reset(np.arange(n))
+    for _ in range(env.max_steps):
+        res = env.step(teacher.act(obs))
+        obs = res.obs
+        lin.append(float(res.metrics["lin_vel_tracking"][alive].mean()))
+        fell |= alive & res.terminated
+        alive &= ~res.done
+    return 1.0 - fell.mean(), float(np.mean(lin))
+
+
+def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> None:
+    from policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
+
+    cfg = TeacherConfig(type="rma")  # no path: the checkpoint shipped with msta
+    assert cfg.path == str(SHIPPED_RMA)
+    made = json.loads((SHIPPED_RMA / "produced_by.json").read_text())
+    assert made["command"].startswith("msta-train-teacher") and "--ppo.iterations=0" in made["command"]
+    surv, lin = _walk(build_teacher(cfg))
+    gait_surv, gait_lin = _walk(build_teacher(TeacherConfig(type="gait")))
+    _, zero_lin = _walk(build_teacher(TeacherConfig(type="zero")))
+    assert surv >= 0.9 and gait_surv >= 0.9
+    assert lin >= 0.85 * gait_lin and lin > 2 * zero_lin, (lin, gait_lin, zero_lin)
