@@ -275,18 +275,20 @@ def collect(cfg: CollectConfig) -> Path:
 
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
-                         repo_id: str) -> Path:
-    """The demo's teacher dataset: the gait teacher on terrain levels 0-2, seed 0, up to 64
-    robots at once (``make demo``, ``make bench-learn`` and the learning tests share it).
+                         repo_id: str, teacher: TeacherConfig | None = None) -> Path:
+    """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
+    up to 64 robots at once (``make demo``, ``make bench-learn`` and the learning tests
+    share it).
 
     Args:
         root: dataset root (extended when it already holds fewer episodes).
         episodes: episodes to record.
         episode_length_s: episode time limit (s).
         repo_id: the dataset's ``repo_id``.
+        teacher: the recording teacher (None: the gait controller).
     """
     return collect(CollectConfig(
-        teacher=TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
+        teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
 

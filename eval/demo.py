@@ -27,37 +27,38 @@ import os
 import shutil
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
 from msta_data.cli import check_at_least
+from policies.teacher.config import TeacherConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
 
-def step_teacher(out: Path, seconds: float, envs_per_type: int) -> None:
+def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig) -> None:
     from collect.simulate import SimRunConfig, simulate
-    from policies.teacher.config import TeacherConfig
 
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
     cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
                                      terrain=terrain),
-                       teacher=TeacherConfig(type="gait"), seconds=seconds,
+                       teacher=teacher, seconds=seconds,
                        output_dir=str(out / "teacher"), progress=False)
-    print(f"\n== 1. the gait teacher on every terrain type ({envs_per_type} robots per type, "
+    print(f"\n== 1. the {teacher.type} teacher on every terrain type ({envs_per_type} robots per type, "
           f"levels 0-2, {seconds:.0f} s) ==")
     simulate(cfg)
 
 
-def step_collect(out: Path, episodes: int, seconds: float) -> Path:
+def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfig) -> Path:
     from collect.record import easy_terrain_dataset
 
-    print(f"\n== 2. msta-collect: {episodes} teacher episodes of up to {seconds:.0f} s ==")
+    print(f"\n== 2. msta-collect: {episodes} {teacher.type} teacher episodes of up to "
+          f"{seconds:.0f} s ==")
     return easy_terrain_dataset(out / "datasets" / "a1_teacher", episodes, seconds,
-                                "demo/a1_teacher")
+                                "demo/a1_teacher", teacher)
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int) -> Path:
@@ -113,7 +114,7 @@ def round_scores(progress: dict) -> dict[int, float]:
 
 def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, mask: float, threads: int, select_trials: int,
-                 select_s: float) -> int:
+                 select_s: float, teacher: TeacherConfig) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
     best on the selection trials. DAgger promises a good policy among its iterates, not
     that the last is best, and this student's consecutive rounds differ by ~0.2 in
@@ -131,7 +132,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
-                        mask_ratio=mask,
+                        mask_ratio=mask, teacher=teacher,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
                         eval=EvalConfig(trials=select_trials, levels="0,1,2",
                                         episode_length_s=select_s, seed=SELECT_SEED, num_threads=threads),
@@ -147,7 +148,8 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     return best
 
 
-def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int) -> dict:
+def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int,
+              teacher: TeacherConfig) -> dict:
     from eval.evaluate import EvalConfig, evaluate
     from msta_data.hub_pull import pull
 
@@ -160,7 +162,7 @@ def step_eval(out: Path, best: int, trials: int, episode_length_s: float, thread
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
                                   scenarios="token_removal", output_dir=str(out / "eval"),
                                   trials=trials, levels="0,1,2", episode_length_s=episode_length_s,
-                                  num_threads=threads, progress=False))
+                                  num_threads=threads, progress=False, teacher=teacher))
     report = out / "eval" / "report.md"
     if report.exists():
         print(report.read_text())
@@ -232,6 +234,10 @@ class DemoConfig:
         eval_trials: msta-eval trials per test mask (spread over 5 terrains x levels 0-2).
         eval_episode_length_s: msta-eval episode length (s).
         num_threads: torch threads for training and evaluation.
+        teacher: the teacher that records, labels the stage-2 rounds and is the evaluation's
+            reference: ``gait`` (default) or ``rma`` (the shipped RMA MLP: memoryless, so
+            its stage-2 labels stay consistent and rounds lift the student; it needs
+            more rounds than the default's one, docs/training.md).
     """
 
     output_dir: str = "outputs/demo"
@@ -249,6 +255,7 @@ class DemoConfig:
     eval_trials: int = 100
     eval_episode_length_s: float = 5.0
     num_threads: int = 2
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "episodes", "train_steps", "correct_steps", "correct_episodes",
@@ -274,9 +281,10 @@ def main(argv: list[str] | None = None) -> None:
         shutil.rmtree(out)
     t0 = time.time()
     with timed("step 1"):
-        step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type)
+        step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type,
+                     teacher=cfg.teacher)
     with timed("step 2"):
-        dataset = step_collect(out, cfg.episodes, cfg.episode_length_s)
+        dataset = step_collect(out, cfg.episodes, cfg.episode_length_s, cfg.teacher)
     server = start_hub(out)
     try:
         with timed("step 3"):
@@ -289,10 +297,10 @@ def main(argv: list[str] | None = None) -> None:
                 best = step_correct(out, stage1, hub_dataset, cfg.rounds, cfg.correct_steps,
                                     cfg.correct_episodes, cfg.correct_mask_ratio,
                                     cfg.num_threads, cfg.select_trials,
-                                    cfg.select_episode_length_s)
+                                    cfg.select_episode_length_s, cfg.teacher)
         with timed("step 6"):
             metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
-                                cfg.num_threads)
+                                cfg.num_threads, cfg.teacher)
     finally:
         server.stop()
     _, line = verdict(metrics)

@@ -5,16 +5,29 @@ from __future__ import annotations
 import json
 import re
 
+import pandas as pd
+import pytest
+
 from eval.demo import main
 
 
-def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys):
+@pytest.mark.parametrize("teacher", ["gait", "rma"])
+def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher):
     out = tmp_path / "demo"
     main([f"--output_dir={out}", "--episodes=4", "--episode_length_s=0.5", "--train_steps=3",
           "--rounds=1", "--correct_steps=2", "--correct_episodes=2", "--teacher_seconds=0.4",
           "--envs_per_type=1", "--eval_trials=5", "--eval_episode_length_s=0.3",
-          "--num_threads=1", "--select_trials=5", "--select_episode_length_s=0.3"])
+          "--num_threads=1", "--select_trials=5", "--select_episode_length_s=0.3",
+          f"--teacher.type={teacher}"])
     text = capsys.readouterr().out
+    assert f"== 1. the {teacher} teacher" in text
+    # the one teacher records, labels the stage-2 round and is the evaluation's reference
+    episodes = pd.concat(pd.read_parquet(f) for f in sorted(
+        (out / "stage2" / "dataset" / "meta" / "episodes").rglob("*.parquet")))
+    recorded = episodes[episodes["provenance/source"] == "teacher"]["provenance/policy"]
+    assert set(recorded) == {teacher}
+    reference = json.loads((out / "eval" / "metrics.json").read_text())["reference"]["revision"]
+    assert reference.startswith(f"{teacher}-")
     for step in range(1, 7):
         assert f"== {step}." in text
     # the last line is the verdict; three training steps do not make a walking student
