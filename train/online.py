@@ -353,6 +353,25 @@ def rollout_levels(cfg: CorrectConfig, root: Path, prog: dict[str, Any]) -> Corr
     return replace(cfg, env=replace(cfg.env, terrain=terrain))
 
 
+def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
+    """A warning when the labelling teacher (``--teacher``) is not the teacher that recorded
+    the dataset's teacher episodes (their ``provenance/policy_revision``): stage 2 would then
+    correct the student towards another policy than the one it imitated. None when they
+    agree or the dataset records no teacher revision."""
+    table = load_episode_table(root)
+    if "provenance/policy_revision" not in table:
+        return None
+    recorded = sorted({str(v) for v in table[table["provenance/source"] == "teacher"][
+        "provenance/policy_revision"] if v})
+    labeller = teacher_revision(cfg.teacher)
+    if not recorded or labeller in recorded:
+        return None
+    return (f"msta-correct: warning: the labels come from {labeller} (--teacher.type="
+            f"{cfg.teacher.type}), but the dataset's teacher episodes were recorded by "
+            f"{', '.join(recorded)}: the student will be corrected towards another policy than "
+            "the one it imitated (give the recording teacher with --teacher.type/--teacher.path)")
+
+
 PhaseHook = Callable[[str, int], None]
 
 
@@ -373,6 +392,8 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     ckpt, root = resolve_inputs(cfg, out)
     prog = load_progress(out, cfg, root)
     cfg = rollout_levels(cfg, root, prog)
+    if (warning := check_labeller(cfg, root)) is not None:
+        print(warning)
     if cfg.push_to and "dataset_source" not in prog:  # before a hub tag can move
         prog["dataset_source"] = dataset_source(cfg.dataset, root)
     path = out / PROGRESS

@@ -285,3 +285,15 @@ def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys
     assert (eps["provenance/source"] == "student").sum() == 8
     assert (eps["provenance/terrain_level"] == 0).all()
     assert "stage-2 rollouts start at terrain levels 0-0" in capsys.readouterr().out
+
+
+def test_a_labeller_other_than_the_recording_teacher_is_named(base, tmp_path):
+    """The dataset was recorded by the gait teacher: labels from the gait teacher pass
+    silently, labels from the RMA teacher are named in a warning (with both revisions)."""
+    from train.online import check_labeller
+
+    same = make_cfg(base, tmp_path)
+    assert check_labeller(same, Path(same.dataset)) is None
+    other = make_cfg(base, tmp_path, teacher=TeacherConfig(type="rma"))
+    warning = check_labeller(other, Path(other.dataset))
+    assert warning and "labels come from rma-" in warning and "recorded by gait-" in warning
