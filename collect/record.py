@@ -89,8 +89,9 @@ class EpisodeRecorder:
 class LabelledActor:
     """``actor`` drives; ``label`` (default: the actor) acts on the same observation right
     after it, once per step, and its action is the recorded ``action`` label
-    (``label_action``). With ``beta`` > 0 every environment executes the label's action
-    instead with probability ``beta`` per step (DAgger mixing, msta-correct).
+    (``label_action``; the actor's own action is ``actor_action``). With ``beta`` > 0 every
+    environment executes the label's action instead with probability ``beta`` per step
+    (DAgger mixing, msta-correct).
 
     Args:
         actor: the policy that drives (act/reset or a callable).
@@ -105,10 +106,11 @@ class LabelledActor:
                                           else (None, lambda ids: None))
         self.beta, self.rng = beta, np.random.default_rng(seed)
         self.label_action = np.zeros((0, NUM_JOINTS), dtype=np.float32)
+        self.actor_action = self.label_action  # the actor's own answer, before any mixing
         self.label_share = [0, 0]  # label-executed env steps, all env steps
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        executed = np.asarray(self._act(obs), dtype=np.float32)   # (N, 12)
+        executed = self.actor_action = np.asarray(self._act(obs), dtype=np.float32)  # (N, 12)
         if self._lab_act is None:
             self.label_action = executed
             return executed

@@ -25,20 +25,24 @@ def select_device(name: str = "auto") -> torch.device:
     return device
 
 
-def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.AdamW:
-    """AdamW with weight decay on matrices only (no decay for biases, norms, 1-D params).
-
-    Embedding tables are 2-D but are excluded too (names containing ``embed``/``token``).
-    """
+def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
+    """Weight decay on matrices only: ``[{"params": matrices, "weight_decay": weight_decay},
+    {"params": the rest, "weight_decay": 0.0}]``. Biases, norms and 1-D params are the rest,
+    and so are embedding tables (2-D, but names containing ``embed``/``token``)."""
     decay, no_decay = [], []
     for name, p in model.named_parameters():
         if not p.requires_grad:
             continue
         skip = p.ndim < 2 or "embed" in name or "token" in name
         (no_decay if skip else decay).append(p)
-    groups = [{"params": decay, "weight_decay": weight_decay},
-              {"params": no_decay, "weight_decay": 0.0}]
-    return torch.optim.AdamW(groups, lr=lr, betas=(0.9, 0.999), eps=1e-8)
+    return [{"params": decay, "weight_decay": weight_decay},
+            {"params": no_decay, "weight_decay": 0.0}]
+
+
+def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.AdamW:
+    """AdamW on :func:`parameter_groups` (weight decay on matrices only)."""
+    return torch.optim.AdamW(parameter_groups(model, weight_decay), lr=lr, betas=(0.9, 0.999),
+                             eps=1e-8)
 
 
 class WarmupCosine:

@@ -133,30 +133,13 @@ class _Noisy:
         self.actor.reset(ids)
 
 
-class _Remembering:
-    """``net`` as a policy that keeps its last answer (``last``), so the rollout hook reads
-    the network's action instead of running the network a second time."""
-
-    def __init__(self, net: RMATeacher) -> None:
-        self.net = net
-        self.last = np.zeros((0, 12), dtype=np.float32)
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        self.last = self.net.act(obs)
-        return self.last
-
-    def reset(self, ids: np.ndarray) -> None:
-        pass
-
-
 def _dagger_rollout(vec: RslVecEnv, net: RMATeacher, gait, buffer: _Buffer, beta: float,
                     steps: int, seed: int, noise: float = 0.0) -> tuple[float, int, int]:
     """One iteration's rollout from fresh episodes (the gait clock starts with each): the
     gait controller labels every step, and drives with probability ``beta`` per step; the
     samples go to ``buffer``. Returns the network's MSE to the labels on this rollout, the
     episodes ended and the falls among them."""
-    mine = _Remembering(net)
-    actor = LabelledActor(mine, label=gait, beta=beta, seed=seed)
+    actor = LabelledActor(net, label=gait, beta=beta, seed=seed)
     mse: list[float] = []
     ends = np.zeros(2, dtype=np.int64)   # episodes ended, of which falls
 
@@ -164,7 +147,7 @@ def _dagger_rollout(vec: RslVecEnv, net: RMATeacher, gait, buffer: _Buffer, beta
         lab = actor.label_action
         priv, prop = vec.priv_in(step.obs), vec.proprio_in(step.obs)
         buffer.add(priv, prop, lab)
-        mse.append(float(((mine.last - lab) ** 2).mean()))  # the network's own answer
+        mse.append(float(((actor.actor_action - lab) ** 2).mean()))  # the network's own
         done = step.res.done
         ends[0] += int(done.sum())
         ends[1] += int((step.res.reason[done] == _FALL).sum())

@@ -30,7 +30,7 @@ from torch import Tensor
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from msta_data import sensors
 from policies.msta import MSTAInputs, MSTAProcessor, MSTATransformer
-from train.optim import make_optimizer
+from train.optim import parameter_groups
 
 #: lerobot's pad flags of a windowed feature (``LeRobotDataset`` with delta timestamps).
 STATE_PAD = f"{OBS_STATE}_is_pad"
@@ -152,8 +152,6 @@ class MSTAPolicy(PreTrainedPolicy):
         self._window = self._pad = None
 
     def get_optim_params(self) -> list[dict[str, Any]]:
-        """msta-train's parameter groups (``train.optim.make_optimizer``): weight decay on
+        """msta-train's parameter groups (``train.optim.parameter_groups``): weight decay on
         matrices, none on biases, norms, embedding tables and tokens."""
-        groups = make_optimizer(self, self.config.optimizer_lr,
-                                self.config.optimizer_weight_decay).param_groups
-        return [{"params": g["params"], "weight_decay": g["weight_decay"]} for g in groups]
+        return parameter_groups(self, self.config.optimizer_weight_decay)
