@@ -56,16 +56,18 @@ class MSTATransformer(nn.Module):
             {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors}
         )
         self.state_token = nn.Parameter(torch.zeros(d))
+        R = cfg.state_tokens  # <S> and R - 1 more readout tokens (1: the paper)
+        self.extra_state_tokens = nn.Parameter(torch.zeros(R - 1, d)) if R > 1 else None
         self.mask_token = nn.Parameter(torch.zeros(d)) if cfg.learnable_mask else None
         self.blocks = make_blocks(cfg)
         self.ln_f = nn.LayerNorm(d)
         h = cfg.head_hidden_dim
         self.head = (
             nn.Sequential(
-                nn.Linear(d, h), nn.GELU(approximate="tanh"), nn.Linear(h, cfg.action_dim)
+                nn.Linear(d * R, h), nn.GELU(approximate="tanh"), nn.Linear(h, cfg.action_dim)
             )
             if h
-            else nn.Linear(d, cfg.action_dim)
+            else nn.Linear(d * R, cfg.action_dim)
         )
         self._pos_cache: dict[tuple, tuple[Tensor, ...]] = {}
         self._init_weights()
@@ -110,8 +112,9 @@ class MSTATransformer(nn.Module):
                 code = sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins))  # (nb, d)
                 code = code.repeat(self._num_tables(), 1)  # (tables * nb, d)
             self.bin_embed.weight.copy_(code)
-        for p in [self.state_token] + ([self.mask_token] if self.mask_token is not None else []):
-            nn.init.normal_(p, std=0.02)
+        for p in (self.state_token, self.extra_state_tokens, self.mask_token):
+            if p is not None:
+                nn.init.normal_(p, std=0.02)
         for p in self.sensor_embed.values():
             nn.init.normal_(p, std=self.cfg.sensor_embed_std)
 
@@ -158,7 +161,8 @@ class MSTATransformer(nn.Module):
     def embed(
         self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
     ) -> tuple[Tensor, Tensor | None]:
-        """Tokens after masking plus <S>: (B, K + 1, d), and a key mask (B, 1, 1, K + 1) or None."""
+        """Tokens after masking plus the readout tokens (<S> last): (B, K + R, d), and a key mask
+        (B, 1, 1, K + R) or None."""
         missing = None
         if self.mask_token is not None:
             inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
@@ -171,21 +175,28 @@ class MSTATransformer(nn.Module):
         static = pos + sensor[sid]  # (N, d)
         pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N) True = padded token
         if missing is not None:
-            miss = torch.cat([missing[n].repeat(T) for n in names])[None].expand(B, N)  # (B, N)
+            miss = torch.cat([missing[n].repeat(T) for n in names])[None].expand_as(bins)  # (B, N)
             pad = miss if pad is None else pad | miss
-        n_drop = N - num_kept(N, mask_ratio)
+        # no masking skips round(): a traced N is a tensor (TorchScript / ONNX export)
+        n_drop = N - num_kept(N, mask_ratio) if mask_ratio > 0 else 0
         if self.mask_token is not None:
             x = self._replace_masked(bins, static, pad, n_drop, generator)  # (B, N, d)
             key_pad = None
         else:
             x, key_pad = self._remove_masked(bins, static, pad, n_drop, generator)  # (B, K, d)
-        x = torch.cat([x, self.state_token.expand(B, 1, -1)], dim=1)  # (B, K + 1, d)
+        x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + R, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
-            # (B, K + 1) True = may be attended to; <S> is always visible
-            keep = torch.cat([~key_pad, key_pad.new_ones(B, 1)], dim=1)
-            attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + 1)
+            # (B, K + R) True = may be attended to; the readout tokens are always visible
+            keep = torch.cat([~key_pad, key_pad.new_ones(B, self.cfg.state_tokens)], dim=1)
+            attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + R)
         return x, attn_mask
+
+    def readout_tokens(self) -> Tensor:
+        """<S> (last) after the other readout tokens: (R, d)."""
+        if self.extra_state_tokens is None:
+            return self.state_token[None]
+        return torch.cat([self.extra_state_tokens, self.state_token[None]])
 
     def rows(self, inputs: MSTAInputs) -> Tensor:
         """Each token's row in ``bin_embed`` (its table's offset + its bin): (B, N), sensors
@@ -202,15 +213,16 @@ class MSTATransformer(nn.Module):
         absent from the input (a removed sensor, a dead joint encoder) are flagged missing and
         later replaced by the mask token, as the paper's "w/ learnable mask" ablation does."""
         any_bins = next(iter(inputs.bins.values()))  # (B, T, c)
-        B, T, dev = any_bins.shape[0], any_bins.shape[1], any_bins.device
+        dev = any_bins.device
         bins, channels, missing = {}, {}, {}
         for name in self.cfg.input_sensors:
             dim = get(name).dim
-            full = torch.zeros(B, T, dim, dtype=torch.long, device=dev)
+            # built from the input's own shape, not written into: traceable with any batch
+            full = torch.zeros_like(any_bins[..., :1]).expand(-1, -1, dim)  # (B, T, dim)
             absent = torch.ones(dim, dtype=torch.bool, device=dev)
             if name in inputs.bins:
                 ch = inputs.channels[name].to(dev)
-                full[:, :, ch] = inputs.bins[name]
+                full = full.index_copy(2, ch, inputs.bins[name])
                 absent[ch] = False
             bins[name], channels[name] = full, torch.arange(dim)
             missing[name] = absent  # (dim,) per channel, repeated over time by the caller
@@ -253,7 +265,7 @@ class MSTATransformer(nn.Module):
         masked = (
             pad.clone()
             if pad is not None
-            else torch.zeros(B, N, dtype=torch.bool, device=bins.device)
+            else torch.zeros_like(bins, dtype=torch.bool)  # (B, N)
         )
         if n_drop:
             scores = self._drop_scores(B, N, pad, generator)  # (B, N)
@@ -268,7 +280,8 @@ class MSTATransformer(nn.Module):
         x, attn_mask = self.embed(inputs, mask_ratio, generator)  # (B, L, d)
         for block in self.blocks:
             x = block(x, attn_mask)
-        return self.head(self.ln_f(x[:, -1]))  # (B, action_dim) from <S>
+        R = self.cfg.state_tokens
+        return self.head(self.ln_f(x[:, -R:]).flatten(1))  # (B, action_dim) from <S> (+ R - 1)
 
 
 @register_policy("msta", kind="method")

@@ -156,9 +156,10 @@ def test_sensor_and_channel_subsets() -> None:
     assert not torch.allclose(out, policy.act(batch))
 
 
-def test_padded_steps_are_ignored() -> None:
+@pytest.mark.parametrize("state_tokens", [1, 3])
+def test_padded_steps_are_ignored(state_tokens: int) -> None:
     """A sample padded at the start acts like its unpadded, shorter window, alone or batched."""
-    policy = make().eval()
+    policy = make(state_tokens=state_tokens).eval()
     batch = make_batch(B=2)
     pad = torch.zeros(2, T, dtype=torch.bool)
     pad[0, :2] = True  # sample 0 starts 2 steps into its window
@@ -190,6 +191,31 @@ def test_padding_is_masked_first_and_counts_stay_equal() -> None:
     hidden = (~attn_mask[:, 0, 0]).sum(1).tolist()
     assert hidden == [3 * 49 - round(0.25 * n), 0, 0]
     assert attn_mask[:, 0, 0, -1].all()  # <S> is always visible
+
+
+def test_readout_tokens_end_the_sequence_and_all_reach_the_head(tmp_path) -> None:
+    """state_tokens = R appends R learnable tokens (<S> last), always visible; the head reads
+    all R (each gets a gradient); a checkpoint restores them bit for bit."""
+    policy = make(state_tokens=3)
+    batch = make_batch(B=3)
+    pad = torch.zeros(3, T, dtype=torch.bool)
+    pad[0, :3] = True
+    x, attn_mask = tokens(policy, {**batch, "pad": pad}, 0.25)
+    n = 49 * T
+    assert x.shape == (3, n - round(0.25 * n) + 3, 32)
+    assert torch.equal(x[:, -1], policy.model.state_token.expand(3, -1))
+    assert torch.equal(x[:, -3:-1], policy.model.extra_state_tokens.expand(3, -1, -1))
+    assert attn_mask[:, 0, 0, -3:].all()
+    loss, _ = policy.loss({**batch, "action": torch.randn(3, 12)})
+    loss.backward()
+    assert policy.model.extra_state_tokens.grad.abs().sum(1).min() > 0
+    assert policy.model.state_token.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="state_tokens"):
+        MSTAConfig.from_preset("tiny", state_tokens=0)
+    policy.eval()
+    again = MSTAPolicy.from_pretrained(policy.save_pretrained(tmp_path / "ckpt"))
+    assert again.config.state_tokens == 3
+    assert torch.equal(again.act(batch), policy.act(batch))
 
 
 def test_loss_and_gradients() -> None:
