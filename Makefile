@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-sim bench-data bench-train bench-learn venv clean-venv lint docs-terrain hub
+.PHONY: demo test bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -31,7 +31,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
 
-bench: bench-sim bench-data bench-train bench-learn
+bench: bench-sim bench-data bench-train bench-learn bench-deploy
 
 bench-sim: $(STAMP)
 	$(PY) -m eval.bench_sim
@@ -45,6 +45,11 @@ bench-train: $(STAMP)
 # Equal wall-clock learning race on one seeded teacher dataset (~9 min): MSTA vs GRU vs MLP.
 bench-learn: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench_learn
+
+# Batch-1 latency on one core (~1 min): MSTA paper preset, full and minimized observation,
+# eager / TorchScript / onnxruntime, next to the FLOP count and the measured matmul rate.
+bench-deploy: $(STAMP)
+	$(PY) -m eval.bench_deploy
 
 docs-terrain: $(STAMP)
 	$(PY) -m collect.sim.terrain_docs --docs docs/

@@ -20,6 +20,7 @@ import pytest
 from collect.record import parse_config as collect_args
 from collect.simulate import SimRunConfig
 from eval.bench_data import BenchDataConfig
+from eval.bench_deploy import BenchDeployConfig
 from eval.bench_learn import BenchLearnConfig
 from eval.bench_sim import BenchSimConfig
 from eval.bench_train import BenchTrainConfig
@@ -31,6 +32,7 @@ from eval.report import EvalReportConfig
 from eval.teacher_report import TeacherReportConfig
 from msta_data.cli import parse_config
 from msta_data.hub_cli import parse_command
+from policies.export import ExportConfig
 from train.cli import parse_cli
 from train.offline import TrainConfig
 from train.online import parse_args as correct_args
@@ -60,6 +62,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "python -m eval.bench_train": _config(BenchTrainConfig, "python -m eval.bench_train"),
     "python -m eval.bench_sim": _config(BenchSimConfig, "python -m eval.bench_sim"),
     "python -m eval.bench_data": _config(BenchDataConfig, "python -m eval.bench_data"),
+    "python -m eval.bench_deploy": _config(BenchDeployConfig, "python -m eval.bench_deploy"),
+    "msta-export": _config(ExportConfig, "msta-export"),
     "python -m eval.label_check": _config(LabelCheckConfig, "python -m eval.label_check"),
     "python -m eval.teacher_report": _config(TeacherReportConfig,
                                              "python -m eval.teacher_report"),

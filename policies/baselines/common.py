@@ -107,13 +107,24 @@ class TimestepProcessor(StudentProcessor):
             channels: sensor name -> channel indices present in that sensor's tensor.
         """
         present = self.present_inputs(batch, channels)
-        v = present[0][1]
-        x = torch.zeros(*v.shape[:2], self.num_channels, device=v.device)  # (B, T, C)
-        missing = torch.ones(self.num_channels, dtype=torch.bool, device=v.device)  # (C,)
-        for name, v, idx in present:
-            cols = idx + self.offsets[name]
-            x[:, :, cols] = self._scaled(name, v, idx)
-            missing[cols] = False
+        ref = present[0][1]
+        zero = torch.zeros_like(ref[..., :1], dtype=torch.float32)  # (B, T, 1)
+        missing = torch.ones(self.num_channels, dtype=torch.bool, device=ref.device)  # (C,)
+        given = {name: (v, idx) for name, v, idx in present}
+        blocks = []  # one (B, T, dim) block per input sensor, in input-vector order
+        for name in self.input_sensors:
+            dim = sensors.get(name).dim
+            if name not in given:
+                blocks.append(zero.expand(-1, -1, dim))
+                continue
+            v, idx = given[name]
+            missing[idx + self.offsets[name]] = False
+            block = self._scaled(name, v, idx)  # (B, T, c)
+            if v.shape[-1] != dim or bool((idx != torch.arange(dim, device=idx.device)).any()):
+                block = zero.expand(-1, -1, dim).index_copy(2, idx, block)  # absent channels 0
+            blocks.append(block)
+        # built by concatenation, not by writing into a zeros tensor: traceable with any batch
+        x = torch.cat(blocks, dim=2)  # (B, T, C)
         pad = self.pad_mask(batch, x.shape[:2])
         if pad is not None and (pad[:, 1:] & ~pad[:, :-1]).any():
             raise ValueError(
@@ -149,10 +160,12 @@ def random_input_mask(
 ) -> Tensor:
     """(B, T, C) bool: exactly round(ratio * T * C_present) present scalars per sample."""
     C = missing.numel()
+    out = torch.zeros(B, T, C, dtype=torch.bool, device=missing.device)
+    if ratio == 0:  # before round(): a traced shape is a tensor (TorchScript / ONNX export)
+        return out
     present = (~missing).nonzero().squeeze(1)  # (Cp,)
     n = T * present.numel()
     k = round(ratio * n)
-    out = torch.zeros(B, T, C, dtype=torch.bool, device=missing.device)
     if k == 0:
         return out
     scores = torch.rand(B, n, generator=generator, device=missing.device)  # (B, T*Cp)
@@ -197,7 +210,8 @@ class TimestepPolicy(StudentPolicy):
         inputs = self.processor.normalize(self.as_tensors(batch), channels)
         B, T, _ = inputs.x.shape
         x = fill_padding(inputs.x, inputs.pad)  # (B, T, C)
-        hide = random_input_mask(inputs.missing, B, T, mask_ratio, generator)  # (B, T, C)
-        hide |= inputs.missing
+        hide = inputs.missing  # (C,), broadcast over (B, T)
+        if mask_ratio > 0:
+            hide = random_input_mask(inputs.missing, B, T, mask_ratio, generator) | hide
         x = torch.where(hide, self.placeholder, x)  # (B, T, C)
         return self.encode(x, inputs.pad)

@@ -10,6 +10,7 @@ import pytest
 from collect.record import main as collect_main
 from collect.simulate import main as sim_main
 from eval.bench_data import main as bench_data_main
+from eval.bench_deploy import main as bench_deploy_main
 from eval.bench_learn import main as bench_learn_main
 from eval.bench_sim import main as bench_sim_main
 from eval.bench_train import main as bench_train_main
@@ -22,6 +23,7 @@ from eval.teacher_report import main as teacher_report_main
 from msta_data.cli import args_doc, field_help, parse_config
 from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
 from msta_data.hub_cli import main as hub_main
+from policies.export import main as export_main
 from train.offline import main as train_main
 from train.online import main as correct_main
 from train.teacher.cli import main as train_teacher_main
@@ -40,6 +42,8 @@ SCRIPTS = {
     "python -m eval.bench_train": (bench_train_main, "--rounds", "--seconds=0"),
     "python -m eval.bench_sim": (bench_sim_main, "--nthread", "--collision=fastt"),
     "python -m eval.bench_data": (bench_data_main, "--frames", "--frames=0"),
+    "python -m eval.bench_deploy": (bench_deploy_main, "--preset", "--preset=huge"),
+    "msta-export": (export_main, "--sensors", "--tolerance=0"),
     "python -m eval.label_check": (label_check_main, "--robots", "--robots=0"),
     "python -m eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),
     "python -m eval.teacher_report": (teacher_report_main, "--envs_per_tile", "--levels=3-12"),

@@ -1,0 +1,202 @@
+"""Deployment latency benchmark: ``make bench-deploy`` / ``python -m eval.bench_deploy``.
+
+How fast does the MSTA student answer one robot's control step on one CPU core? The
+``paper`` preset (d = 128, 4 layers x 4 heads; random weights: latency does not depend on
+them) at batch 1, one thread, for the full observation (7 sensors, T = 15: 735 tokens +
+<S> = 736) and the paper's minimized observation (command, joint_pos, gravity, last_action
+at T = 7: 210 + 1 = 211 tokens), in three runtimes:
+
+- ``eager``: the PyTorch module under ``torch.inference_mode``;
+- ``torchscript``: the ``msta-export`` TorchScript file (frozen for inference);
+- ``onnxruntime``: the ``msta-export`` ONNX file on onnxruntime's CPU provider.
+
+Each exported file passes ``msta-export``'s parity check (max |d action| <= 1e-5 against
+the eager model) before it is timed; a runtime that fails it is reported and not counted.
+Next to each latency: the model's FLOPs per step (counted from the shapes), the rate that
+achieves, and the machine's fp32 matmul rate measured in the same run on one thread (the
+roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower precision).
+The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the
+best parity-holding runtime's median. Goals (issue 19): full <= 10 ms, minimized <= 1.5 ms.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from msta_data import sensors as registry
+from policies.export import (
+    MINIMIZED_HISTORY,
+    MINIMIZED_SENSORS,
+    DeployedStudent,
+    ExportParityError,
+    export_student,
+    random_windows,
+    resolve_sensors,
+)
+from policies.factory import make_policy
+from policies.msta import MSTAConfig
+
+GOALS_MS = {"full": 10.0, "minimized": 1.5}
+
+
+def synthetic_stats(names) -> dict:
+    """Unit statistics for every non-binary input and the action (latency ignores them)."""
+    stats = {registry.get(n).column: {"mean": [0.0] * registry.get(n).dim,
+                                      "std": [1.0] * registry.get(n).dim}
+             for n in names if not registry.get(n).binary}
+    stats["action"] = {"mean": [0.0] * 12, "std": [1.0] * 12}
+    return stats
+
+
+def model_flops(cfg: MSTAConfig, tokens: int) -> float:
+    """Multiply-adds x 2 of one forward pass with ``tokens`` tokens (readout tokens included)."""
+    d, L, hidden = cfg.dim, tokens, round(cfg.mlp_ratio * cfg.dim)
+    per_layer = 2 * L * d * (3 * d + d + 2 * hidden) + 2 * 2 * L * L * d  # proj + MLP + attn
+    head = 2 * cfg.state_tokens * d * (cfg.head_hidden_dim or 12) + 2 * (cfg.head_hidden_dim * 12)
+    return float(cfg.num_layers * per_layer + head)
+
+
+def matmul_gflops(seconds: float = 1.0) -> float:
+    """fp32 ``torch.mm`` rate on the current thread count (a 512 x 512 x 512 product)."""
+    a, b = torch.randn(512, 512), torch.randn(512, 512)
+    for _ in range(3):
+        a @ b
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        a @ b
+        n += 1
+    return 2 * 512 ** 3 * n / (time.perf_counter() - t0) / 1e9
+
+
+def time_call(fn: Callable[[], object], seconds: float) -> tuple[float, float, int]:
+    """Median and 90th-percentile milliseconds of ``fn()`` over ``seconds`` (after warm-up)."""
+    for _ in range(10):
+        fn()
+    times, t_end = [], time.perf_counter() + seconds
+    while time.perf_counter() < t_end or len(times) < 20:
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1e3)
+    times.sort()
+    return statistics.median(times), times[int(0.9 * (len(times) - 1))], len(times)
+
+
+def runtimes(policy, names, T, out: Path) -> tuple[dict[str, Callable[[], object]], dict]:
+    """Callables answering one batch-1 window per runtime, and the export's parity figures."""
+    names = resolve_sensors(policy, list(names))  # the order the exported graph takes
+    windows = random_windows(policy, names, T, 32, seed=0)
+    one = [np.ascontiguousarray(windows[n][:1]) for n in names]
+    module = DeployedStudent(policy, names).eval()
+    eager_in = tuple(torch.from_numpy(x) for x in one)
+
+    def eager() -> object:
+        with torch.inference_mode():
+            return module(*eager_in)
+
+    fns: dict[str, Callable[[], object]] = {"eager": eager}
+    try:
+        spec = export_student(policy, out, list(names), T, windows={"random": windows})
+    except ExportParityError as e:  # report it and time the eager model only
+        return fns, {"error": str(e)}
+    ts = torch.jit.optimize_for_inference(
+        torch.jit.freeze(torch.jit.load(str(out / "student.pt")).eval()))
+
+    def torchscript() -> object:
+        with torch.inference_mode():
+            return ts(*eager_in)
+
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    options.inter_op_num_threads = 1
+    session = ort.InferenceSession(str(out / "student.onnx"), options,
+                                   providers=["CPUExecutionProvider"])
+    feed = dict(zip(names, one, strict=True))
+    fns |= {"torchscript": torchscript,
+            "onnxruntime": lambda: session.run(["action"], feed)}
+    with torch.inference_mode():  # the frozen, optimized file too must answer as eager does
+        d_ts = float((ts(*eager_in) - eager()).abs().max())
+    return fns, {"parity_max_abs_diff": max(spec["parity_max_abs_diff"], d_ts)}
+
+
+@dataclass
+class BenchDeployConfig:
+    """Args:
+        seconds: timing window per runtime and observation (s), after 10 warm-up calls.
+        preset: MSTA preset to time (``paper``: the issue's figures; ``cpu``, ``tiny``).
+        output_dir: results.json goes here (the exported files go to a temporary folder).
+    """
+
+    seconds: float = 3.0
+    preset: str = "paper"
+    output_dir: str = "outputs/bench_deploy"
+
+    def __post_init__(self) -> None:
+        if not self.seconds > 0:
+            raise ValueError(f"seconds must be > 0, got {self.seconds}")
+        if self.preset not in MSTAConfig.PRESETS:
+            raise ValueError(f"preset must be one of {sorted(MSTAConfig.PRESETS)}, "
+                             f"got {self.preset!r}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    from msta_data.cli import parse_config
+
+    a = parse_config(BenchDeployConfig, argv, prog="python -m eval.bench_deploy")
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    cfg = MSTAConfig.from_preset(a.preset)
+    policy = make_policy(cfg, synthetic_stats(cfg.input_sensors)).eval()
+    rate = matmul_gflops()
+    print(f"MSTA {a.preset} preset (d = {cfg.dim}, {cfg.num_layers} layers x {cfg.num_heads} "
+          f"heads), batch 1, 1 thread; fp32 matmul rate on this core: {rate:.1f} GFLOP/s")
+    observations = {"full": (tuple(cfg.input_sensors), cfg.history),
+                    "minimized": (MINIMIZED_SENSORS, MINIMIZED_HISTORY)}
+    header = (f"{'observation':<11} {'tokens':>6} {'GFLOP':>6} {'runtime':<12} {'median ms':>9} "
+              f"{'p90 ms':>7} {'calls':>6} {'GFLOP/s':>8} {'of matmul':>9}")
+    print(header + "\n" + "-" * len(header))
+    results, best = {"matmul_gflops": rate, "observations": {}}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for obs, (names, T) in observations.items():
+            tokens = T * sum(registry.get(n).dim for n in names) + cfg.state_tokens
+            flops = model_flops(cfg, tokens)
+            fns, parity = runtimes(policy, names, T, Path(tmp) / obs)
+            rows = {}
+            for rt, fn in fns.items():
+                med, p90, n = time_call(fn, a.seconds)
+                achieved = flops / (med / 1e3) / 1e9
+                rows[rt] = {"median_ms": med, "p90_ms": p90, "calls": n, "gflops": achieved}
+                print(f"{obs:<11} {tokens:>6} {flops / 1e9:>6.3f} {rt:<12} {med:>9.2f} "
+                      f"{p90:>7.2f} {n:>6} {achieved:>8.1f} {achieved / rate:>8.0%}")
+            ok = {rt: r for rt, r in rows.items() if rt == "eager" or "error" not in parity}
+            best[obs] = min(ok, key=lambda rt: ok[rt]["median_ms"])
+            results["observations"][obs] = {"tokens": tokens, "flops": flops, "parity": parity,
+                                            "runtimes": rows, "best": best[obs]}
+    out = Path(a.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
+    print()
+    for obs in ("minimized", "full"):
+        r = results["observations"][obs]
+        ms, goal = r["runtimes"][best[obs]]["median_ms"], GOALS_MS[obs]
+        floor = r["flops"] / (rate * 1e9) * 1e3
+        print(f"{obs}: best {best[obs]} {ms:.2f} ms (goal <= {goal:g} ms: "
+              f"{'met' if ms <= goal else 'not met'}); parity {r['parity']}; the matmul-rate "
+              f"floor for its {r['flops'] / 1e9:.3f} GFLOP is {floor:.2f} ms")
+    print(f"wrote {out / 'results.json'}")
+    print(f"minimized latency (ms): {results['observations']['minimized']['runtimes'][best['minimized']]['median_ms']:.2f}")
+    print(f"full latency (ms): {results['observations']['full']['runtimes'][best['full']]['median_ms']:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,400 @@
+"""Export a trained student for a robot: TorchScript and ONNX files, a JSON spec, a parity check.
+
+``msta-export --policy=outputs/train/final --output_dir=outputs/export`` writes::
+
+    <output_dir>/student.pt      TorchScript (torch.jit.trace of the eager model)
+    <output_dir>/student.onnx    ONNX (opset 17), runs in onnxruntime without torch
+    <output_dir>/spec.json       what a robot program needs: input order, shapes, units,
+                                 the action convention, and the parity figures
+
+The exported graph is the whole student: raw sensor windows in (one float32 tensor
+``(B, T, dim)`` per sensor, oldest step first, in the spec's order), the action out
+(``(B, 12)``, the simulator's action: joint targets are ``default_pose + action_scale *
+action``). Normalization, binning and the action's un-normalization are inside, from the
+processor's statistics; no masking (test-time masking is an experiment, not deployment).
+The sensor subset and T are fixed at export time (``--sensors=minimized``: the paper's
+minimized observation {command, joint_pos, gravity, last_action} at T = 7); the batch size
+is free. A window that starts before the episode does is filled by repeating the first
+reading (what the dataset reader does for padded steps).
+
+The parity check runs at every export: eager model vs each exported file on recorded
+dataset windows (``--dataset``, default: the dataset the checkpoint was trained on when its
+train_config.json names one that exists here) and on random windows drawn from the
+statistics; the largest |action difference| is printed, stored in spec.json, and above
+``--tolerance`` (default 1e-5, fp32) the export fails.
+
+The Python checks of the eager path (NaN inputs, shapes) are not part of the graph: a
+robot program checks its readings itself (the runtime in :mod:`policies.onnx_runtime` does).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from msta_data import robot
+from msta_data import sensors as registry
+from policies.base import StudentPolicy
+
+__all__ = [
+    "DEFAULT_TOLERANCE", "FORMAT", "MINIMIZED_HISTORY", "MINIMIZED_SENSORS", "DeployedStudent",
+    "ExportConfig", "ExportParityError", "export_student", "main", "random_windows",
+    "recorded_windows",
+]
+
+FORMAT = "msta-export/1"
+SPEC_NAME, TORCHSCRIPT_NAME, ONNX_NAME = "spec.json", "student.pt", "student.onnx"
+#: The paper's minimized observation ({cmd, q, g, a_{t-1}}, T = 7).
+MINIMIZED_SENSORS = ("command", "joint_pos", "gravity", "last_action")
+MINIMIZED_HISTORY = 7
+#: Largest |exported - eager| action difference an fp32 export may show.
+DEFAULT_TOLERANCE = 1e-5
+ONNX_OPSET = 17
+FORMATS = ("torchscript", "onnx")
+
+
+class ExportParityError(RuntimeError):
+    """An exported model's actions differ from the eager model's by more than the tolerance."""
+
+
+class DeployedStudent(nn.Module):
+    """A student with its inputs fixed: ``forward(*windows) -> action (B, 12)``, raw units.
+
+    Args:
+        policy: any registered student (eval mode is set here).
+        sensors: input sensors, in the order ``forward`` takes them (a subset of the
+            policy's; the others are absent, as in the sensor-removal experiments).
+    """
+
+    def __init__(self, policy: StudentPolicy, sensors: Sequence[str]) -> None:
+        super().__init__()
+        self.policy = policy.eval()
+        self.sensors = tuple(sensors)
+
+    def forward(self, *windows: Tensor) -> Tensor:
+        batch = dict(zip(self.sensors, windows, strict=True))
+        action = self.policy(batch, None, 0.0, None)  # (B, A), model space
+        return self.policy.processor.unnormalize_action(action)  # (B, A), raw
+
+
+def resolve_sensors(policy: StudentPolicy, sensors: str | Sequence[str]) -> tuple[str, ...]:
+    """``"all"``, ``"minimized"``, a comma list or a sequence -> the policy's sensors to export."""
+    if isinstance(sensors, str):
+        if sensors == "all":
+            return tuple(policy.required_sensors)
+        if sensors == "minimized":
+            sensors = MINIMIZED_SENSORS
+        else:
+            sensors = [s.strip() for s in sensors.split(",") if s.strip()]
+    chosen = tuple(sensors)
+    for name in chosen:
+        registry.get(name)  # KeyError naming the unknown sensor
+        if name not in policy.required_sensors:
+            raise ValueError(f"sensor {name!r} is not an input of this {policy.config.type} "
+                             f"student (inputs: {', '.join(policy.required_sensors)})")
+    if not chosen or len(set(chosen)) != len(chosen):
+        raise ValueError(f"sensors must be distinct and non-empty, got {list(chosen)}")
+    # the policy's own order: the spec lists inputs as the checkpoint does
+    return tuple(n for n in policy.required_sensors if n in chosen)
+
+
+def random_windows(policy: StudentPolicy, sensors: Sequence[str], T: int, n: int,
+                   seed: int = 0) -> dict[str, np.ndarray]:
+    """``n`` windows of raw readings drawn around the statistics (z ~ N(0, 1.5)); binary
+    sensors 0/1. ``{sensor: (n, T, dim) float32}``."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for name in sensors:
+        spec = registry.get(name)
+        if spec.binary:
+            out[name] = rng.integers(0, 2, (n, T, spec.dim)).astype(np.float32)
+            continue
+        s = policy.processor.stats[spec.column]
+        mean, std = np.asarray(s["mean"]), np.maximum(np.asarray(s["std"]), 1e-6)
+        out[name] = (mean + std * 1.5 * rng.standard_normal((n, T, spec.dim))).astype(np.float32)
+    return out
+
+
+def recorded_windows(root: str | Path, sensors: Sequence[str], T: int, n: int
+                     ) -> dict[str, np.ndarray]:
+    """``n`` evenly spaced windows of a recorded dataset (padded steps repeat the episode's
+    first reading, as a robot program fills its window). ``{sensor: (n, T, dim) float32}``."""
+    from msta_data.windows import WindowDataset
+
+    ds = WindowDataset(root, sensors, T, extra_columns=(), verify="sizes")
+    idx = np.linspace(0, len(ds) - 1, min(n, len(ds))).round().astype(np.int64)
+    batch = ds.get_batch(idx)
+    return {name: np.ascontiguousarray(batch[name], dtype=np.float32) for name in sensors}
+
+
+def export_student(
+    policy: StudentPolicy,
+    output_dir: str | Path,
+    sensors: str | Sequence[str] = "all",
+    history: int | None = None,
+    formats: Sequence[str] = FORMATS,
+    windows: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+    source: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write the exported files and spec.json; return the spec.
+
+    Args:
+        policy: the student (moved to CPU, eval mode).
+        output_dir: created if missing; files of the same names are replaced.
+        sensors: ``"all"``, ``"minimized"``, a comma list or a sequence of names.
+        history: window length T (None: the policy's training T, 7 for ``"minimized"``).
+        formats: any of ``"torchscript"``, ``"onnx"``.
+        windows: named sets of windows for the parity check, each ``{sensor: (n, T, dim)}``
+            (None: 64 random windows).
+        tolerance: largest allowed |exported - eager| action difference.
+        source: provenance stored in the spec (checkpoint path, dataset, ...).
+
+    Raises:
+        ExportParityError: an exported file's actions differ by more than ``tolerance``
+            (the files and the spec, with ``"parity_ok": false``, are still written).
+    """
+    bad = [f for f in formats if f not in FORMATS]
+    if bad or not formats:
+        raise ValueError(f"formats must be some of {FORMATS}, got {list(formats)}")
+    policy = policy.cpu().float().eval()
+    names = resolve_sensors(policy, sensors)
+    T = int(history or (MINIMIZED_HISTORY if sensors == "minimized" else policy.config.history))
+    if T < 1:
+        raise ValueError(f"history must be >= 1, got {T}")
+    out = Path(output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    module = DeployedStudent(policy, names)
+    windows = dict(windows or {"random": random_windows(policy, names, T, 64)})
+    example = tuple(torch.from_numpy(w[:1]) for w in next(iter(windows.values())).values())
+    runners = {}
+    with warnings.catch_warnings(), torch.no_grad():
+        # TracerWarnings name the eager path's Python checks, which the graph leaves out
+        warnings.simplefilter("ignore")
+        if "torchscript" in formats:
+            torch.jit.save(torch.jit.trace(module, example, check_trace=False),
+                           str(out / TORCHSCRIPT_NAME))
+            runners["torchscript"] = _torchscript_runner(out / TORCHSCRIPT_NAME)
+        if "onnx" in formats:
+            axes = {n: {0: "batch"} for n in names} | {"action": {0: "batch"}}
+            torch.onnx.export(module, example, str(out / ONNX_NAME), dynamo=False,
+                              input_names=list(names), output_names=["action"],
+                              dynamic_axes=axes, opset_version=ONNX_OPSET)
+            runners["onnx"] = _onnx_runner(out / ONNX_NAME)
+    parity = _parity(module, names, windows, runners)
+    worst = max((p["max_abs_diff"] for p in parity), default=0.0)
+    spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
+    (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
+    if not worst <= tolerance:
+        raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "
+                                f"> tolerance {tolerance:g} (per file and window set: "
+                                f"{out / SPEC_NAME})")
+    return spec
+
+
+def _torchscript_runner(path: Path):
+    loaded = torch.jit.load(str(path))
+
+    def run(inputs: Sequence[np.ndarray]) -> np.ndarray:
+        with torch.no_grad():
+            return loaded(*(torch.from_numpy(x) for x in inputs)).numpy()
+    return run
+
+
+def _onnx_runner(path: Path):
+    import onnxruntime as ort
+
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = 1
+    session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    names = [i.name for i in session.get_inputs()]
+
+    def run(inputs: Sequence[np.ndarray]) -> np.ndarray:
+        return session.run(["action"], dict(zip(names, inputs, strict=True)))[0]
+    return run
+
+
+def _parity(module: DeployedStudent, names: Sequence[str],
+            windows: Mapping[str, Mapping[str, np.ndarray]], runners: Mapping[str, Any]
+            ) -> list[dict[str, Any]]:
+    """Max |exported - eager| per (file, window set), batched and at batch 1 (first 8)."""
+    rows = []
+    for set_name, w in windows.items():
+        inputs = [np.ascontiguousarray(w[n], dtype=np.float32) for n in names]
+        with torch.no_grad():
+            ref = module(*(torch.from_numpy(x) for x in inputs)).numpy()  # (n, A)
+        for fmt, run in runners.items():
+            diff = float(np.abs(run(inputs) - ref).max())
+            for i in range(min(8, len(ref))):  # batch 1, as on the robot
+                diff = max(diff, float(np.abs(run([x[i:i + 1] for x in inputs]) - ref[i]).max()))
+            rows.append({"format": fmt, "windows": set_name, "count": int(len(ref)),
+                         "max_abs_diff": diff})
+    return rows
+
+
+def _spec(policy: StudentPolicy, names: Sequence[str], T: int, formats: Sequence[str],
+          parity: list[dict[str, Any]], worst: float, tolerance: float,
+          source: Mapping[str, Any] | None) -> dict[str, Any]:
+    stats = policy.processor.stats
+    inputs = []
+    for name in names:
+        s = registry.get(name)
+        inputs.append({"name": name, "shape": ["batch", T, s.dim], "dtype": "float32",
+                       "channels": list(s.names), "description": s.description,
+                       "binary": s.binary, "column": s.column,
+                       "stats": None if s.binary else stats[s.column]})
+    files = {"torchscript": TORCHSCRIPT_NAME, "onnx": ONNX_NAME}
+    return {
+        "format": FORMAT,
+        "policy_type": policy.config.type,
+        "files": {f: files[f] for f in formats},
+        "inputs": inputs,
+        "history": T,
+        "window": "oldest step first; before T readings exist, repeat the first reading",
+        "output": {"name": "action", "shape": ["batch", policy.config.action_dim],
+                   "dtype": "float32"},
+        "action_convention": {
+            "joint_target": "default_pose + action_scale * clip(action, -clip_actions, "
+                            "clip_actions)",
+            "default_pose": [float(v) for v in robot.DEFAULT_POSE],
+            "joint_names": list(robot.JOINT_NAMES),
+            "action_scale": robot.ACTION_SCALE, "clip_actions": robot.CLIP_ACTIONS,
+            "kp": robot.KP, "kd": robot.KD, "control_dt_s": robot.CONTROL_DT,
+            "last_action": "feed this step's action back as next step's last_action input",
+        },
+        "statistics_note": "normalization is inside the graph; stats are listed for reference",
+        "parity": parity,
+        "parity_max_abs_diff": worst,
+        "parity_tolerance": tolerance,
+        "parity_ok": bool(worst <= tolerance),
+        "torch": torch.__version__,
+        "source": dict(source or {}),
+    }
+
+
+# --- command line -------------------------------------------------------------------------
+@dataclass
+class ExportConfig:
+    """msta-export: a trained student -> TorchScript + ONNX + spec.json, parity-checked.
+
+    Args:
+        policy: checkpoint directory (config.json, model.safetensors, processor.json) or a
+            hub repo id ``user/name`` (with --revision).
+        revision: hub revision (tag, branch, commit) for a repo id.
+        output_dir: where student.pt, student.onnx and spec.json go.
+        sensors: ``all`` (every input of the checkpoint), ``minimized`` (command, joint_pos,
+            gravity, last_action at T = 7, the paper's deployment observation) or a comma
+            list of sensor names.
+        history: window length T (0: the checkpoint's training T; 7 with ``minimized``).
+        formats: comma list of ``torchscript`` and ``onnx``.
+        dataset: dataset root whose recorded windows the parity check uses (empty: the
+            dataset named in the checkpoint's train_config.json when it exists here).
+        parity_windows: recorded windows checked (evenly spaced over the dataset).
+        random_windows: random windows checked (drawn around the statistics).
+        tolerance: largest allowed |exported - eager| action difference (fp32: 1e-5).
+        seed: seed of the random windows.
+    """
+
+    policy: str = ""
+    revision: str | None = None
+    output_dir: str = "outputs/export"
+    sensors: str = "all"
+    history: int = 0
+    formats: str = "torchscript,onnx"
+    dataset: str = ""
+    parity_windows: int = 256
+    random_windows: int = 64
+    tolerance: float = DEFAULT_TOLERANCE
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.policy:
+            raise ValueError("--policy is required (a checkpoint directory or a hub repo id)")
+        if self.history < 0 or self.parity_windows < 0 or self.random_windows < 0:
+            raise ValueError("history, parity_windows and random_windows must be >= 0")
+        if not (self.tolerance > 0 and math.isfinite(self.tolerance)):
+            raise ValueError(f"tolerance must be > 0, got {self.tolerance}")
+
+
+def training_dataset(checkpoint: Path) -> str | None:
+    """The dataset root named by the train_config.json next to (or above) a checkpoint."""
+    for d in (checkpoint, *list(checkpoint.parents)[:3]):
+        f = d / "train_config.json"
+        if f.is_file():
+            try:
+                root = json.loads(f.read_text()).get("dataset")
+            except (OSError, ValueError):
+                return None
+            return root if root and (Path(root) / "meta" / "info.json").is_file() else None
+    return None
+
+
+def run(cfg: ExportConfig) -> dict[str, Any]:
+    from policies.checkpoint import resolve_pretrained
+    from policies.factory import load_policy
+
+    directory = Path(resolve_pretrained(cfg.policy, cfg.revision))
+    policy = load_policy(directory)
+    names = resolve_sensors(policy, cfg.sensors)
+    T = cfg.history or (MINIMIZED_HISTORY if cfg.sensors == "minimized" else policy.config.history)
+    windows: dict[str, dict[str, np.ndarray]] = {}
+    dataset = cfg.dataset or training_dataset(directory)
+    if dataset and cfg.parity_windows:
+        windows["recorded"] = recorded_windows(dataset, names, T, cfg.parity_windows)
+    else:
+        print("msta-export: no dataset found for the parity check (--dataset): random windows "
+              "only", file=sys.stderr)
+    if cfg.random_windows or not windows:
+        windows["random"] = random_windows(policy, names, T, max(cfg.random_windows, 1), cfg.seed)
+    formats = [f.strip() for f in cfg.formats.split(",") if f.strip()]
+    source = {"checkpoint": str(cfg.policy), "revision": cfg.revision, "dataset": dataset}
+    print(f"msta-export: {policy.config.type} student, {len(names)} sensors "
+          f"({', '.join(names)}), T = {T} -> {cfg.output_dir}")
+    try:
+        spec = export_student(policy, cfg.output_dir, cfg.sensors, T, formats, windows,
+                              cfg.tolerance, source)
+    finally:
+        _print_parity(Path(cfg.output_dir) / SPEC_NAME)
+    return spec
+
+
+def _print_parity(spec_path: Path) -> None:
+    if not spec_path.is_file():
+        return
+    spec = json.loads(spec_path.read_text())
+    for p in spec["parity"]:
+        print(f"  parity {p['format']:<11} on {p['count']:>4} {p['windows']} windows: "
+              f"max |d action| = {p['max_abs_diff']:.2e}")
+    verdict = "ok" if spec["parity_ok"] else "FAILED"
+    print(f"parity {verdict}: max |d action| {spec['parity_max_abs_diff']:.2e} "
+          f"(tolerance {spec['parity_tolerance']:g}); files: "
+          f"{', '.join(spec['files'].values())}, {SPEC_NAME}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point (``msta-export``)."""
+    from msta_data.cli import parse_config
+    from msta_data.quiet import shorten_torchcodec_warning
+
+    shorten_torchcodec_warning()
+    cfg = parse_config(ExportConfig, argv, "msta-export")  # bad flags: one line, exit 2
+    try:
+        run(cfg)
+    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError, ExportParityError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"msta-export: error: {msg}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

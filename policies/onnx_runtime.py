@@ -1,0 +1,105 @@
+"""Run an exported student with onnxruntime and numpy only (no torch): the reference
+robot-side loop for files written by ``msta-export`` (:mod:`policies.export`).
+
+    student = OnnxStudent("outputs/export")           # reads spec.json + student.onnx
+    student.reset()                                   # at every episode start
+    action = student.step({"joint_pos": q, "gravity": g, "command": cmd, ...})  # (12,)
+
+:meth:`OnnxStudent.step` keeps the T-step window of every input sensor (the first reading of
+an episode fills the whole window, as the dataset reader pads), checks each reading's shape
+and finiteness, and, when ``last_action`` is an input the caller does not pass, feeds back
+the action it returned on the previous step (zeros after a reset, as the simulator starts).
+Joint targets are ``default_pose + action_scale * action`` (spec.json ``action_convention``).
+
+This module must not import torch: ``tests/policies/test_export.py`` runs it in a fresh
+interpreter and checks ``sys.modules``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "msta-export/1"
+
+
+class OnnxStudent:
+    """An exported student on onnxruntime's CPU provider.
+
+    Args:
+        export_dir: the ``msta-export`` output directory (spec.json, student.onnx).
+        num_threads: onnxruntime intra-op threads (1: one core, as the latency benchmark).
+    """
+
+    def __init__(self, export_dir: str | Path, num_threads: int = 1) -> None:
+        import onnxruntime as ort
+
+        d = Path(export_dir)
+        spec_path = d / "spec.json"
+        if not spec_path.is_file():
+            raise FileNotFoundError(f"{d}: no spec.json (write one with msta-export)")
+        self.spec: dict[str, Any] = json.loads(spec_path.read_text())
+        if self.spec.get("format") != FORMAT:
+            raise ValueError(f"{spec_path}: format {self.spec.get('format')!r} is not {FORMAT!r}")
+        if "onnx" not in self.spec["files"]:
+            raise ValueError(f"{spec_path}: this export has no ONNX file (--formats)")
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(num_threads)
+        options.inter_op_num_threads = 1
+        self.session = ort.InferenceSession(str(d / self.spec["files"]["onnx"]), options,
+                                            providers=["CPUExecutionProvider"])
+        self.history = int(self.spec["history"])
+        self.dims = {i["name"]: int(i["shape"][2]) for i in self.spec["inputs"]}
+        self.action_dim = int(self.spec["output"]["shape"][1])
+        self._window: dict[str, np.ndarray] | None = None
+        self._last_action = np.zeros(self.action_dim, np.float32)
+
+    @property
+    def sensors(self) -> list[str]:
+        """Input sensor names, in the order the ONNX graph takes them."""
+        return list(self.dims)
+
+    def reset(self) -> None:
+        """Forget the window (call at every episode start)."""
+        self._window = None
+        self._last_action = np.zeros(self.action_dim, np.float32)
+
+    def step(self, readings: Mapping[str, Any]) -> np.ndarray:
+        """One control step: the newest reading of every input sensor -> the action (12,).
+
+        Args:
+            readings: sensor name -> (dim,) reading; ``last_action`` may be omitted (the
+                previous returned action is used).
+        """
+        current = {}
+        for name, dim in self.dims.items():
+            if name not in readings and name == "last_action":
+                value = self._last_action
+            elif name not in readings:
+                raise KeyError(f"missing reading {name!r}; this student reads {self.sensors}")
+            else:
+                value = np.asarray(readings[name], dtype=np.float32).reshape(-1)
+            if value.shape != (dim,):
+                raise ValueError(f"reading {name!r} has shape {value.shape}, expected ({dim},)")
+            if not np.isfinite(value).all():
+                raise ValueError(f"reading {name!r} has a non-finite value: {value}")
+            current[name] = value
+        if self._window is None:  # episode start: the first reading fills the window
+            self._window = {n: np.repeat(v[None], self.history, 0) for n, v in current.items()}
+        else:
+            for name, value in current.items():
+                w = self._window[name]  # (T, dim), oldest first
+                w[:-1] = w[1:]
+                w[-1] = value
+        action = self({n: w[None] for n, w in self._window.items()})[0]
+        self._last_action = action.copy()
+        return action
+
+    def __call__(self, windows: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Batched windows ``{sensor: (B, T, dim)}`` -> actions (B, 12)."""
+        feed = {n: np.ascontiguousarray(windows[n], dtype=np.float32) for n in self.dims}
+        return self.session.run(["action"], feed)[0]
