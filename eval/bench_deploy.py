@@ -58,11 +58,19 @@ def synthetic_stats(names) -> dict:
 
 
 def model_flops(cfg: MSTAConfig, tokens: int) -> float:
-    """Multiply-adds x 2 of one forward pass with ``tokens`` tokens (readout tokens included)."""
-    d, L, hidden = cfg.dim, tokens, round(cfg.mlp_ratio * cfg.dim)
-    per_layer = 2 * L * d * (3 * d + d + 2 * hidden) + 2 * 2 * L * L * d  # proj + MLP + attn
-    head = 2 * cfg.state_tokens * d * (cfg.head_hidden_dim or 12) + 2 * (cfg.head_hidden_dim * 12)
-    return float(cfg.num_layers * per_layer + head)
+    """FLOPs (2 x multiply-adds) of one forward pass over ``tokens`` tokens (readout tokens
+    included); the last block computes only the R readout tokens' outputs (keys and values
+    of all tokens)."""
+    d, L, R, hidden = cfg.dim, tokens, cfg.state_tokens, round(cfg.mlp_ratio * cfg.dim)
+
+    def layer(queries: int) -> int:
+        kv = 2 * L * d * 2 * d  # keys and values of every token
+        q_out_mlp = 2 * queries * d * (2 * d + 2 * hidden)  # query, output projection, MLP
+        return kv + q_out_mlp + 2 * 2 * queries * L * d  # + scores and weighted sum
+
+    h = cfg.head_hidden_dim
+    head = 2 * R * d * h + 2 * h * 12 if h else 2 * R * d * 12
+    return float((cfg.num_layers - 1) * layer(L) + layer(R) + head)
 
 
 def matmul_gflops(seconds: float = 1.0) -> float:

@@ -45,16 +45,23 @@ class SelfAttention(nn.Module):
         self.qkv = nn.Linear(dim, 3 * dim)
         self.proj = nn.Linear(dim, dim)
 
-    def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
-        B, L, D = x.shape  # (B, L, d)
-        q, k, v = self.qkv(x).split(D, dim=2)
+    def forward(self, x: Tensor, attn_mask: Tensor | None, queries: int | None = None) -> Tensor:
+        """x (B, L, d) -> (B, L, d); with ``queries`` = n, only the last n tokens ask (keys and
+        values still come from all L): (B, n, d), the same numbers as the last n rows."""
+        B, D = x.shape[0], x.shape[2]  # x: (B, L, d)
+        if queries is None:
+            q, k, v = self.qkv(x).split(D, dim=2)  # (B, L, d) each
+        else:
+            w, b = self.qkv.weight, self.qkv.bias
+            q = F.linear(x[:, -queries:], w[:D], b[:D])  # (B, n, d)
+            k, v = F.linear(x, w[D:], b[D:]).split(D, dim=2)  # (B, L, d) each
         q, k, v = (
-            z.view(B, L, self.num_heads, D // self.num_heads).transpose(1, 2) for z in (q, k, v)
-        )  # (B, nh, L, hs)
+            z.view(B, -1, self.num_heads, D // self.num_heads).transpose(1, 2) for z in (q, k, v)
+        )  # (B, nh, L or n, hs)
         y = F.scaled_dot_product_attention(
             q, k, v, attn_mask=attn_mask, dropout_p=self.dropout if self.training else 0.0
-        )  # (B, nh, L, hs)
-        return self.proj(y.transpose(1, 2).reshape(B, L, D))  # (B, L, d)
+        )  # (B, nh, L or n, hs)
+        return self.proj(y.transpose(1, 2).reshape(B, -1, D))  # (B, L or n, d)
 
 
 class Block(nn.Module):
@@ -80,9 +87,12 @@ class Block(nn.Module):
             nn.Dropout(dropout),
         )
 
-    def forward(self, x: Tensor, attn_mask: Tensor | None) -> Tensor:
-        x = x + self.attn(self.ln1(x), attn_mask)  # (B, L, d)
-        return x + self.mlp(self.ln2(x))  # (B, L, d)
+    def forward(self, x: Tensor, attn_mask: Tensor | None, queries: int | None = None) -> Tensor:
+        """x (B, L, d) -> (B, L, d); with ``queries`` = n, only the last n tokens are updated
+        and returned, (B, n, d): a last block whose other outputs nobody reads skips them."""
+        h = self.attn(self.ln1(x), attn_mask, queries)  # (B, L or n, d)
+        x = (x if queries is None else x[:, -queries:]) + h
+        return x + self.mlp(self.ln2(x))  # (B, L or n, d)
 
     @property
     def residual_projections(self) -> tuple[nn.Linear, nn.Linear]:

@@ -278,10 +278,11 @@ class MSTATransformer(nn.Module):
         self, inputs: MSTAInputs, mask_ratio: float = 0.0, generator: torch.Generator | None = None
     ) -> Tensor:
         x, attn_mask = self.embed(inputs, mask_ratio, generator)  # (B, L, d)
-        for block in self.blocks:
-            x = block(x, attn_mask)
-        R = self.cfg.state_tokens
-        return self.head(self.ln_f(x[:, -R:]).flatten(1))  # (B, action_dim) from <S> (+ R - 1)
+        R, last = self.cfg.state_tokens, len(self.blocks) - 1
+        for i, block in enumerate(self.blocks):
+            # the head reads only the readout tokens: the last block computes only theirs
+            x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
+        return self.head(self.ln_f(x).flatten(1))  # (B, action_dim) from <S> (+ R - 1)
 
 
 @register_policy("msta", kind="method")

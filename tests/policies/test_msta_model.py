@@ -218,6 +218,24 @@ def test_readout_tokens_end_the_sequence_and_all_reach_the_head(tmp_path) -> Non
     assert torch.equal(again.act(batch), policy.act(batch))
 
 
+@pytest.mark.parametrize("state_tokens", [1, 3])
+def test_the_last_block_computes_only_the_readout_rows(state_tokens: int) -> None:
+    """forward runs its last block for the R readout tokens only; every block run in full
+    and then read at those R rows gives the same action (up to float rounding)."""
+    policy = make(state_tokens=state_tokens, num_layers=2).eval()
+    batch = make_batch(B=3)
+    batch["pad"] = torch.zeros(3, T, dtype=torch.bool)
+    batch["pad"][1, :2] = True  # a key mask in play
+    m = policy.model
+    inputs = policy.processor.discretize(batch)
+    x, attn_mask = m.embed(inputs, 0.0)
+    for block in m.blocks:
+        x = block(x, attn_mask)  # (B, L, d): every row
+    full = m.head(m.ln_f(x[:, -state_tokens:]).flatten(1))
+    with torch.no_grad():
+        torch.testing.assert_close(policy(batch), full, atol=1e-6, rtol=0)
+
+
 def test_loss_and_gradients() -> None:
     policy = make().train()
     batch = {**make_batch(), "action": torch.randn(4, 12)}

@@ -69,7 +69,10 @@ def test_checkpoints_saved_before_the_student_base_act_the_same(name: str) -> No
     policy = load_policy(FIXTURES / name)
     assert policy.config.type == name and policy.config.input_sensors == FIXTURE_SENSORS
     out = policy.act(fixture_batch(), generator=torch.Generator().manual_seed(1))
-    assert torch.equal(out, torch.tensor(expected, dtype=torch.float32))
+    # same numbers up to float rounding: MSTA's last block now computes only <S>'s row
+    # (the same sums in another order), so bit equality is not promised, 1e-6 is
+    torch.testing.assert_close(out, torch.tensor(expected, dtype=torch.float32),
+                               atol=1e-6, rtol=0)
 
 
 # --- the shared config --------------------------------------------------------------------
