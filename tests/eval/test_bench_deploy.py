@@ -1,0 +1,42 @@
+"""make bench-deploy at the tiny preset: every runtime timed with its parity held, the FLOP
+count from the shapes, and the two closing lines the issue asks for."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import torch
+
+from eval.bench_deploy import main, model_flops
+from policies.msta import MSTAConfig
+
+
+def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path, capsys):
+    threads = torch.get_num_threads()
+    try:
+        main(["--preset=tiny", "--seconds=0.05", f"--output_dir={tmp_path}"])
+    finally:
+        torch.set_num_threads(threads)
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert re.fullmatch(r"minimized latency \(ms\): \d+\.\d\d", lines[-2])
+    assert re.fullmatch(r"full latency \(ms\): \d+\.\d\d", lines[-1])
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["matmul_gflops"] > 0
+    for obs, tokens in (("full", 15 * 49 + 1), ("minimized", 7 * 30 + 1)):
+        r = results["observations"][obs]
+        assert r["tokens"] == tokens
+        assert set(r["runtimes"]) == {"eager", "torchscript", "onnxruntime"}
+        assert r["parity"]["parity_max_abs_diff"] <= 1e-5
+        assert all(v["median_ms"] > 0 and v["calls"] >= 20 for v in r["runtimes"].values())
+        assert r["best"] in r["runtimes"]
+
+
+def test_flops_count_the_readout_only_last_block():
+    cfg = MSTAConfig.from_preset("paper")
+    d, L, h = 128, 736, 256
+    full_layer = 2 * L * d * (4 * d + 2 * h) + 4 * L * L * d
+    last_layer = 2 * L * d * 2 * d + 2 * 1 * d * (2 * d + 2 * h) + 4 * 1 * L * d
+    head = 2 * d * cfg.head_hidden_dim + 2 * cfg.head_hidden_dim * 12
+    assert model_flops(cfg, L) == 3 * full_layer + last_layer + head
+    assert 1.45e9 < model_flops(cfg, L) < 1.47e9  # the figure docs/deploy.md quotes
