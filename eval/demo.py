@@ -222,8 +222,8 @@ class DemoConfig:
         episodes: teacher episodes to record.
         episode_length_s: teacher episode length (s).
         train_steps: stage-1 optimizer steps.
-        rounds: stage-2 rounds (0: stage 1 only); one keeps the demo near 15 min on 2 cores
-            (each round: rollouts, 1000 steps, its evaluation: ~5-6 min).
+        rounds: stage-2 rounds (0: stage 1 only); one keeps the demo near 10 min on 2 cores
+            (each round: rollouts, 1000 steps, its evaluation: ~4 min).
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
         correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5 costs twice the time).
