@@ -120,8 +120,8 @@ class TimestepProcessor(StudentProcessor):
             v, idx = given[name]
             missing[idx + self.offsets[name]] = False
             block = self._scaled(name, v, idx)  # (B, T, c)
-            if v.shape[-1] != dim or bool((idx != torch.arange(dim, device=idx.device)).any()):
-                block = zero.expand(-1, -1, dim).index_copy(2, idx, block)  # absent channels 0
+            if channels and name in channels:  # a declared subset or order: scatter, absent 0
+                block = zero.expand(-1, -1, dim).index_copy(2, idx, block)
             blocks.append(block)
         # built by concatenation, not by writing into a zeros tensor: traceable with any batch
         x = torch.cat(blocks, dim=2)  # (B, T, C)
