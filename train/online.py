@@ -46,7 +46,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import draccus
 import numpy as np
@@ -162,6 +162,9 @@ class CorrectConfig(LoopConfig):
     num_threads: int = 0
     push_to: str = ""
     push_private: bool = False
+
+    #: Fields that must match progress.json when resuming (a subclass may add its own).
+    RESUME_FIELDS: ClassVar[tuple[str, ...]] = RESUME_FIELDS
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -311,7 +314,7 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
     saved = dict(prog["config"])
     if isinstance(saved.get("policy"), str):  # before --policy.path
         saved["policy"] = {"path": saved["policy"]}
-    bad = [k for k in RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
+    bad = [k for k in cfg.RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
     if bad:
         raise ValueError(f"--resume=true with different {bad} than {path}")
     return prog
@@ -373,9 +376,11 @@ def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
 
 
 PhaseHook = Callable[[str, int], None]
+Prepare = Callable[[StudentPolicy], StudentPolicy]
 
 
-def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, Any]:
+def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
+            prepare: Prepare | None = None) -> dict[str, Any]:
     """Run (or resume) stage 2; returns the content of progress.json.
 
     Args:
@@ -383,6 +388,10 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
         on_phase: called as ``on_phase(phase, round)`` at ``rolled_out`` (before the
             append), ``committed`` (episodes in the dataset, progress.json not yet updated),
             ``trained`` and ``evaluated``; tests raise there to simulate a kill.
+        prepare: applied to the student after every load (msta-finetune: fewer inputs and a
+            frozen transformer; it must give the same student when applied again to its own
+            result). Before round 1 is trained, the prepared starting student is saved as
+            ``output_dir/start/``: round 0 evaluates it and round 1 starts from it.
     """
     hook = on_phase or (lambda phase, r: None)
     out = Path(cfg.output_dir)
@@ -405,6 +414,10 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None) -> dict[str, 
     trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
     start = out / f"round_{max(trained)}" if trained else ckpt
     policy = load_policy(start, device=str(device))
+    if prepare is not None:
+        policy = prepare(policy)
+        if not trained:
+            ckpt = policy.save_pretrained(out / "start")
     evaluator = RoundEvaluator(cfg.eval, cfg.teacher) if cfg.eval.enabled else None
     if evaluator and not trained and not prog["rounds"].get("0", {}).get("evaluated"):
         prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),

@@ -25,6 +25,9 @@ samples of the batch have fewer, they are hidden from attention with a key mask.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Self
 
 import torch
 from torch import Tensor, nn
@@ -87,6 +90,18 @@ class MSTATransformer(nn.Module):
         if self.cfg.value_embedding == "sensor":
             return torch.full_like(ch, sensors_.index(name))
         return torch.zeros_like(ch)
+
+    def table_rows(self, names: Sequence[str]) -> Tensor:
+        """Rows of ``bin_embed`` holding the value tables of input sensors ``names``, in that
+        order: (rows,). A model whose inputs are just ``names`` has exactly these tables."""
+        nb = self.cfg.num_bins
+        if self.cfg.value_embedding == "shared":
+            return torch.arange(nb)
+        if self.cfg.value_embedding == "sensor":
+            tables = torch.tensor([self.cfg.input_sensors.index(n) for n in names])
+        else:
+            tables = torch.cat([self._table_of(n, torch.arange(get(n).dim)) for n in names])
+        return (tables[:, None] * nb + torch.arange(nb)).flatten()  # (tables * nb,)
 
     def _init_weights(self) -> None:
         def std(lin: nn.Linear) -> float:
@@ -313,3 +328,33 @@ class MSTAPolicy(StudentPolicy):
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         return self.model(inputs, mask_ratio, generator)
+
+    def with_inputs(self, sensors: Sequence[str], history: int) -> Self:
+        """A copy that reads only ``sensors`` (kept in config order) and trains on windows of
+        ``history`` steps: its config.json and processor.json name just those inputs, so it
+        rolls out, trains, evaluates and exports on them (msta-finetune's minimized
+        observation). Every weight is copied except the value tables and sensor embeddings
+        of the dropped sensors, so on the kept inputs the copy acts exactly as this policy
+        (in the learnable-mask ablation this policy fills absent sensors with mask tokens;
+        the copy has no tokens for the dropped ones).
+
+        Args:
+            sensors: a non-empty subset of ``config.input_sensors``.
+            history: the copy's training window T (>= 1).
+        """
+        inputs = self.config.input_sensors
+        if extra := [s for s in sensors if s not in inputs]:
+            raise ValueError(f"sensor {extra[0]!r} is not an input of this msta student "
+                             f"(inputs: {', '.join(inputs)})")
+        keep = tuple(s for s in inputs if s in sensors)
+        config = replace(self.config, input_sensors=keep, history=history)
+        processor = type(self.processor).from_dict({**self.processor.to_dict(),
+                                                    "input_sensors": list(keep)})
+        prefix = "model.sensor_embed."
+        state = {k: v for k, v in self.state_dict().items()
+                 if not k.startswith(prefix) or k[len(prefix):] in keep}
+        rows = self.model.table_rows(keep).to(state["model.bin_embed.weight"].device)
+        state["model.bin_embed.weight"] = state["model.bin_embed.weight"][rows]
+        copy = type(self)(config, processor)
+        copy.load_state_dict(state)
+        return copy.to(self.device).train(self.training)

@@ -24,6 +24,7 @@ from msta_data.cli import args_doc, field_help, parse_config
 from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
 from msta_data.hub_cli import main as hub_main
 from policies.export import main as export_main
+from train.finetune import main as finetune_main
 from train.offline import main as train_main
 from train.online import main as correct_main
 from train.teacher.cli import main as train_teacher_main
@@ -32,6 +33,7 @@ from train.teacher.cli import main as train_teacher_main
 SCRIPTS = {
     "msta-train": (train_main, "--steps", "--steps=abc"),
     "msta-correct": (correct_main, "--rounds", "--env.collision=fastt"),
+    "msta-finetune": (finetune_main, "--trainable", "--history=0"),
     "msta-train-teacher": (train_teacher_main, "--seed", "--ppo.init_std=0"),
     "msta-collect": (collect_main, "--episodes", "--episodes=0"),
     "msta-eval": (eval_main, "--trials", "--terrains=lava"),
