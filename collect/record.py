@@ -91,25 +91,34 @@ class LabelledActor:
     after it, once per step, and its action is the recorded ``action`` label
     (``label_action``; the actor's own action is ``actor_action``). With ``beta`` > 0 every
     environment executes the label's action instead with probability ``beta`` per step
-    (DAgger mixing, msta-correct).
+    (DAgger mixing, msta-correct). With ``noise`` > 0, Gaussian noise is added to every
+    executed action while the label stays clean (DART: the robot visits states off the
+    driver's own path, each labelled with the action that returns to it).
 
     Args:
         actor: the policy that drives (act/reset or a callable).
         label: the labelling policy (a teacher), or None.
         beta: probability that an environment executes the label's action in a step.
-        seed: seeds the per-step coin flips.
+        seed: seeds the per-step coin flips and the noise.
+        noise: std of the noise on executed actions (action units).
     """
 
-    def __init__(self, actor: Any, label: Any = None, beta: float = 0.0, seed: int = 0) -> None:
+    def __init__(self, actor: Any, label: Any = None, beta: float = 0.0, seed: int = 0,
+                 noise: float = 0.0) -> None:
+        if noise < 0:
+            raise ValueError(f"noise={noise} must be >= 0")
         self._act, self._reset = as_policy(actor)
         self._lab_act, self._lab_reset = (as_policy(label) if label is not None
                                           else (None, lambda ids: None))
-        self.beta, self.rng = beta, np.random.default_rng(seed)
+        self.beta, self.noise, self.rng = beta, noise, np.random.default_rng(seed)
         self.label_action = np.zeros((0, NUM_JOINTS), dtype=np.float32)
         self.actor_action = self.label_action  # the actor's own answer, before any mixing
         self.label_share = [0, 0]  # label-executed env steps, all env steps
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return self._perturb(self._mix(obs))
+
+    def _mix(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         executed = self.actor_action = np.asarray(self._act(obs), dtype=np.float32)  # (N, 12)
         if self._lab_act is None:
             self.label_action = executed
@@ -123,6 +132,11 @@ class LabelledActor:
         self.label_share[1] += len(use)
         return np.where(use[:, None], self.label_action, executed)
 
+    def _perturb(self, executed: np.ndarray) -> np.ndarray:
+        if self.noise <= 0:
+            return executed
+        return executed + self.rng.normal(0.0, self.noise, executed.shape).astype(np.float32)
+
     def reset(self, ids: np.ndarray) -> None:
         self._reset(ids)
         self._lab_reset(ids)
@@ -131,22 +145,31 @@ class LabelledActor:
 def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
                     write: Callable[[dict[str, np.ndarray], int, int], None],
                     sensors: tuple[str, ...] | None = None, label: Any = None,
-                    progress: bool = True) -> int:
+                    progress: bool = True, horizon: int | None = None) -> int:
     """Run ``actor`` until ``episodes`` episodes have finished, handing each to ``write``
-    (:func:`collect.rollout.rollout` with a recording hook).
+    (:func:`collect.rollout.rollout` with a recording hook); or, with ``horizon``, for
+    exactly ``horizon`` control steps, keeping every frame.
 
     Args:
         env: the simulator (reset here).
         actor: the policy that drives (act/reset or a callable), or a
             :class:`LabelledActor` (which then also labels; ``label`` must be None).
-        episodes: how many finished episodes to emit.
+        episodes: how many finished episodes to emit (ignored with ``horizon``).
         write: called as ``write(frames, type_idx, level)`` per finished episode.
         sensors: registry sensors to record (default: all).
         label: the policy whose action is stored as the ``action`` label (default: actor).
+        horizon: run this many control steps instead; every episode that ends is emitted,
+            and at the end so is every episode still running, cut there (its last
+            ``next.done`` false, as after a time limit). The emitted states then follow the
+            policy's own state distribution: the first ``episodes`` to finish are the short
+            ones (falls), and the steps of the unfinished ones would be simulated for
+            nothing.
     Returns:
         environment steps taken.
     """
     sensors = tuple(sensors or SENSORS)
+    if horizon is not None and horizon <= 0:
+        raise ValueError(f"horizon={horizon} must be > 0")
     env.reset()
     if episodes <= 0:
         return 0
@@ -155,7 +178,8 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     rec = EpisodeRecorder(env.num_envs, env.max_steps, sensors)
     rec.start(np.arange(env.num_envs), env.type_idx, env.level)
     done_count = 0
-    bar = tqdm(total=episodes, disable=not progress, unit="ep", desc="episodes")
+    bar = (tqdm(total=horizon, disable=not progress, unit="step", desc="control steps")
+           if horizon else tqdm(total=episodes, disable=not progress, unit="ep", desc="episodes"))
     t0 = time.time()
 
     def on_step(step: Step) -> bool:
@@ -163,17 +187,25 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
         rec.add(step.obs, policy.label_action, step.action, step.res)
         ended = np.flatnonzero(step.res.done)
         for i in ended:
-            if done_count < episodes:
+            if horizon or done_count < episodes:
                 write(rec.take(i), int(rec.type_idx[i]), int(rec.level[i]))
                 done_count += 1
         if len(ended):
             rec.start(ended, env.type_idx, env.level)
-            bar.update(min(len(ended), bar.total - bar.n))
+            if not horizon:
+                bar.update(min(len(ended), bar.total - bar.n))
+        if horizon:
+            bar.update(1)
         steps = (step.t + 1) * env.num_envs
         bar.set_postfix(frames_per_s=f"{steps / max(time.time() - t0, 1e-9):,.0f}")
+        if horizon:
+            return step.t + 1 >= horizon
         return done_count >= episodes
 
     steps = rollout(env, policy, on_step) * env.num_envs
+    if horizon:  # the episodes still running, cut at the horizon
+        for i in np.flatnonzero(rec.ptr > 0):
+            write(rec.take(i), int(rec.type_idx[i]), int(rec.level[i]))
     bar.close()
     return steps
 
@@ -193,6 +225,10 @@ class CollectConfig:
         env: simulator options (terrain mix and levels, randomization, noise, ...).
         flush_every_frames: frames buffered before they are written (a killed run loses at
             most these plus the episodes in flight).
+        action_noise: std of Gaussian noise added to every action the teacher executes (its
+            clean action stays the ``action`` label; ``executed_action`` holds what ran):
+            DART, states off the teacher's path labelled with the way back, recorded at the
+            teacher's speed instead of a student's. 0 = the teacher's own path.
         progress: show a progress bar.
     """
 
@@ -206,9 +242,12 @@ class CollectConfig:
     episode_length_s: float = 20.0
     env: EnvConfig = field(default_factory=EnvConfig)
     flush_every_frames: int = 50_000
+    action_noise: float = 0.0
     progress: bool = True
 
     def __post_init__(self) -> None:
+        if self.action_noise < 0:
+            raise ValueError(f"action_noise={self.action_noise} must be >= 0")
         if self.episodes < 1 or self.num_envs < 1:
             raise ValueError(f"episodes={self.episodes} and num_envs={self.num_envs} must be >= 1")
         if not self.episode_length_s > 0 or self.flush_every_frames < 1:
@@ -269,7 +308,8 @@ def collect(cfg: CollectConfig) -> Path:
                 "seed": seed})
 
         t0 = time.time()
-        steps = record_rollouts(env, teacher, todo, write, progress=cfg.progress)
+        driver = LabelledActor(teacher, noise=cfg.action_noise, seed=seed)
+        steps = record_rollouts(env, driver, todo, write, progress=cfg.progress)
         print(f"recorded {todo} episodes ({steps:,} env steps simulated, "
               f"{steps / (time.time() - t0):,.0f}/s) -> {root} ({writer.num_episodes} episodes, "
               f"{writer.num_frames:,} frames)")
@@ -277,7 +317,8 @@ def collect(cfg: CollectConfig) -> Path:
 
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
-                         repo_id: str, teacher: TeacherConfig | None = None) -> Path:
+                         repo_id: str, teacher: TeacherConfig | None = None,
+                         action_noise: float = 0.0) -> Path:
     """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
     up to 64 robots at once (``make demo``, ``make bench-learn`` and the learning tests
     share it).
@@ -288,11 +329,13 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
         episode_length_s: episode time limit (s).
         repo_id: the dataset's ``repo_id``.
         teacher: the recording teacher (None: the gait controller).
+        action_noise: ``CollectConfig.action_noise`` (DART).
     """
     return collect(CollectConfig(
         teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
-        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), progress=False))
+        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
+        progress=False))
 
 
 def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:

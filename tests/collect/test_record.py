@@ -49,6 +49,22 @@ def test_collect_writes_episodes_with_provenance_and_labels(tmp_path):
     assert np.abs(b["joint_pos"][:, -1, 2] + 1.5).max() < 0.5
 
 
+def test_action_noise_perturbs_what_runs_and_keeps_the_label_clean(tmp_path):
+    """DART: the zero teacher's label stays 0, the executed action carries the noise, and
+    the robot's joints leave the pose the clean teacher holds."""
+    root = collect(small_cfg(tmp_path / "ds", episodes=4, action_noise=0.5))
+    ds = WindowDataset(root, ["joint_pos"], T=1, extra_columns=("action", "executed_action"))
+    b = ds.get_batch(np.arange(len(ds)))
+    np.testing.assert_array_equal(b["action"], 0.0)
+    assert abs(float(b["executed_action"].std()) - 0.5) < 0.05
+    assert abs(float(b["executed_action"].mean())) < 0.05
+    clean = WindowDataset(collect(small_cfg(tmp_path / "clean", episodes=4)), ["joint_pos"],
+                          T=1).get_batch(np.arange(len(ds)))
+    assert np.abs(b["joint_pos"] - clean["joint_pos"]).max() > 0.05
+    with pytest.raises(ValueError, match="action_noise"):
+        small_cfg(tmp_path / "bad", episodes=1, action_noise=-0.1)
+
+
 def test_existing_dataset_requires_resume(tmp_path):
     collect(small_cfg(tmp_path / "ds", episodes=2))
     with pytest.raises(FileExistsError, match="--resume"):

@@ -4,6 +4,7 @@ actor that recording and stage 2 drive it with."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from collect.record import LabelledActor, record_rollouts
 from collect.rollout import rollout, run, step_quantities
@@ -92,3 +93,16 @@ def test_recording_with_a_label_stores_both_actions():
         np.testing.assert_allclose(f["executed_action"], 0.1, rtol=1e-6)
         np.testing.assert_allclose(f["action"], 0.3, rtol=1e-6)
         assert len(f["action"]) == 10 and f["next.done"][-1, 0]
+
+
+def test_recording_to_a_horizon_keeps_the_running_episodes_cut():
+    env = QuadrupedEnv(env_cfg(n=2))
+    got = []
+    steps = record_rollouts(env, Recorder(0.1), 1, lambda f, t, lv: got.append(f),
+                            progress=False, horizon=15)
+    assert steps == 15 * 2                       # exactly the horizon, every env
+    assert sorted(len(f["action"]) for f in got) == [5, 5, 10, 10]
+    for f in got:                                # finished ones end done, cut ones do not
+        assert bool(f["next.done"][-1, 0]) == (len(f["action"]) == 10)
+    with pytest.raises(ValueError, match="horizon"):
+        record_rollouts(env, Recorder(0.1), 1, lambda f, t, lv: None, horizon=0)

@@ -116,30 +116,13 @@ def fit(net: RMATeacher, buffer: _Buffer, cfg: WarmStartConfig, opt: torch.optim
     return float(np.mean(losses[-max(1, len(losses) // 10):]))
 
 
-class _Noisy:
-    """Adds N(0, sigma) to every action ``actor`` executes (the labels stay clean)."""
-
-    def __init__(self, actor: LabelledActor, sigma: float, seed: int) -> None:
-        self.actor, self.sigma = actor, sigma
-        self.rng = np.random.default_rng(seed)
-
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        a = self.actor.act(obs)
-        if self.sigma > 0:
-            a = a + self.rng.normal(0.0, self.sigma, a.shape).astype(np.float32)
-        return a
-
-    def reset(self, ids: np.ndarray) -> None:
-        self.actor.reset(ids)
-
-
 def _dagger_rollout(vec: RslVecEnv, net: RMATeacher, gait, buffer: _Buffer, beta: float,
                     steps: int, seed: int, noise: float = 0.0) -> tuple[float, int, int]:
     """One iteration's rollout from fresh episodes (the gait clock starts with each): the
     gait controller labels every step, and drives with probability ``beta`` per step; the
     samples go to ``buffer``. Returns the network's MSE to the labels on this rollout, the
     episodes ended and the falls among them."""
-    actor = LabelledActor(net, label=gait, beta=beta, seed=seed)
+    actor = LabelledActor(net, label=gait, beta=beta, seed=seed, noise=noise)
     mse: list[float] = []
     ends = np.zeros(2, dtype=np.int64)   # episodes ended, of which falls
 
@@ -153,7 +136,7 @@ def _dagger_rollout(vec: RslVecEnv, net: RMATeacher, gait, buffer: _Buffer, beta
         ends[1] += int((step.res.reason[done] == _FALL).sum())
 
     vec.sim.reset()
-    rollout(vec.sim, _Noisy(actor, noise, seed), on_step, max_steps=steps)
+    rollout(vec.sim, actor, on_step, max_steps=steps)
     return float(np.mean(mse)), int(ends[0]), int(ends[1])
 
 
