@@ -79,9 +79,10 @@ PROGRESS_FORMAT = "msta-correct/1"
 #: Fields that must match progress.json when resuming (they define the data).
 RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
                  "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
-                 "levels_from_dataset", "teacher_follows_robot")
+                 "levels_from_dataset", "teacher_follows_robot", "keep_unfinished")
 #: Values of RESUME_FIELDS in progress.json files written before the field existed.
-RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False}
+RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False,
+                 "keep_unfinished": False}
 
 
 @dataclass
@@ -100,9 +101,17 @@ class CorrectConfig(LoopConfig):
         rounds: correction rounds (raise it on ``--resume`` to run more). DAgger needs
             several: the first round usually lowers a stage-1 student (its own falls enter
             the data), the next ones lift it (docs/training.md).
-        episodes_per_round: student episodes appended per round.
+        episodes_per_round: student episodes per round: with ``keep_unfinished`` (the
+            default) the round runs ``ceil(episodes_per_round / num_envs)`` episode lengths
+            of control steps and appends every episode in them (at least this many);
+            otherwise exactly this many, the first to finish.
         num_envs: environments rolled out together.
         episode_length_s: time limit of the student episodes (s).
+        keep_unfinished: keep every simulated frame of a round: the episodes still running
+            when the round's steps are up are appended too, cut there (like a time limit).
+            false: the first ``episodes_per_round`` episodes to finish, which over-samples
+            short episodes (falls) and throws away the steps of the unfinished ones (a
+            stage-1 student's first round kept 6,647 of 14,656 simulated frames).
         env: simulator options of the rollouts (its seed is shifted by the round).
         teacher: the labelling teacher (``--teacher.type=gait``).
         beta: DAgger mixing: probability that an env executes the teacher's action in a step
@@ -147,6 +156,7 @@ class CorrectConfig(LoopConfig):
     episodes_per_round: int = 64
     num_envs: int = 32
     episode_length_s: float = 10.0
+    keep_unfinished: bool = True
     env: EnvConfig = field(default_factory=EnvConfig)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     beta: float = 0.0
@@ -238,7 +248,10 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
 
     policy.eval()
     t0 = time.perf_counter()
-    steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, progress=cfg.progress)
+    horizon = (-(-cfg.episodes_per_round // cfg.num_envs) * env.max_steps
+               if cfg.keep_unfinished else None)
+    steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, progress=cfg.progress,
+                            horizon=horizon)
     dt = time.perf_counter() - t0
     share = mixed.label_share[0] / max(mixed.label_share[1], 1)
     return episodes, {"env_steps": steps, "env_steps_per_s": steps / dt, "beta": beta,
@@ -445,15 +458,20 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     path = out / PROGRESS
     revision = policy_revision(policy)
     if not rec.get("appended"):
-        if "episodes_before" in rec and check_tail(root, rec["episodes_before"],
-                                                   cfg.episodes_per_round, r, revision):
+        # how many the round appends (recorded before the append; older files: exactly
+        # episodes_per_round)
+        expected = rec.get("episodes_rolled_out", cfg.episodes_per_round)
+        if "episodes_before" in rec and check_tail(root, rec["episodes_before"], expected, r,
+                                                   revision):
             rec.update(appended=True, recovered_after_commit=True,
-                       episodes_after=rec["episodes_before"] + cfg.episodes_per_round)
+                       episodes_after=rec["episodes_before"] + expected)
         else:
             rec.update(episodes_before=int(load_info(root)["total_episodes"]),
                        policy_revision=revision)
             atomic_json(path, prog)
             episodes, stats = roll_out(cfg, policy, r, revision)
+            rec["episodes_rolled_out"] = len(episodes)
+            atomic_json(path, prog)
             hook("rolled_out", r)
             total = append_episodes(root, episodes)
             hook("committed", r)

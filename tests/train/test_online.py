@@ -59,7 +59,7 @@ def make_cfg(base, tmp_path: Path, **kw) -> CorrectConfig:
                 "num_envs": 4, "episode_length_s": EPISODE_S, "env": small_env(),
                 "teacher": TeacherConfig(type="gait"), "steps": 3, "batch_size": 8,
                 "warmup_steps": 1, "progress": False, "device": "cpu",
-                "eval": EvalConfig(enabled=False)}
+                "eval": EvalConfig(enabled=False), "keep_unfinished": False}
     return CorrectConfig(**{**defaults, **kw})
 
 
@@ -297,3 +297,25 @@ def test_a_labeller_other_than_the_recording_teacher_is_named(base, tmp_path):
     other = make_cfg(base, tmp_path, teacher=TeacherConfig(type="rma"))
     warning = check_labeller(other, Path(other.dataset))
     assert warning and "labels come from rma-" in warning and "recorded by gait-" in warning
+
+
+def test_keep_unfinished_appends_every_simulated_frame_and_resumes(base, tmp_path):
+    """The default: each env runs one episode length per round (episodes_per_round /
+    num_envs = 1) and every frame is appended, the still-running episodes cut at the end;
+    a kill after the commit is recognised with that count."""
+
+    def kill(p: str, r: int) -> None:
+        if (p, r) == ("committed", 1):
+            raise Kill
+
+    cfg = make_cfg(base, tmp_path, rounds=1, keep_unfinished=True)
+    with pytest.raises(Kill):
+        correct(cfg, on_phase=kill)
+    prog = correct(replace(cfg, resume=True))
+    rec = prog["rounds"]["1"]
+    assert rec["recovered_after_commit"]
+    eps = load_episode_table(Path(cfg.dataset)).iloc[4:]
+    max_steps = replace(small_env(), episode_length_s=EPISODE_S).max_episode_steps
+    assert int(eps["length"].sum()) == 4 * max_steps       # every simulated frame
+    assert len(eps) == rec["episodes_rolled_out"] >= E       # falls start new episodes
+    assert rec["episodes_after"] == 4 + len(eps)
