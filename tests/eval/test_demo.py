@@ -5,20 +5,24 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from eval.demo import main
 
 
-@pytest.mark.parametrize("teacher", ["gait", "rma"])
-def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher):
+@pytest.mark.parametrize("teacher,select", [("gait", 5), ("rma", 0)])
+def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher, select):
+    """gait with the round selection; rma (the default) as make demo runs it: DART noise,
+    no selection (the last round is evaluated)."""
     out = tmp_path / "demo"
     main([f"--output_dir={out}", "--episodes=4", "--episode_length_s=0.5", "--train_steps=3",
           "--rounds=1", "--correct_steps=2", "--correct_episodes=2", "--teacher_seconds=0.4",
           "--envs_per_type=1", "--eval_trials=5", "--eval_episode_length_s=0.3",
-          "--num_threads=1", "--select_trials=5", "--select_episode_length_s=0.3",
-          f"--teacher.type={teacher}"])
+          "--num_threads=1", f"--select_trials={select}", "--select_episode_length_s=0.3",
+          f"--teacher.type={teacher}", "--history=3",
+          f"--action_noise={0.5 if teacher == 'rma' else 0.0}"])
     text = capsys.readouterr().out
     assert f"== 1. the {teacher} teacher" in text
     # the one teacher records, labels the stage-2 round and is the evaluation's reference
@@ -38,14 +42,25 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher):
     assert info["total_episodes"] == 4              # the teacher dataset pushed to the hub
     # stage 2 started from the hub dataset and appended its round to its own copy
     info = json.loads((out / "stage2" / "dataset" / "meta" / "info.json").read_text())
-    assert info["total_episodes"] == 4 + 2
+    assert info["total_episodes"] >= 4 + 2  # every simulated frame: falls add episodes
     assert (out / "stage1" / "final" / "model.safetensors").is_file()
-    # the round picked on the selection trials (seed 1) is the one pulled and evaluated
-    sel = re.search(r"selection \(.*seed 1;.*: round 0 (\S+), round 1 (\S+); evaluating round "
-                    r"(\d)", text)
-    assert sel, text[-3000:]
-    best = int(sel.group(3))
-    assert best == (1 if float(sel.group(2)) >= float(sel.group(1)) else 0)
+    assert json.loads((out / "stage1" / "final" / "config.json").read_text())["history"] == 3
+    if select:  # the round picked on the selection trials (seed 1) is pulled and evaluated
+        sel = re.search(r"selection \(.*seed 1;.*: round 0 (\S+), round 1 (\S+); evaluating "
+                        r"round (\d)", text)
+        assert sel, text[-3000:]
+        best = int(sel.group(3))
+        assert best == (1 if float(sel.group(2)) >= float(sel.group(1)) else 0)
+    else:  # no round evaluation at all; the last round is evaluated
+        assert "evaluating the last round, 1" in text
+        assert not json.loads((out / "stage2" / "progress.json").read_text())["rounds"][
+            "1"].get("eval")
+        best = 1
+    # DART: the recording teacher's executed actions carry the noise, its labels do not
+    teacher_eps = pd.concat(pd.read_parquet(f) for f in sorted(
+        (out / "datasets" / "a1_teacher" / "data").rglob("*.parquet")))
+    moved = np.abs(np.stack(teacher_eps["executed_action"]) - np.stack(teacher_eps["action"]))
+    assert (moved.max() > 0.1) == (teacher == "rma")
     tag = "stage2-r1" if best else "stage1"
     assert (out / "pulled" / tag / "model.safetensors").is_file()
     assert last.endswith(f"(checkpoint {tag})")
