@@ -42,8 +42,8 @@ from msta_data.locate import locate_checkpoint
 from policies.base import PolicyConfig, StudentPolicy
 from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from policies.msta import MSTAPolicy
-from train.cli import USER_ERRORS, parse_cli
-from train.online import PROGRESS, RESUME_FIELDS, CorrectConfig, PhaseHook, correct
+from train import online
+from train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, correct
 from train.state import atomic_json
 
 RECORD = "finetune.json"
@@ -228,18 +228,11 @@ def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> dict[str
 
 def parse_args(argv: Sequence[str] | None = None) -> FinetuneConfig:
     """msta-finetune's command line (msta-correct's, plus --sensors, --history, --trainable)."""
-    return parse_cli(FinetuneConfig, argv, prog="msta-finetune", aliases={
-        "env.num_envs": "num_envs", "env.episode_length_s": "episode_length_s"})
+    return online.parse_args(argv, FinetuneConfig, "msta-finetune")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    cfg = parse_args(argv)
-    try:
-        prog = finetune(cfg)
-    except USER_ERRORS as e:  # one line naming the file, no traceback
-        raise SystemExit(f"msta-finetune: error: {e}") from None
-    print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
-          f"{prog['rounds'][str(cfg.rounds)].get('checkpoint')}")
+    online.run_cli(argv, FinetuneConfig, finetune, "msta-finetune")
 
 
 if __name__ == "__main__":

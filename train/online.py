@@ -497,21 +497,30 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     print_table(prog)
 
 
-def parse_args(argv: Sequence[str] | None = None) -> CorrectConfig:
-    """msta-correct's command line: ``--env.num_envs`` / ``--env.episode_length_s`` are read
-    as ``--num_envs`` / ``--episode_length_s`` (which set them every round)."""
-    return parse_cli(CorrectConfig, argv, prog="msta-correct", aliases={
+def parse_args(argv: Sequence[str] | None = None, cls: type[CorrectConfig] = CorrectConfig,
+               prog: str = "msta-correct") -> CorrectConfig:
+    """msta-correct's command line (and msta-finetune's, ``cls``): ``--env.num_envs`` /
+    ``--env.episode_length_s`` are read as ``--num_envs`` / ``--episode_length_s`` (which set
+    them every round)."""
+    return parse_cli(cls, argv, prog=prog, aliases={
         "env.num_envs": "num_envs", "env.episode_length_s": "episode_length_s"})
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    cfg = parse_args(argv)
+def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
+            run: Callable[[Any], dict[str, Any]], prog: str) -> None:
+    """Parse, ``run`` the rounds, one-line errors; prints where progress and the last
+    checkpoint are (msta-correct, msta-finetune)."""
+    cfg = parse_args(argv, cls, prog)
     try:
-        prog = correct(cfg)
+        done = run(cfg)
     except USER_ERRORS as e:  # one line naming the file, no traceback
-        raise SystemExit(f"msta-correct: error: {e}") from None
+        raise SystemExit(f"{prog}: error: {e}") from None
     print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
-          f"{prog['rounds'][str(cfg.rounds)].get('checkpoint')}")
+          f"{done['rounds'][str(cfg.rounds)].get('checkpoint')}")
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    run_cli(argv, CorrectConfig, correct, "msta-correct")
 
 
 if __name__ == "__main__":
