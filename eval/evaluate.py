@@ -217,14 +217,17 @@ def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
 
 def spec_dict(spec: InputSpec) -> dict[str, Any]:
     """JSON-ready InputSpec."""
-    return {"T": spec.T, "drop_sensors": list(spec.drop_sensors),
-            "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
-            "seed": spec.seed}
+    out = {"T": spec.T, "drop_sensors": list(spec.drop_sensors),
+           "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
+           "seed": spec.seed}
+    if spec.dummy_tokens:  # only when set: older metrics.json records stay identical
+        out["dummy_tokens"] = spec.dummy_tokens
+    return out
 
 
 def _is_null(spec: InputSpec) -> bool:
     return spec.T is None and not spec.drop_sensors and not spec.dead_joints \
-        and spec.mask_ratio == 0
+        and spec.mask_ratio == 0 and spec.dummy_tokens == 0
 
 
 @contextmanager
@@ -288,7 +291,9 @@ class Evaluator:
     def _student_key(self, entry: PolicyEntry, spec: InputSpec) -> tuple:
         actor = StudentActor(entry.obj, 1, spec)
         channels = tuple(sorted((k, tuple(v)) for k, v in actor.channels.items()))
-        return (entry.name, entry.revision, actor.T, actor.sensors, channels, spec.mask_ratio)
+        key = (entry.name, entry.revision, actor.T, actor.sensors, channels, spec.mask_ratio)
+        # appended only when set, so the inputs digests of the other conditions do not change
+        return key + ((("dummy_tokens", spec.dummy_tokens),) if spec.dummy_tokens else ())
 
     def condition(self, entry: PolicyEntry, cond: Condition) -> dict[str, Any]:
         """Metrics of one policy under one condition (or n/a with the reason).

@@ -245,7 +245,7 @@ def _baseline_runs(metrics: dict) -> dict[str, dict]:
     for r in metrics["runs"]:
         s = r["spec"]
         plain = s["T"] is None and not s["drop_sensors"] and not s["dead_joints"] \
-            and s["mask_ratio"] == 0
+            and s["mask_ratio"] == 0 and not s.get("dummy_tokens")
         if plain and r["status"] == "ok":
             out.setdefault(r["policy"], r)
     return out
@@ -312,7 +312,7 @@ def markdown(metrics: dict) -> str:
     if len(metrics["levels"]) > 1:
         parts += ["## Total reward per level (normalized, terrain average)", "",
                   level_table(metrics), ""]
-    for name in ("sensor_removal", "dead_joints", "history"):
+    for name in ("sensor_removal", "dead_joints", "history", "dummy_tokens"):
         if not _runs(metrics, name):
             continue
         parts += [f"## {SCENARIOS[name].title}", "", f"![{name}]({name}.png)", ""]
@@ -436,7 +436,8 @@ def _heatmap_plot(metrics: dict, path: Path) -> Path | None:
 def write_plots(metrics: dict, out: Path) -> list[Path]:
     """PNG plots of scenarios 2-5 that were run; returns the paths written."""
     written = []
-    for name, bars in (("sensor_removal", True), ("dead_joints", False), ("history", False)):
+    for name, bars in (("sensor_removal", True), ("dead_joints", False), ("history", False),
+                       ("dummy_tokens", False)):
         if _runs(metrics, name):
             written.append(_sweep_plot(metrics, name, out / f"{name}.png", bars))
     if "mask_matrix" in metrics["config"]["scenarios"]:

@@ -15,6 +15,8 @@ Scenarios (registry :data:`SCENARIOS`):
 5. ``mask_matrix``: the token-removal conditions of checkpoints trained with different
    stage-1 x stage-2 mask ratios, shown as heatmaps (needs ``--matrix`` or ratios recorded
    in the checkpoints).
+6. ``dummy_tokens``: N random "dummy" tokens appended to every sample of a token student
+   (MSTA), 0 / 256 (quick) or 0 / 64 / 256 (paper); other students are not applicable.
 
 A *suite* (registry :data:`SUITES`) fixes trials, terrains, levels, episode length and the
 values each scenario sweeps. :class:`TrialConfig` picks a suite and overrides its budget;
@@ -147,6 +149,11 @@ def _dead_joints(ctx: ScenarioContext) -> list[Condition]:
             for k in ctx.values]
 
 
+def _dummy_tokens(ctx: ScenarioContext) -> list[Condition]:
+    return [Condition("dummy_tokens", f"dummy {int(n)}", int(n),
+                      InputSpec(dummy_tokens=int(n), seed=ctx.seed)) for n in ctx.values]
+
+
 def _history(ctx: ScenarioContext) -> list[Condition]:
     return [Condition("history", f"T={t}", int(t), InputSpec(T=int(t), seed=ctx.seed))
             for t in ctx.values]
@@ -160,6 +167,8 @@ register_scenario(Scenario("dead_joints", "Dead joint encoders (q and q̇ remove
                            "dead joints k", _dead_joints))
 register_scenario(Scenario("history", "History window T (no masking)", "history T",
                            _history))
+register_scenario(Scenario("dummy_tokens", "Random dummy tokens appended at test time",
+                           "dummy tokens", _dummy_tokens))
 register_scenario(Scenario("mask_matrix", "Train mask ratios (stage 1 x stage 2)",
                            "stage-2 mask ratio", _token_removal))
 
@@ -198,13 +207,13 @@ SUITES: dict[str, Suite] = {
         num_envs=250,
         values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
                 "dead_joints": (0, 1, 2, 3, 4, 5, 6), "history": (3, 5, 7, 10, 15, 20),
-                "mask_matrix": (0.0, 0.25, 0.5)}),
+                "mask_matrix": (0.0, 0.25, 0.5), "dummy_tokens": (0, 64, 256)}),
     # `make demo`: a few minutes on two CPU cores with the cpu MSTA preset.
     "quick": Suite(
         "quick", trials=5, terrains=PAPER_TERRAINS, levels=(1,), episode_length_s=3.0, num_envs=50,
         values={"token_removal": (0.0, 0.25, 0.5), "sensor_removal": (),
                 "dead_joints": (0, 3, 6), "history": (3, 7, 15, 20),
-                "mask_matrix": (0.0, 0.25, 0.5)}),
+                "mask_matrix": (0.0, 0.25, 0.5), "dummy_tokens": (0, 256)}),
 }
 
 

@@ -4,7 +4,7 @@
 reads, marks the steps before the episode start as padding (filled with the episode's
 first frame, exactly like ``msta_data.windows.WindowDataset``), applies the test-time
 input changes of the paper's experiments (sensors removed, dead joint encoders, random
-token removal, another window length) and calls the policy on the whole batch at once.
+token removal, another window length, random dummy tokens appended) and calls the policy on the whole batch at once.
 It has the same ``act(obs)`` / ``reset(ids)`` interface as a teacher.
 """
 
@@ -33,13 +33,17 @@ class InputSpec:
         drop_sensors: registry sensors removed entirely.
         dead_joints: joint indices (0..11) whose q and qdot channels are removed.
         mask_ratio: fraction of tokens removed at random every step (MSTA's test masks).
-        seed: seeds the random token removal.
+        dummy_tokens: random "dummy" tokens appended to every sample (the paper's
+            256-token stress test); only token students (``supports_dummy_tokens``) take
+            them, others raise ``NotImplementedError`` (msta-eval: not applicable).
+        seed: seeds the random token removal and the dummy tokens.
     """
 
     T: int | None = None
     drop_sensors: tuple[str, ...] = ()
     dead_joints: tuple[int, ...] = ()
     mask_ratio: float = 0.0
+    dummy_tokens: int = 0
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -53,6 +57,8 @@ class InputSpec:
         if self.T is not None and self.T < 1:
             raise ValueError(f"T={self.T} must be >= 1")
         check_fraction(mask_ratio=self.mask_ratio)
+        if self.dummy_tokens < 0:
+            raise ValueError(f"dummy_tokens={self.dummy_tokens} must be >= 0")
 
 
 class StudentActor:
@@ -72,6 +78,9 @@ class StudentActor:
         self.spec = spec = spec or InputSpec()
         self.name = name
         self.num_envs = num_envs
+        if spec.dummy_tokens and not policy.supports_dummy_tokens:
+            raise NotImplementedError(f"{type(policy).__name__} has no token input to append "
+                                      "dummy tokens to (MSTA students only)")
         self.T = int(spec.T or policy.config.history)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:
@@ -122,5 +131,7 @@ class StudentActor:
             kwargs["channels"] = self.channels
         if self.spec.mask_ratio > 0:
             kwargs["mask_ratio"] = self.spec.mask_ratio
+        if self.spec.dummy_tokens:
+            kwargs["dummy_tokens"] = self.spec.dummy_tokens
         out = self.policy.act(batch, **kwargs)
         return out.detach().cpu().numpy().astype(np.float32)

@@ -97,6 +97,9 @@ class StudentPolicy(nn.Module):
 
     config_class: ClassVar[type[PolicyConfig]]
     processor_class: ClassVar[type[StudentProcessor]]
+    #: whether ``forward`` takes ``dummy_tokens`` (token students: MSTA); msta-eval's
+    #: dummy_tokens scenario is not applicable to the others
+    supports_dummy_tokens: ClassVar[bool] = False
 
     def __init__(self, config: PolicyConfig, processor: StudentProcessor) -> None:
         super().__init__()
@@ -139,6 +142,7 @@ class StudentPolicy(nn.Module):
         channels: Channels | None = None,
         mask_ratio: float = 0.0,
         generator: torch.Generator | None = None,
+        dummy_tokens: int = 0,
     ) -> Tensor:
         """Desired joint positions (B, 12) in raw units.
 
@@ -149,9 +153,17 @@ class StudentPolicy(nn.Module):
             mask_ratio: test-time random input removal (the paper's 25 % / 50 % tests);
                 what "removal" means is the subclass's ``forward`` (MSTA drops tokens,
                 timestep baselines substitute placeholders).
-            generator: RNG for the test-time mask.
+            generator: RNG for the test-time mask (and the dummy tokens).
+            dummy_tokens: random tokens appended to every sample (the paper's stress test);
+                only students with ``supports_dummy_tokens`` take them.
         """
-        return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
+        if not dummy_tokens:
+            return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
+        if not self.supports_dummy_tokens:
+            raise NotImplementedError(f"{type(self).__name__} has no token input to append "
+                                      "dummy tokens to (MSTA students only)")
+        out = self(batch, channels, mask_ratio, generator, dummy_tokens=dummy_tokens)
+        return self.processor.unnormalize_action(out)
 
     def loss(
         self,

@@ -20,6 +20,17 @@ may be supplied in any order, any subset of sensors / channels and any T work un
 
 Padded steps (before the episode start) are removed first; if some remain because other
 samples of the batch have fewer, they are hidden from attention with a key mask.
+
+Dummy tokens (the paper's test-time stress test, ``dummy_tokens`` = D): after masking, D
+random tokens are appended to every sample before the readout tokens; they attend and are
+attended to in every block like real tokens and are never masked. Each is the sum of three
+parts drawn independently from the ``generator``, so every part looks like a real token's
+but together they form no reading of any channel:
+
+    dummy = value_embed[random present table][random bin] + pos[random token slot]
+            + sensor_embed[random present sensor]                                 # (d,)
+
+Fresh ones are drawn for every sample and call; no parameter changes.
 """
 
 from __future__ import annotations
@@ -174,10 +185,14 @@ class MSTATransformer(nn.Module):
             return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
 
     def embed(
-        self, inputs: MSTAInputs, mask_ratio: float, generator: torch.Generator | None = None
+        self,
+        inputs: MSTAInputs,
+        mask_ratio: float,
+        generator: torch.Generator | None = None,
+        dummy_tokens: int = 0,
     ) -> tuple[Tensor, Tensor | None]:
-        """Tokens after masking plus the readout tokens (<S> last): (B, K + R, d), and a key mask
-        (B, 1, 1, K + R) or None."""
+        """Tokens after masking, D dummy tokens, then the readout tokens (<S> last):
+        (B, K + D + R, d), and a key mask (B, 1, 1, K + D + R) or None."""
         missing = None
         if self.mask_token is not None:
             inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
@@ -199,13 +214,33 @@ class MSTATransformer(nn.Module):
             key_pad = None
         else:
             x, key_pad = self._remove_masked(bins, static, pad, n_drop, generator)  # (B, K, d)
-        x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + R, d)
+        if dummy_tokens:
+            dummy = self._dummy_tokens(inputs, pos, sensor, B, dummy_tokens, generator)
+            x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
+        x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
-            # (B, K + R) True = may be attended to; the readout tokens are always visible
-            keep = torch.cat([~key_pad, key_pad.new_ones(B, self.cfg.state_tokens)], dim=1)
-            attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + R)
+            # (B, L) True = may be attended to; dummy and readout tokens are always visible
+            always = dummy_tokens + self.cfg.state_tokens
+            keep = torch.cat([~key_pad, key_pad.new_ones(B, always)], dim=1)
+            attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
         return x, attn_mask
+
+    def _dummy_tokens(self, inputs: MSTAInputs, pos: Tensor, sensor: Tensor, B: int, D: int,
+                      generator: torch.Generator | None) -> Tensor:
+        """D random tokens per sample (module docstring): (B, D, d). Nothing is trained."""
+        dev = self.bin_embed.weight.device
+        gen_dev = generator.device if generator is not None else dev
+        nb = self.cfg.num_bins
+        tables = torch.unique(torch.cat([  # (tables,) value tables of the present channels
+            self._table_of(n, c.to(dev)) for n, c in inputs.channels.items()]))
+
+        def draw(high: int) -> Tensor:  # (B, D) uniform in [0, high)
+            return torch.randint(high, (B, D), generator=generator, device=gen_dev).to(dev)
+
+        rows = tables[draw(len(tables))] * nb + draw(nb)  # (B, D) rows of bin_embed
+        with torch.no_grad():
+            return self.bin_embed(rows) + pos[draw(len(pos))] + sensor[draw(len(sensor))]
 
     def readout_tokens(self) -> Tensor:
         """<S> (last) after the other readout tokens: (R, d)."""
@@ -290,9 +325,13 @@ class MSTATransformer(nn.Module):
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
     def forward(
-        self, inputs: MSTAInputs, mask_ratio: float = 0.0, generator: torch.Generator | None = None
+        self,
+        inputs: MSTAInputs,
+        mask_ratio: float = 0.0,
+        generator: torch.Generator | None = None,
+        dummy_tokens: int = 0,
     ) -> Tensor:
-        x, attn_mask = self.embed(inputs, mask_ratio, generator)  # (B, L, d)
+        x, attn_mask = self.embed(inputs, mask_ratio, generator, dummy_tokens)  # (B, L, d)
         R, last = self.cfg.state_tokens, len(self.blocks) - 1
         for i, block in enumerate(self.blocks):
             # the head reads only the readout tokens: the last block computes only theirs
@@ -311,6 +350,7 @@ class MSTAPolicy(StudentPolicy):
 
     config_class = MSTAConfig
     processor_class = MSTAProcessor
+    supports_dummy_tokens = True
 
     def __init__(self, config: MSTAConfig, processor: MSTAProcessor) -> None:
         super().__init__(config, processor)
@@ -322,12 +362,14 @@ class MSTAPolicy(StudentPolicy):
         channels: Channels | None = None,
         mask_ratio: float | None = None,
         generator: torch.Generator | None = None,
+        dummy_tokens: int = 0,
     ) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
-        training mode and 0 in eval mode."""
+        training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
+        every sample (test-time stress test, see the module docstring)."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
-        return self.model(inputs, mask_ratio, generator)
+        return self.model(inputs, mask_ratio, generator, dummy_tokens)
 
     def with_inputs(self, sensors: Sequence[str], history: int) -> Self:
         """A copy that reads only ``sensors`` (kept in config order) and trains on windows of
