@@ -36,7 +36,7 @@ from msta_data.errors import DatasetError, DirectoryLockedError
 from msta_data.features import NON_SENSOR_FEATURES, load_info
 from msta_data.layout import LOCK_NAME
 from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import SENSORS
+from msta_data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
 from msta_data.writer import DatasetWriter
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -156,7 +156,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
             :class:`LabelledActor` (which then also labels; ``label`` must be None).
         episodes: how many finished episodes to emit (ignored with ``horizon``).
         write: called as ``write(frames, type_idx, level)`` per finished episode.
-        sensors: registry sensors to record (default: all).
+        sensors: registry sensors to record (default: all but the extension sensors).
         label: the policy whose action is stored as the ``action`` label (default: actor).
         horizon: run this many control steps instead; every episode that ends is emitted,
             and at the end so is every episode still running, cut there (its last
@@ -167,7 +167,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     Returns:
         environment steps taken.
     """
-    sensors = tuple(sensors or SENSORS)
+    sensors = tuple(sensors or DEFAULT_RECORDED)
     if horizon is not None and horizon <= 0:
         raise ValueError(f"horizon={horizon} must be > 0")
     env.reset()
@@ -229,6 +229,9 @@ class CollectConfig:
             clean action stays the ``action`` label; ``executed_action`` holds what ran):
             DART, states off the teacher's path labelled with the way back, recorded at the
             teacher's speed instead of a student's. 0 = the teacher's own path.
+        extra_sensors: extension sensors to record too, a comma list (``height_map``: a
+            student input the paper's students do not read); a new dataset only (a resumed
+            one keeps its own sensors).
         progress: show a progress bar.
     """
 
@@ -243,9 +246,20 @@ class CollectConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     flush_every_frames: int = 50_000
     action_noise: float = 0.0
+    extra_sensors: str = ""
     progress: bool = True
 
+    @property
+    def extra(self) -> tuple[str, ...]:
+        """``extra_sensors`` as registry names."""
+        return tuple(s.strip() for s in self.extra_sensors.split(",") if s.strip())
+
     def __post_init__(self) -> None:
+        for name in self.extra:
+            if name not in SENSORS or not SENSORS[name].extension:
+                raise ValueError(f"extra_sensors: {name!r} is not an extension sensor (the others "
+                                 f"are always recorded); extension sensors: "
+                                 f"{', '.join(EXTENSION_SENSORS)}")
         if self.action_noise < 0:
             raise ValueError(f"action_noise={self.action_noise} must be >= 0")
         if self.episodes < 1 or self.num_envs < 1:
@@ -293,6 +307,7 @@ def collect(cfg: CollectConfig) -> Path:
         env = QuadrupedEnv(env_cfg)
         if writer is None:
             writer = DatasetWriter.create(root, cfg.repo_id,
+                                          sensors=(*DEFAULT_RECORDED, *cfg.extra),
                                           flush_every_frames=cfg.flush_every_frames)
     except BaseException:
         if writer is not None:
@@ -309,7 +324,8 @@ def collect(cfg: CollectConfig) -> Path:
 
         t0 = time.time()
         driver = LabelledActor(teacher, noise=cfg.action_noise, seed=seed)
-        steps = record_rollouts(env, driver, todo, write, progress=cfg.progress)
+        steps = record_rollouts(env, driver, todo, write, progress=cfg.progress,
+                                sensors=tuple(writer.msta_meta["sensors"]))
         print(f"recorded {todo} episodes ({steps:,} env steps simulated, "
               f"{steps / (time.time() - t0):,.0f}/s) -> {root} ({writer.num_episodes} episodes, "
               f"{writer.num_frames:,} frames)")
@@ -318,7 +334,7 @@ def collect(cfg: CollectConfig) -> Path:
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
                          repo_id: str, teacher: TeacherConfig | None = None,
-                         action_noise: float = 0.0) -> Path:
+                         action_noise: float = 0.0, extra_sensors: str = "") -> Path:
     """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
     up to 64 robots at once (``make demo``, ``make bench-learn`` and the learning tests
     share it).
@@ -330,12 +346,13 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
         repo_id: the dataset's ``repo_id``.
         teacher: the recording teacher (None: the gait controller).
         action_noise: ``CollectConfig.action_noise`` (DART).
+        extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
     """
     return collect(CollectConfig(
         teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
-        progress=False))
+        extra_sensors=extra_sensors, progress=False))
 
 
 def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:

@@ -5,7 +5,8 @@ and diffusion (lerobot 0.6.1, ``validate_features``) also insist on an image or 
 ``observation.environment_state``. An msta dataset (schema 2) therefore also holds:
 
 * ``observation.state``: the student sensors it records, concatenated in registry order
-  (the paper's 49 proprioceptive scalars for a full dataset), channel names
+  (the paper's 49 proprioceptive scalars for a full dataset; extension sensors such as
+  ``height_map`` stay in their own columns), channel names
   ``<sensor>.<channel>`` (``joint_pos.FL_hip``, ..., ``command.vx``, ...);
 * ``observation.environment_state``: the velocity command (``command.vx``, ``command.vy``,
   ``command.wz``), a copy of the command channels of ``observation.state``.
@@ -54,8 +55,8 @@ def sources(columns: Iterable[str]) -> dict[str, list[str]]:
         one entry per derived column that has at least one source among ``columns``.
     """
     present = set(columns)
-    state = [s.column for s in registry.SENSORS.values()
-             if s.is_student_input and s.column in present]
+    state = [s.column for s in registry.SENSORS.values()  # the paper's inputs, no extensions
+             if s.is_student_input and not s.extension and s.column in present]
     env = [registry.get(n).column for n in ENV_STATE_SENSORS if registry.get(n).column in present]
     return {col: srcs for col, srcs in ((STATE_COLUMN, state), (ENV_STATE_COLUMN, env)) if srcs}
 

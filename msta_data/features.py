@@ -149,9 +149,10 @@ def task_string(provenance: Provenance) -> str:
 
 
 def resolve_sensors(sensors: Sequence[str] | None) -> tuple[str, ...]:
-    """Registry names to record, in registry order; ``None`` means every sensor."""
+    """Registry names to record, in registry order; ``None`` means every sensor but the
+    extensions (``registry.DEFAULT_RECORDED``)."""
     if sensors is None:
-        return tuple(registry.SENSORS)
+        return tuple(n for n, s in registry.SENSORS.items() if not s.extension)
     if isinstance(sensors, str):
         raise TypeError(f"sensors must be a sequence of names, got the string {sensors!r}")
     for name in sensors:
@@ -166,7 +167,7 @@ def build_features(sensors: Sequence[str] | None = None,
     """The lerobot ``features`` dict (as in ``meta/info.json``) for the given sensors.
 
     Args:
-        sensors: registry names; ``None`` = the whole registry.
+        sensors: registry names; ``None`` = the whole registry but the extension sensors.
         derived: include ``observation.state`` / ``observation.environment_state``
             (:mod:`msta_data.derived`), as a schema-2 dataset (every new one) does;
             ``False`` gives a schema-1 dataset's features.
@@ -308,7 +309,7 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
 def check_column_feature(info: dict[str, Any], column: str, root: str | Path) -> None:
     """Raise unless ``info.json`` declares ``column`` as the registry / schema expects."""
     path = Path(root) / L.INFO_PATH
-    expected = build_features(derived=True).get(column)
+    expected = build_features(tuple(registry.SENSORS), derived=True).get(column)
     actual = info["features"].get(column)
     if actual is None:
         raise DatasetFormatError(

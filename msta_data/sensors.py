@@ -2,7 +2,14 @@
 
 The simulator's observations, the dataset's Parquet columns, the normalizer's keys,
 the MSTA tokenizer's sensor-type vocabulary and the evaluation's "remove sensor X"
-experiments all read this registry. Adding a sensor is one entry here plus a producer.
+experiments all read this registry. Adding a sensor is one entry here plus a producer
+(for a sensor read from a quantity the simulator already measures, ``source`` names it and
+the simulator produces it with the entry's noise; nothing else needs an edit).
+
+Extension sensors (``extension=True``, e.g. ``height_map``) are student inputs the paper's
+students do not read: default students, recorded datasets and ``observation.state`` leave
+them out; a dataset records them when asked (``msta-collect --extra_sensors=height_map``)
+and a student reads them when its ``input_sensors`` name them.
 
 Units are raw SI (rad, rad/s, m, m/s); nothing here is normalized.
 """
@@ -12,7 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-Group = Literal["proprio", "command", "action", "privileged"]
+Group = Literal["proprio", "command", "action", "extero", "privileged"]
+GROUPS: tuple[str, ...] = ("proprio", "command", "action", "extero", "privileged")
 
 LEGS: tuple[str, ...] = ("FL", "FR", "RL", "RR")
 JOINT_NAMES: tuple[str, ...] = tuple(f"{leg}_{j}" for leg in LEGS for j in ("hip", "thigh", "calf"))
@@ -35,12 +43,19 @@ class SensorSpec:
     Args:
         name: registry key, e.g. ``"joint_pos"``.
         group: ``proprio`` (student input), ``command``, ``action`` (the previous action,
-            a student input) or ``privileged`` (teacher only).
+            a student input), ``extero`` (exteroception, a student input) or
+            ``privileged`` (teacher only).
         names: one name per channel; ``dim == len(names)``.
         noise: half-width of the default uniform observation noise in raw units.
         scale: a typical magnitude, used for documentation and imported-teacher specs.
         binary: channel values are 0/1.
         description: one line for humans.
+        extension: a student input beyond the paper's seven: left out of the default
+            student inputs, of the default recorded sensors and of ``observation.state``.
+        source: the simulator measurement this sensor reads (plus uniform noise of
+            half-width ``noise``), e.g. ``height_scan``; "" = the simulator produces it itself.
+        encoder_tokens: how an MSTA student tokenizes it: 0 = one token per scalar (the
+            paper's); k > 0 = each step's channels go through a small MLP to k tokens.
     """
 
     name: str
@@ -50,6 +65,9 @@ class SensorSpec:
     scale: float = 1.0
     binary: bool = False
     description: str = ""
+    extension: bool = False
+    source: str = ""
+    encoder_tokens: int = 0
 
     @property
     def dim(self) -> int:
@@ -100,13 +118,25 @@ def _specs() -> tuple[SensorSpec, ...]:
         SensorSpec("dynamics", "privileged", DYNAMICS_NAMES, 0.0, 1.0,
                    description="randomized parameters: friction, added mass (kg), CoM offset "
                                "(m), motor strength, Kp and Kd factors"),
+        SensorSpec(
+            "height_map", "extero",
+            tuple(f"h_{x:+.1f}_{y:+.1f}" for x in HEIGHT_SCAN_X for y in HEIGHT_SCAN_Y),
+            0.02, 0.1, extension=True, source="height_scan", encoder_tokens=4,
+            description="onboard elevation map: the height scan with +-2 cm noise, as a student "
+                        "extension input (MSTA: an MLP encodes each step's 187 points into 4 "
+                        "tokens) (m)"),
     )
 
 
 SENSORS: dict[str, SensorSpec] = {s.name: s for s in _specs()}
 
 #: The paper's 49 proprioceptive scalars, in the paper's order.
-STUDENT_SENSORS: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if s.is_student_input)
+STUDENT_SENSORS: tuple[str, ...] = tuple(
+    s.name for s in SENSORS.values() if s.is_student_input and not s.extension)
+#: Student inputs beyond the paper's (read only when a student's config names them).
+EXTENSION_SENSORS: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if s.extension)
+#: What a dataset records unless asked for more: everything but the extensions.
+DEFAULT_RECORDED: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if not s.extension)
 PRIVILEGED_SENSORS: tuple[str, ...] = tuple(
     s.name for s in SENSORS.values() if s.group == "privileged")
 NUM_JOINTS = len(JOINT_NAMES)
@@ -124,7 +154,7 @@ def get(name: str) -> SensorSpec:
 def by_group(*groups: Group) -> tuple[SensorSpec, ...]:
     """Sensors of the given groups, in registry order."""
     for g in groups:
-        if g not in ("proprio", "command", "action", "privileged"):
+        if g not in GROUPS:
             raise ValueError(f"unknown sensor group {g!r}")
     return tuple(s for s in SENSORS.values() if s.group in groups)
 

@@ -6,6 +6,7 @@ fine-tuning the token projections of the frozen transformer).
         --dataset=outputs/datasets/a1_teacher --output_dir=outputs/finetune/msta_cpu \\
         --rounds=2 --episodes_per_round=64 --steps=500 --teacher.type=gait
     msta-finetune ... --sensors=joint_pos,gravity,command --history=10 --trainable=embeddings+head
+    msta-finetune ... --sensors=command,joint_pos,gravity,last_action,height_map
 
 This is msta-correct (:mod:`train.online`, the same rounds, options, resume and per-round
 table) on a prepared student:
@@ -13,7 +14,9 @@ table) on a prepared student:
 1. the starting checkpoint is restricted to ``--sensors`` and window ``--history``
    (:meth:`~policies.msta.modeling_msta.MSTAPolicy.with_inputs`: the kept sensors' value
    tables and sensor embeddings are copied, the others dropped; config.json and
-   processor.json then name only the kept inputs). It is saved as ``output_dir/start/``,
+   processor.json then name only the kept inputs). A named sensor the checkpoint lacks
+   (e.g. the ``height_map`` extension in the third example) is added with fresh weights and the dataset's statistics: the
+   paper's new sensor tokens. It is saved as ``output_dir/start/``,
    which round 0 evaluates: the minimized observation before any fine-tuning;
 2. every parameter outside ``--trainable`` is frozen (``requires_grad`` False; the optimizer,
    :func:`train.optim.parameter_groups`, receives only the trainable ones). The transformer
@@ -36,9 +39,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
+from msta_data import layout
 from msta_data import sensors as registry
 from msta_data.cli import check_at_least
+from msta_data.features import load_info
 from msta_data.locate import locate_checkpoint
+from msta_data.stats import load_stats
 from policies.base import PolicyConfig, StudentPolicy
 from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from policies.msta import MSTAPolicy
@@ -51,7 +57,7 @@ RECORD_FORMAT = "msta-finetune/1"
 #: ``--trainable`` group -> the MSTATransformer parameters / submodules it trains. The
 #: transformer blocks belong to no group: they stay frozen (msta-correct trains them).
 TRAINABLE_GROUPS: dict[str, tuple[str, ...]] = {
-    "embeddings": ("bin_embed", "sensor_embed", "mask_token"),
+    "embeddings": ("bin_embed", "encoders", "sensor_embed", "mask_token"),
     "readout": ("state_token", "extra_state_tokens"),
     "head": ("ln_f", "head"),
 }
@@ -60,16 +66,18 @@ TRAINABLE_GROUPS: dict[str, tuple[str, ...]] = {
 @dataclass
 class FinetuneConfig(CorrectConfig):
     """Args:
-        sensors: the inputs the fine-tuned student keeps: a comma list of registry sensor
-            names (a subset of the checkpoint's inputs; kept in the checkpoint's order),
+        sensors: the fine-tuned student's inputs: a comma list of registry sensor names
+            (the checkpoint's keep its order; one it lacks, e.g. the ``height_map``
+            extension, is added after them with fresh weights and the dataset's statistics,
+            and the dataset must record it: ``msta-collect --extra_sensors=height_map``),
             ``minimized`` (the paper's command, joint_pos, gravity, last_action, as
             msta-export's --sensors) or ``all`` (every input of the checkpoint).
         history: the fine-tuned student's window T (the paper's deployment: 7). Rollouts,
             retraining, evaluation and export use it (its config.json ``history``).
         trainable: parameter groups trained, joined by ``+``; everything else is frozen.
             ``embeddings``: the token projections (the value tables ``bin_embed``, the
-            sensor-type embeddings ``sensor_embed.*`` and, in the learnable-mask ablation,
-            ``mask_token``); ``readout``: the readout tokens (``state_token``,
+            encoders of MLP-encoded sensors ``encoders.*``, the sensor-type embeddings
+            ``sensor_embed.*`` and, in the learnable-mask ablation, ``mask_token``); ``readout``: the readout tokens (``state_token``,
             ``extra_state_tokens``: queries of the transformer, not projections of the
             observation, so not in ``embeddings``); ``head``: ``ln_f`` and the action head.
             The transformer blocks are never trained.
@@ -93,7 +101,9 @@ class FinetuneConfig(CorrectConfig):
 
 
 def sensor_names(spec: str, inputs: Sequence[str]) -> tuple[str, ...]:
-    """``--sensors`` -> the kept inputs, in the order of ``inputs`` (the checkpoint's).
+    """``--sensors`` -> the student's inputs: the checkpoint's that are named, in its
+    order (``inputs``), then the named ones it lacks (added with fresh weights, e.g. the
+    ``height_map`` extension), in the given order.
 
     Args:
         spec: ``all``, ``minimized`` or a comma list of registry names.
@@ -113,12 +123,9 @@ def sensor_names(spec: str, inputs: Sequence[str]) -> tuple[str, ...]:
         if not registry.get(name).is_student_input:
             raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student "
                              "input")
-        if name not in inputs:
-            raise ValueError(f"sensor {name!r} is not an input of the student (inputs: "
-                             f"{', '.join(inputs)})")
     if len(set(names)) != len(names):
         raise ValueError(f"sensors has duplicates: {spec}")
-    return tuple(n for n in inputs if n in names)
+    return (*(n for n in inputs if n in names), *(n for n in names if n not in inputs))
 
 
 def trainable_modules(spec: str) -> tuple[str, ...]:
@@ -153,15 +160,28 @@ def freeze(policy: StudentPolicy, modules: Sequence[str]) -> list[str]:
 
 
 def check_source(cfg: FinetuneConfig) -> tuple[Path, tuple[str, ...]]:
-    """(starting checkpoint, kept sensors): the one-line errors about the checkpoint come
-    before output_dir is touched."""
+    """(starting checkpoint, the fine-tuned student's inputs): the one-line errors about the
+    checkpoint come before output_dir is touched."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")
     config = PolicyConfig.load(ckpt)
     if config.type != "msta":  # the baselines have no transformer to freeze
         raise ValueError(f"{ckpt} holds a {config.type!r} student; msta-finetune trains the "
                          "token embeddings of a frozen MSTA transformer, which the baselines "
                          "do not have (msta-correct retrains any student whole)")
-    return ckpt, sensor_names(cfg.sensors, config.input_sensors)
+    kept = sensor_names(cfg.sensors, config.input_sensors)
+    if layout.is_dataset_root(Path(cfg.dataset)):  # a hub id is checked once it is pulled
+        check_recorded(Path(cfg.dataset), [s for s in kept if s not in config.input_sensors])
+    return ckpt, kept
+
+
+def check_recorded(root: Path, added: Sequence[str]) -> None:
+    """An added sensor must be a column of the dataset the rounds retrain on."""
+    have = load_info(root)["features"]
+    for name in added:
+        if registry.get(name).column not in have:
+            raise ValueError(f"the dataset {root} does not record {name!r}, which the student "
+                             f"would read; record one that does (msta-collect "
+                             f"--extra_sensors={name})")
 
 
 class Preparation:
@@ -171,24 +191,29 @@ class Preparation:
     Args:
         cfg: the configuration.
         source: the starting checkpoint.
-        sensors: the kept inputs.
+        sensors: the fine-tuned student's inputs (kept ones, then added ones).
     """
 
     def __init__(self, cfg: FinetuneConfig, source: Path, sensors: tuple[str, ...]) -> None:
         self.cfg, self.source, self.sensors = cfg, source, sensors
+        self.added = [s for s in sensors if s not in PolicyConfig.load(source).input_sensors]
         self.record: dict[str, Any] | None = None
 
-    def __call__(self, policy: StudentPolicy) -> StudentPolicy:
+    def __call__(self, policy: StudentPolicy, root: Path) -> StudentPolicy:
         if not isinstance(policy, MSTAPolicy):
             raise TypeError(f"a {policy.config.type!r} student cannot be fine-tuned here "
                              "(MSTA only)")
-        student = policy.with_inputs(self.sensors, self.cfg.history)
+        new = [s for s in self.sensors if s not in policy.config.input_sensors]  # none on resume
+        check_recorded(root, new)
+        student = policy.with_inputs(self.sensors, self.cfg.history,
+                                     load_stats(root) if new else None)
         names = freeze(student, trainable_modules(self.cfg.trainable))
         params = dict(student.named_parameters())
         n = sum(params[k].numel() for k in names)
         total = sum(p.numel() for p in params.values())
         self.record = {"format": RECORD_FORMAT, "source": str(self.source),
-                       "input_sensors": list(self.sensors), "history": self.cfg.history,
+                       "input_sensors": list(self.sensors), "added_sensors": self.added,
+                       "history": self.cfg.history,
                        "trainable": self.cfg.trainable, "trained_parameters": names,
                        "trained_numel": n, "total_numel": total}
         print(f"msta-finetune: {self.source} on {', '.join(self.sensors)} at T = "

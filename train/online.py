@@ -56,7 +56,7 @@ import policies.teacher.gait  # noqa: F401  (registers "gait", the default teach
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.cli import check_at_least
-from msta_data.features import load_info
+from msta_data.features import load_info, sensor_column_to_name
 from msta_data.locate import locate_checkpoint, locate_dataset
 from msta_data.revision import content_revision
 from msta_data.windows import episode_split, load_episode_table
@@ -221,11 +221,12 @@ def student_actor(policy: StudentPolicy, n: int, spec: InputSpec) -> StudentActo
 Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
 
 
-def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
-             revision: str) -> tuple[list[Episode], dict[str, float]]:
+def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
+             sensors: tuple[str, ...] | None = None) -> tuple[list[Episode], dict[str, float]]:
     """Phase 1-2: the round's student episodes with teacher labels, in memory (the shared
     rollout loop through :func:`collect.record.record_rollouts`; the student drives, the
-    teacher labels every step and executes with probability beta: ``LabelledActor``)."""
+    teacher labels every step and executes with probability beta: ``LabelledActor``).
+    ``sensors``: the ones to record (the dataset's; None: the default recorded set)."""
     teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
     if hasattr(teacher, "follow_robot"):
         teacher.follow_robot = cfg.teacher_follows_robot
@@ -251,7 +252,7 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int,
     horizon = (-(-cfg.episodes_per_round // cfg.num_envs) * env.max_steps
                if cfg.keep_unfinished else None)
     steps = record_rollouts(env, mixed, cfg.episodes_per_round, keep, progress=cfg.progress,
-                            horizon=horizon)
+                            horizon=horizon, sensors=sensors)
     dt = time.perf_counter() - t0
     share = mixed.label_share[0] / max(mixed.label_share[1], 1)
     return episodes, {"env_steps": steps, "env_steps_per_s": steps / dt, "beta": beta,
@@ -389,7 +390,7 @@ def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
 
 
 PhaseHook = Callable[[str, int], None]
-Prepare = Callable[[StudentPolicy], StudentPolicy]
+Prepare = Callable[[StudentPolicy, Path], StudentPolicy]
 
 
 def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
@@ -428,7 +429,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
     start = out / f"round_{max(trained)}" if trained else ckpt
     policy = load_policy(start, device=str(device))
     if prepare is not None:
-        policy = prepare(policy)
+        policy = prepare(policy, root)
         if not trained:
             ckpt = policy.save_pretrained(out / "start")
     evaluator = RoundEvaluator(cfg.eval, cfg.teacher) if cfg.eval.enabled else None
@@ -469,7 +470,8 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
             rec.update(episodes_before=int(load_info(root)["total_episodes"]),
                        policy_revision=revision)
             atomic_json(path, prog)
-            episodes, stats = roll_out(cfg, policy, r, revision)
+            recorded = tuple(sensor_column_to_name(load_info(root)["features"]).values())
+            episodes, stats = roll_out(cfg, policy, r, revision, recorded)
             rec["episodes_rolled_out"] = len(episodes)
             atomic_json(path, prog)
             hook("rolled_out", r)

@@ -37,6 +37,8 @@ PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
 #: Episode end reasons reported in ``StepResult.reason``.
 REASONS = ("running", "fall", "timeout", "nan")
 CONTACT_THRESHOLD = 1.0  # N
+#: Salt of the sourced sensors' noise streams (``QuadrupedEnv.seed_sources``).
+SOURCE_SALT = 0x5E45
 #: Salt of the per-environment generators of ``QuadrupedEnv.reset(streams=...)``.
 STREAM_SALT = 0x7E57
 #: The configuration classes live in env_config.py; importing them from here keeps working.
@@ -77,6 +79,7 @@ class QuadrupedEnv:
         self.cfg = cfg = cfg or EnvConfig()
         self.num_envs = n = cfg.num_envs
         self.rng = np.random.default_rng(cfg.seed)
+        self.seed_sources(cfg.seed)
         self.terrain = Terrain(cfg.terrain, seed=cfg.seed)
         self.model = robot.build_model(self.terrain.hfield_spec(), timestep=cfg.control.sim_dt,
                                       collision=cfg.collision)
@@ -100,6 +103,7 @@ class QuadrupedEnv:
                                             for k in PROPRIO])
         #: Per-environment generators (``reset(streams=...)``); None: the shared ``rng``.
         self.streams: list[np.random.Generator] | None = None
+        self._source_streams: list[np.random.Generator] | None = None
         self._lat = cfg.randomization.max_latency_steps if cfg.randomization.enabled else 0
         self._alloc(n)
         self.type_idx, self.level = sample_initial(
@@ -154,6 +158,10 @@ class QuadrupedEnv:
             self.set_tiles(self.type_idx if type_idx is None else type_idx,
                            self.level if level is None else level)
         self.streams = None if streams is None else self._make_streams(streams)
+        #: the sourced sensors' per-environment generators (their own, as ``seed_sources``)
+        self._source_streams = None if streams is None else [
+            np.random.default_rng([self.cfg.seed, STREAM_SALT, int(k), SOURCE_SALT])
+            for k in np.asarray(streams, dtype=np.int64)]
         self._reset_ids(np.arange(self.num_envs))
         self._needs_reset = False
         self.last_obs = self._observe()
@@ -379,6 +387,12 @@ class QuadrupedEnv:
     def _footprint(self) -> np.ndarray:
         return np.array([[0.2, 0.15], [0.2, -0.15], [-0.2, 0.15], [-0.2, -0.15], [0, 0]])
 
+    def seed_sources(self, seed: int) -> None:
+        """Reseed the noise of the sensors read from a measurement (registry ``source``, e.g.
+        ``height_map``): a stream of its own, so such a sensor changes no other draw (with
+        ``reset(streams=...)`` each environment has its own such stream too)."""
+        self._source_rng = np.random.default_rng([seed, SOURCE_SALT])
+
     def _measure(self, state: np.ndarray, sens: np.ndarray,
                  ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """Physical quantities from states (N, nstate) and substep sensors (N, d, ns)."""
@@ -456,4 +470,15 @@ class QuadrupedEnv:
         for k in ("base_lin_vel", "base_ang_vel", "orientation", "base_height", "height_scan",
                   "dynamics"):
             obs[k] = m[k].astype(np.float32)
+        for spec in SENSORS.values():  # sensors read from a measurement (e.g. height_map)
+            if spec.source:
+                x = m[spec.source]
+                w = spec.noise * self.cfg.noise.scale if self.cfg.noise.enabled else 0.0
+                if w > 0 and self._source_streams is not None:  # one draw per row, own stream
+                    rows = np.arange(self.num_envs)[ids]
+                    u = np.stack([self._source_streams[i].random(x.shape[1]) for i in rows])
+                    x = x + (2.0 * u - 1.0) * w
+                elif w > 0:
+                    x = x + self._source_rng.uniform(-w, w, x.shape)
+                obs[spec.name] = x.astype(np.float32)
         return obs

@@ -117,6 +117,7 @@ class _View:
         sim, cfg = self.sim, self.sim.cfg
         sim.rng = rng
         if seed is not None:
+            sim.seed_sources(seed)
             t, lv = sample_initial(sim.num_envs, rng, cfg.terrain, list(cfg.type_weights) or None)
             options.setdefault("type_idx", t)
             options.setdefault("level", lv)

@@ -31,14 +31,22 @@ but together they form no reading of any channel:
             + sensor_embed[random present sensor]                                 # (d,)
 
 Fresh ones are drawn for every sample and call; no parameter changes.
+
+Encoded sensors (``SensorSpec.encoder_tokens`` = k > 0, e.g. the ``height_map`` extension):
+each step's channels (clipped z-scores) go through a small MLP (dim -> 2d -> k·d) to k
+tokens, which then are tokens like any other: position code over (token index j, age),
+the sensor's type embedding, removed by the same random mask. They follow the scalar
+tokens in the layout:
+
+    token = encoder[a](z_{a,t})[j] + sincos2d(j, age_t) + sensor_embed[a]            # (d,)
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
-from typing import Self
+from typing import Any, Self
 
 import torch
 from torch import Tensor, nn
@@ -65,7 +73,14 @@ class MSTATransformer(nn.Module):
         super().__init__()
         self.cfg = cfg
         d = cfg.dim
+        #: inputs read one token per scalar (the paper's) / through an MLP encoder
+        self.scalar_sensors = tuple(n for n in cfg.input_sensors if not get(n).encoder_tokens)
+        self.encoded_sensors = tuple(n for n in cfg.input_sensors if get(n).encoder_tokens)
         self.bin_embed = nn.Embedding(cfg.num_bins * self._num_tables(), d)
+        self.encoders = nn.ModuleDict({
+            n: nn.Sequential(nn.Linear(get(n).dim, 2 * d), nn.GELU(approximate="tanh"),
+                             nn.Linear(2 * d, get(n).encoder_tokens * d))
+            for n in self.encoded_sensors})
         self.sensor_embed = nn.ParameterDict(
             {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors}
         )
@@ -88,14 +103,14 @@ class MSTATransformer(nn.Module):
 
     def _num_tables(self) -> int:
         if self.cfg.value_embedding == "sensor":
-            return len(self.cfg.input_sensors)
+            return len(self.scalar_sensors)
         if self.cfg.value_embedding == "channel":
-            return sum(get(n).dim for n in self.cfg.input_sensors)
+            return sum(get(n).dim for n in self.scalar_sensors)
         return 1
 
     def _table_of(self, name: str, ch: Tensor) -> Tensor:
         """Value-table index of channels ``ch`` of sensor ``name`` (0 when shared)."""
-        sensors_ = self.cfg.input_sensors
+        sensors_ = self.scalar_sensors
         if self.cfg.value_embedding == "channel":
             return sum(get(n).dim for n in sensors_[:sensors_.index(name)]) + ch
         if self.cfg.value_embedding == "sensor":
@@ -106,12 +121,14 @@ class MSTATransformer(nn.Module):
         """Rows of ``bin_embed`` holding the value tables of input sensors ``names``, in that
         order: (rows,). A model whose inputs are just ``names`` has exactly these tables."""
         nb = self.cfg.num_bins
+        names = [n for n in names if n in self.scalar_sensors]  # encoded sensors: no table
         if self.cfg.value_embedding == "shared":
             return torch.arange(nb)
         if self.cfg.value_embedding == "sensor":
-            tables = torch.tensor([self.cfg.input_sensors.index(n) for n in names])
+            tables = torch.tensor([self.scalar_sensors.index(n) for n in names], dtype=torch.long)
         else:
-            tables = torch.cat([self._table_of(n, torch.arange(get(n).dim)) for n in names])
+            tables = torch.cat([self._table_of(n, torch.arange(get(n).dim)) for n in names]
+                               or [torch.zeros(0, dtype=torch.long)])
         return (tables[:, None] * nb + torch.arange(nb)).flatten()  # (tables * nb,)
 
     def _init_weights(self) -> None:
@@ -144,44 +161,53 @@ class MSTATransformer(nn.Module):
         for p in self.sensor_embed.values():
             nn.init.normal_(p, std=self.cfg.sensor_embed_std)
 
-    def layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, Tensor, Tensor]:
-        """Token layout of one sample, sensors in config order, time-major within a sensor.
+    def layout(self, channels: dict[str, Tensor], T: int, encoded: tuple[str, ...] = ()
+               ) -> tuple[Tensor, Tensor, Tensor]:
+        """Token layout of one sample, sensors in config order, time-major within a sensor:
+        the scalar sensors' tokens (``channels``), then the ``encoded`` sensors' (k per step).
 
-        Returns pos (N, d) fixed embedding, sensor_id (N,) into the present sensors, step (N,).
+        Returns pos (N, d) fixed embedding, sensor_id (N,) into the present sensors (scalar
+        ones first), step (N,).
         """
-        return self._cached_layout(channels, T)[:3]
+        return self._cached_layout(channels, T, encoded)[:3]
 
     def _row_offsets(self, channels: dict[str, Tensor], T: int) -> Tensor:
-        """(N,) first row of each token's value table in ``bin_embed``, in layout order."""
-        return self._cached_layout(channels, T)[3]
+        """(N_scalar,) first row of each scalar token's value table in ``bin_embed``."""
+        return self._cached_layout(channels, T, ())[3]
 
-    def _cached_layout(self, channels: dict[str, Tensor], T: int) -> tuple[Tensor, ...]:
+    def _cached_layout(self, channels: dict[str, Tensor], T: int,
+                       encoded: tuple[str, ...]) -> tuple[Tensor, ...]:
         key = (
             T,
             tuple((n, tuple(c.tolist())) for n, c in channels.items()),
+            encoded,
             self.bin_embed.weight.device,
         )
         if key not in self._pos_cache:
-            self._pos_cache[key] = self._build_layout(channels, T)
+            self._pos_cache[key] = self._build_layout(channels, T, encoded)
             if len(self._pos_cache) > 64:
                 self._pos_cache.pop(next(iter(self._pos_cache)))
         return self._pos_cache[key]
 
     @torch.inference_mode(False)  # cached: must stay usable by training after an act()
-    def _build_layout(self, channels: dict[str, Tensor], T: int
+    def _build_layout(self, channels: dict[str, Tensor], T: int, encoded: tuple[str, ...]
                       ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
         with torch.no_grad():
             dev = self.bin_embed.weight.device
-            pos, sid, step, offset = [], [], [], []
-            for s, (name, ch) in enumerate(channels.items()):
+            pos, sid, step, offset = [], [], [], [torch.zeros(0, dtype=torch.long, device=dev)]
+            groups = [(name, ch.to(dev), True) for name, ch in channels.items()]
+            groups += [(name, torch.arange(get(name).encoder_tokens, device=dev), False)
+                       for name in encoded]  # token j of step t at "channel" j
+            for s, (name, ch, scalar) in enumerate(groups):
                 t = torch.arange(T, device=dev).repeat_interleave(len(ch))  # (T*c,) oldest first
-                c = ch.to(dev).repeat(T)  # (T*c,)
+                c = ch.repeat(T)  # (T*c,)
                 pos.append(
                     sincos_2d(c.float(), (T - 1 - t).float(), self.cfg.dim, self.cfg.pos_base)
                 )
                 sid.append(torch.full_like(t, s))
                 step.append(t)
-                offset.append(self._table_of(name, c) * self.cfg.num_bins)  # (T*c,)
+                if scalar:
+                    offset.append(self._table_of(name, c) * self.cfg.num_bins)  # (T*c,)
             return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
 
     def embed(
@@ -196,24 +222,31 @@ class MSTATransformer(nn.Module):
         missing = None
         if self.mask_token is not None:
             inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
-        names = list(inputs.bins)
-        bins = self.rows(inputs)  # (B, N)
-        B, N = bins.shape
-        T = inputs.bins[names[0]].shape[1]
-        pos, sid, step = self.layout(inputs.channels, T)  # (N, d), (N,), (N,)
-        sensor = torch.stack([self.sensor_embed[n] for n in names])  # (S, d)
+        names, encoded = list(inputs.bins), tuple(inputs.encoded)
+        first = inputs.bins[names[0]] if names else inputs.encoded[encoded[0]]
+        B, T = first.shape[:2]
+        # each token as its bin row (B, N) long, or, with encoded sensors, its value (B, N, d)
+        tokens = self.rows(inputs) if names else None
+        if encoded:
+            tokens = self._encode(inputs, tokens, B, T)
+        N = tokens.shape[1]
+        pos, sid, step = self.layout(inputs.channels, T, encoded)  # (N, d), (N,), (N,)
+        sensor = torch.stack([self.sensor_embed[n] for n in (*names, *encoded)])  # (S, d)
         static = pos + sensor[sid]  # (N, d)
         pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N) True = padded token
         if missing is not None:
-            miss = torch.cat([missing[n].repeat(T) for n in names])[None].expand_as(bins)  # (B, N)
+            miss = torch.cat([missing[n].repeat(T) for n in names]  # encoded: never missing
+                             + [torch.zeros(T * get(n).encoder_tokens, dtype=torch.bool,
+                                            device=static.device) for n in encoded])
+            miss = miss[None].expand(B, -1)  # (B, N)
             pad = miss if pad is None else pad | miss
         # no masking skips round(): a traced N is a tensor (TorchScript / ONNX export)
         n_drop = N - num_kept(N, mask_ratio) if mask_ratio > 0 else 0
         if self.mask_token is not None:
-            x = self._replace_masked(bins, static, pad, n_drop, generator)  # (B, N, d)
+            x = self._replace_masked(tokens, static, pad, n_drop, generator)  # (B, N, d)
             key_pad = None
         else:
-            x, key_pad = self._remove_masked(bins, static, pad, n_drop, generator)  # (B, K, d)
+            x, key_pad = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
         if dummy_tokens:
             dummy = self._dummy_tokens(inputs, pos, sensor, B, dummy_tokens, generator)
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
@@ -226,10 +259,32 @@ class MSTATransformer(nn.Module):
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
         return x, attn_mask
 
+    def _encode(self, inputs: MSTAInputs, rows: Tensor | None, B: int, T: int) -> Tensor:
+        """Every token's value (B, N, d): the scalar tokens' table rows, then each encoded
+        sensor's k tokens per step (time-major, the order of :meth:`layout`)."""
+        d = self.cfg.dim
+        values = [self.bin_embed(rows)] if rows is not None else []
+        for name, z in inputs.encoded.items():  # z: (B, T, dim) clipped z-scores
+            k = get(name).encoder_tokens
+            values.append(self.encoders[name](z).reshape(B, T * k, d))
+        return torch.cat(values, dim=1)
+
+    def _value(self, tokens: Tensor, keep: Tensor | None = None) -> Tensor:
+        """Token values (B, N or K, d) from bin rows (B, N) or values (B, N, d), optionally
+        only the ``keep`` (B, K) ones (rows are gathered before the lookup: cheaper)."""
+        if tokens.is_floating_point():
+            if keep is None:
+                return tokens
+            return torch.gather(tokens, 1, keep[..., None].expand(-1, -1, tokens.shape[-1]))
+        return self.bin_embed(tokens if keep is None else torch.gather(tokens, 1, keep))
+
     def _dummy_tokens(self, inputs: MSTAInputs, pos: Tensor, sensor: Tensor, B: int, D: int,
                       generator: torch.Generator | None) -> Tensor:
         """D random tokens per sample (module docstring): (B, D, d). Nothing is trained."""
         dev = self.bin_embed.weight.device
+        if not inputs.channels:
+            raise ValueError("dummy tokens draw their values from the value tables of scalar "
+                             "inputs; this sample has none")
         gen_dev = generator.device if generator is not None else dev
         nb = self.cfg.num_bins
         tables = torch.unique(torch.cat([  # (tables,) value tables of the present channels
@@ -262,10 +317,13 @@ class MSTATransformer(nn.Module):
         """Learnable-mask variant: every configured sensor and channel gets a token; the ones
         absent from the input (a removed sensor, a dead joint encoder) are flagged missing and
         later replaced by the mask token, as the paper's "w/ learnable mask" ablation does."""
-        any_bins = next(iter(inputs.bins.values()))  # (B, T, c)
+        any_bins = next(iter(inputs.bins.values()), None)  # (B, T, c)
+        if any_bins is None:  # only encoded sensors present: their (B, T), bins 0
+            any_bins = torch.zeros_like(next(iter(inputs.encoded.values()))[..., :1],
+                                        dtype=torch.long)
         dev = any_bins.device
         bins, channels, missing = {}, {}, {}
-        for name in self.cfg.input_sensors:
+        for name in self.scalar_sensors:  # an absent encoded sensor simply has no tokens
             dim = get(name).dim
             # built from the input's own shape, not written into: traceable with any batch
             full = torch.zeros_like(any_bins[..., :1]).expand(-1, -1, dim)  # (B, T, dim)
@@ -276,7 +334,7 @@ class MSTATransformer(nn.Module):
                 absent[ch] = False
             bins[name], channels[name] = full, torch.arange(dim)
             missing[name] = absent  # (dim,) per channel, repeated over time by the caller
-        return MSTAInputs(bins, channels, inputs.pad), missing
+        return MSTAInputs(bins, channels, inputs.pad, inputs.encoded), missing
 
     def _drop_scores(
         self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None
@@ -287,41 +345,42 @@ class MSTATransformer(nn.Module):
 
     def _remove_masked(
         self,
-        bins: Tensor,
+        tokens: Tensor,
         static: Tensor,
         pad: Tensor | None,
         n_drop: int,
         generator: torch.Generator | None,
     ) -> tuple[Tensor, Tensor | None]:
-        B, N = bins.shape
+        B, N = tokens.shape[:2]
         if pad is not None:  # padding every sample shares is removed even beyond round(αN)
             n_drop = max(n_drop, int(pad.sum(1).min()))
         if n_drop == 0:
-            return self.bin_embed(bins) + static, pad  # (B, N, d)
+            return self._value(tokens) + static, pad  # (B, N, d)
         scores = self._drop_scores(B, N, pad, generator)  # (B, N)
         keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
-        x = self.bin_embed(torch.gather(bins, 1, keep)) + static[keep]  # (B, K, d)
+        x = self._value(tokens, keep) + static[keep]  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
 
     def _replace_masked(
         self,
-        bins: Tensor,
+        tokens: Tensor,
         static: Tensor,
         pad: Tensor | None,
         n_drop: int,
         generator: torch.Generator | None,
     ) -> Tensor:
-        B, N = bins.shape
+        B, N = tokens.shape[:2]
         masked = (
             pad.clone()
             if pad is not None
-            else torch.zeros_like(bins, dtype=torch.bool)  # (B, N)
+            else torch.zeros_like(tokens[..., 0] if tokens.is_floating_point() else tokens,
+                                  dtype=torch.bool)  # (B, N)
         )
         if n_drop:
             scores = self._drop_scores(B, N, pad, generator)  # (B, N)
             drop = torch.topk(-scores, n_drop, dim=1).indices  # (B, n_drop)
             masked.scatter_(1, drop, True)
-        value = torch.where(masked[..., None], self.mask_token, self.bin_embed(bins))  # (B, N, d)
+        value = torch.where(masked[..., None], self.mask_token, self._value(tokens))  # (B, N, d)
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
     def forward(
@@ -371,32 +430,61 @@ class MSTAPolicy(StudentPolicy):
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         return self.model(inputs, mask_ratio, generator, dummy_tokens)
 
-    def with_inputs(self, sensors: Sequence[str], history: int) -> Self:
-        """A copy that reads only ``sensors`` (kept in config order) and trains on windows of
-        ``history`` steps: its config.json and processor.json name just those inputs, so it
-        rolls out, trains, evaluates and exports on them (msta-finetune's minimized
-        observation). Every weight is copied except the value tables and sensor embeddings
-        of the dropped sensors, so on the kept inputs the copy acts exactly as this policy
-        (in the learnable-mask ablation this policy fills absent sensors with mask tokens;
-        the copy has no tokens for the dropped ones).
+    def with_inputs(self, sensors: Sequence[str], history: int,
+                    stats: Mapping[str, Mapping[str, Any]] | None = None) -> Self:
+        """A copy that reads only ``sensors`` and trains on windows of ``history`` steps: its
+        config.json and processor.json name just those inputs, so it rolls out, trains,
+        evaluates and exports on them (msta-finetune's minimized observation). Every weight
+        is copied except the value tables, encoders and sensor embeddings of the dropped
+        sensors, so on the kept inputs the copy acts exactly as this policy (in the
+        learnable-mask ablation this policy fills absent sensors with mask tokens; the copy
+        has no tokens for the dropped ones).
+
+        A sensor this policy does not read (e.g. the ``height_map`` extension) is added after
+        the kept ones with fresh weights (value tables or encoder, and its sensor
+        embedding) and the normalization statistics of its column in ``stats``; until they
+        are trained its tokens are noise to the transformer.
 
         Args:
-            sensors: a non-empty subset of ``config.input_sensors``.
+            sensors: registry student inputs; this policy's are kept in its config order,
+                new ones follow in the given order.
             history: the copy's training window T (>= 1).
+            stats: dataset statistics (``column -> {"mean", "std"}``) covering every new
+                non-binary sensor.
         """
         inputs = self.config.input_sensors
-        if extra := [s for s in sensors if s not in inputs]:
-            raise ValueError(f"sensor {extra[0]!r} is not an input of this msta student "
-                             f"(inputs: {', '.join(inputs)})")
+        new = tuple(dict.fromkeys(s for s in sensors if s not in inputs))
+        for name in new:
+            if not get(name).is_student_input:
+                raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student "
+                                 "input")
         keep = tuple(s for s in inputs if s in sensors)
-        config = replace(self.config, input_sensors=keep, history=history)
-        processor = type(self.processor).from_dict({**self.processor.to_dict(),
-                                                    "input_sensors": list(keep)})
-        prefix = "model.sensor_embed."
-        state = {k: v for k, v in self.state_dict().items()
-                 if not k.startswith(prefix) or k[len(prefix):] in keep}
-        rows = self.model.table_rows(keep).to(state["model.bin_embed.weight"].device)
-        state["model.bin_embed.weight"] = state["model.bin_embed.weight"][rows]
-        copy = type(self)(config, processor)
-        copy.load_state_dict(state)
-        return copy.to(self.device).train(self.training)
+        config = replace(self.config, input_sensors=(*keep, *new), history=history)
+        pdict = self.processor.to_dict()
+        pstats = dict(pdict["stats"])
+        for name in new:
+            col = get(name).column
+            if get(name).binary:
+                continue
+            if stats is None or col not in stats:
+                raise ValueError(f"no statistics for the new input {name!r} (column {col!r}); "
+                                 "pass the dataset's")
+            pstats[col] = {k: list(map(float, torch.as_tensor(stats[col][k]).flatten().tolist()))
+                           for k in ("mean", "std")}
+        processor = type(self.processor).from_dict(
+            {**pdict, "input_sensors": list(config.input_sensors), "stats": pstats})
+        copy = type(self)(config, processor).to(self.device)  # fresh weights for new sensors
+        target = copy.state_dict()
+        prefixes = ("model.sensor_embed.", "model.encoders.")
+        for k, v in self.state_dict().items():
+            if k.startswith(prefixes):
+                if k.split(".")[2] in keep:
+                    target[k] = v
+            elif k != "model.bin_embed.weight":
+                target[k] = v
+        rows = self.model.table_rows(keep).to(self.device)  # kept tables come first in the copy
+        table = target["model.bin_embed.weight"].clone()
+        table[:len(rows)] = self.model.bin_embed.weight.detach()[rows]
+        target["model.bin_embed.weight"] = table
+        copy.load_state_dict(target)
+        return copy.train(self.training)

@@ -4,14 +4,16 @@ Binning (the paper only says "normalized, discretized to 256 bins"):
 each channel is z-scored with the dataset's per-channel mean and std, clipped to
 ``[-clip_std, clip_std]`` and cut into ``num_bins`` equal-width bins; binary sensors
 (``SensorSpec.binary``, e.g. foot_contact) use only the two end bins (0 and num_bins - 1,
-threshold 0.5). The processor is saved with the weights as processor.json; a statistics
+threshold 0.5). A sensor the registry marks ``encoder_tokens`` > 0 (e.g. the ``height_map``
+extension) is not binned: its clipped z-scores go to the model's MLP encoder. The
+processor is saved with the weights as processor.json; a statistics
 column it needs but cannot find raises (it never skips normalization silently).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from torch import Tensor
@@ -31,11 +33,14 @@ class MSTAInputs:
         bins: sensor name -> bin indices (B, T, c), long.
         channels: sensor name -> channel indices present (c,), long.
         pad: (B, T) bool, True where the step lies before the episode start; or None.
+        encoded: sensor name -> clipped z-scores (B, T, dim) of the sensors an MLP encodes
+            into tokens (``SensorSpec.encoder_tokens`` > 0), all channels; not in ``bins``.
     """
 
     bins: dict[str, Tensor]
     channels: dict[str, Tensor]
     pad: Tensor | None
+    encoded: dict[str, Tensor] = field(default_factory=dict)
 
 
 class MSTAProcessor(StudentProcessor):
@@ -75,12 +80,19 @@ class MSTAProcessor(StudentProcessor):
                 optional "pad" (B, T) bool; the action target key is ignored here.
             channels: sensor name -> channel indices present in that sensor's tensor.
         """
-        bins, chans = {}, {}
+        bins, chans, encoded = {}, {}, {}
         present = self.present_inputs(batch, channels)
         for name, x, idx in present:
+            spec = sensors.get(name)
+            if spec.encoder_tokens:
+                if idx.numel() != spec.dim:
+                    raise ValueError(f"sensor {name!r} is encoded as a whole (an MLP reads all "
+                                     f"{spec.dim} channels of a step); got {idx.numel()} channels")
+                encoded[name] = self.zscore(name, x, idx).clamp(-self.clip_std, self.clip_std)
+                continue
             bins[name] = self._bin(name, x, idx)
             chans[name] = idx
-        return MSTAInputs(bins, chans, self.pad_mask(batch, present[0][1].shape[:2]))
+        return MSTAInputs(bins, chans, self.pad_mask(batch, present[0][1].shape[:2]), encoded)
 
     def _bin(self, name: str, x: Tensor, idx: Tensor) -> Tensor:
         top = self.num_bins - 1

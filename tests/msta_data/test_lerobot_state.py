@@ -18,7 +18,7 @@ from msta_data import derived as D
 from msta_data import features as F
 from msta_data import stats as S
 from msta_data.errors import EpisodeValidationError
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
+from msta_data.sensors import DEFAULT_RECORDED, SENSORS, STUDENT_SENSORS
 from msta_data.windows import WindowDataset
 from msta_data.writer import DatasetWriter
 
@@ -109,7 +109,7 @@ def test_msta_readers_see_sensors_not_the_state(tmp_path, write_dataset):
     root = tmp_path / "ds"
     write_dataset(root, (5, 6))
     info = F.load_info(root)
-    assert set(F.sensor_column_to_name(info["features"]).values()) == set(SENSORS)
+    assert set(F.sensor_column_to_name(info["features"]).values()) == set(DEFAULT_RECORDED)
     batch = WindowDataset(root, STUDENT_SENSORS, T=3).get_batch(np.arange(11))
     assert set(batch) == {*STUDENT_SENSORS, "action", "pad"}
 

@@ -133,8 +133,8 @@ def test_restricted_copy_acts_as_the_source_on_the_kept_inputs(base, variant):
         assert start.act(batch).shape == (len(batch["pad"]), 12)
         return
     torch.testing.assert_close(start.act(batch), src.act(batch), rtol=0, atol=1e-6)
-    with pytest.raises(ValueError, match="'foot_contact' is not an input"):
-        start.with_inputs(("command", "foot_contact"), 7)
+    with pytest.raises(ValueError, match="no statistics for the new input 'joint_vel'"):
+        start.with_inputs(("command", "joint_vel"), 7)
 
 
 def test_checkpoint_records_its_observation_and_acts_on_it(base, one_round):
@@ -186,8 +186,7 @@ def test_bad_inputs_are_one_line_errors(base, one_round, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "msta-finetune: error:" in err and "trainable" in err
     cases = ((base[2], "", "holds a 'gru' student"),
-             (Path(one_round[0].output_dir) / "round_1", "joint_vel,command",
-              "'joint_vel' is not an input of the student"))
+             (base[1], "command,height_map", "does not record 'height_map'"))
     for ckpt, sensor_list, msg in cases:
         args = [f"--policy.path={ckpt}", f"--dataset={base[0]}",
                 f"--output_dir={tmp_path / 'out'}", "--device=cpu"]
@@ -197,7 +196,7 @@ def test_bad_inputs_are_one_line_errors(base, one_round, tmp_path, capsys):
         assert len(str(e.value).splitlines()) == 1 and str(e.value).startswith("msta-finetune:")
     assert not (tmp_path / "out").exists()  # refused before anything was written
     with pytest.raises(TypeError, match="MSTA only"):
-        Preparation(make_cfg(base, tmp_path / "out"), base[2], KEPT)(load_policy(base[2]))
+        Preparation(make_cfg(base, tmp_path / "out"), base[2], KEPT)(load_policy(base[2]), base[0])
 
 
 def test_help_lists_the_options(capsys):
@@ -243,3 +242,30 @@ def test_resume_keeps_the_prepared_student_and_checks_its_options(base, tmp_path
     record = json.loads((out / "round_2" / RECORD).read_text())
     frozen = set(round2) - set(record["trained_parameters"])
     assert set(round2) == set(round1) and all(round2[k] == round1[k] for k in frozen)
+
+
+def test_a_new_sensor_is_added_and_trained_with_the_embeddings(base, tmp_path):
+    """--sensors naming a sensor the checkpoint lacks (the height_map extension): it joins
+    the student with fresh weights and the dataset's statistics, its encoder trains with the
+    embeddings, and the rounds record it."""
+    root = collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=4, num_envs=4,
+                                 root=str(tmp_path / "ds"), episode_length_s=EPISODE_S,
+                                 extra_sensors="height_map", progress=False, env=small_env()))
+    wanted = (*MINIMIZED_SENSORS, "height_map")
+    cfg = make_cfg(base, tmp_path / "out", dataset=str(root), sensors=",".join(wanted))
+    finetune(cfg)
+    out = Path(cfg.output_dir)
+    record = json.loads((out / "round_1" / RECORD).read_text())
+    assert record["added_sensors"] == ["height_map"]
+    assert record["input_sensors"] == [*KEPT, "height_map"]
+    assert any(n.startswith("model.encoders.height_map.") for n in record["trained_parameters"])
+    start, after = tensor_hashes(out / "start"), tensor_hashes(out / "round_1")
+    enc = [k for k in after if k.startswith("model.encoders.height_map.")]
+    assert enc and all(after[k] != start[k] for k in enc)
+    assert all(after[k] == start[k] for k in after if k.startswith("model.blocks."))
+    policy = load_policy(out / "round_1")
+    assert policy.required_sensors == (*KEPT, "height_map")
+    assert sensors.get("height_map").column in policy.processor.stats
+    eps = load_episode_table(root)
+    assert (eps["provenance/source"] == "student").sum() == E
+    WindowDataset(root, ("height_map",), 7, episodes=range(4, 4 + E))
