@@ -15,8 +15,9 @@ table) on a prepared student:
    (:meth:`~policies.msta.modeling_msta.MSTAPolicy.with_inputs`: the kept sensors' value
    tables and sensor embeddings are copied, the others dropped; config.json and
    processor.json then name only the kept inputs). A named sensor the checkpoint lacks
-   (e.g. the ``height_map`` extension in the third example) is added with fresh weights and the dataset's statistics: the
-   paper's new sensor tokens. It is saved as ``output_dir/start/``,
+   (e.g. the ``height_map`` extension in the third example) is added with fresh weights
+   and the dataset's statistics: the paper's new sensor tokens. It is saved as
+   ``output_dir/start/``,
    which round 0 evaluates: the minimized observation before any fine-tuning;
 2. every parameter outside ``--trainable`` is frozen (``requires_grad`` False; the optimizer,
    :func:`train.optim.parameter_groups`, receives only the trainable ones). The transformer
@@ -77,9 +78,10 @@ class FinetuneConfig(CorrectConfig):
         trainable: parameter groups trained, joined by ``+``; everything else is frozen.
             ``embeddings``: the token projections (the value tables ``bin_embed``, the
             encoders of MLP-encoded sensors ``encoders.*``, the sensor-type embeddings
-            ``sensor_embed.*`` and, in the learnable-mask ablation, ``mask_token``); ``readout``: the readout tokens (``state_token``,
-            ``extra_state_tokens``: queries of the transformer, not projections of the
-            observation, so not in ``embeddings``); ``head``: ``ln_f`` and the action head.
+            ``sensor_embed.*`` and, in the learnable-mask ablation, ``mask_token``);
+            ``readout``: the readout tokens (``state_token``, ``extra_state_tokens``:
+            queries of the transformer, not projections of the observation, so not in
+            ``embeddings``); ``head``: ``ln_f`` and the action head.
             The transformer blocks are never trained.
         output_dir: the prepared start (``start/``), round checkpoints (each with
             finetune.json), training runs and progress.json.

@@ -64,7 +64,8 @@ def test_height_map_is_an_extension_left_out_of_every_default():
 
 def test_the_simulator_reads_the_height_map_from_the_scan_with_its_own_noise(monkeypatch):
     def observe(noise: bool) -> list[dict]:
-        cfg = EnvConfig(num_envs=3, nthread=1, seed=5, randomization=RandomizationConfig(pool_size=2),
+        cfg = EnvConfig(num_envs=3, nthread=1, seed=5,
+                        randomization=RandomizationConfig(pool_size=2),
                         terrain=TerrainConfig(types=("stairs_up",), num_levels=2, border=2.0))
         cfg.noise.enabled = noise
         env = QuadrupedEnv(cfg)
