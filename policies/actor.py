@@ -78,9 +78,7 @@ class StudentActor:
         self.spec = spec = spec or InputSpec()
         self.name = name
         self.num_envs = num_envs
-        if spec.dummy_tokens and not policy.supports_dummy_tokens:
-            raise NotImplementedError(f"{type(policy).__name__} has no token input to append "
-                                      "dummy tokens to (MSTA students only)")
+        policy.check_dummy_tokens(spec.dummy_tokens)
         self.T = int(spec.T or policy.config.history)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:

@@ -101,6 +101,13 @@ class StudentPolicy(nn.Module):
     #: dummy_tokens scenario is not applicable to the others
     supports_dummy_tokens: ClassVar[bool] = False
 
+    def check_dummy_tokens(self, n: int) -> None:
+        """Raise ``NotImplementedError`` when ``n`` > 0 dummy tokens are asked of a student
+        without token inputs (msta-eval reports that condition as not applicable)."""
+        if n and not self.supports_dummy_tokens:
+            raise NotImplementedError(f"{type(self).__name__} has no token input to append "
+                                      "dummy tokens to (MSTA students only)")
+
     def __init__(self, config: PolicyConfig, processor: StudentProcessor) -> None:
         super().__init__()
         if tuple(processor.input_sensors) != tuple(config.input_sensors):
@@ -159,9 +166,7 @@ class StudentPolicy(nn.Module):
         """
         if not dummy_tokens:
             return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
-        if not self.supports_dummy_tokens:
-            raise NotImplementedError(f"{type(self).__name__} has no token input to append "
-                                      "dummy tokens to (MSTA students only)")
+        self.check_dummy_tokens(dummy_tokens)
         out = self(batch, channels, mask_ratio, generator, dummy_tokens=dummy_tokens)
         return self.processor.unnormalize_action(out)
 

@@ -467,10 +467,11 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
             rec.update(appended=True, recovered_after_commit=True,
                        episodes_after=rec["episodes_before"] + expected)
         else:
-            rec.update(episodes_before=int(load_info(root)["total_episodes"]),
+            info = load_info(root)
+            rec.update(episodes_before=int(info["total_episodes"]),
                        policy_revision=revision)
             atomic_json(path, prog)
-            recorded = tuple(sensor_column_to_name(load_info(root)["features"]).values())
+            recorded = tuple(sensor_column_to_name(info["features"]).values())
             episodes, stats = roll_out(cfg, policy, r, revision, recorded)
             rec["episodes_rolled_out"] = len(episodes)
             atomic_json(path, prog)

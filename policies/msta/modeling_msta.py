@@ -469,8 +469,7 @@ class MSTAPolicy(StudentPolicy):
             if stats is None or col not in stats:
                 raise ValueError(f"no statistics for the new input {name!r} (column {col!r}); "
                                  "pass the dataset's")
-            pstats[col] = {k: list(map(float, torch.as_tensor(stats[col][k]).flatten().tolist()))
-                           for k in ("mean", "std")}
+            pstats[col] = {k: [float(v) for v in stats[col][k]] for k in ("mean", "std")}
         processor = type(self.processor).from_dict(
             {**pdict, "input_sensors": list(config.input_sensors), "stats": pstats})
         copy = type(self)(config, processor).to(self.device)  # fresh weights for new sensors
