@@ -78,7 +78,8 @@ class StudentActor:
         self.spec = spec = spec or InputSpec()
         self.name = name
         self.num_envs = num_envs
-        policy.check_dummy_tokens(spec.dummy_tokens)
+        if spec.dummy_tokens:
+            policy.check_dummy_tokens(spec.dummy_tokens)
         self.T = int(spec.T or policy.config.history)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:
