@@ -215,6 +215,7 @@ class StudentProcessor:
         _check_action_dim(action, mean)
         return action * std + mean
 
+    @torch.inference_mode(False)  # cached: must stay usable by training after inference
     def _tensors(self, column: str, device: torch.device) -> tuple[Tensor, Tensor]:
         key = (column, device)
         if key not in self._cache:

@@ -103,7 +103,12 @@ class RslVecEnv(VecEnv):
         extras: dict = {"time_outs": torch.from_numpy(res.truncated).to(self.device),
                         "log": self._log(res, done)}
         rew = torch.from_numpy(res.reward.astype(np.float32)).to(self.device)
-        return (self.groups(res.obs), rew, torch.from_numpy(done).to(self.device), extras)
+        return (self.observe(res), rew, torch.from_numpy(done).to(self.device), extras)
+
+    def observe(self, res) -> TensorDict:
+        """The groups returned by ``step`` for the step result ``res`` (a subclass that keeps
+        per-environment state, e.g. a history window, updates it here, once per step)."""
+        return self.groups(res.obs)
 
     def _log(self, res, done: np.ndarray) -> dict[str, float]:
         log = {"/terrain_level": float(self.sim.level.mean()),

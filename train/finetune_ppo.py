@@ -1,0 +1,461 @@
+"""``msta-finetune-ppo``: the minimized-observation fine-tune by PPO from the student's own
+reward (the paper's Fig. 6 third arm), through rsl_rl's PPO.
+
+    msta-finetune-ppo --policy.path=outputs/demo/stage2/round_5 \\
+        --output_dir=outputs/finetune_ppo/msta --ppo.iterations=40
+    msta-finetune-ppo ... --sensors=all --history=15 --trainable=embeddings+head
+
+msta-finetune (:mod:`train.finetune`) fine-tunes the same parameters by supervised online
+correction with the teacher; this command uses no teacher and no dataset:
+
+1. the starting checkpoint is restricted to ``--sensors`` and window ``--history`` exactly
+   as msta-finetune does (:meth:`~policies.msta.modeling_msta.MSTAPolicy.with_inputs`) and
+   saved as ``output_dir/start/`` (direct deployment, before any fine-tuning);
+2. rsl_rl's ``OnPolicyRunner`` runs PPO on :class:`StudentVecEnv`, msta's batched simulator
+   with the legged_gym rewards, where the actor (:class:`MSTAActor`) is the student itself:
+   its action is the mean of rsl_rl's Gaussian, every parameter outside ``--trainable`` is
+   frozen (the transformer blocks always), and it reads the window of its own sensors
+   (padding before the episode start as in the datasets). The critic is rsl_rl's MLP on
+   the teacher's inputs (privileged and proprioceptive; asymmetric actor-critic: the
+   critic is dropped after training). The first ``--ppo.critic_warmup`` iterations train
+   only the critic, so a random value function does not steer the first updates;
+3. every ``--ppo.save_interval`` iterations: rsl_rl's checkpoint (``ppo/model_<it>.pt``,
+   optimizer included), a row of ``curve.json`` (env steps, falls per 1000 robot steps and
+   the survival of a full episode at that rate, linear tracking per step, the policy's
+   action noise) and the student ``output_dir/student/`` (config.json, model.safetensors,
+   processor.json, and ``finetune.json`` naming the method, the source and the trained
+   parameters). Re-running the same command resumes from the newest checkpoint.
+
+``student/`` is a plain MSTA checkpoint on the kept inputs: msta-eval and msta-export run
+it as they run msta-finetune's rounds (``msta-eval --policies teacher,<output_dir>/start,
+<output_dir>/student --scenarios token_removal``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rsl_rl.modules.distribution import GaussianDistribution
+from tensordict import TensorDict
+from torch import nn
+
+from collect.sim.env import EnvConfig
+from msta_data import sensors as registry
+from msta_data.cli import check_at_least, parse_config
+from msta_data.locate import locate_checkpoint
+from msta_data.stats import load_stats
+from policies.actor import StudentActor
+from policies.base import PolicyConfig, StudentPolicy
+from policies.checkpoint import PolicyPath
+from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
+from policies.factory import load_policy
+from policies.msta import MSTAPolicy
+from policies.teacher.rma import RMAConfig
+from train.finetune import freeze, module_of, sensor_names, trainable_modules
+from train.optim import select_device
+from train.state import atomic_json
+from train.teacher.cli import PPOConfig, _prune, latest_checkpoint
+from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
+
+PROG = "msta-finetune-ppo"
+RECORD = "finetune.json"
+RECORD_FORMAT = "msta-finetune-ppo/1"
+#: rsl_rl observation group of the student's window (N, T, channels + 1: the pad flag last)
+STUDENT = "student"
+
+
+class StudentVecEnv(RslVecEnv):
+    """:class:`~train.teacher.env.RslVecEnv` plus the group ``student``: every robot's last
+    T steps of the student's sensors in the registry's raw units, concatenated over the
+    sensors in the student's order, with a last column that is 1 on steps before the
+    episode start (filled with the episode's first frame, the datasets' window rule,
+    :class:`policies.actor.StudentActor`'s buffer).
+
+    Args:
+        env_cfg: the simulator.
+        policy: the student (its ``required_sensors`` and ``config.history``).
+        device: torch device of the returned tensors.
+    """
+
+    def __init__(self, env_cfg: EnvConfig, policy: StudentPolicy,
+                 device: str | torch.device = "cpu") -> None:
+        super().__init__(env_cfg, RMAConfig(), device)
+        self.windows = StudentActor(policy, self.num_envs)
+        self.last = self.observe(None)
+
+    def observe(self, res) -> TensorDict:
+        if res is not None:  # envs that finished start a new window with this observation
+            self.windows.reset(np.flatnonzero(res.done))
+        batch = self.windows.window(self.raw_obs)
+        win = np.concatenate([batch[s] for s in self.windows.sensors]
+                             + [batch["pad"][..., None].astype(np.float32)], axis=-1)
+        groups = self.groups(self.raw_obs)
+        groups[STUDENT] = torch.from_numpy(win).to(self.device)
+        self.last = groups
+        return groups
+
+    def get_observations(self) -> TensorDict:
+        return self.last
+
+
+def split_window(policy: StudentPolicy, x: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The ``student`` group (B, T, channels + 1) -> the policy's raw batch (sensor windows
+    and the bool "pad")."""
+    batch, at = {}, 0
+    for s in policy.required_sensors:
+        dim = registry.get(s).dim
+        batch[s] = x[..., at:at + dim]
+        at += dim
+    if at + 1 != x.shape[-1]:
+        raise ValueError(f"the student group has {x.shape[-1]} columns; the student's sensors "
+                         f"need {at} + 1 (pad)")
+    batch["pad"] = x[..., at] > 0.5
+    return batch
+
+
+class MSTAActor(nn.Module):
+    """An msta student as an rsl_rl actor: the action mean is the student's action (raw
+    units, test mask 0) on the ``student`` group; rsl_rl's Gaussian adds the exploration
+    noise (a learned per-joint std). Parameters outside ``trainable`` are frozen.
+
+    Args:
+        obs, obs_groups, obs_set, output_dim: as rsl_rl passes them to every model; the set
+            must be exactly ``["student"]``.
+        policy_path: the student checkpoint (msta-finetune-ppo's ``start/``).
+        trainable: msta-finetune's ``--trainable`` groups (``embeddings+head``).
+        distribution_cfg: rsl_rl's ``GaussianDistribution`` options (``init_std`` ...).
+    """
+
+    is_recurrent = False
+
+    def __init__(self, obs: TensorDict, obs_groups: dict[str, list[str]], obs_set: str,
+                 output_dim: int, policy_path: str = "", trainable: str = "embeddings",
+                 distribution_cfg: dict | None = None) -> None:
+        super().__init__()
+        if list(obs_groups[obs_set]) != [STUDENT]:
+            raise ValueError(f"MSTAActor reads the group {STUDENT!r} alone; "
+                             f"obs_groups[{obs_set!r}] = {obs_groups[obs_set]}")
+        self.policy = load_policy(policy_path)
+        self.trained = freeze(self.policy, trainable_modules(trainable))
+        split_window(self.policy, obs[STUDENT][:1])  # the group's width fits the student
+        dist = dict(distribution_cfg or {})
+        dist.pop("class_name", None)
+        self.distribution = GaussianDistribution(output_dim, **dist)
+
+    def action_mean(self, obs: TensorDict) -> torch.Tensor:
+        """(B, 12) desired joint positions: the student's deterministic action."""
+        batch = split_window(self.policy, obs[STUDENT])
+        return self.policy.processor.unnormalize_action(self.policy(batch, mask_ratio=0.0))
+
+    def forward(self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state=None,
+                stochastic_output: bool = False) -> torch.Tensor:
+        mean = self.action_mean(obs)
+        if stochastic_output:
+            self.distribution.update(mean)
+            return self.distribution.sample()
+        return mean
+
+    # rsl_rl's model interface (non-recurrent, no observation normalization)
+    def reset(self, dones=None, hidden_state=None) -> None:
+        pass
+
+    def get_hidden_state(self):
+        return None
+
+    def detach_hidden_state(self, dones=None) -> None:
+        pass
+
+    def update_normalization(self, obs: TensorDict) -> None:
+        pass
+
+    @property
+    def output_mean(self) -> torch.Tensor:
+        return self.distribution.mean
+
+    @property
+    def output_std(self) -> torch.Tensor:
+        return self.distribution.std
+
+    @property
+    def output_entropy(self) -> torch.Tensor:
+        return self.distribution.entropy
+
+    @property
+    def output_distribution_params(self) -> tuple[torch.Tensor, ...]:
+        return self.distribution.params
+
+    def get_output_log_prob(self, outputs: torch.Tensor) -> torch.Tensor:
+        return self.distribution.log_prob(outputs)
+
+    def get_kl_divergence(self, old_params, new_params) -> torch.Tensor:
+        return self.distribution.kl_divergence(old_params, new_params)
+
+    def set_actor_frozen(self, frozen: bool) -> None:
+        """Freeze the whole actor (critic warm-up), or restore ``trainable``'s split."""
+        names = set(self.trained)
+        for name, p in self.policy.named_parameters():
+            p.requires_grad_(not frozen and name in names)
+        for p in self.distribution.parameters():
+            p.requires_grad_(not frozen)
+
+    def __repr__(self) -> str:  # rsl_rl prints its models; the transformer's tree is long
+        n = sum(p.numel() for p in self.policy.parameters())
+        return (f"MSTAActor(msta student on {', '.join(self.policy.required_sensors)} at T = "
+                f"{self.policy.config.history}, {n:,} parameters, trained: "
+                f"{', '.join(sorted({module_of(k) for k in self.trained}))}; "
+                f"{self.distribution.__class__.__name__})")
+
+    def as_jit(self):  # rsl_rl's exports are for MLPs; the student exports with msta-export
+        raise NotImplementedError("export the fine-tuned student with msta-export")
+
+    as_onnx = as_jit
+
+
+@dataclass
+class StudentPPOConfig(PPOConfig):
+    """rsl_rl PPO settings for fine-tuning a student (msta-train-teacher's, with a smaller
+    default budget: this runs the transformer every step of every robot).
+
+    Args:
+        iterations: PPO iterations in all; a resumed run stops at this total.
+        num_steps_per_env: rollout steps per robot per iteration.
+        learning_rate: Adam learning rate at the start (then adapted to desired_kl).
+        desired_kl: target KL of the adaptive learning-rate schedule.
+        entropy_coef: entropy bonus.
+        init_std: initial action noise std (radians of desired joint position).
+        critic_warmup: first iterations that train only the critic (the actor frozen).
+        num_learning_epochs: passes over each rollout.
+        num_mini_batches: mini-batches per pass.
+        clip_param: PPO ratio clip.
+        gamma: discount.
+        lam: GAE lambda.
+        save_interval: iterations per chunk (a checkpoint, a curve row, a student each).
+    """
+
+    iterations: int = 40
+    num_steps_per_env: int = 24
+    learning_rate: float = 1e-4
+    init_std: float = 0.1
+    critic_warmup: int = 10
+    num_learning_epochs: int = 4
+    num_mini_batches: int = 4
+    save_interval: int = 5
+
+    def student_runner_cfg(self, start: Path, trainable: str) -> dict:
+        """rsl_rl ``OnPolicyRunner`` train_cfg with the student as the actor."""
+        cfg = self.runner_cfg(RMAConfig())
+        cfg["obs_groups"] = {"actor": [STUDENT], "critic": [PRIVILEGED, PROPRIO]}
+        cfg["actor"] = {"class_name": f"{MSTAActor.__module__}:{MSTAActor.__name__}",
+                        "policy_path": str(start), "trainable": trainable,
+                        "distribution_cfg": {"class_name": "GaussianDistribution",
+                                             "init_std": self.init_std, "std_type": "scalar"}}
+        return cfg
+
+
+def _default_env() -> EnvConfig:
+    cfg = EnvConfig(num_envs=64, episode_length_s=20.0, nthread=0)
+    cfg.terrain.max_init_level = 2  # the levels the demo's students are trained on
+    return cfg
+
+
+@dataclass
+class FinetunePPOConfig:
+    """Args:
+        policy: the starting MSTA student: ``--policy.path=<checkpoint directory or hub id>``
+            (e.g. a msta-correct round).
+        sensors: the fine-tuned student's inputs, as msta-finetune's: a comma list of
+            registry names, ``minimized`` (command, joint_pos, gravity, last_action) or
+            ``all``. A sensor the checkpoint lacks is added with fresh weights and needs
+            ``--dataset`` for its statistics.
+        history: the fine-tuned student's window T (the paper's deployment: 7).
+        trainable: parameter groups trained (msta-finetune's: ``embeddings``, ``readout``,
+            ``head``, joined by ``+``); the transformer blocks are never trained.
+        dataset: a local dataset root whose statistics normalize added sensors (only read
+            when ``sensors`` names one the checkpoint lacks).
+        output_dir: start/, student/, ppo/ (rsl_rl checkpoints, TensorBoard), curve.json
+            and finetune_ppo.json; re-running resumes.
+        seed: seeds torch and the simulator (env.seed follows it).
+        device: torch device: auto (CUDA when present), cpu, cuda.
+        num_threads: torch threads (0: one per core).
+        ppo: rsl_rl PPO settings.
+        env: the simulator (robots, terrains and curriculum, rewards, randomization); the
+            default starts robots at levels 0-2 with the curriculum on.
+    """
+
+    policy: PolicyPath = field(default_factory=PolicyPath)
+    sensors: str = ",".join(MINIMIZED_SENSORS)
+    history: int = MINIMIZED_HISTORY
+    trainable: str = "embeddings"
+    dataset: str = ""
+    output_dir: str = "outputs/finetune_ppo/msta"
+    seed: int = 0
+    device: str = "auto"
+    num_threads: int = 0
+    ppo: StudentPPOConfig = field(default_factory=StudentPPOConfig)
+    env: EnvConfig = field(default_factory=_default_env)
+
+    def __post_init__(self) -> None:
+        check_at_least(self, 1, "history")
+        check_at_least(self, 0, "num_threads")
+        sensor_names(self.sensors, registry.STUDENT_SENSORS)
+        trainable_modules(self.trainable)
+        if not self.policy.path:
+            raise ValueError("policy.path is required: the MSTA student to fine-tune")
+        self.env.seed = self.seed
+
+
+def prepare_start(cfg: FinetunePPOConfig, out: Path) -> tuple[Path, dict[str, Any]]:
+    """``out/start/``: the source restricted to the chosen inputs and T (written once;
+    a resumed run reuses it); returns it and the finetune.json record."""
+    ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")
+    config = PolicyConfig.load(ckpt)
+    if config.type != "msta":
+        raise ValueError(f"{ckpt} holds a {config.type!r} student; msta-finetune-ppo trains the "
+                         "token embeddings of a frozen MSTA transformer, which the baselines "
+                         "do not have")
+    sensors = sensor_names(cfg.sensors, config.input_sensors)
+    added = [s for s in sensors if s not in config.input_sensors]
+    start = out / "start"
+    if not (start / "model.safetensors").is_file():
+        stats = None
+        if added:
+            if not cfg.dataset:
+                raise ValueError(f"sensors adds {', '.join(added)}, which {ckpt} lacks; give "
+                                 "--dataset=<a dataset recording it> for its statistics")
+            stats = load_stats(Path(cfg.dataset))
+        source = load_policy(ckpt)
+        assert isinstance(source, MSTAPolicy)
+        source.with_inputs(sensors, cfg.history, stats).save_pretrained(start)
+    record = {"format": RECORD_FORMAT, "method": "ppo", "source": str(ckpt),
+              "input_sensors": list(sensors), "added_sensors": added, "history": cfg.history,
+              "trainable": cfg.trainable}
+    return start, record
+
+
+#: options that define a run: a re-run into the same output_dir must repeat them
+RESUME_FIELDS = ("policy", "sensors", "history", "trainable", "dataset", "seed")
+
+
+def check_resume(cfg: FinetunePPOConfig, out: Path) -> None:
+    """A re-run into an existing ``output_dir`` continues that run: its defining options
+    (and the rollout's shape) must match the recorded ones (one-line error otherwise)."""
+    path = out / "finetune_ppo.json"
+    if not path.is_file():
+        return
+    old, new = json.loads(path.read_text()), json.loads(json.dumps(asdict(cfg)))
+    pairs = [(k, old.get(k), new[k]) for k in RESUME_FIELDS]
+    pairs += [("env.num_envs", old["env"]["num_envs"], new["env"]["num_envs"]),
+              ("ppo.num_steps_per_env", old["ppo"]["num_steps_per_env"],
+               new["ppo"]["num_steps_per_env"])]
+    for name, was, now in pairs:
+        if was != now:
+            raise ValueError(f"{out} holds a run with {name}={was!r}, not {now!r}; re-run with "
+                             "the same options to continue it, or choose another --output_dir")
+
+
+def save_student(actor: MSTAActor, out: Path, record: dict[str, Any], iteration: int) -> None:
+    """``out/student/``: the actor's student with its finetune.json."""
+    student = out / "student"
+    actor.policy.save_pretrained(student)
+    params = dict(actor.policy.named_parameters())
+    atomic_json(student / RECORD, {
+        **record, "iterations": iteration, "trained_parameters": actor.trained,
+        "trained_numel": sum(params[k].numel() for k in actor.trained),
+        "total_numel": sum(p.numel() for p in params.values()),
+        "action_std": [round(float(s), 5) for s in actor.distribution.std_param.detach()]})
+
+
+def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
+    """Run (or resume) the fine-tune; return ``output_dir/student``."""
+    from rsl_rl.runners import OnPolicyRunner
+
+    out = Path(cfg.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
+    torch.manual_seed(cfg.seed)
+    check_resume(cfg, out)
+    start, record = prepare_start(cfg, out)
+    atomic_json(out / "finetune_ppo.json", asdict(cfg))
+    device = str(select_device(cfg.device))
+    env = StudentVecEnv(cfg.env, load_policy(start), device=device)
+    ppo_dir = out / "ppo"
+    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable),
+                            log_dir=str(ppo_dir), device=device)
+    actor = runner.alg.get_policy()
+    assert isinstance(actor, MSTAActor)
+    n = sum(p.numel() for name, p in actor.policy.named_parameters() if name in actor.trained)
+    total = sum(p.numel() for p in actor.policy.parameters())
+    found = latest_checkpoint(ppo_dir)
+    done = 0
+    if found is not None:
+        runner.load(str(found[0]), map_location=device)
+        done = found[1] + 1
+        runner.current_learning_iteration = done
+        log(f"== {PROG}: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} "
+            "iterations) ==")
+    else:
+        log(f"== {PROG}: {start} on {', '.join(record['input_sensors'])} at T = {cfg.history}; "
+            f"training {cfg.trainable} ({n:,} of {total:,} parameters: "
+            f"{', '.join(sorted({module_of(k) for k in actor.trained}))}) and the action "
+            f"noise; {cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
+            f"{cfg.ppo.num_steps_per_env} steps, device {device} ==")
+    curve_path = out / "curve.json"
+    curve = json.loads(curve_path.read_text()) if curve_path.is_file() and done else []
+    steps_so_far = curve[-1]["env_steps"] if curve else 0
+    first = True
+    while done < cfg.ppo.iterations:
+        chunk = min(cfg.ppo.save_interval, cfg.ppo.iterations - done)
+        frozen = done < cfg.ppo.critic_warmup
+        if frozen:
+            chunk = min(chunk, cfg.ppo.critic_warmup - done)
+        actor.set_actor_frozen(frozen)
+        t0 = time.time()
+        env.take_stats()
+        runner.learn(chunk, init_at_random_ep_len=first)
+        first = False
+        done += chunk
+        runner.current_learning_iteration = done
+        st = env.take_stats()
+        steps_so_far += st["env_steps"]
+        robot_steps = max(st["env_steps"], 1)
+        hazard = st["falls"] / robot_steps
+        row = {"iteration": done, "env_steps": steps_so_far, "seconds": round(time.time() - t0, 1),
+               "critic_only": frozen, "episodes": st["episodes"], "falls": st["falls"],
+               "falls_per_1000_steps": 1000.0 * hazard,
+               "survival_per_episode": float(np.exp(-hazard * env.max_episode_length)),
+               "mean_level_at_end": st["level"] / max(st["episodes"], 1),
+               "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps,
+               "action_std": float(actor.distribution.std_param.detach().mean())}
+        curve.append(row)
+        atomic_json(curve_path, curve)
+        save_student(actor, out, record, done)
+        _prune(ppo_dir, keep=2)
+        log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
+            f"{row['survival_per_episode']:.3f} per {cfg.env.episode_length_s:g} s episode "
+            f"({st['falls']} falls), lin. tracking {row['lin_vel_tracking_per_step']:.4f}/step"
+            + (" (critic only)" if frozen else ""))
+    actor.set_actor_frozen(False)
+    if not (out / "student" / "model.safetensors").is_file():
+        save_student(actor, out, record, done)
+    return out / "student"
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    cfg = parse_config(FinetunePPOConfig, argv, prog=PROG, aliases={"env.seed": "seed"})
+    try:
+        path = finetune_ppo(cfg)
+    except (OSError, ValueError) as e:
+        raise SystemExit(f"{PROG}: error: {e}") from None
+    print(f"student: {path} (msta-eval --policies teacher,{path} --scenarios token_removal)")
+
+
+if __name__ == "__main__":
+    main()
