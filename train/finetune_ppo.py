@@ -70,6 +70,8 @@ RECORD = "finetune.json"
 RECORD_FORMAT = "msta-finetune-ppo/1"
 #: rsl_rl observation group of the student's window (N, T, channels + 1: the pad flag last)
 STUDENT = "student"
+#: rsl_rl observation group of the dummy tokens' draws (N, D * 4 uniforms; --dummy_tokens)
+DUMMY = "dummy"
 
 
 class StudentVecEnv(RslVecEnv):
@@ -79,16 +81,25 @@ class StudentVecEnv(RslVecEnv):
     episode start (filled with the episode's first frame, the datasets' window rule,
     :class:`policies.actor.StudentActor`'s buffer).
 
+    With ``dummy_tokens`` = D > 0 there is also the group ``dummy``: D x 4 uniform numbers
+    in [0, 1) per robot, fresh every step (seeded by ``env_cfg.seed``), that fix the draws of
+    the D random dummy tokens appended to the student's tokens (the paper's stress test,
+    :mod:`policies.msta.modeling_msta`): stored with the rollout, they give PPO's update the
+    same tokens the rollout saw.
+
     Args:
         env_cfg: the simulator.
         policy: the student (its ``required_sensors`` and ``config.history``).
         device: torch device of the returned tensors.
+        dummy_tokens: random dummy tokens per step (0: no ``dummy`` group).
     """
 
     def __init__(self, env_cfg: EnvConfig, policy: StudentPolicy,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu", dummy_tokens: int = 0) -> None:
         super().__init__(env_cfg, RMAConfig(), device)
         self.windows = StudentActor(policy, self.num_envs)
+        self.dummy_tokens = int(dummy_tokens)
+        self.dummy_rng = np.random.default_rng([int(env_cfg.seed), 0xD0])
         self.last = self.observe(None)
 
     def observe(self, res) -> TensorDict:
@@ -99,6 +110,9 @@ class StudentVecEnv(RslVecEnv):
                              + [batch["pad"][..., None].astype(np.float32)], axis=-1)
         groups = self.groups(self.raw_obs)
         groups[STUDENT] = torch.from_numpy(win).to(self.device)
+        if self.dummy_tokens:
+            u = self.dummy_rng.random((self.num_envs, 4 * self.dummy_tokens), dtype=np.float32)
+            groups[DUMMY] = torch.from_numpy(u).to(self.device)
         self.last = groups
         return groups
 
@@ -128,7 +142,8 @@ class MSTAActor(nn.Module):
 
     Args:
         obs, obs_groups, obs_set, output_dim: as rsl_rl passes them to every model; the set
-            must be exactly ``["student"]``.
+            is ``["student"]``, or ``["student", "dummy"]`` with dummy tokens appended (their
+            draws read from the ``dummy`` group).
         policy_path: the student checkpoint (msta-finetune-ppo's ``start/``).
         trainable: msta-finetune's ``--trainable`` groups (``embeddings+head``).
         distribution_cfg: rsl_rl's ``GaussianDistribution`` options (``init_std`` ...).
@@ -140,10 +155,14 @@ class MSTAActor(nn.Module):
                  output_dim: int, policy_path: str = "", trainable: str = "embeddings",
                  distribution_cfg: dict | None = None) -> None:
         super().__init__()
-        if list(obs_groups[obs_set]) != [STUDENT]:
-            raise ValueError(f"MSTAActor reads the group {STUDENT!r} alone; "
-                             f"obs_groups[{obs_set!r}] = {obs_groups[obs_set]}")
+        groups = list(obs_groups[obs_set])
+        if groups not in ([STUDENT], [STUDENT, DUMMY]):
+            raise ValueError(f"MSTAActor reads the group {STUDENT!r} (and {DUMMY!r}); "
+                             f"obs_groups[{obs_set!r}] = {groups}")
+        self.dummy = DUMMY in groups
         self.policy = load_policy(policy_path)
+        if self.dummy:
+            self.policy.check_dummy_tokens(1)
         self.trained = freeze(self.policy, trainable_modules(trainable))
         split_window(self.policy, obs[STUDENT][:1])  # the group's width fits the student
         dist = dict(distribution_cfg or {})
@@ -153,7 +172,12 @@ class MSTAActor(nn.Module):
     def action_mean(self, obs: TensorDict) -> torch.Tensor:
         """(B, 12) desired joint positions: the student's deterministic action."""
         batch = split_window(self.policy, obs[STUDENT])
-        return self.policy.processor.unnormalize_action(self.policy(batch, mask_ratio=0.0))
+        dummy: int | torch.Tensor = 0
+        if self.dummy:
+            u = obs[DUMMY]
+            dummy = u.reshape(u.shape[0], -1, 4)
+        return self.policy.processor.unnormalize_action(
+            self.policy(batch, mask_ratio=0.0, dummy_tokens=dummy))
 
     def forward(self, obs: TensorDict, masks: torch.Tensor | None = None, hidden_state=None,
                 stochastic_output: bool = False) -> torch.Tensor:
@@ -249,10 +273,11 @@ class StudentPPOConfig(PPOConfig):
     num_mini_batches: int = 4
     save_interval: int = 5
 
-    def student_runner_cfg(self, start: Path, trainable: str) -> dict:
+    def student_runner_cfg(self, start: Path, trainable: str, dummy_tokens: int = 0) -> dict:
         """rsl_rl ``OnPolicyRunner`` train_cfg with the student as the actor."""
         cfg = self.runner_cfg(RMAConfig())
-        cfg["obs_groups"] = {"actor": [STUDENT], "critic": [PRIVILEGED, PROPRIO]}
+        actor = [STUDENT, DUMMY] if dummy_tokens else [STUDENT]
+        cfg["obs_groups"] = {"actor": actor, "critic": [PRIVILEGED, PROPRIO]}
         cfg["actor"] = {"class_name": f"{MSTAActor.__module__}:{MSTAActor.__name__}",
                         "policy_path": str(start), "trainable": trainable,
                         "distribution_cfg": {"class_name": "GaussianDistribution",
@@ -280,6 +305,10 @@ class FinetunePPOConfig:
             ``head``, joined by ``+``); the transformer blocks are never trained.
         dataset: a local dataset root whose statistics normalize added sensors (only read
             when ``sensors`` names one the checkpoint lacks).
+        dummy_tokens: random dummy tokens appended to the student's tokens in every step of
+            the fine-tune (the paper's stress test: 256), fresh each step and never trained;
+            the fine-tuned student is then evaluated with them by msta-eval's
+            ``dummy_tokens`` scenario. 0: none.
         output_dir: start/, student/, ppo/ (rsl_rl checkpoints, TensorBoard), curve.json
             and finetune_ppo.json; re-running resumes.
         seed: seeds torch and the simulator (env.seed follows it).
@@ -295,6 +324,7 @@ class FinetunePPOConfig:
     history: int = MINIMIZED_HISTORY
     trainable: str = "embeddings"
     dataset: str = ""
+    dummy_tokens: int = 0
     output_dir: str = "outputs/finetune_ppo/msta"
     seed: int = 0
     device: str = "auto"
@@ -304,7 +334,7 @@ class FinetunePPOConfig:
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "history")
-        check_at_least(self, 0, "num_threads")
+        check_at_least(self, 0, "num_threads", "dummy_tokens")
         sensor_names(self.sensors, registry.STUDENT_SENSORS)
         trainable_modules(self.trainable)
         if not self.policy.path:
@@ -336,12 +366,13 @@ def prepare_start(cfg: FinetunePPOConfig, out: Path) -> tuple[Path, dict[str, An
         source.with_inputs(sensors, cfg.history, stats).save_pretrained(start)
     record = {"format": RECORD_FORMAT, "method": "ppo", "source": str(ckpt),
               "input_sensors": list(sensors), "added_sensors": added, "history": cfg.history,
-              "trainable": cfg.trainable}
+              "trainable": cfg.trainable, "dummy_tokens": cfg.dummy_tokens}
     return start, record
 
 
 #: options that define a run: a re-run into the same output_dir must repeat them
-RESUME_FIELDS = ("policy", "sensors", "history", "trainable", "dataset", "seed")
+RESUME_FIELDS = ("policy", "sensors", "history", "trainable", "dataset", "dummy_tokens",
+                 "seed")
 
 
 def check_resume(cfg: FinetunePPOConfig, out: Path) -> None:
@@ -385,9 +416,11 @@ def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
     start, record = prepare_start(cfg, out)
     atomic_json(out / "finetune_ppo.json", asdict(cfg))
     device = str(select_device(cfg.device))
-    env = StudentVecEnv(cfg.env, load_policy(start), device=device)
+    env = StudentVecEnv(cfg.env, load_policy(start), device=device,
+                        dummy_tokens=cfg.dummy_tokens)
     ppo_dir = out / "ppo"
-    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable),
+    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable,
+                                                            cfg.dummy_tokens),
                             log_dir=str(ppo_dir), device=device)
     actor = runner.alg.get_policy()
     assert isinstance(actor, MSTAActor)
@@ -405,7 +438,8 @@ def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
         log(f"== {PROG}: {start} on {', '.join(record['input_sensors'])} at T = {cfg.history}; "
             f"training {cfg.trainable} ({n:,} of {total:,} parameters: "
             f"{', '.join(sorted({module_of(k) for k in actor.trained}))}) and the action "
-            f"noise; {cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
+            f"noise{f', {cfg.dummy_tokens} dummy tokens appended' if cfg.dummy_tokens else ''}; "
+            f"{cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
             f"{cfg.ppo.num_steps_per_env} steps, device {device} ==")
     curve_path = out / "curve.json"
     curve = json.loads(curve_path.read_text()) if curve_path.is_file() and done else []

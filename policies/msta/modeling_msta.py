@@ -30,7 +30,10 @@ but together they form no reading of any channel:
     dummy = value_embed[random present table][random bin] + pos[random token slot]
             + sensor_embed[random present sensor]                                 # (d,)
 
-Fresh ones are drawn for every sample and call; no parameter changes.
+Fresh ones are drawn for every sample and call; no parameter changes. ``dummy_tokens`` may
+instead be a (B, D, 4) tensor of uniform numbers in [0, 1) that fixes the four draws (table,
+bin, slot, sensor) of each dummy: the same observation then gives the same action, which
+PPO needs when it re-evaluates its rollout (msta-finetune-ppo ``--dummy_tokens``).
 
 Encoded sensors (``SensorSpec.encoder_tokens`` = k > 0, e.g. the ``height_map`` extension):
 each step's channels (clipped z-scores) go through a small MLP (dim -> 2d -> k·d) to k
@@ -215,7 +218,7 @@ class MSTATransformer(nn.Module):
         inputs: MSTAInputs,
         mask_ratio: float,
         generator: torch.Generator | None = None,
-        dummy_tokens: int = 0,
+        dummy_tokens: int | Tensor = 0,
     ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking, D dummy tokens, then the readout tokens (<S> last):
         (B, K + D + R, d), and a key mask (B, 1, 1, K + D + R) or None."""
@@ -247,14 +250,15 @@ class MSTATransformer(nn.Module):
             key_pad = None
         else:
             x, key_pad = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
-        if dummy_tokens:
+        D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
+        if D:
             dummy = self._dummy_tokens(inputs, pos, sensor, B, dummy_tokens, generator)
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
         x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
             # (B, L) True = may be attended to; dummy and readout tokens are always visible
-            always = dummy_tokens + self.cfg.state_tokens
+            always = D + self.cfg.state_tokens
             keep = torch.cat([~key_pad, key_pad.new_ones(B, always)], dim=1)
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
         return x, attn_mask
@@ -278,9 +282,10 @@ class MSTATransformer(nn.Module):
             return torch.gather(tokens, 1, keep[..., None].expand(-1, -1, tokens.shape[-1]))
         return self.bin_embed(tokens if keep is None else torch.gather(tokens, 1, keep))
 
-    def _dummy_tokens(self, inputs: MSTAInputs, pos: Tensor, sensor: Tensor, B: int, D: int,
-                      generator: torch.Generator | None) -> Tensor:
-        """D random tokens per sample (module docstring): (B, D, d). Nothing is trained."""
+    def _dummy_tokens(self, inputs: MSTAInputs, pos: Tensor, sensor: Tensor, B: int,
+                      dummy: int | Tensor, generator: torch.Generator | None) -> Tensor:
+        """D random tokens per sample (module docstring): (B, D, d), drawn from ``generator``
+        (``dummy`` = D) or given by uniforms (``dummy``: (B, D, 4)). Nothing is trained."""
         dev = self.bin_embed.weight.device
         if not inputs.channels:
             raise ValueError("dummy tokens draw their values from the value tables of scalar "
@@ -290,12 +295,23 @@ class MSTATransformer(nn.Module):
         tables = torch.unique(torch.cat([  # (tables,) value tables of the present channels
             self._table_of(n, c.to(dev)) for n, c in inputs.channels.items()]))
 
-        def draw(high: int) -> Tensor:  # (B, D) uniform in [0, high)
-            return torch.randint(high, (B, D), generator=generator, device=gen_dev).to(dev)
+        if isinstance(dummy, Tensor):
+            if dummy.dim() != 3 or dummy.shape[0] != B or dummy.shape[2] != 4:
+                raise ValueError(f"dummy token draws must be (batch={B}, D, 4) uniforms in "
+                                 f"[0, 1), got {tuple(dummy.shape)}")
+            u = dummy.to(dev, torch.float32)
 
-        rows = tables[draw(len(tables))] * nb + draw(nb)  # (B, D) rows of bin_embed
+            def draw(high: int, k: int) -> Tensor:  # (B, D) in [0, high) from given uniforms
+                return (u[..., k] * high).long().clamp_(0, high - 1)
+        else:
+            D = dummy
+
+            def draw(high: int, k: int) -> Tensor:  # (B, D) uniform in [0, high)
+                return torch.randint(high, (B, D), generator=generator, device=gen_dev).to(dev)
+
+        rows = tables[draw(len(tables), 0)] * nb + draw(nb, 1)  # (B, D) rows of bin_embed
         with torch.no_grad():
-            return self.bin_embed(rows) + pos[draw(len(pos))] + sensor[draw(len(sensor))]
+            return self.bin_embed(rows) + pos[draw(len(pos), 2)] + sensor[draw(len(sensor), 3)]
 
     def readout_tokens(self) -> Tensor:
         """<S> (last) after the other readout tokens: (R, d)."""
@@ -388,7 +404,7 @@ class MSTATransformer(nn.Module):
         inputs: MSTAInputs,
         mask_ratio: float = 0.0,
         generator: torch.Generator | None = None,
-        dummy_tokens: int = 0,
+        dummy_tokens: int | Tensor = 0,
     ) -> Tensor:
         x, attn_mask = self.embed(inputs, mask_ratio, generator, dummy_tokens)  # (B, L, d)
         R, last = self.cfg.state_tokens, len(self.blocks) - 1
@@ -421,11 +437,12 @@ class MSTAPolicy(StudentPolicy):
         channels: Channels | None = None,
         mask_ratio: float | None = None,
         generator: torch.Generator | None = None,
-        dummy_tokens: int = 0,
+        dummy_tokens: int | Tensor = 0,
     ) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
-        every sample (test-time stress test, see the module docstring)."""
+        every sample (the stress test, see the module docstring; a (B, D, 4) tensor of
+        uniforms fixes their draws)."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         return self.model(inputs, mask_ratio, generator, dummy_tokens)

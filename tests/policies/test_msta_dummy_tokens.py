@@ -110,3 +110,29 @@ def test_student_actor_passes_dummy_tokens_and_rejects_negative() -> None:
     assert np.isfinite(noisy).all()
     with pytest.raises(ValueError, match="dummy_tokens=-1 must be >= 0"):
         InputSpec(dummy_tokens=-1)
+
+
+def test_given_uniforms_fix_every_samples_dummy_tokens() -> None:
+    """A (B, D, 4) tensor of uniforms in place of D: per sample, the same draws give the
+    same action whatever the rest of the batch holds (what PPO's re-evaluation needs)."""
+    policy = make().eval()
+    batch = make_batch(B=4)
+    u = torch.rand(4, 9, 4, generator=torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        out = policy(batch, dummy_tokens=u)
+        plain = policy(batch)
+        other = policy(batch, dummy_tokens=torch.rand(4, 9, 4))
+        sub = policy({k: v[[2, 0]] for k, v in batch.items()}, dummy_tokens=u[[2, 0]])
+        x, _ = policy.model.embed(policy.processor.discretize(batch), 0.0, dummy_tokens=u)
+    assert x.shape[1] == policy.model.embed(policy.processor.discretize(batch), 0.0)[0].shape[1] + 9
+    assert not torch.allclose(out, plain) and not torch.allclose(out, other)
+    torch.testing.assert_close(sub, out[[2, 0]])
+    # u = 0 picks the first table's first bin, the first slot and the first present sensor
+    zero = policy.model.embed(policy.processor.discretize(batch), 0.0,
+                              dummy_tokens=torch.zeros(4, 1, 4))[0][:, -1 - policy.config.state_tokens]
+    m = policy.model
+    want = m.bin_embed.weight[0] + m.layout(policy.processor.discretize(batch).channels, T)[0][0] \
+        + m.sensor_embed[policy.config.input_sensors[0]]
+    torch.testing.assert_close(zero, want.expand(4, -1))
+    with pytest.raises(ValueError, match=r"\(batch=4, D, 4\)"):
+        policy(batch, dummy_tokens=torch.rand(4, 9, 3))

@@ -25,6 +25,7 @@ from policies.factory import load_policy, make_policy
 from policies.msta import MSTAConfig
 from policies.teacher.config import TeacherConfig
 from train.finetune_ppo import (
+    DUMMY,
     RECORD,
     STUDENT,
     FinetunePPOConfig,
@@ -34,6 +35,7 @@ from train.finetune_ppo import (
     finetune_ppo,
     main,
     prepare_start,
+    split_window,
 )
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
@@ -202,3 +204,25 @@ def test_help_lists_the_options(capsys):
     for opt in ("--policy.path", "--sensors", "--history", "--trainable", "--ppo.iterations",
                 "--ppo.critic_warmup", "--ppo.init_std", "--env.num_envs", "--dataset"):
         assert opt in text, opt
+
+
+def test_dummy_tokens_ride_with_the_rollout_so_the_update_sees_the_same_tokens(base, tmp_path):
+    cfg = make_cfg(base, tmp_path, dummy_tokens=8)
+    start, _ = prepare_start(cfg, tmp_path)
+    env = StudentVecEnv(cfg.env, load_policy(start), dummy_tokens=8)
+    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, "embeddings", 8),
+                            log_dir=None, device="cpu")
+    actor = runner.alg.get_policy()
+    obs = env.get_observations()
+    assert obs[DUMMY].shape == (4, 32) and float(obs[DUMMY].min()) >= 0.0
+    with torch.no_grad():
+        a = actor(obs)
+        torch.testing.assert_close(a, actor(obs))               # fixed by the stored draws
+        plain = actor.policy.processor.unnormalize_action(
+            actor.policy(split_window(actor.policy, obs[STUDENT]), mask_ratio=0.0))
+        assert not torch.allclose(a, plain)                     # and the dummies are there
+    nxt = env.step(torch.zeros(4, 12))[0]
+    assert not torch.equal(nxt[DUMMY], obs[DUMMY])              # fresh every step
+    student = finetune_ppo(cfg, log=lambda *_: None)
+    assert json.loads((student / RECORD).read_text())["dummy_tokens"] == 8
+    assert tensor_hashes(student) != tensor_hashes(start)
