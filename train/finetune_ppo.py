@@ -62,7 +62,7 @@ from policies.teacher.rma import RMAConfig
 from train.finetune import freeze, module_of, sensor_names, trainable_modules
 from train.optim import select_device
 from train.state import atomic_json
-from train.teacher.cli import PPOConfig, _prune, latest_checkpoint
+from train.teacher.cli import PPOConfig, latest_checkpoint, prune_checkpoints
 from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 
 PROG = "msta-finetune-ppo"
@@ -404,10 +404,42 @@ def save_student(actor: MSTAActor, out: Path, record: dict[str, Any], iteration:
         "action_std": [round(float(s), 5) for s in actor.distribution.std_param.detach()]})
 
 
-def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
-    """Run (or resume) the fine-tune; return ``output_dir/student``."""
+def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], log
+                ) -> tuple[StudentVecEnv, Any, int]:
+    """The environment, rsl_rl's runner with the student as its actor (loaded from the
+    newest checkpoint in ``output_dir/ppo`` when there is one) and the iterations done."""
     from rsl_rl.runners import OnPolicyRunner
 
+    device = str(select_device(cfg.device))
+    env = StudentVecEnv(cfg.env, load_policy(start), device=device,
+                        dummy_tokens=cfg.dummy_tokens)
+    ppo_dir = Path(cfg.output_dir) / "ppo"
+    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable,
+                                                            cfg.dummy_tokens),
+                            log_dir=str(ppo_dir), device=device)
+    actor = runner.alg.get_policy()
+    assert isinstance(actor, MSTAActor)
+    found = latest_checkpoint(ppo_dir)
+    if found is not None:
+        runner.load(str(found[0]), map_location=device)
+        done = found[1] + 1
+        runner.current_learning_iteration = done
+        log(f"== {PROG}: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} "
+            "iterations) ==")
+        return env, runner, done
+    n = sum(p.numel() for name, p in actor.policy.named_parameters() if name in actor.trained)
+    total = sum(p.numel() for p in actor.policy.parameters())
+    log(f"== {PROG}: {start} on {', '.join(record['input_sensors'])} at T = {cfg.history}; "
+        f"training {cfg.trainable} ({n:,} of {total:,} parameters: "
+        f"{', '.join(sorted({module_of(k) for k in actor.trained}))}) and the action "
+        f"noise{f', {cfg.dummy_tokens} dummy tokens appended' if cfg.dummy_tokens else ''}; "
+        f"{cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
+        f"{cfg.ppo.num_steps_per_env} steps, device {device} ==")
+    return env, runner, 0
+
+
+def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
+    """Run (or resume) the fine-tune; return ``output_dir/student``."""
     out = Path(cfg.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
@@ -415,32 +447,9 @@ def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
     check_resume(cfg, out)
     start, record = prepare_start(cfg, out)
     atomic_json(out / "finetune_ppo.json", asdict(cfg))
-    device = str(select_device(cfg.device))
-    env = StudentVecEnv(cfg.env, load_policy(start), device=device,
-                        dummy_tokens=cfg.dummy_tokens)
-    ppo_dir = out / "ppo"
-    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable,
-                                                            cfg.dummy_tokens),
-                            log_dir=str(ppo_dir), device=device)
+    env, runner, done = open_runner(cfg, start, record, log)
     actor = runner.alg.get_policy()
-    assert isinstance(actor, MSTAActor)
-    n = sum(p.numel() for name, p in actor.policy.named_parameters() if name in actor.trained)
-    total = sum(p.numel() for p in actor.policy.parameters())
-    found = latest_checkpoint(ppo_dir)
-    done = 0
-    if found is not None:
-        runner.load(str(found[0]), map_location=device)
-        done = found[1] + 1
-        runner.current_learning_iteration = done
-        log(f"== {PROG}: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} "
-            "iterations) ==")
-    else:
-        log(f"== {PROG}: {start} on {', '.join(record['input_sensors'])} at T = {cfg.history}; "
-            f"training {cfg.trainable} ({n:,} of {total:,} parameters: "
-            f"{', '.join(sorted({module_of(k) for k in actor.trained}))}) and the action "
-            f"noise{f', {cfg.dummy_tokens} dummy tokens appended' if cfg.dummy_tokens else ''}; "
-            f"{cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
-            f"{cfg.ppo.num_steps_per_env} steps, device {device} ==")
+    ppo_dir = out / "ppo"
     curve_path = out / "curve.json"
     curve = json.loads(curve_path.read_text()) if curve_path.is_file() and done else []
     steps_so_far = curve[-1]["env_steps"] if curve else 0
@@ -459,19 +468,13 @@ def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
         runner.current_learning_iteration = done
         st = env.take_stats()
         steps_so_far += st["env_steps"]
-        robot_steps = max(st["env_steps"], 1)
-        hazard = st["falls"] / robot_steps
-        row = {"iteration": done, "env_steps": steps_so_far, "seconds": round(time.time() - t0, 1),
-               "critic_only": frozen, "episodes": st["episodes"], "falls": st["falls"],
-               "falls_per_1000_steps": 1000.0 * hazard,
-               "survival_per_episode": float(np.exp(-hazard * env.max_episode_length)),
-               "mean_level_at_end": st["level"] / max(st["episodes"], 1),
-               "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps,
-               "action_std": float(actor.distribution.std_param.detach().mean())}
+        row = env.curve_row(st, iteration=done, env_steps=steps_so_far,
+                            seconds=round(time.time() - t0, 1), critic_only=frozen,
+                            action_std=float(actor.distribution.std_param.detach().mean()))
         curve.append(row)
         atomic_json(curve_path, curve)
         save_student(actor, out, record, done)
-        _prune(ppo_dir, keep=2)
+        prune_checkpoints(ppo_dir, keep=2)
         log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
             f"{row['survival_per_episode']:.3f} per {cfg.env.episode_length_s:g} s episode "
             f"({st['falls']} falls), lin. tracking {row['lin_vel_tracking_per_step']:.4f}/step"

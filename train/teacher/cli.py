@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from collect.sim.env import EnvConfig
@@ -165,7 +164,7 @@ def _load_levels(env: RslVecEnv, ppo_dir: Path) -> None:
             env.raw_obs = env.sim.reset()
 
 
-def _prune(ppo_dir: Path, keep: int) -> None:
+def prune_checkpoints(ppo_dir: Path, keep: int) -> None:
     """Delete all but the ``keep`` newest rsl_rl checkpoints (each holds the optimizer)."""
     found = sorted((int(m.group(1)), p) for p in ppo_dir.glob("model_*.pt")
                    if (m := _MODEL.match(p.name)))
@@ -230,21 +229,13 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
         runner.current_learning_iteration = done
         st = env.take_stats()
         steps_so_far += st["env_steps"]
-        eps, robot_steps = max(st["episodes"], 1), max(st["env_steps"], 1)
-        hazard = st["falls"] / robot_steps
-        row = {"iteration": done, "env_steps": steps_so_far, "seconds": round(time.time() - t0, 1),
-               "critic_only": frozen, "episodes": st["episodes"], "falls": st["falls"],
-               "falls_per_1000_steps": 1000.0 * hazard,
-               # survival of a full episode at this chunk's fall rate (the share of ended
-               # episodes that timed out depends on where the episodes' clocks stand)
-               "survival_per_episode": float(np.exp(-hazard * env.max_episode_length)),
-               "mean_level_at_end": st["level"] / eps, "distance_m": st["distance"] / eps,
-               "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps}
+        row = env.curve_row(st, iteration=done, env_steps=steps_so_far,
+                            seconds=round(time.time() - t0, 1), critic_only=frozen)
         curve.append(row)
         curve_path.write_text(json.dumps(curve, indent=1) + "\n")
         to_teacher(actor, rma).save_pretrained(teacher_dir)
         _save_levels(env, ppo_dir)
-        _prune(ppo_dir, keep=2)
+        prune_checkpoints(ppo_dir, keep=2)
         log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
             f"{row['survival_per_episode']:.3f} per {cfg.env.episode_length_s:g} s episode "
             f"({st['falls']} falls), level "

@@ -64,6 +64,20 @@ class RslVecEnv(VecEnv):
         out, self.stats = self.stats, self._zero_stats()
         return out
 
+    def curve_row(self, st: dict[str, float], **head) -> dict:
+        """A ``curve.json`` row from one chunk's :meth:`take_stats`: ``head`` (iteration,
+        env steps so far, ...), then episodes, falls per 1000 robot steps and the survival of
+        a full episode at that rate (the share of ended episodes that timed out depends on
+        where the episodes' clocks stand), the mean level and distance at the episode ends
+        and the linear tracking reward per robot step."""
+        eps, robot_steps = max(st["episodes"], 1), max(st["env_steps"], 1)
+        hazard = st["falls"] / robot_steps
+        return {**head, "episodes": st["episodes"], "falls": st["falls"],
+                "falls_per_1000_steps": 1000.0 * hazard,
+                "survival_per_episode": float(np.exp(-hazard * self.max_episode_length)),
+                "mean_level_at_end": st["level"] / eps, "distance_m": st["distance"] / eps,
+                "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps}
+
     # rsl_rl reads and writes this buffer (init_at_random_ep_len): it is the simulator's
     # own step counter, seen as a tensor.
     @property
