@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
+.PHONY: demo test repro bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -30,6 +30,14 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
+
+# The paper's experiments at reference scale (~2.5 h on 2 cores; resumable: run it again
+# after a kill). `make repro SCALE=paper` for the paper's sizes (a GPU machine).
+SCALE ?= reference
+REPRO_REPORT = $(if $(filter paper,$(SCALE)),docs/reference/paper_scale,docs/reference)
+repro: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.repro --scale=$(SCALE) \
+		--output_dir=outputs/repro_$(SCALE) --report_dir=$(REPRO_REPORT)
 
 bench: bench-sim bench-data bench-train bench-learn bench-deploy
 

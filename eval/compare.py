@@ -163,14 +163,15 @@ def policy_config(name: str, preset: str) -> Any:
 class Progress:
     """One line per phase with the elapsed time; phase durations go to ``output_dir/timing.json``."""
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, prog: str = "msta-compare") -> None:
+        self.prog = prog
         self.path = out / "timing.json"
         self.timing: dict[str, float] = json.loads(self.path.read_text()) \
             if self.path.exists() else {}
         self.t0 = time.perf_counter()
 
     def start(self, phase: str, detail: str = "") -> float:
-        print(f"[msta-compare {self._clock()}] {phase}{': ' + detail if detail else ''}",
+        print(f"[{self.prog} {self._clock()}] {phase}{': ' + detail if detail else ''}",
               flush=True)
         return time.perf_counter()
 
@@ -178,7 +179,7 @@ class Progress:
         dt = time.perf_counter() - t_start
         self.timing[phase] = round(dt, 1)
         self.path.write_text(json.dumps(self.timing, indent=1) + "\n")
-        print(f"[msta-compare {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
+        print(f"[{self.prog} {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
 
     def _clock(self) -> str:
         s = int(time.perf_counter() - self.t0)
@@ -224,8 +225,14 @@ def check_dataset(root: Path) -> None:
                                 "missing (not a dataset; use --collect_episodes=N to record one)")
 
 
-def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress) -> Path:
-    """Stage 1 of one policy (resumed when killed); returns its final checkpoint."""
+def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
+           config: Any = None) -> Path:
+    """Stage 1 of one policy (resumed when killed); returns its final checkpoint.
+
+    Args:
+        config: the policy config to train (default: ``policy_config(name, cfg.preset)``;
+            msta-repro's mask heatmap passes other training masks).
+    """
     from train.offline import TrainConfig, train
 
     out = run / "stage1"
@@ -238,7 +245,7 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress)
     t = prog.start(f"{name} stage 1", f"{cfg.stage1_steps} steps, batch {cfg.batch_size}"
                    f"{' (resumed)' if resume else ''}")
     train(TrainConfig(
-        dataset=str(root), policy=policy_config(name, cfg.preset), output_dir=str(out),
+        dataset=str(root), policy=config or policy_config(name, cfg.preset), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
         save_every=max(100, cfg.stage1_steps // 4), eval_every=cfg.stage1_steps,
         num_threads=cfg.num_threads, progress=cfg.progress))
@@ -259,8 +266,13 @@ def copy_dataset(root: Path, dest: Path) -> Path:
 
 
 def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
-           prog: Progress) -> Path:
-    """Stage 2 of one policy on its own dataset copy; returns the last round's checkpoint."""
+           prog: Progress, mask: float | None = None) -> Path:
+    """Stage 2 of one policy on its own dataset copy; returns the last round's checkpoint.
+
+    Args:
+        mask: the retraining mask ratio (default: ``cfg.stage2_mask_ratio`` for a policy
+            trained with masking, else 0).
+    """
     from train.online import CorrectConfig, EvalConfig, correct
 
     out = run / "stage2"
@@ -269,7 +281,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         return last
     own = copy_dataset(root, run / "dataset")
     resume = (out / "progress.json").exists()
-    mask = cfg.stage2_mask_ratio if policy_config(name, cfg.preset).mask_ratio > 0 else 0.0
+    if mask is None:
+        mask = cfg.stage2_mask_ratio if policy_config(name, cfg.preset).mask_ratio > 0 else 0.0
     envs = cfg.stage2_num_envs or min(cfg.episodes_per_round, 32)
     t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"

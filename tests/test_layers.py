@@ -8,7 +8,7 @@ sibling.
     collect                         recording, the one rollout loop, msta-sim
     eval                            the evaluation library (metrics, msta-eval, reports)
     train                           stage 1 and 2 (its round table uses eval's metrics)
-    eval apps                       msta-compare, the demo, bench-learn: run train and eval
+    eval apps                       msta-compare, msta-repro, the demo, bench-learn: run train and eval
 """
 
 from __future__ import annotations
@@ -18,7 +18,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 #: eval modules that drive training (a layer above train).
-EVAL_APPS = frozenset({"eval.compare", "eval.demo", "eval.bench_learn"})
+EVAL_APPS = frozenset({"eval.compare", "eval.demo", "eval.bench_learn", "eval.repro",
+                       "eval.repro_report"})
 _BASE = {"msta_data"}
 MAY_IMPORT: dict[str, set[str]] = {
     "msta_data": _BASE,
