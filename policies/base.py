@@ -176,19 +176,26 @@ class StudentPolicy(nn.Module):
         channels: Channels | None = None,
         mask_ratio: float | None = None,
         generator: torch.Generator | None = None,
+        dummy_tokens: int = 0,
     ) -> tuple[Tensor, dict[str, float]]:
         """MSE between predicted and target actions in the processor's target space.
 
         Args:
             batch: as :meth:`act`, plus the target under ``config.action_key``: (B, 12).
             channels, mask_ratio, generator: as the subclass's ``forward``.
+            dummy_tokens: random tokens appended to every sample (training with the
+                stress test's distractors; students with ``supports_dummy_tokens`` only).
         """
         key = self.config.action_key
         if key not in batch:
             raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
         batch = self.as_tensors(batch)
         target = self.processor.normalize_target(batch[key])  # (B, A)
-        pred = self(batch, channels, mask_ratio, generator)  # (B, A)
+        if dummy_tokens:
+            self.check_dummy_tokens(dummy_tokens)
+            pred = self(batch, channels, mask_ratio, generator, dummy_tokens=dummy_tokens)
+        else:
+            pred = self(batch, channels, mask_ratio, generator)  # (B, A)
         loss = F.mse_loss(pred, target)
         with torch.no_grad():
             raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())

@@ -27,6 +27,10 @@ class LoopConfig:
         ema_decay: keep an exponential moving average of the weights (decay per step,
             e.g. 0.995: about the last 200 steps) and make it the result: the final
             validation and the final checkpoint use the averaged weights. 0 = off.
+        dummy_tokens: random dummy tokens appended to every training sample after masking
+            (the paper's stress test, as msta-eval's ``dummy_tokens`` scenario draws them:
+            fresh each step, never trained), so the student learns to ignore distractors;
+            token students (MSTA) only. Validation runs without them. 0 = none.
     """
 
     steps: int = 2000
@@ -44,11 +48,12 @@ class LoopConfig:
     seed: int = 0
     progress: bool = True
     ema_decay: float = 0.0
+    dummy_tokens: int = 0
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "steps", "batch_size", "log_every", "val_samples")
         check_at_least(self, 0, "warmup_steps", "eval_every", "save_every", "grad_clip",
-                       "weight_decay")
+                       "weight_decay", "dummy_tokens")
         if not self.lr > 0:
             raise ValueError(f"lr={self.lr} must be > 0")
         if not 0.0 <= self.ema_decay < 1.0:

@@ -149,6 +149,9 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             checkpoint); an exception raised there stops training like a crash would.
         desc: progress-bar label.
     """
+    if cfg.dummy_tokens and not policy.supports_dummy_tokens:
+        raise ValueError(f"dummy_tokens={cfg.dummy_tokens}: a {policy.config.type!r} student "
+                         "has no token input to append them to (MSTA students only)")
     out.mkdir(parents=True, exist_ok=True)
     mask_ratio = _mask(policy, cfg.mask_ratio)
     policy.config.mask_ratio = mask_ratio  # the saved config.json says what was used
@@ -171,7 +174,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             t0 = time.perf_counter()
             batch = train_ds.get_batch(sampler.next_batch())
             metrics = train_step(policy, optimizer, scheduler, batch, cfg.grad_clip,
-                                 mask_ratio, gen)
+                                 mask_ratio, gen, dummy_tokens=cfg.dummy_tokens)
             if ema is not None:
                 ema.update()
             train_time += time.perf_counter() - t0

@@ -20,7 +20,7 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
                scheduler: torch.optim.lr_scheduler.LRScheduler | None,
                batch: Mapping[str, Any], grad_clip: float, mask_ratio: float | None,
                generator: torch.Generator | None = None,
-               channels: Channels | None = None) -> dict[str, float]:
+               channels: Channels | None = None, dummy_tokens: int = 0) -> dict[str, float]:
     """Forward, backward, clip, AdamW step, scheduler step.
 
     Args:
@@ -32,6 +32,7 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         mask_ratio: token-removal ratio (None: the policy config's).
         generator: RNG of the random token removal (on the policy's device).
         channels: per-sensor channel subsets present in the batch.
+        dummy_tokens: random dummy tokens appended to every sample (token students only).
 
     Returns:
         the policy's metrics (``loss``, ``action_mse``, ...) plus ``grad_norm`` and ``lr``
@@ -41,7 +42,10 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         FloatingPointError: the loss or the gradient norm is not finite (weights untouched).
     """
     policy.train()
-    loss, metrics = policy.loss(batch, channels, mask_ratio, generator)
+    if dummy_tokens:
+        loss, metrics = policy.loss(batch, channels, mask_ratio, generator, dummy_tokens)
+    else:
+        loss, metrics = policy.loss(batch, channels, mask_ratio, generator)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"training loss is {float(loss)}; metrics {metrics}")
     optimizer.zero_grad(set_to_none=True)

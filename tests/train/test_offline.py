@@ -227,3 +227,35 @@ def test_warns_when_the_student_has_not_learned(synthetic_dataset, tmp_path, cap
 def test_mask_ratio_flag_is_what_the_saved_config_says(synthetic_dataset, tmp_path):
     final = train(cfg_for(synthetic_dataset, tmp_path / "m", "--steps=2", "--mask_ratio=0.25"))
     assert MSTAPolicy.from_pretrained(final).config.mask_ratio == 0.25
+
+
+def test_dummy_tokens_take_part_in_training_and_only_token_students_take_them(
+        synthetic_dataset, tmp_path):
+    """--dummy_tokens appends random tokens to every training sample: they pass through
+    every block of the forward that the loss is taken on, and change the trained weights."""
+    seen: list[int] = []
+    real = MSTAPolicy.forward
+
+    def spy(self, batch, channels=None, mask_ratio=None, generator=None, dummy_tokens=0):
+        hooks = [b.register_forward_pre_hook(lambda m, a: seen.append(a[0].shape[1]))
+                 for b in self.model.blocks[:1]]
+        try:
+            return real(self, batch, channels, mask_ratio, generator, dummy_tokens)
+        finally:
+            for h in hooks:
+                h.remove()
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(MSTAPolicy, "forward", spy)
+        plain = train(cfg_for(synthetic_dataset, tmp_path / "a", "--steps=2", "--eval_every=0",
+                              "--mask_ratio=0.0"))
+        n_plain = seen[0]
+        seen.clear()
+        dummy = train(cfg_for(synthetic_dataset, tmp_path / "b", "--steps=2", "--eval_every=0",
+                              "--mask_ratio=0.0", "--dummy_tokens=16"))
+    assert seen[0] == n_plain + 16  # the training forward (validation has none)
+    a, b = load_file(plain / "model.safetensors"), load_file(dummy / "model.safetensors")
+    assert any(not torch.equal(a[k], b[k]) for k in a)
+    with pytest.raises(ValueError, match="MSTA students only"):
+        train(cfg_for(synthetic_dataset, tmp_path / "c", "--steps=1", "--policy.type=gru",
+                      "--dummy_tokens=4"))
