@@ -252,15 +252,10 @@ class StudentPPOConfig(PPOConfig):
         iterations: PPO iterations in all; a resumed run stops at this total.
         num_steps_per_env: rollout steps per robot per iteration.
         learning_rate: Adam learning rate at the start (then adapted to desired_kl).
-        desired_kl: target KL of the adaptive learning-rate schedule.
-        entropy_coef: entropy bonus.
         init_std: initial action noise std (radians of desired joint position).
         critic_warmup: first iterations that train only the critic (the actor frozen).
         num_learning_epochs: passes over each rollout.
         num_mini_batches: mini-batches per pass.
-        clip_param: PPO ratio clip.
-        gamma: discount.
-        lam: GAE lambda.
         save_interval: iterations per chunk (a checkpoint, a curve row, a student each).
     """
 
