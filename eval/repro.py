@@ -114,6 +114,9 @@ class ReproConfig:
             experiments (sensors, joints, window, heatmap) need msta in the list.
         teacher: records the dataset, labels stage 2 and is the evaluation's reference
             (default: the shipped RMA MLP).
+        heatmap: train and evaluate the train-mask heatmap's MSTA students (false: skip
+            them; the report says finding (a) was not measured). A finished study re-run
+            with false writes its report from the evaluations it has.
         seed: seeds recording, training, rollouts and evaluation.
         num_threads: torch threads for training (0: torch's default).
         progress: progress bars.
@@ -124,6 +127,7 @@ class ReproConfig:
     report_dir: str = ""
     policies: str = ""
     teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(type="rma"))
+    heatmap: bool = True
     seed: int = 0
     num_threads: int = 0
     progress: bool = True
@@ -176,14 +180,14 @@ def check_run(cfg: ReproConfig, out: Path) -> None:
 
 def print_sizes(cfg: ReproConfig) -> None:
     s = cfg.sizes
-    grid = len(s.heatmap_stage1) * len(s.heatmap_stage2)
+    grid = len(s.heatmap_stage1) * len(s.heatmap_stage2) if cfg.heatmap else 0
     print(f"[{PROG}] scale {cfg.scale}: teacher {cfg.teacher.type}; dataset "
           f"{s.collect_episodes} episodes of {s.collect_episode_length_s:g} s (levels 0-2, DART "
           f"noise 0.5); {len(cfg.policy_list)} policies ({', '.join(cfg.policy_list)}), preset "
           f"{s.preset}: stage 1 {s.stage1_steps} steps x {s.batch_size}, stage 2 "
           f"{s.stage2_rounds} rounds x {s.episodes_per_round} episodes + {s.stage2_steps} "
-          f"steps; heatmap {len(s.heatmap_stage1)} x {len(s.heatmap_stage2)} = {grid} MSTA "
-          f"students ({s.heatmap_rounds} rounds each); evaluation {s.trials or 'suite'} "
+          f"steps; heatmap {grid} MSTA students ({s.heatmap_rounds} rounds each); "
+          f"evaluation {s.trials or 'suite'} "
           f"trials per condition, levels {s.levels or 'all'}; estimated "
           f"{s.minutes:.0f} min on 2 CPU cores", flush=True)
 
@@ -266,6 +270,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
     if "msta" in ckpts:
         evals["msta"] = run_eval(cfg, "msta", [ckpts["msta"]],
                                  "sensor_removal,dead_joints,history", prog)
+    if "msta" in ckpts and cfg.heatmap:
         grid = heatmap_students(cfg, ccfg, root, prog)
         matrix = ",".join(f"{p}={a:g}:{b:g}" for p, (a, b) in grid.items())
         evals["heatmap"] = run_eval(cfg, "heatmap", list(grid), "mask_matrix", prog, matrix)

@@ -112,3 +112,16 @@ def test_bad_options_are_one_line_errors(tmp_path, capsys) -> None:
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
     assert not (tmp_path / "o").exists()
+
+
+def test_without_the_heatmap_the_report_says_finding_a_was_not_measured(study) -> None:
+    out, _ = study
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        path = repro(config(out, heatmap=False, report_dir=str(out / "report_nh")))
+    text = buf.getvalue()
+    assert "heatmap 0 MSTA students" in text and "stage 2:" not in text
+    md = path.read_text()
+    assert "- (a) stage-2 mask vs stage-1 mask: n/a (no heatmap)" in md
+    assert "## Train-mask heatmap" not in md and "| msta | T=20 | 2 | " in md
+    assert not (out / "report_nh" / "heatmap").exists()
