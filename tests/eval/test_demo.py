@@ -64,9 +64,11 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher, select):
     tag = "stage2-r1" if best else "stage1"
     assert (out / "pulled" / tag / "model.safetensors").is_file()
     assert last.endswith(f"(checkpoint {tag})")
-    # stage 2 retrained at the demo's --correct_mask_ratio (0.75), and the checkpoint says so
+    # stage 1 trained at 0.75, stage 2 retrained at the demo's --correct_mask_ratio (the
+    # paper's 0.5), and each checkpoint says which
+    assert json.loads((out / "stage1" / "final" / "config.json").read_text())["mask_ratio"] == 0.75
     assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
-        "mask_ratio"] == 0.75
+        "mask_ratio"] == 0.5
     assert "DAgger beta 0" in text
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert metrics
