@@ -132,7 +132,8 @@ def round_scores(progress: dict) -> dict[int, float]:
 
 def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, mask: float, threads: int, select_trials: int,
-                 select_s: float, teacher: TeacherConfig) -> int:
+                 select_s: float, teacher: TeacherConfig,
+                 rollout_masks: tuple[float, ...] = ()) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
     best on the selection trials. DAgger promises a good policy among its iterates, not
     that the last is best, and this student's consecutive rounds differ by ~0.2 in
@@ -151,7 +152,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
-                        mask_ratio=mask, teacher=teacher,
+                        mask_ratio=mask, teacher=teacher, rollout_mask_ratios=rollout_masks,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
                         eval=EvalConfig(enabled=select_trials > 0, trials=max(select_trials, 1),
                                         levels="0,1,2",
@@ -254,6 +255,8 @@ class DemoConfig:
         correct_episodes: stage-2 student episodes (10 s) per round.
         correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5; 0.75 costs half
             as much a step but fits the rounds' data worse at equal time).
+        rollout_mask_ratios: test-time mask ratios the stage-2 student drives at, spread
+            over the round's environments (msta-correct's option); empty = all at 0.
         select_trials: trials per test mask on which the rounds are compared (seed 1); 0 = no
             comparison, the last round is evaluated (saves ~40 % of a round).
         select_episode_length_s: episode length of those trials (s).
@@ -280,6 +283,7 @@ class DemoConfig:
     correct_steps: int = 1300
     correct_episodes: int = 32
     correct_mask_ratio: float = 0.5
+    rollout_mask_ratios: tuple[float, ...] = ()
     select_trials: int = 0
     select_episode_length_s: float = 5.0
     teacher_seconds: float = 8.0
@@ -335,7 +339,8 @@ def main(argv: list[str] | None = None) -> None:
                 best = step_correct(out, stage1, hub_dataset, cfg.rounds, cfg.correct_steps,
                                     cfg.correct_episodes, cfg.correct_mask_ratio,
                                     cfg.num_threads, cfg.select_trials,
-                                    cfg.select_episode_length_s, cfg.teacher)
+                                    cfg.select_episode_length_s, cfg.teacher,
+                                    cfg.rollout_mask_ratios)
         with timed("step 6"):
             metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
                                 cfg.num_threads, cfg.teacher)

@@ -10,7 +10,7 @@ It has the same ``act(obs)`` / ``reset(ids)`` interface as a teacher.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -134,3 +134,55 @@ class StudentActor:
             kwargs["dummy_tokens"] = self.spec.dummy_tokens
         out = self.policy.act(batch, **kwargs)
         return out.detach().cpu().numpy().astype(np.float32)
+
+
+class SplitActor:
+    """Several actors over disjoint groups of one batch of environments: group ``k`` drives
+    the environments ``ids[k]`` (each actor sized to its group). ``act``/``reset`` split the
+    batch, so the groups keep their own history and test-time input changes (msta-correct's
+    ``rollout_mask_ratios``: some environments driven with tokens removed, some without).
+
+    Args:
+        groups: ``(ids, actor)`` pairs; the ids of all groups together are 0..N-1, each once.
+    """
+
+    def __init__(self, groups: list[tuple[np.ndarray, Any]]) -> None:
+        ids = np.concatenate([np.asarray(i, dtype=np.int64) for i, _ in groups]) if groups else []
+        if not len(ids) or sorted(ids.tolist()) != list(range(len(ids))):
+            raise ValueError("SplitActor groups must cover environments 0..N-1, each once")
+        self.groups = [(np.asarray(i, dtype=np.int64), a) for i, a in groups]
+        self.num_envs = len(ids)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """(N, 12) actions: each group's actor on its own environments' observations."""
+        out = np.empty((self.num_envs, NUM_JOINTS), dtype=np.float32)
+        for ids, actor in self.groups:
+            out[ids] = actor.act({k: v[ids] for k, v in obs.items()})
+        return out
+
+    def reset(self, ids: np.ndarray) -> None:
+        """Environments ``ids`` (batch indices) start new episodes."""
+        for gids, actor in self.groups:
+            local = np.nonzero(np.isin(gids, ids))[0]
+            if len(local):
+                actor.reset(local)
+
+
+def mask_split_actor(policy: Any, num_envs: int, spec: InputSpec, ratios: tuple[float, ...],
+                     name: str = "student") -> StudentActor | SplitActor:
+    """``policy`` driving ``num_envs`` environments, environment ``i`` at test-time mask
+    ratio ``ratios[i % len(ratios)]`` (the rest of ``spec`` unchanged; each group's token
+    removal seeded apart); no ratios: every environment at ``spec.mask_ratio``."""
+    ratios = tuple(float(r) for r in ratios)
+    if len(set(ratios)) <= 1:
+        one = replace(spec, mask_ratio=ratios[0]) if ratios else spec
+        return StudentActor(policy, num_envs, one, name=name)
+    env_ratio = np.array([ratios[i % len(ratios)] for i in range(num_envs)])
+    groups = []
+    for k, r in enumerate(sorted(set(ratios))):
+        ids = np.nonzero(env_ratio == r)[0]
+        if len(ids):
+            groups.append((ids, StudentActor(policy, len(ids),
+                                             replace(spec, mask_ratio=r, seed=spec.seed + 7919 * k),
+                                             name=name)))
+    return SplitActor(groups)

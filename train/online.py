@@ -61,7 +61,7 @@ from msta_data.locate import locate_checkpoint, locate_dataset
 from msta_data.revision import content_revision
 from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
-from policies.actor import InputSpec, StudentActor
+from policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
 from policies.base import PolicyConfig, StudentPolicy
 from policies.checkpoint import PolicyPath
 from policies.factory import load_policy
@@ -79,10 +79,11 @@ PROGRESS_FORMAT = "msta-correct/1"
 #: Fields that must match progress.json when resuming (they define the data).
 RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
                  "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
-                 "levels_from_dataset", "teacher_follows_robot", "keep_unfinished")
+                 "levels_from_dataset", "teacher_follows_robot", "keep_unfinished",
+                 "rollout_mask_ratios")
 #: Values of RESUME_FIELDS in progress.json files written before the field existed.
 RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False,
-                 "keep_unfinished": False}
+                 "keep_unfinished": False, "rollout_mask_ratios": []}
 
 
 @dataclass
@@ -120,6 +121,12 @@ class CorrectConfig(LoopConfig):
             docs/training.md).
         beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
         rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
+        rollout_mask_ratios: test-time token-removal ratios the rounds' student drives at,
+            spread over the environments (environment i at ratio ``i % len``), e.g.
+            ``[0,0.5]``: half drive with every token, half with half of them removed, so
+            the rounds also hold (and the teacher labels) the states a masked student
+            reaches, where the test at mask 50 % puts it; empty (the default) = every
+            environment at ``rollout.mask_ratio``.
         levels_from_dataset: cap the rollouts' starting terrain level
             (``env.terrain.max_init_level``, used with the terrain curriculum, the default)
             at the highest level of the dataset's teacher episodes, so stage 2 corrects the
@@ -162,6 +169,7 @@ class CorrectConfig(LoopConfig):
     beta: float = 0.0
     beta_decay: float = 1.0
     rollout: InputSpec = field(default_factory=InputSpec)
+    rollout_mask_ratios: tuple[float, ...] = ()
     levels_from_dataset: bool = True
     teacher_follows_robot: bool = True
     recent_weight: float = 1.0
@@ -188,6 +196,10 @@ class CorrectConfig(LoopConfig):
             raise ValueError(f"recent_weight={self.recent_weight} must be in (0, 1]")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
+        self.rollout_mask_ratios = tuple(float(r) for r in self.rollout_mask_ratios)
+        bad = [r for r in self.rollout_mask_ratios if not 0.0 <= r < 1.0]
+        if bad:
+            raise ValueError(f"rollout_mask_ratios: {bad[0]} must be in [0, 1)")
 
 
 # ----- the student and its revision ------------------------------------------------------
@@ -213,8 +225,9 @@ def stage2_mask_ratio(requested: float | None, policy: StudentPolicy) -> float:
     return min(STAGE2_MASK_RATIO, float(policy.config.mask_ratio))
 
 
-def student_actor(policy: StudentPolicy, n: int, spec: InputSpec) -> StudentActor:
-    return StudentActor(policy, n, spec, name=policy.config.type)
+def student_actor(policy: StudentPolicy, n: int, spec: InputSpec,
+                  mask_ratios: tuple[float, ...] = ()) -> StudentActor | SplitActor:
+    return mask_split_actor(policy, n, spec, mask_ratios, name=policy.config.type)
 
 
 # ----- phases ----------------------------------------------------------------------------
@@ -236,7 +249,8 @@ def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
                                episode_length_s=cfg.episode_length_s))
     beta = cfg.beta * cfg.beta_decay ** (r - 1)
     spec = replace(cfg.rollout, seed=cfg.rollout.seed + r)
-    mixed = LabelledActor(student_actor(policy, cfg.num_envs, spec), teacher, beta=beta,
+    mixed = LabelledActor(student_actor(policy, cfg.num_envs, spec, cfg.rollout_mask_ratios),
+                          teacher, beta=beta,
                           seed=cfg.seed + r)
     types = env.cfg.terrain.types
     episodes: list[Episode] = []

@@ -74,3 +74,39 @@ def test_bad_specs_error():
         InputSpec(dead_joints=(12,))
     with pytest.raises(ValueError, match="nothing left"):
         StudentActor(Recorder(), 2, InputSpec(drop_sensors=("joint_pos", "joint_vel", "command")))
+
+
+class Echo(Recorder):
+    """Acts with its newest joint_pos window row, so each env's action names its env."""
+
+    def act(self, batch, channels=None, mask_ratio=0.0, generator=None):
+        super().act(batch, channels, mask_ratio, generator)
+        return torch.as_tensor(batch["joint_pos"][:, -1, :]).clone()
+
+
+def test_mask_split_actor_groups_envs_by_ratio_and_keeps_their_histories():
+    from policies.actor import SplitActor, mask_split_actor
+
+    pol = Echo()
+    actor = mask_split_actor(pol, 5, InputSpec(), (0.0, 0.5))
+    assert isinstance(actor, SplitActor)
+    for t in range(3):
+        out = actor.act(obs_at(t, n=5))
+    # every env gets its own observation back: the groups' outputs land on their envs
+    np.testing.assert_array_equal(out[:, 0], np.arange(5) + 2)
+    by_ratio = {ratio: batch["joint_pos"][:, :, 0] for batch, _, ratio in pol.calls[-2:]}
+    # envs 0, 2, 4 drive at 0 and envs 1, 3 at 0.5, each with its own history
+    np.testing.assert_array_equal(by_ratio[0.0], [[0, 0, 1, 2], [2, 2, 3, 4], [4, 4, 5, 6]])
+    np.testing.assert_array_equal(by_ratio[0.5], [[1, 1, 2, 3], [3, 3, 4, 5]])
+    actor.reset(np.array([3]))  # env 3 = the second env of the 0.5 group
+    actor.act(obs_at(10, n=5))
+    pads = {ratio: batch["pad"] for batch, _, ratio in pol.calls[-2:]}
+    np.testing.assert_array_equal(pads[0.5][:, -2], [False, True])
+    assert not pads[0.0][:, -2].any()
+    # one ratio (or none): a plain StudentActor at that ratio
+    assert isinstance(mask_split_actor(pol, 5, InputSpec(), (0.5, 0.5)), StudentActor)
+    assert mask_split_actor(pol, 5, InputSpec(), (0.5,)).spec.mask_ratio == 0.5
+    with pytest.raises(ValueError, match="mask_ratio"):
+        mask_split_actor(pol, 5, InputSpec(), (0.0, 1.5))
+    with pytest.raises(ValueError, match="each once"):
+        SplitActor([(np.array([0, 1]), pol), (np.array([1]), pol)])

@@ -319,3 +319,24 @@ def test_keep_unfinished_appends_every_simulated_frame_and_resumes(base, tmp_pat
     assert int(eps["length"].sum()) == 4 * max_steps       # every simulated frame
     assert len(eps) == rec["episodes_rolled_out"] >= E       # falls start new episodes
     assert rec["episodes_after"] == 4 + len(eps)
+
+
+def test_rollout_mask_ratios_split_the_envs_and_are_part_of_the_run(base, tmp_path):
+    """Half the envs drive at test mask 0.5: the round runs, progress.json records the
+    ratios, and a resume with other ratios is refused (they define the data)."""
+    from policies.actor import SplitActor
+    from train.online import student_actor
+
+    cfg = make_cfg(base, tmp_path, rounds=1, rollout_mask_ratios=(0.0, 0.5))
+    prog = correct(cfg)
+    assert prog["config"]["rollout_mask_ratios"] == [0.0, 0.5]
+    assert (load_episode_table(Path(cfg.dataset))["provenance/round"] == 1).sum() == E
+    with pytest.raises(ValueError, match="rollout_mask_ratios"):
+        correct(replace(cfg, resume=True, rounds=2, rollout_mask_ratios=()))
+    policy = MSTAPolicy.from_pretrained(base[1])
+    split = student_actor(policy, 4, cfg.rollout, cfg.rollout_mask_ratios)
+    assert isinstance(split, SplitActor)
+    assert [(g.tolist(), a.spec.mask_ratio) for g, a in split.groups] == [([0, 2], 0.0),
+                                                                          ([1, 3], 0.5)]
+    with pytest.raises(ValueError, match="rollout_mask_ratios: 1.0"):
+        make_cfg(base, tmp_path, rollout_mask_ratios=(0.0, 1.0))
