@@ -9,10 +9,11 @@
   4. msta-train: stage 1 of the MSTA student (cpu preset at T = 3, mask ratio 0.75, the
      paper's stage-1 ratio) on the hub dataset; --push_to pushes the final checkpoint with
      tag stage1 and a model card;
-  5. msta-correct: DAgger rounds (the student drives alone, the teacher labels every step,
-     every simulated frame is appended, the student is retrained on everything at mask
-     ratio 0.5, the paper's stage-2 ratio); --push_to pushes each round's checkpoint with
-     tag stage2-r<r>;
+  5. msta-correct: seven DAgger rounds (the student drives alone, half of the robots with
+     half of its input tokens removed as in the test at mask 50 %, the teacher labels every
+     step, every simulated frame is appended, the student is retrained on everything at
+     mask ratio 0.5, the paper's stage-2 ratio); --push_to pushes each round's checkpoint
+     with tag stage2-r<r>;
   6. the last round (or, with --select_trials, the best on msta-correct's own round
      evaluation, seed 1) is pulled back by tag and evaluated with msta-eval (test masks
      0 / 25 / 50 %, every paper terrain at levels 0-2, 20 trials per terrain) against the
@@ -28,8 +29,10 @@ of 7) costs half as much a step at the same loss per step, which pays for the pa
 stage-2 mask of 0.5: at the demo's budget that student fits its rounds' data better (val
 0.14-0.19 against 0.21-0.27) and walks at least as well in less time (tracking 0.76 / 0.70
 and survival 0.88 / 0.77 at test masks 0 / 50 % in 8.9 min, against 0.70 / 0.71 and
-0.78 / 0.78 in 12.4 min at T = 7 and mask 0.75; docs/training.md, "Window and stage-2
-mask").
+0.78 / 0.78 in 12.4 min at T = 7 and mask 0.75). Rollouts at test masks 0 and 0.5 side by
+side (the rounds then label the states a masked student reaches) and seven rounds instead
+of five: tracking 0.79 / 0.74 and survival 0.94 / 0.81 in 10.9 min (docs/training.md,
+"Window and stage-2 mask", "Masked rollouts").
 
 Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
 """
@@ -77,14 +80,15 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
                                 "demo/a1_teacher", teacher, action_noise=noise)
 
 
-def step_train(out: Path, dataset: str, steps: int, threads: int, history: int) -> Path:
+def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
+               mask: float = 0.75) -> Path:
     from policies.msta import MSTAConfig
     from train.offline import TrainConfig, train
 
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
-          "ratio 0.75 ==")
+          f"ratio {mask:g} ==")
     return train(TrainConfig(
-        dataset=dataset, policy=MSTAConfig.from_preset("cpu", history=history),
+        dataset=dataset, policy=MSTAConfig.from_preset("cpu", history=history, mask_ratio=mask),
         output_dir=str(out / "stage1"),
         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
         steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
@@ -146,7 +150,9 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     from train.online import CorrectConfig, correct
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
-          "student drives alone (DAgger beta 0), the teacher labels every step; retrain "
+          "student drives alone (DAgger beta 0) at test-time mask "
+          f"{' / '.join(f'{m:g}' for m in rollout_masks) or '0'} over its robots, the teacher "
+          "labels every step; retrain "
           f"{steps} steps at lr 1e-3, mask ratio {mask:g}) ==")
     cfg = CorrectConfig(policy=PolicyPath(str(stage1)), dataset=dataset, output_dir=str(out / "stage2"),
                         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
@@ -249,14 +255,17 @@ class DemoConfig:
             clean action stays the label).
         history: the student's window T.
         train_steps: stage-1 optimizer steps.
-        rounds: stage-2 rounds (0: stage 1 only); each takes ~1.1 min on 2 cores (rollouts
-            ~0.3, retraining ~0.8), the rest of the demo ~3.5 min.
+        train_mask_ratio: stage-1 training mask ratio (the paper's 0.75).
+        rounds: stage-2 rounds (0: stage 1 only); each takes ~1 min on 2 cores (rollouts
+            ~0.2, retraining ~0.8), the rest of the demo ~3.5 min.
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
         correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5; 0.75 costs half
             as much a step but fits the rounds' data worse at equal time).
         rollout_mask_ratios: test-time mask ratios the stage-2 student drives at, spread
-            over the round's environments (msta-correct's option); empty = all at 0.
+            over the round's environments (msta-correct's option; the default: half of
+            them with half of the tokens removed, so the rounds also hold the states the
+            test at mask 50 % reaches); empty = all at 0.
         select_trials: trials per test mask on which the rounds are compared (seed 1); 0 = no
             comparison, the last round is evaluated (saves ~40 % of a round).
         select_episode_length_s: episode length of those trials (s).
@@ -279,11 +288,12 @@ class DemoConfig:
     action_noise: float = 0.5
     history: int = 3
     train_steps: int = 4000
-    rounds: int = 5
+    train_mask_ratio: float = 0.75
+    rounds: int = 7
     correct_steps: int = 1300
     correct_episodes: int = 32
     correct_mask_ratio: float = 0.5
-    rollout_mask_ratios: tuple[float, ...] = ()
+    rollout_mask_ratios: tuple[float, ...] = (0.0, 0.5)
     select_trials: int = 0
     select_episode_length_s: float = 5.0
     teacher_seconds: float = 8.0
@@ -306,6 +316,8 @@ class DemoConfig:
             raise ValueError(f"action_noise={self.action_noise} must be >= 0")
         if self.rounds < 0:
             raise ValueError(f"rounds={self.rounds} must be >= 0")
+        if not 0.0 <= self.train_mask_ratio < 1.0:
+            raise ValueError(f"train_mask_ratio={self.train_mask_ratio} must be in [0, 1)")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
 
@@ -332,7 +344,7 @@ def main(argv: list[str] | None = None) -> None:
             hub_dataset = step_push(dataset)
         with timed("step 4"):
             stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads,
-                                cfg.history)
+                                cfg.history, cfg.train_mask_ratio)
         best = 0
         if cfg.rounds:
             with timed("step 5"):

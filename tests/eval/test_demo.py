@@ -70,6 +70,10 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher, select):
     assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
         "mask_ratio"] == 0.5
     assert "DAgger beta 0" in text
+    # by default half of the stage-2 robots drive with half of the tokens removed
+    progress = json.loads((out / "stage2" / "progress.json").read_text())
+    assert progress["config"]["rollout_mask_ratios"] == [0.0, 0.5]
+    assert "test-time mask 0 / 0.5 over its robots" in text
     metrics = json.loads((out / "eval" / "metrics.json").read_text())
     assert metrics
     assert f"demo/msta_a1@{tag}" in text
