@@ -35,6 +35,7 @@ from typing import Any
 import draccus
 
 from msta_data import layout
+from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, minutes_left, stop
 from msta_data.cli import check_at_least, parse_config
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
@@ -90,6 +91,9 @@ class CompareConfig:
         eval_episode_length_s: evaluation episode length (s); 0 = the suite's.
         num_threads: torch threads for training (0 = torch's default).
         progress: progress bars.
+        max_minutes: stop after this many minutes at the next safe point (a training step
+            with its checkpoint, a stage-2 phase, an evaluation run) and exit with status
+            75; the same command continues there. 0 = no limit.
     """
 
     dataset: str = ""
@@ -116,6 +120,7 @@ class CompareConfig:
     eval_episode_length_s: float = 0.0
     num_threads: int = 0
     progress: bool = True
+    max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()]
@@ -130,7 +135,7 @@ class CompareConfig:
         check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
                        "collect_num_envs")
         check_at_least(self, 0, "stage2_rounds", "stage2_steps", "collect_episodes",
-                       "stage2_num_envs", "trials", "num_threads")
+                       "stage2_num_envs", "trials", "num_threads", "max_minutes")
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
         if not self.dataset and not self.collect_episodes:
@@ -163,14 +168,21 @@ def policy_config(name: str, preset: str) -> Any:
 class Progress:
     """One line per phase with the elapsed time; phase durations go to ``output_dir/timing.json``."""
 
-    def __init__(self, out: Path, prog: str = "msta-compare") -> None:
-        self.prog = prog
+    def __init__(self, out: Path, prog: str = "msta-compare",
+                 deadline: float | None = None) -> None:
+        self.prog, self.deadline = prog, deadline
+        self.started = False  # a phase has started in this process
         self.path = out / "timing.json"
         self.timing: dict[str, float] = json.loads(self.path.read_text()) \
             if self.path.exists() else {}
         self.t0 = time.perf_counter()
 
     def start(self, phase: str, detail: str = "") -> float:
+        """Announce a phase (past ``--max_minutes``, raises :class:`TimeLimitReached`
+        instead, unless it is this process's first phase)."""
+        if self.started:
+            check_deadline(self.deadline, f"before {phase}")
+        self.started = True
         print(f"[{self.prog} {self._clock()}] {phase}{': ' + detail if detail else ''}",
               flush=True)
         return time.perf_counter()
@@ -180,6 +192,10 @@ class Progress:
         self.timing[phase] = round(dt, 1)
         self.path.write_text(json.dumps(self.timing, indent=1) + "\n")
         print(f"[{self.prog} {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
+
+    def minutes_left(self) -> float:
+        """``--max_minutes`` for the running phase's sub-command (0: no limit)."""
+        return minutes_left(self.deadline)
 
     def _clock(self) -> str:
         s = int(time.perf_counter() - self.t0)
@@ -248,7 +264,8 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
         dataset=str(root), policy=config or policy_config(name, cfg.preset), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
         save_every=max(100, cfg.stage1_steps // 4), eval_every=cfg.stage1_steps,
-        num_threads=cfg.num_threads, progress=cfg.progress))
+        num_threads=cfg.num_threads, progress=cfg.progress,
+        max_minutes=prog.minutes_left()))
     prog.done(f"{name} stage 1", t)
     return final
 
@@ -295,7 +312,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed,
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
         eval=EvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
-        progress=cfg.progress))
+        progress=cfg.progress, max_minutes=prog.minutes_left()))
     prog.done(f"{name} stage 2", t)
     return last
 
@@ -327,10 +344,11 @@ def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str,
                       output_dir=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
                       terrains=cfg.eval_terrains, scenarios=cfg.eval_scenarios,
                       episode_length_s=cfg.eval_episode_length_s, seed=cfg.seed, teacher=cfg.teacher,
-                      progress=cfg.progress)
+                      progress=cfg.progress, resume=True)
     t = prog.start("eval", f"suite {cfg.eval_suite}, scenarios {cfg.eval_scenarios}, "
                    f"{ecfg.num_trials} trials of {ecfg.episode:g} s, {len(ckpts)} policies "
                    "+ teacher")
+    ecfg.max_minutes = prog.minutes_left()
     metrics = evaluate(ecfg)
     prog.done("eval", t)
     return metrics
@@ -402,7 +420,7 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     if not cfg.collect_episodes:
         check_dataset(cfg.dataset_root)  # before anything is written
     check_run_config(cfg, out)
-    prog = Progress(out)
+    prog = Progress(out, deadline=deadline_after(cfg.max_minutes))
     root = ensure_dataset(cfg, prog)
     ckpts = []
     for i, name in enumerate(cfg.policy_list, 1):
@@ -422,6 +440,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = parse_config(CompareConfig, args, "msta-compare")  # bad flags: one line, exit 2
     try:
         compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
+    except TimeLimitReached as e:
+        stop("msta-compare", e)
     except (ValueError, FileNotFoundError) as e:
         print(f"msta-compare: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None

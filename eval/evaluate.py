@@ -20,11 +20,12 @@ docs/eval.md for the metric definitions.
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +55,7 @@ from eval.scenarios import (
     get_suite,
     split_csv,
 )
+from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta_data.cli import parse_config
 from msta_data.locate import locate, reads_as_hub_id
 from msta_data.revision import content_revision, file_parts
@@ -88,6 +90,13 @@ class EvalConfig(TrialConfig):
     """video length (s)."""
     progress: bool = True
     """show progress bars."""
+    resume: bool = False
+    """reuse the runs an interrupted msta-eval finished in ``output_dir/runs/`` (one file
+    per policy x inputs, kept only when trials, teacher and checkpoint are the same); false
+    clears runs/ first."""
+    max_minutes: float = 0.0
+    """stop after this many minutes, at the end of the run in progress, and exit with
+    status 75; the same command with --resume=true continues. 0 = no limit."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -250,6 +259,24 @@ def _digest(key: tuple) -> str:
     return content_revision([repr(key)])
 
 
+#: ``output_dir/runs/``: one finished run per file (``--resume``).
+RUNS = "runs"
+
+
+def save_trials(res: TrialResults, path: Path) -> None:
+    """Write one run's per-trial sums (atomically: a kill leaves no half file)."""
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(tmp, max_steps=np.int64(res.max_steps),
+             **{f.name: getattr(res, f.name) for f in fields(res) if f.name != "max_steps"})
+    tmp.replace(path)
+
+
+def load_trials(path: Path) -> TrialResults:
+    with np.load(path) as z:
+        return TrialResults(**{f.name: z[f.name] for f in fields(TrialResults)
+                               if f.name != "max_steps"}, max_steps=int(z["max_steps"]))
+
+
 class Evaluator:
     """Runs conditions on one shared evaluation env and caches identical student inputs.
 
@@ -262,8 +289,14 @@ class Evaluator:
         progress: show progress bars.
     """
 
-    def __init__(self, cfg: TrialConfig, teacher: TeacherConfig, progress: bool = True) -> None:
+    def __init__(self, cfg: TrialConfig, teacher: TeacherConfig, progress: bool = True,
+                 store: Path | None = None, deadline: float | None = None) -> None:
         self.cfg, self.teacher, self.progress = cfg, teacher, progress
+        self.store, self.deadline = store, deadline
+        self._ran = False  # a run was made in this process (the deadline stops the next)
+        # what the stored runs must share besides their key: the trials and the reference
+        self._fingerprint = (json.dumps(TrialConfig.resolved(cfg), sort_keys=True),
+                             teacher_revision(teacher)) if store is not None else ()
         self.layout = cfg.layout()
         self.env = make_env(cfg, len(self.layout.rounds(cfg.envs)[0]))
         self.reference: dict[str, Any] | None = None
@@ -271,7 +304,16 @@ class Evaluator:
         self.timing: dict[str, float] = {}
         self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
 
-    def _run(self, label: str, make_actor) -> TrialResults:
+    def _run(self, label: str, make_actor, key: tuple = ()) -> TrialResults:
+        """One run over every trial; with a store, read from / written to
+        ``store/<digest>.npz`` (``key``: what the actor sees)."""
+        path = self.store / f"{_digest((self._fingerprint, key))}.npz" \
+            if self.store is not None and key else None
+        if path is not None and path.is_file():
+            return load_trials(path)
+        if self._ran:
+            check_deadline(self.deadline, f"before {label}")
+        self._ran = True
         # MSTA draws token order from the global torch RNG when no generator is passed
         # (StudentActor passes one only for mask_ratio > 0): seed it per run.
         torch.manual_seed(self.cfg.seed)
@@ -279,12 +321,15 @@ class Evaluator:
         res = run_trials(self.env, make_actor, self.layout, desc=label,
                          progress=self.progress)
         self.timing[label] = round(time.perf_counter() - t0, 3)
+        if path is not None:
+            save_trials(res, path)
         return res
 
     def run_reference(self) -> dict[str, Any]:
         """Roll the reference teacher over every trial."""
         teacher = build_teacher(self.teacher)
-        self.reference_trials = self._run("reference teacher", lambda r, n: teacher)
+        self.reference_trials = self._run("reference teacher", lambda r, n: teacher,
+                                          ("reference",))
         self.reference = aggregate(self.reference_trials, self.layout)
         return self.reference
 
@@ -323,7 +368,7 @@ class Evaluator:
                     raise NotApplicable(f"{type(e).__name__}: {e}") from e
                 make = self._student_factory(entry, cond.spec)
             if key not in self._cache:
-                res = self._run(label, make)
+                res = self._run(label, make, key)
                 self._cache[key] = (res, aggregate(res, self.layout))
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}
@@ -358,8 +403,14 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     Returns:
         the content of metrics.json.
     """
+    deadline = deadline_after(cfg.max_minutes)
     entries = entries if entries is not None else load_entries(cfg)
-    ev = Evaluator(cfg, cfg.teacher, cfg.progress)
+    out = Path(cfg.output_dir)
+    store = out / RUNS
+    if not cfg.resume and store.is_dir():
+        shutil.rmtree(store)
+    store.mkdir(parents=True, exist_ok=True)
+    ev = Evaluator(cfg, cfg.teacher, cfg.progress, store, deadline)
     pairs = plan(cfg, entries)
     t0 = time.perf_counter()
     with torch_eval_settings(cfg.num_threads):
@@ -376,8 +427,6 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
         "levels": cfg.level_list,
         "runs": runs,
     }
-    out = Path(cfg.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
     ev.timing["total"] = round(time.perf_counter() - t0, 3)
     (out / "timing.json").write_text(json.dumps(ev.timing, indent=1) + "\n")
@@ -422,6 +471,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = parse_config(EvalConfig, argv, "msta-eval")  # bad flags: one line, exit 2
     try:
         metrics = evaluate(cfg)
+    except TimeLimitReached as e:
+        stop("msta-eval", e, "the same command with --resume=true")
     except (KeyError, ValueError, FileNotFoundError, NotADirectoryError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-eval: error: {msg}", file=sys.stderr)

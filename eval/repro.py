@@ -2,6 +2,7 @@
 
     msta-repro --scale=reference --output_dir=outputs/repro --report_dir=docs/reference
     msta-repro --scale=tiny --output_dir=/tmp/repro          # seconds: the pipeline only
+    msta-repro --scale=paper --max_minutes=7                 # one <= 10-minute call at a time
 
 Phases (each skipped when its output exists, so re-running the command after a kill
 continues where it stopped; a killed training resumes from its last checkpoint):
@@ -23,7 +24,13 @@ continues where it stopped; a killed training resumes from its last checkpoint):
    ``metrics.json``, ``report.md`` and plots under ``report_dir/<evaluation>/``.
 
 Sizes and the estimated time are printed at the start. ``--scale=paper`` uses the paper's
-sizes and picks CUDA when present; it is long, and every phase resumes.
+sizes and picks CUDA when present; it is long, and every phase resumes. With
+``--max_minutes=N`` a call stops at the first safe point after N minutes (an optimizer step,
+saved with a checkpoint; a stage-2 phase; one evaluation run, kept in the evaluation's
+``runs/``) and exits with status 75; the next call of the same command continues there, so
+a machine lent for ten minutes a command runs the study as a series of calls::
+
+    until msta-repro --scale=paper --max_minutes=7; do [ $? -eq 75 ] || exit 1; done
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ from eval.compare import (
     train_policy,
 )
 from msta_data import layout
+from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import check_at_least, parse_config
 from msta_data.features import load_info
 from policies.teacher.config import TeacherConfig
@@ -120,6 +128,11 @@ class ReproConfig:
         seed: seeds recording, training, rollouts and evaluation.
         num_threads: torch threads for training (0: torch's default).
         progress: progress bars.
+        max_minutes: stop after this many minutes at the next safe point (an optimizer step
+            with its checkpoint, a stage-2 phase, one evaluation run) and exit with status
+            75; the same command continues there, so a machine lent for 10 minutes a
+            command runs the study as a series of calls (e.g. ``--max_minutes=7``). 0 = no
+            limit.
     """
 
     scale: str = "reference"
@@ -131,11 +144,12 @@ class ReproConfig:
     seed: int = 0
     num_threads: int = 0
     progress: bool = True
+    max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; scales: {', '.join(SCALES)}")
-        check_at_least(self, 0, "num_threads")
+        check_at_least(self, 0, "num_threads", "max_minutes")
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()] \
             or list(PAPER_POLICIES)
         for name in self.policy_list:
@@ -248,8 +262,9 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
                       terrains=s.terrains, levels=s.levels,
                       episode_length_s=s.eval_episode_length_s, scenarios=scenarios,
                       matrix=matrix, seed=cfg.seed, teacher=cfg.teacher,
-                      output_dir=str(out), progress=cfg.progress)
+                      output_dir=str(out), progress=cfg.progress, resume=True)
     t = prog.start(f"eval {name}", f"{scenarios}: {len(policies)} students + teacher")
+    ecfg.max_minutes = prog.minutes_left()
     metrics = evaluate(ecfg)
     prog.done(f"eval {name}", t)
     return metrics
@@ -262,7 +277,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
     out = Path(cfg.output_dir)
     check_run(cfg, out)
     print_sizes(cfg)
-    prog = Progress(out, PROG)
+    prog = Progress(out, PROG, deadline_after(cfg.max_minutes))
     root = ensure_dataset(cfg, prog)
     ccfg = compare_config(cfg, root)
     ckpts = {name: train_policy(ccfg, name, root, prog) for name in ccfg.policy_list}
@@ -305,6 +320,8 @@ def main(argv: list[str] | None = None) -> None:
     cfg = parse_config(ReproConfig, args, PROG)
     try:
         repro(cfg, " ".join([PROG, *map(shlex.quote, args)]))
+    except TimeLimitReached as e:
+        stop(PROG, e)
     except (ValueError, FileNotFoundError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None

@@ -245,7 +245,7 @@ def build_conditions(scenarios: Sequence[str], suite: Suite, sensors: Sequence[s
 
 
 #: config fields that do not change any number (left out of metrics.json)
-_NOT_RESULTS = ("output_dir", "progress", "video", "video_s", "nthread")
+_NOT_RESULTS = ("output_dir", "progress", "video", "video_s", "nthread", "resume", "max_minutes")
 
 
 def split_csv(text: str) -> list[str]:

@@ -31,6 +31,9 @@ class LoopConfig:
             (the paper's stress test, as msta-eval's ``dummy_tokens`` scenario draws them:
             fresh each step, never trained), so the student learns to ignore distractors;
             token students (MSTA) only. Validation runs without them. 0 = none.
+        max_minutes: stop after this many minutes at the next step, with a checkpoint
+            saved, and exit with status 75; the same command (with ``--resume=true``)
+            continues there. 0 = no limit (msta_data/budget.py).
     """
 
     steps: int = 2000
@@ -49,11 +52,12 @@ class LoopConfig:
     progress: bool = True
     ema_decay: float = 0.0
     dummy_tokens: int = 0
+    max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "steps", "batch_size", "log_every", "val_samples")
         check_at_least(self, 0, "warmup_steps", "eval_every", "save_every", "grad_clip",
-                       "weight_decay", "dummy_tokens")
+                       "weight_decay", "dummy_tokens", "max_minutes")
         if not self.lr > 0:
             raise ValueError(f"lr={self.lr} must be > 0")
         if not 0.0 <= self.ema_decay < 1.0:

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from msta_data.budget import TimeLimitReached, passed
 from msta_data.windows import WindowDataset
 from policies.base import CheckpointError, StudentPolicy
 from train.config import LoopConfig
@@ -134,7 +135,7 @@ class WeightEMA:
 def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfig,
         out: Path, resume: bool, weights: np.ndarray | None = None,
         on_step: Callable[[int, dict[str, float]], None] | None = None,
-        desc: str = "train") -> FitResult:
+        desc: str = "train", deadline: float | None = None) -> FitResult:
     """Train ``policy`` on random windows of ``train_ds`` for ``cfg.steps`` steps.
 
     Args:
@@ -148,6 +149,9 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
         on_step: called as ``on_step(step, metrics)`` after every step (and its logging and
             checkpoint); an exception raised there stops training like a crash would.
         desc: progress-bar label.
+        deadline: a ``time.monotonic()`` time (``--max_minutes``): once it has passed, the
+            step in progress ends with a checkpoint and :class:`TimeLimitReached` is raised
+            (``resume`` continues from that step).
     """
     if cfg.dummy_tokens and not policy.supports_dummy_tokens:
         raise ValueError(f"dummy_tokens={cfg.dummy_tokens}: a {policy.config.type!r} student "
@@ -193,13 +197,16 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
                 row.update({f"val_{k}": v for k, v in val.items()})
             if row:
                 logger.log(step, row)
-            if (cfg.save_every and step % cfg.save_every == 0) or step == cfg.steps:
+            stopping = step < cfg.steps and passed(deadline)
+            if (cfg.save_every and step % cfg.save_every == 0) or step == cfg.steps or stopping:
                 save_checkpoint(out, step, policy, state, ema)
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}",
                             samples_s=f"{samples / max(train_time, 1e-9):.0f}")
             if on_step is not None:
                 on_step(step, metrics)
+            if stopping:
+                raise TimeLimitReached(f"{desc}: step {step} of {cfg.steps}, checkpoint saved")
     finally:
         bar.close()
         logger.close()

@@ -3,6 +3,7 @@
     msta-train --dataset=outputs/datasets/a1_teacher --policy.preset=cpu \\
         --output_dir=outputs/train/msta_cpu --steps=3000 --batch_size=64
     msta-train ... --resume=true          # continue exactly where a killed run stopped
+    msta-train ... --max_minutes=8        # stop after 8 min with a checkpoint (exit 75)
 
 Output directory::
 
@@ -29,6 +30,7 @@ from pathlib import Path
 import draccus
 import torch
 
+from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.layout import LOCK_NAME
 from msta_data.locate import locate_dataset
 from msta_data.locking import lock_directory
@@ -153,17 +155,19 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     run directory is then locked (``output_dir/.msta.lock``: a second msta-train on it gets
     a one-line error and changes nothing) until the run ends.
     """
+    deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
     root = locate_dataset(cfg.dataset, "--dataset")  # verified before anything is created
     lock = lock_run(out)
     try:
-        return _train_locked(cfg, root, out, on_step)
+        return _train_locked(cfg, root, out, on_step, deadline)
     finally:
         os.close(lock)
 
 
 def _train_locked(cfg: TrainConfig, root: Path, out: Path,
-                  on_step: Callable[[int, dict[str, float]], None] | None) -> Path:
+                  on_step: Callable[[int, dict[str, float]], None] | None,
+                  deadline: float | None = None) -> Path:
     """:func:`train` once the run directory is locked."""
     resuming = prepare_output(out, cfg.resume)
     if resuming:
@@ -182,7 +186,8 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     print(f"dataset {root}: {len(train_eps)} train episodes ({len(train_ds):,} windows), "
           f"{len(val_eps)} validation; {cfg.policy.type} policy with {n_params:,} parameters "
           f"on {device}, {torch.get_num_threads()} threads")
-    res = fit(policy, train_ds, val_ds, cfg.loop_part(), out, resuming, on_step=on_step)
+    res = fit(policy, train_ds, val_ds, cfg.loop_part(), out, resuming, on_step=on_step,
+              deadline=deadline)
     final = policy.save_pretrained(out / "final")
     shutil.copy(out / "train_config.json", final / "train_config.json")
     val = ", ".join(f"val {k} {v:.4g}" for k, v in res.val.items())
@@ -201,6 +206,8 @@ def main(argv: Sequence[str] | None = None) -> None:
         train(cfg)
     except USER_ERRORS as e:
         raise SystemExit(f"msta-train: error: {e}") from None
+    except TimeLimitReached as e:
+        stop("msta-train", e, "the same command with --resume=true")
 
 
 if __name__ == "__main__":

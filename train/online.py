@@ -4,6 +4,7 @@
         --output_dir=outputs/correct/msta_cpu --rounds=3 --episodes_per_round=64 \\
         --teacher.type=gait --steps=500
     msta-correct ... --resume=true        # after a kill: continue at the unfinished round
+    msta-correct ... --max_minutes=8      # stop at the next safe point after 8 min (exit 75)
 
 Each round r = 1..R:
 
@@ -36,6 +37,8 @@ episodes, with matching provenance at the tail, means the kill came between the 
 and the progress update (the round is marked appended); anything else is an error.
 Killed during retraining, the round resumes from its last training checkpoint
 (``output_dir/train/round_<r>/``); killed during evaluation, only the evaluation reruns.
+``--max_minutes`` stops the same way, but only at those safe points: after a training step
+(with a checkpoint), after the append, after the retraining and after each round.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ import torch
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
+from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta_data.cli import check_at_least
 from msta_data.features import load_info, sensor_column_to_name
 from msta_data.locate import locate_checkpoint, locate_dataset
@@ -301,8 +305,8 @@ def check_tail(root: Path, before: int, expected: int, r: int, revision: str) ->
     return True
 
 
-def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path
-            ) -> dict[str, float]:
+def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path,
+            deadline: float | None = None) -> dict[str, float]:
     """Phase 4: :func:`train.loop.fit` on the aggregate, from the current weights."""
 
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed + r)
@@ -316,7 +320,7 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
     loop = replace(cfg.loop_part(), seed=cfg.seed + r,
                    mask_ratio=stage2_mask_ratio(cfg.mask_ratio, policy))
     res = fit(policy, train_ds, val_ds, loop, out / "train" / f"round_{r}", resume=True,
-              weights=weights, desc=f"round {r} train")
+              weights=weights, desc=f"round {r} train", deadline=deadline)
     return {"windows": len(train_ds), "train_samples_per_s": res.samples_per_s,
             "train_loss": res.train.get("loss", float("nan")),
             **{f"val_{k}": v for k, v in res.val.items()}}
@@ -422,6 +426,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
             ``output_dir/start/``: round 0 evaluates it and round 1 starts from it.
     """
     hook = on_phase or (lambda phase, r: None)
+    deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
     if not cfg.resume and out.exists() and any(out.iterdir()):
         raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
@@ -459,7 +464,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
     for r in range(1, cfg.rounds + 1):
         rec = prog["rounds"].setdefault(str(r), {})
         if not rec.get("evaluated"):
-            run_round(cfg, policy, root, out, r, rec, prog, hook, evaluator)
+            run_round(cfg, policy, root, out, r, rec, prog, hook, evaluator, deadline)
         if cfg.push_to and rec.get("pushed", {}).get("repo") != cfg.push_to:
             rec["pushed"] = push_round(cfg, prog, r)
             atomic_json(path, prog)
@@ -468,8 +473,9 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
 
 def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
               r: int, rec: dict[str, Any], prog: dict[str, Any], hook: PhaseHook,
-              evaluator: RoundEvaluator | None) -> None:
-    """One round's phases, each skipped when progress.json marks it done."""
+              evaluator: RoundEvaluator | None, deadline: float | None = None) -> None:
+    """One round's phases, each skipped when progress.json marks it done; past
+    ``deadline`` (``--max_minutes``) it stops after the phase that is running."""
     path = out / PROGRESS
     revision = policy_revision(policy)
     if not rec.get("appended"):
@@ -496,8 +502,9 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
             print(f"round {r}: appended {len(episodes)} student episodes ({stats['frames']:,} "
                   f"frames, {stats['env_steps_per_s']:,.0f} env steps/s) -> {root} ({total})")
         atomic_json(path, prog)
+        check_deadline(deadline, f"round {r}: episodes appended")
     if not rec.get("trained"):
-        rec["train"] = retrain(cfg, policy, root, r, out)
+        rec["train"] = retrain(cfg, policy, root, r, out, deadline)
         print(f"round {r}: trained {cfg.steps} steps on {rec['train']['windows']:,} windows "
               f"({rec['train']['train_samples_per_s']:.0f} samples/s)")
         policy.save_pretrained(out / f"round_{r}")
@@ -505,6 +512,7 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
                    trained_revision=policy_revision(policy))
         atomic_json(path, prog)
         hook("trained", r)
+        check_deadline(deadline, f"round {r}: trained")
     if evaluator is not None:
         rec.update(eval=evaluator.student(out / f"round_{r}"), eval_config=cfg.eval.resolved())
         prog["teacher_eval"] = evaluator.teacher()
@@ -512,6 +520,8 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
     atomic_json(path, prog)
     hook("evaluated", r)
     print_table(prog)
+    if r < cfg.rounds:
+        check_deadline(deadline, f"round {r}: done")
 
 
 def parse_args(argv: Sequence[str] | None = None, cls: type[CorrectConfig] = CorrectConfig,
@@ -532,6 +542,8 @@ def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
         done = run(cfg)
     except USER_ERRORS as e:  # one line naming the file, no traceback
         raise SystemExit(f"{prog}: error: {e}") from None
+    except TimeLimitReached as e:
+        stop(prog, e, "the same command with --resume=true")
     print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
           f"{done['rounds'][str(cfg.rounds)].get('checkpoint')}")
 

@@ -11,6 +11,7 @@ import pytest
 from eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
 from eval.metrics import RETURNS
 from eval.scenarios import Condition
+from msta_data.budget import EXIT_STOPPED
 from policies.actor import InputSpec
 
 FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progress": False}
@@ -119,6 +120,31 @@ def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
         assert img.shape[0] > 100 and img.shape[1] > 100 and np.ptp(img) > 0.5, name
     video = next((tmp_path / "a").glob("video_a75_50_stairs_up_L0.mp4"))
     assert video.stat().st_size > 1000
+
+
+def test_max_minutes_stops_between_runs_and_the_resumed_metrics_are_identical(
+        two_ckpts, tmp_path, capsys):
+    ref = _cli(tmp_path / "ref", two_ckpts, scenarios="token_removal")
+    out, calls = tmp_path / "stopped", 0
+    while True:  # every call makes one run (passed at once), keeps it and stops
+        calls += 1
+        try:
+            got = _cli(out, two_ckpts, scenarios="token_removal",
+                       extra=("--max_minutes", "1e-9", "--resume", "true"))
+            break
+        except SystemExit as e:
+            assert e.code == EXIT_STOPPED
+            assert not (out / "metrics.json").exists()
+            assert len(list((out / "runs").glob("*.npz"))) == calls
+        assert calls < 20
+    # reference + teacher row + 2 students x 3 masks, one per call; the same bytes
+    assert calls == len(list((out / "runs").glob("*.npz"))) == 8
+    assert got == ref
+    assert "msta-eval: stopped (before a50_50 | token_removal/mask 0%" in capsys.readouterr().out
+    # without --resume the kept runs are cleared first
+    with pytest.raises(SystemExit):
+        _cli(out, two_ckpts, scenarios="token_removal", extra=("--max_minutes", "1e-9"))
+    assert len(list((out / "runs").glob("*.npz"))) == 1
 
 
 def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, capsys):

@@ -12,6 +12,7 @@ import pytest
 
 import eval.repro as repro_mod
 from eval.repro import SCALES, ReproConfig, main, repro
+from msta_data.budget import EXIT_STOPPED
 from policies.teacher.config import TeacherConfig
 
 POLICIES = "msta,gru,msta_mask"
@@ -24,8 +25,16 @@ def config(out: Path, **kw) -> ReproConfig:
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory) -> tuple[Path, str]:
-    """One tiny study, killed once in the MSTA evaluation and re-run; (output, 2nd stdout)."""
+    """One tiny study: stopped by --max_minutes after its first phase, killed once in the
+    MSTA evaluation and re-run; (output, the last call's stdout)."""
     out = tmp_path_factory.mktemp("repro") / "out"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), pytest.raises(SystemExit) as stopped:
+        main(["--scale=tiny", f"--output_dir={out}", f"--policies={POLICIES}",
+              "--teacher.type=gait", "--progress=false", "--max_minutes=1e-9"])
+    assert stopped.value.code == EXIT_STOPPED
+    assert "msta-repro: stopped (before msta stage 1): --max_minutes reached" in buf.getvalue()
+    assert (out / "teacher_dataset").is_dir() and not (out / "compare" / "runs").exists()
     real = repro_mod.run_eval
 
     def crash(cfg, name, *args, **kw):

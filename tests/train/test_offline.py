@@ -11,6 +11,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from msta_data.budget import EXIT_STOPPED
 from policies.factory import get_config_class, load_policy, registered_policies
 from policies.msta import MSTAPolicy
 from train.cli import parse_cli
@@ -106,6 +107,25 @@ def test_run_writes_metrics_checkpoints_and_a_loadable_final(synthetic_dataset, 
 
 class Crash(RuntimeError):
     pass
+
+
+def test_max_minutes_stops_with_a_checkpoint_and_the_resume_is_bit_identical(
+        synthetic_dataset, tmp_path, capsys):
+    args = ("--steps=6", "--save_every=0", "--eval_every=0", "--lr=3e-3")
+    ref = train(cfg_for(synthetic_dataset, tmp_path / "ref", *args))
+    out = tmp_path / "stopped"
+    argv = [f"--dataset={synthetic_dataset}", f"--output_dir={out}", *FAST, *args]
+    with pytest.raises(SystemExit) as stopped:
+        main([*argv, "--max_minutes=1e-9"])  # passed at once: stops after the first step
+    assert stopped.value.code == EXIT_STOPPED
+    assert ("msta-train: stopped (train: step 1 of 6, checkpoint saved): --max_minutes "
+            "reached; run the same command with --resume=true again") in capsys.readouterr().out
+    assert (out / "checkpoints" / "last").resolve().name == "000001"  # save_every=0: only this
+    assert not (out / "final").exists()
+    main([*argv, "--resume=true"])
+    a = load_file(str(ref / "model.safetensors"))
+    b = load_file(str(out / "final" / "model.safetensors"))
+    assert all(torch.equal(a[k], b[k]) for k in a), "the stopped and resumed run differs"
 
 
 @pytest.mark.parametrize("ema", [0.0, 0.9], ids=["plain", "ema"])

@@ -15,6 +15,7 @@ from collect.record import CollectConfig, collect, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
+from msta_data.budget import TimeLimitReached
 from msta_data.stats import load_stats
 from msta_data.windows import WindowDataset, load_episode_table
 from policies.checkpoint import PolicyPath
@@ -233,6 +234,26 @@ def test_resume_after_a_kill_between_rollout_and_retrain(base, two_rounds, tmp_p
     idx = np.arange(len(a))
     np.testing.assert_allclose(a.get_batch(idx)["executed_action"],
                                b.get_batch(idx)["executed_action"], atol=1e-3)
+
+
+def test_max_minutes_stops_at_each_safe_point_and_the_calls_finish_the_run(
+        base, two_rounds, tmp_path):
+    cfg = make_cfg(base, tmp_path, max_minutes=1e-9)  # passed at once: every call does one unit
+    stops: list[str] = []
+    for _ in range(20):
+        try:
+            prog = correct(replace(cfg, resume=bool(stops)))
+            break
+        except TimeLimitReached as e:
+            stops.append(str(e))
+    steps = [f"round {r} train: step {s} of 3, checkpoint saved" for r in (1, 2) for s in (1, 2)]
+    assert stops == ["round 1: episodes appended", *steps[:2], "round 1: trained",
+                     "round 1: done", "round 2: episodes appended", *steps[2:],
+                     "round 2: trained"]
+    assert prog["rounds"]["2"]["trained"] and prog["rounds"]["2"]["evaluated"]
+    cols = ["length", "provenance/round", "provenance/terrain"]
+    ref = load_episode_table(Path(two_rounds[0].dataset))[cols]
+    assert ref.equals(load_episode_table(Path(cfg.dataset))[cols])  # nothing lost or redone
 
 
 def test_resume_after_a_kill_during_evaluation_only_evaluates(base, tmp_path):
