@@ -262,7 +262,8 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
                       terrains=s.terrains, levels=s.levels,
                       episode_length_s=s.eval_episode_length_s, scenarios=scenarios,
                       matrix=matrix, seed=cfg.seed, teacher=cfg.teacher,
-                      output_dir=str(out), progress=cfg.progress, resume=True)
+                      output_dir=str(out), progress=cfg.progress, resume=True,
+                      nthread=0)  # MuJoCo threads: one per core of the machine
     t = prog.start(f"eval {name}", f"{scenarios}: {len(policies)} students + teacher")
     ecfg.max_minutes = prog.minutes_left()
     metrics = evaluate(ecfg)

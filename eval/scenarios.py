@@ -290,7 +290,7 @@ class TrialConfig:
     num_threads: int = 1
     """torch threads while evaluating (figures are bit-identical for the same value)."""
     nthread: int = 2
-    """MuJoCo rollout threads (do not change any figure)."""
+    """MuJoCo rollout threads (do not change any figure; 0 = one per CPU core)."""
 
     def __post_init__(self) -> None:
         suite = get_suite(self.suite)
