@@ -37,6 +37,7 @@ import draccus
 from msta_data import layout
 from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, minutes_left, stop
 from msta_data.cli import check_at_least, parse_config
+from msta_data.features import load_info
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
@@ -92,7 +93,7 @@ class CompareConfig:
         num_threads: torch threads for training (0 = torch's default).
         progress: progress bars.
         max_minutes: stop after this many minutes at the next safe point (a training step
-            with its checkpoint, a stage-2 phase, an evaluation run) and exit with status
+            with its checkpoint, a stage-2 phase, a round of evaluation trials) and exit with status
             75; the same command continues there. 0 = no limit.
     """
 
@@ -175,6 +176,11 @@ class Progress:
         self.path = out / "timing.json"
         self.timing: dict[str, float] = json.loads(self.path.read_text()) \
             if self.path.exists() else {}
+        # seconds spent in unfinished phases by calls that --max_minutes stopped
+        self.partial_path = out / "timing_partial.json"
+        self.partial: dict[str, float] = json.loads(self.partial_path.read_text()) \
+            if self.partial_path.exists() else {}
+        self.current: tuple[str, float] | None = None
         self.t0 = time.perf_counter()
 
     def start(self, phase: str, detail: str = "") -> float:
@@ -183,15 +189,27 @@ class Progress:
         if self.started:
             check_deadline(self.deadline, f"before {phase}")
         self.started = True
+        self.current = (phase, time.perf_counter())
         print(f"[{self.prog} {self._clock()}] {phase}{': ' + detail if detail else ''}",
               flush=True)
         return time.perf_counter()
 
     def done(self, phase: str, t_start: float) -> None:
         dt = time.perf_counter() - t_start
-        self.timing[phase] = round(dt, 1)
+        self.current = None
+        self.timing[phase] = round(dt + self.partial.pop(phase, 0.0), 1)
         self.path.write_text(json.dumps(self.timing, indent=1) + "\n")
+        self.partial_path.write_text(json.dumps(self.partial, indent=1) + "\n")
         print(f"[{self.prog} {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
+
+    def stopped(self) -> None:
+        """Keep the time the running phase has had so far (``--max_minutes`` stopped it):
+        the call that finishes the phase adds it to that phase's time."""
+        if self.current is not None:
+            phase, t = self.current
+            self.partial[phase] = round(self.partial.get(phase, 0.0) + time.perf_counter() - t, 1)
+            self.partial_path.write_text(json.dumps(self.partial, indent=1) + "\n")
+            self.current = None
 
     def minutes_left(self) -> float:
         """``--max_minutes`` for the running phase's sub-command (0: no limit)."""
@@ -220,7 +238,8 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
 def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
     """The teacher dataset, recorded (or extended) first when ``collect_episodes`` > 0."""
     root = cfg.dataset_root
-    if cfg.collect_episodes:
+    have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
+    if cfg.collect_episodes and have < cfg.collect_episodes:  # recorded, or extended
         from collect.record import CollectConfig, collect
 
         t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.type} episodes of "
@@ -421,12 +440,16 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
         check_dataset(cfg.dataset_root)  # before anything is written
     check_run_config(cfg, out)
     prog = Progress(out, deadline=deadline_after(cfg.max_minutes))
-    root = ensure_dataset(cfg, prog)
-    ckpts = []
-    for i, name in enumerate(cfg.policy_list, 1):
-        print(f"[msta-compare] policy {i}/{len(cfg.policy_list)}: {name}", flush=True)
-        ckpts.append(train_policy(cfg, name, root, prog))
-    metrics = run_eval(cfg, ckpts, prog)
+    try:
+        root = ensure_dataset(cfg, prog)
+        ckpts = []
+        for i, name in enumerate(cfg.policy_list, 1):
+            print(f"[msta-compare] policy {i}/{len(cfg.policy_list)}: {name}", flush=True)
+            ckpts.append(train_policy(cfg, name, root, prog))
+        metrics = run_eval(cfg, ckpts, prog)
+    except TimeLimitReached:
+        prog.stopped()
+        raise
     md = comparison_markdown(cfg, metrics, command or "msta-compare", prog.timing)
     (out / "comparison.md").write_text(md)
     print("\n" + paper_table(metrics) + "\n\n" + table_one(metrics, "total"))

@@ -20,7 +20,6 @@ docs/eval.md for the metric definitions.
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 import time
 from collections.abc import Iterator
@@ -91,12 +90,12 @@ class EvalConfig(TrialConfig):
     progress: bool = True
     """show progress bars."""
     resume: bool = False
-    """reuse the runs an interrupted msta-eval finished in ``output_dir/runs/`` (one file
-    per policy x inputs, kept only when trials, teacher and checkpoint are the same); false
-    clears runs/ first."""
+    """reuse what an interrupted msta-eval finished in ``output_dir/eval_runs/`` (a file per
+    policy x inputs, or per round of its trials; used only when the trials, the reference
+    teacher, the checkpoint and its inputs are the same); false clears eval_runs/ first."""
     max_minutes: float = 0.0
-    """stop after this many minutes, at the end of the run in progress, and exit with
-    status 75; the same command with --resume=true continues. 0 = no limit."""
+    """stop after this many minutes, at the end of the round of trials in progress, and
+    exit with status 75; the same command with --resume=true continues. 0 = no limit."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -259,14 +258,25 @@ def _digest(key: tuple) -> str:
     return content_revision([repr(key)])
 
 
-#: ``output_dir/runs/``: one finished run per file (``--resume``).
-RUNS = "runs"
+#: ``output_dir/eval_runs/``: one finished run (or round of trials) per file (``--resume``).
+RUNS = "eval_runs"
+#: what TrialConfig.resolved() holds besides its fields (the effective values)
+_RESOLVED = ("trials", "terrains", "levels", "episode_length_s", "num_envs")
 
 
-def save_trials(res: TrialResults, path: Path) -> None:
-    """Write one run's per-trial sums (atomically: a kill leaves no half file)."""
+def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
+    """What every stored run of an evaluation shares besides its own key (the policy's
+    name, checkpoint revision and inputs): the metrics version, the trials (every
+    TrialConfig setting that changes a figure) and the reference teacher's revision."""
+    names = {f.name for f in fields(TrialConfig)} | set(_RESOLVED)
+    trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
+    return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
+
+
+def save_trials(res: TrialResults, path: Path, **extra: np.ndarray) -> None:
+    """Write per-trial sums (and ``extra`` arrays) atomically: a kill leaves no half file."""
     tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, max_steps=np.int64(res.max_steps),
+    np.savez(tmp, max_steps=np.int64(res.max_steps), **extra,
              **{f.name: getattr(res, f.name) for f in fields(res) if f.name != "max_steps"})
     tmp.replace(path)
 
@@ -275,6 +285,10 @@ def load_trials(path: Path) -> TrialResults:
     with np.load(path) as z:
         return TrialResults(**{f.name: z[f.name] for f in fields(TrialResults)
                                if f.name != "max_steps"}, max_steps=int(z["max_steps"]))
+
+
+def _round_path(path: Path, r: int) -> Path:
+    return path.with_name(f"{path.stem}.round{r}.npz")
 
 
 class Evaluator:
@@ -295,8 +309,7 @@ class Evaluator:
         self.store, self.deadline = store, deadline
         self._ran = False  # a run was made in this process (the deadline stops the next)
         # what the stored runs must share besides their key: the trials and the reference
-        self._fingerprint = (json.dumps(TrialConfig.resolved(cfg), sort_keys=True),
-                             teacher_revision(teacher)) if store is not None else ()
+        self._fingerprint = trial_fingerprint(cfg, teacher) if store is not None else ""
         self.layout = cfg.layout()
         self.env = make_env(cfg, len(self.layout.rounds(cfg.envs)[0]))
         self.reference: dict[str, Any] | None = None
@@ -305,24 +318,43 @@ class Evaluator:
         self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
 
     def _run(self, label: str, make_actor, key: tuple = ()) -> TrialResults:
-        """One run over every trial; with a store, read from / written to
-        ``store/<digest>.npz`` (``key``: what the actor sees)."""
+        """One run over every trial. With a store (``key``: what the actor sees) the run is
+        ``store/<digest>.npz`` once finished, and each finished round of trials
+        ``<digest>.round<r>.npz`` (its sums and the torch RNG state after it) until then: an
+        interrupted run continues at its next round, with the same figures."""
         path = self.store / f"{_digest((self._fingerprint, key))}.npz" \
             if self.store is not None and key else None
         if path is not None and path.is_file():
             return load_trials(path)
         if self._ran:
             check_deadline(self.deadline, f"before {label}")
-        self._ran = True
         # MSTA draws token order from the global torch RNG when no generator is passed
         # (StudentActor passes one only for mask_ratio > 0): seed it per run.
         torch.manual_seed(self.cfg.seed)
+        done: list[TrialResults] = []
+        while path is not None and _round_path(path, len(done)).is_file():
+            rp = _round_path(path, len(done))
+            done.append(load_trials(rp))
+            with np.load(rp) as z:
+                torch.set_rng_state(torch.from_numpy(z["torch_rng"].copy()))
+
+        def on_round(r: int, rounds: int, res: TrialResults) -> None:
+            self._ran = True
+            if path is not None:
+                save_trials(res, _round_path(path, r),
+                            torch_rng=torch.get_rng_state().numpy())
+            if r + 1 < rounds:
+                check_deadline(self.deadline, f"{label}: after round {r + 1} of {rounds}")
+
         t0 = time.perf_counter()
         res = run_trials(self.env, make_actor, self.layout, desc=label,
-                         progress=self.progress)
+                         progress=self.progress, done=done, on_round=on_round)
         self.timing[label] = round(time.perf_counter() - t0, 3)
+        self._ran = True
         if path is not None:
             save_trials(res, path)
+            for r in range(len(self.layout.rounds(self.env.num_envs))):
+                _round_path(path, r).unlink(missing_ok=True)
         return res
 
     def run_reference(self) -> dict[str, Any]:
@@ -408,7 +440,8 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     out = Path(cfg.output_dir)
     store = out / RUNS
     if not cfg.resume and store.is_dir():
-        shutil.rmtree(store)
+        for f in store.glob("*.npz"):
+            f.unlink()
     store.mkdir(parents=True, exist_ok=True)
     ev = Evaluator(cfg, cfg.teacher, cfg.progress, store, deadline)
     pairs = plan(cfg, entries)

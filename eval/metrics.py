@@ -39,7 +39,7 @@ from the run record with :func:`headline`. The teacher report summarizes its til
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -151,6 +151,11 @@ class TrialResults:
                             self.fell[idx], self.vel_err[idx], self.yaw_err[idx],
                             self.max_steps)
 
+    def put(self, idx: np.ndarray, part: TrialResults) -> None:
+        """Write ``part`` (from :meth:`take` with the same ``idx``) back at ``idx``."""
+        for key in ("lin", "ang", "total", "steps", "fell", "vel_err", "yaw_err"):
+            getattr(self, key)[idx] = getattr(part, key)
+
 
 #: round index, number of envs -> an actor with act(obs) / reset(ids)
 ActorFactory = Callable[[int, int], Any]
@@ -179,8 +184,13 @@ class _FirstStepGuard:
 
 
 def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
-               desc: str = "", progress: bool = True) -> TrialResults:
+               desc: str = "", progress: bool = True, done: Sequence[TrialResults] = (),
+               on_round: Callable[[int, int, TrialResults], None] | None = None
+               ) -> TrialResults:
     """Run every trial of ``layout`` with actors from ``make_actor``.
+
+    Rounds are independent (a fresh actor each; every trial has its own random stream),
+    which is what lets an interrupted run continue at its next round.
 
     Args:
         env: the evaluation simulator (``terrain.curriculum`` off); ``env.num_envs``
@@ -189,6 +199,10 @@ def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
         layout: trials and their tiles.
         desc: progress-bar label.
         progress: show a tqdm bar over env steps.
+        done: the results of the first ``len(done)`` rounds, finished earlier (each as
+            ``on_round`` received it); they are not run again.
+        on_round: called as ``on_round(round, rounds, results_of_that_round)`` after each
+            round this call runs.
     Raises:
         NotApplicable: the actor cannot be built or fails on its first step.
     """
@@ -201,6 +215,10 @@ def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
                disable=not progress, leave=False)
     types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
     for r, ids in enumerate(rounds):
+        if r < len(done):
+            out.put(ids, done[r])
+            bar.update(n * max_steps)
+            continue
         start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
         if r == 0:
             try:
@@ -210,6 +228,8 @@ def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
         else:
             actor = make_actor(r, n)
         _round(env, actor, out, ids, bar)
+        if on_round is not None:
+            on_round(r, len(rounds), out.take(ids))
     bar.close()
     return out.take(np.arange(layout.trials))
 

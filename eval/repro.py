@@ -26,9 +26,11 @@ continues where it stopped; a killed training resumes from its last checkpoint):
 Sizes and the estimated time are printed at the start. ``--scale=paper`` uses the paper's
 sizes and picks CUDA when present; it is long, and every phase resumes. With
 ``--max_minutes=N`` a call stops at the first safe point after N minutes (an optimizer step,
-saved with a checkpoint; a stage-2 phase; one evaluation run, kept in the evaluation's
-``runs/``) and exits with status 75; the next call of the same command continues there, so
-a machine lent for ten minutes a command runs the study as a series of calls::
+saved with a checkpoint; a stage-2 phase; one round of evaluation trials, kept in the
+evaluation's ``eval_runs/``) and exits with status 75; the next call of the same command
+continues there, so a machine lent for ten minutes a command runs the study as a series of
+calls (the teacher dataset and a round's rollouts are not split: keep N a few minutes
+below the machine's limit)::
 
     until msta-repro --scale=paper --max_minutes=7; do [ $? -eq 75 ] || exit 1; done
 """
@@ -129,7 +131,7 @@ class ReproConfig:
         num_threads: torch threads for training (0: torch's default).
         progress: progress bars.
         max_minutes: stop after this many minutes at the next safe point (an optimizer step
-            with its checkpoint, a stage-2 phase, one evaluation run) and exit with status
+            with its checkpoint, a stage-2 phase, a round of evaluation trials) and exit with status
             75; the same command continues there, so a machine lent for 10 minutes a
             command runs the study as a series of calls (e.g. ``--max_minutes=7``). 0 = no
             limit.
@@ -273,12 +275,21 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
 
 def repro(cfg: ReproConfig, command: str = PROG) -> Path:
     """Run (or continue) the study; returns report.md's path."""
-    from eval.repro_report import write_report
-
     out = Path(cfg.output_dir)
     check_run(cfg, out)
     print_sizes(cfg)
     prog = Progress(out, PROG, deadline_after(cfg.max_minutes))
+    try:
+        return _study(cfg, command, out, prog)
+    except TimeLimitReached:
+        prog.stopped()
+        raise
+
+
+def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
+    """:func:`repro`'s phases."""
+    from eval.repro_report import write_report
+
     root = ensure_dataset(cfg, prog)
     ccfg = compare_config(cfg, root)
     ckpts = {name: train_policy(ccfg, name, root, prog) for name in ccfg.policy_list}

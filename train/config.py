@@ -31,9 +31,10 @@ class LoopConfig:
             (the paper's stress test, as msta-eval's ``dummy_tokens`` scenario draws them:
             fresh each step, never trained), so the student learns to ignore distractors;
             token students (MSTA) only. Validation runs without them. 0 = none.
-        max_minutes: stop after this many minutes at the next step, with a checkpoint
-            saved, and exit with status 75; the same command (with ``--resume=true``)
-            continues there. 0 = no limit (msta_data/budget.py).
+        max_minutes: stop after this many minutes at the next safe point and exit with
+            status 75: after an optimizer step, with a checkpoint saved (msta-correct also
+            after a round's append, its retraining and its evaluation); the same command
+            with ``--resume=true`` continues there. 0 = no limit (msta_data/budget.py).
     """
 
     steps: int = 2000

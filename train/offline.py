@@ -180,8 +180,9 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed)
     train_ds = load_windows(root, policy, train_eps)
     val_ds = load_windows(root, policy, val_eps) if val_eps else None
-    if not resuming:
-        atomic_json(out / "train_config.json", draccus.encode(cfg))
+    if not resuming:  # without max_minutes: how long each call ran is not the run's config
+        atomic_json(out / "train_config.json",
+                    {k: v for k, v in draccus.encode(cfg).items() if k != "max_minutes"})
     n_params = sum(p.numel() for p in policy.parameters())
     print(f"dataset {root}: {len(train_eps)} train episodes ({len(train_ds):,} windows), "
           f"{len(val_eps)} validation; {cfg.policy.type} policy with {n_params:,} parameters "

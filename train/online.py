@@ -446,6 +446,10 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
     prog.setdefault("teacher_revision", teacher_revision(cfg.teacher))
     trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
     start = out / f"round_{max(trained)}" if trained else ckpt
+    if not trained and prepare is not None and (out / "start" / "config.json").is_file():
+        # prepared by an earlier call: its processor holds the statistics of that time
+        # (round 1's append has changed the dataset's since)
+        start = out / "start"
     policy = load_policy(start, device=str(device))
     if prepare is not None:
         policy = prepare(policy, root)

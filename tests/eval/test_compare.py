@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import time
 from pathlib import Path
 
 import pytest
@@ -97,3 +98,18 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
         main([f"--dataset={tmp_path / 'missing'}", "--policies=msta", f"--output_dir={tmp_path / 'o'}"])
     assert f"{tmp_path / 'missing'}" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishes_it(tmp_path):
+    from eval.compare import Progress
+
+    first = Progress(tmp_path, deadline=None)
+    first.start("msta stage 1")
+    time.sleep(0.2)
+    first.stopped()  # what compare() / repro() do when --max_minutes stops a call
+    second = Progress(tmp_path)
+    t = second.start("msta stage 1")
+    second.done("msta stage 1", t)
+    timing = json.loads((tmp_path / "timing.json").read_text())
+    assert 0.2 <= timing["msta stage 1"] < 5  # the first call's share is in the total
+    assert json.loads((tmp_path / "timing_partial.json").read_text()) == {}

@@ -122,29 +122,34 @@ def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
     assert video.stat().st_size > 1000
 
 
-def test_max_minutes_stops_between_runs_and_the_resumed_metrics_are_identical(
+def test_max_minutes_stops_between_rounds_and_the_resumed_metrics_are_identical(
         two_ckpts, tmp_path, capsys):
-    ref = _cli(tmp_path / "ref", two_ckpts, scenarios="token_removal")
+    one = ("--num_envs", "1")  # 2 trials: each run is 2 rounds of 1 trial
+    ref = _cli(tmp_path / "ref", two_ckpts, scenarios="token_removal", extra=one)
     out, calls = tmp_path / "stopped", 0
-    while True:  # every call makes one run (passed at once), keeps it and stops
+    while True:  # the limit has passed at once: every call runs one round, keeps it, stops
         calls += 1
         try:
             got = _cli(out, two_ckpts, scenarios="token_removal",
-                       extra=("--max_minutes", "1e-9", "--resume", "true"))
+                       extra=(*one, "--max_minutes", "1e-9", "--resume", "true"))
             break
         except SystemExit as e:
             assert e.code == EXIT_STOPPED
             assert not (out / "metrics.json").exists()
-            assert len(list((out / "runs").glob("*.npz"))) == calls
-        assert calls < 20
-    # reference + teacher row + 2 students x 3 masks, one per call; the same bytes
-    assert calls == len(list((out / "runs").glob("*.npz"))) == 8
-    assert got == ref
-    assert "msta-eval: stopped (before a50_50 | token_removal/mask 0%" in capsys.readouterr().out
-    # without --resume the kept runs are cleared first
+            if calls == 1:
+                assert [p.name.split(".", 1)[1] for p in (out / "eval_runs").iterdir()] \
+                    == ["round0.npz"]
+        assert calls < 40
+    # reference + teacher row + 2 students x 3 masks, 2 rounds each, one round per call
+    assert calls == 2 * len(list((out / "eval_runs").glob("*.npz"))) == 16
+    assert got == ref  # the same bytes as the uninterrupted evaluation
+    printed = capsys.readouterr().out
+    assert "msta-eval: stopped (reference teacher: after round 1 of 2)" in printed
+    assert "msta-eval: stopped (before a50_50 | token_removal/mask 0%" in printed
+    # without --resume what was kept is deleted first
     with pytest.raises(SystemExit):
-        _cli(out, two_ckpts, scenarios="token_removal", extra=("--max_minutes", "1e-9"))
-    assert len(list((out / "runs").glob("*.npz"))) == 1
+        _cli(out, two_ckpts, scenarios="token_removal", extra=(*one, "--max_minutes", "1e-9"))
+    assert len(list((out / "eval_runs").glob("*.npz"))) == 1
 
 
 def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, capsys):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +18,7 @@ from collect.sim.env import EnvConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
 from msta_data import sensors
+from msta_data.budget import TimeLimitReached
 from msta_data.stats import load_stats
 from msta_data.windows import WindowDataset, load_episode_table
 from policies.actor import InputSpec, StudentActor
@@ -252,6 +255,7 @@ def test_a_new_sensor_is_added_and_trained_with_the_embeddings(base, tmp_path):
                                  root=str(tmp_path / "ds"), episode_length_s=EPISODE_S,
                                  extra_sensors="height_map", progress=False, env=small_env()))
     wanted = (*MINIMIZED_SENSORS, "height_map")
+    shutil.copytree(root, tmp_path / "ds2")
     cfg = make_cfg(base, tmp_path / "out", dataset=str(root), sensors=",".join(wanted))
     finetune(cfg)
     out = Path(cfg.output_dir)
@@ -269,3 +273,14 @@ def test_a_new_sensor_is_added_and_trained_with_the_embeddings(base, tmp_path):
     eps = load_episode_table(root)
     assert (eps["provenance/source"] == "student").sum() == E
     WindowDataset(root, ("height_map",), 7, episodes=range(4, 4 + E))
+    # stopped by --max_minutes after round 1's append, which changed the dataset's
+    # statistics: the resumed call keeps the student prepared before (its new sensor's
+    # statistics too), so it ends as the uninterrupted run did
+    cfg2 = make_cfg(base, tmp_path / "out2", dataset=str(tmp_path / "ds2"),
+                    sensors=",".join(wanted), max_minutes=1e-9)
+    with pytest.raises(TimeLimitReached, match="round 1: episodes appended"):
+        finetune(cfg2)
+    finetune(replace(cfg2, resume=True, max_minutes=0.0))
+    for name in ("start", "round_1"):
+        assert (tmp_path / "out2" / name / "processor.json").read_text() == \
+            (out / name / "processor.json").read_text(), name
