@@ -350,11 +350,10 @@ class Evaluator:
         res = run_trials(self.env, make_actor, self.layout, desc=label,
                          progress=self.progress, done=done, on_round=on_round)
         self.timing[label] = round(time.perf_counter() - t0, 3)
-        self._ran = True
         if path is not None:
             save_trials(res, path)
-            for r in range(len(self.layout.rounds(self.env.num_envs))):
-                _round_path(path, r).unlink(missing_ok=True)
+            for f in path.parent.glob(f"{path.stem}.round*.npz"):
+                f.unlink()
         return res
 
     def run_reference(self) -> dict[str, Any]:
