@@ -4,7 +4,7 @@ A machine lent for a few minutes per command (the project's GPU machine: 10 minu
 command) runs a long job as a series of calls of the same command. Every long msta command
 (msta-train, msta-correct, msta-compare, msta-eval, msta-repro) takes ``--max_minutes``:
 once that many minutes have passed it stops at the next safe point (after an optimizer step,
-with a checkpoint saved; after a finished stage-2 phase; after a finished evaluation run),
+with a checkpoint saved; after a finished stage-2 phase; after a round of evaluation trials),
 prints one line saying so and exits with :data:`EXIT_STOPPED` (75, ``EX_TEMPFAIL``: "run
 again"). A call therefore lasts ``max_minutes`` plus at most one unit of work, and does at
 least one unit (so a series of calls always finishes). Exit code 0 means the job is
