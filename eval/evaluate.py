@@ -60,7 +60,7 @@ from msta_data.locate import locate, reads_as_hub_id
 from msta_data.revision import content_revision, file_parts
 from msta_data.sensors import STUDENT_SENSORS
 from policies.actor import InputSpec, StudentActor
-from policies.factory import load_policy
+from policies.factory import load_policy, select_device
 from policies.teacher.base import TEACHERS
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -96,6 +96,10 @@ class EvalConfig(TrialConfig):
     max_minutes: float = 0.0
     """stop after this many minutes, at the end of the round of trials in progress, and
     exit with status 75; the same command with --resume=true continues. 0 = no limit."""
+    device: str = "auto"
+    """where the students run: auto (CUDA when available, else CPU), cpu, cuda, cuda:1...
+    The simulator and the teachers stay on the CPU. Figures on CUDA are not bit-identical
+    to the CPU's (float rounding), so a stored run is reused only on the same device type."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -107,6 +111,7 @@ class EvalConfig(TrialConfig):
         for s in self.scenario_list:
             get_scenario(s)
         self.matrix_map = _parse_matrix(self.matrix, self.policy_list)
+        select_device(self.device)  # a bad or unavailable device fails here, in one line
 
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
@@ -183,21 +188,24 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
         raise FileNotFoundError(f"{e} (teachers: 'teacher' or 'teacher:<type>' with type in "
                                 f"{sorted(TEACHERS)})") from None
     name = source if reads_as_hub_id(source) else Path(source).resolve().name
-    return student_entry(Path(path), name, source, cfg.matrix_map.get(source))
+    return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
+                         device=str(select_device(cfg.device)))
 
 
 def student_entry(path: Path, name: str, source: str,
-                  train_masks: tuple[float, float] | None = None) -> PolicyEntry:
-    """A student checkpoint directory as a row, loaded on the CPU as msta-eval loads it.
+                  train_masks: tuple[float, float] | None = None,
+                  device: str = "cpu") -> PolicyEntry:
+    """A student checkpoint directory as a row.
 
     Args:
         path: the local checkpoint directory.
         name: row label.
         source: how the user named it (directory or hub id).
         train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
+        device: where the student runs (msta-eval's ``--device``, resolved).
     """
     return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
-                       load_policy(path), train_masks)
+                       load_policy(path, device=device), train_masks)
 
 
 def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
@@ -239,19 +247,23 @@ def _is_null(spec: InputSpec) -> bool:
 
 
 @contextmanager
-def torch_eval_settings(threads: int) -> Iterator[None]:
+def torch_eval_settings(threads: int, cuda: bool = False) -> Iterator[None]:
     """torch as an evaluation needs it (``threads`` threads, deterministic algorithms), and
-    afterwards as it was, global RNG state included (evaluation seeds it per run)."""
+    afterwards as it was, global RNG state included (evaluation seeds it per run).
+
+    ``cuda``: students run on CUDA. Deterministic algorithms then only warn where an op has
+    none (cuBLAS needs ``CUBLAS_WORKSPACE_CONFIG`` set before its first use, which a process
+    that trained on the GPU first has already passed)."""
     before = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
-              torch.get_rng_state())
+              torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_rng_state())
     torch.set_num_threads(threads)
-    torch.use_deterministic_algorithms(True)
+    torch.use_deterministic_algorithms(True, warn_only=cuda)
     try:
         yield
     finally:
         torch.set_num_threads(before[0])
-        torch.use_deterministic_algorithms(before[1])
-        torch.set_rng_state(before[2])
+        torch.use_deterministic_algorithms(before[1], warn_only=before[2])
+        torch.set_rng_state(before[3])
 
 
 def _digest(key: tuple) -> str:
@@ -270,6 +282,9 @@ def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
     TrialConfig setting that changes a figure) and the reference teacher's revision."""
     names = {f.name for f in fields(TrialConfig)} | set(_RESOLVED)
     trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
+    device = select_device(getattr(cfg, "device", "cpu")).type
+    if device != "cpu":  # CPU runs keep the key they had before students could run on CUDA
+        trials["device"] = device
     return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
 
 
@@ -445,7 +460,8 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     ev = Evaluator(cfg, cfg.teacher, cfg.progress, store, deadline)
     pairs = plan(cfg, entries)
     t0 = time.perf_counter()
-    with torch_eval_settings(cfg.num_threads):
+    cuda = any(e.kind == "student" and e.obj.device.type == "cuda" for e in entries)
+    with torch_eval_settings(cfg.num_threads, cuda=cuda):
         ev.run_reference()
         runs = [ev.condition(e, c) for e, c in tqdm(pairs, desc="msta-eval", unit="run",
                                                      disable=not cfg.progress)]

@@ -62,6 +62,7 @@ from msta_data import layout
 from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import check_at_least, parse_config
 from msta_data.features import load_info
+from policies.factory import select_device
 from policies.teacher.config import TeacherConfig
 
 PROG = "msta-repro"
@@ -205,7 +206,8 @@ def print_sizes(cfg: ReproConfig) -> None:
           f"steps; heatmap {grid} MSTA students ({s.heatmap_rounds} rounds each); "
           f"evaluation {s.trials or 'suite'} "
           f"trials per condition, levels {s.levels or 'all'}; estimated "
-          f"{s.minutes:.0f} min on 2 CPU cores", flush=True)
+          f"{s.minutes:.0f} min on 2 CPU cores; this machine: {os.cpu_count()} CPU cores, "
+          f"students train and are evaluated on {select_device('auto')}", flush=True)
 
 
 def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:

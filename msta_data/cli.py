@@ -379,12 +379,16 @@ def usage_error(message: str) -> UsageError:
 def describe(e: BaseException) -> str:
     """One line for a parsing error: the field or class draccus names, then the innermost
     reason (our ``__post_init__`` checks raise inside draccus' wrappers)."""
+    def inner(x: BaseException) -> BaseException | None:  # ``raise ... from None`` ends it
+        return x.__cause__ if x.__cause__ is not None \
+            else None if x.__suppress_context__ else x.__context__
+
     where, root = "", e
-    while root.__cause__ is not None or root.__context__ is not None:
+    while (nxt := inner(root)) is not None:
         text = str(root)
         if text.startswith("Couldn't instantiate class "):
             where = text.split()[3] + ": "
-        root = root.__cause__ or root.__context__
+        root = nxt
     msg = root.args[0] if isinstance(root, KeyError) and root.args else root
     if root is e:
         return f"{msg}"

@@ -19,6 +19,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from policies.base import PolicyConfig, StudentPolicy, resolve_pretrained
 
 #: Packages whose modules hold the built-in students (imported, recursively, on first use).
@@ -135,6 +137,23 @@ def make_policy(cfg: PolicyConfig, stats: Mapping[str, Mapping[str, Any]]) -> St
     cls = get_policy_class(cfg.type)
     processor = cls.processor_class.from_stats(cfg, stats)
     return cls(cfg, processor)
+
+
+def select_device(name: str = "auto") -> torch.device:
+    """``auto``: CUDA when available, else CPU. Anything else is passed to torch.device.
+
+    Args:
+        name: "auto", "cpu", "cuda", "cuda:1", ...
+    """
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        raise ValueError(f"unknown device {name!r}; use auto, cpu, cuda or cuda:<index>") from None
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} requested but CUDA is not available")
+    return device
 
 
 def load_policy(

@@ -8,21 +8,8 @@ import random
 import numpy as np
 import torch
 
+from policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
 from train.config import LoopConfig
-
-
-def select_device(name: str = "auto") -> torch.device:
-    """``auto``: CUDA when available, else CPU. Anything else is passed to torch.device.
-
-    Args:
-        name: "auto", "cpu", "cuda", "cuda:1", ...
-    """
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(name)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device {name!r} requested but CUDA is not available")
-    return device
 
 
 def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:

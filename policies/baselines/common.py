@@ -168,7 +168,9 @@ def random_input_mask(
     k = round(ratio * n)
     if k == 0:
         return out
-    scores = torch.rand(B, n, generator=generator, device=missing.device)  # (B, T*Cp)
+    # drawn on the generator's device (a CPU generator may drive a policy on CUDA)
+    gen_dev = generator.device if generator is not None else missing.device
+    scores = torch.rand(B, n, generator=generator, device=gen_dev).to(missing.device)  # (B, T*Cp)
     drop = torch.zeros(B, n, dtype=torch.bool, device=missing.device)
     drop.scatter_(1, scores.topk(k, dim=1, largest=False).indices, True)
     out[:, :, present] = drop.view(B, T, present.numel())

@@ -355,8 +355,12 @@ class MSTATransformer(nn.Module):
     def _drop_scores(
         self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None
     ) -> Tensor:
-        """Random keep scores (B, N) in [0, 1); padded tokens get -1 so they are dropped first."""
-        scores = torch.rand(B, N, generator=generator, device=self.bin_embed.weight.device)
+        """Random keep scores (B, N) in [0, 1); padded tokens get -1 so they are dropped first.
+        Drawn on the generator's device and moved: a CPU generator (StudentActor's) drives a
+        policy on CUDA, and the same seed removes the same tokens on either device."""
+        dev = self.bin_embed.weight.device
+        gen_dev = generator.device if generator is not None else dev
+        scores = torch.rand(B, N, generator=generator, device=gen_dev).to(dev)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
     def _remove_masked(

@@ -184,9 +184,30 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
     (["--levels", "12"], "level 12 out of range"),
     (["--suite", "huge"], "unknown suite 'huge'"),
     (["--policies", "teacher:nope"], "unknown teacher type 'nope'"),
+    (["--device", "tpu9"], "unknown device 'tpu9'; use auto, cpu, cuda or cuda:<index>"),
 ])
 def test_clear_errors(args, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--output_dir", str(tmp_path), "--progress", "false", *args])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_eval_settings_are_restored_and_cuda_only_warns():
+    """Students on CUDA: deterministic algorithms warn where an op has none instead of
+    failing (cuBLAS), and the caller's settings come back afterwards."""
+    import torch
+
+    from eval.evaluate import torch_eval_settings
+
+    before = (torch.are_deterministic_algorithms_enabled(),
+              torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_num_threads())
+    with torch_eval_settings(1, cuda=True):
+        assert torch.are_deterministic_algorithms_enabled()
+        assert torch.is_deterministic_algorithms_warn_only_enabled()
+    with torch_eval_settings(1):
+        assert torch.are_deterministic_algorithms_enabled()
+        assert not torch.is_deterministic_algorithms_warn_only_enabled()
+    assert (torch.are_deterministic_algorithms_enabled(),
+            torch.is_deterministic_algorithms_warn_only_enabled(),
+            torch.get_num_threads()) == before
