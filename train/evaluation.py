@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from eval.evaluate import Evaluator, student_entry, torch_eval_settings
 from eval.metrics import HEADLINE_FIGURES, headline
 from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
@@ -52,22 +54,25 @@ class EvalConfig(TrialConfig):
 class RoundEvaluator:
     """Phase 5 of msta-correct through msta-eval's :class:`~eval.evaluate.Evaluator` on
     ``cfg``'s trials. The reference teacher runs once per process, on first use; a
-    checkpoint is evaluated from its directory, loaded on the CPU as msta-eval loads it.
+    checkpoint is evaluated from its directory, loaded as msta-eval loads it.
 
     Args:
         cfg: ``--eval.*``: which trials and test masks.
         teacher: the reference teacher (msta-correct's labelling teacher).
+        device: where the students run (msta-correct's training device, which msta-eval's
+            default ``--device=auto`` also picks: the same figures in both).
     """
 
-    def __init__(self, cfg: EvalConfig, teacher: TeacherConfig) -> None:
-        self.cfg, self.teacher_cfg = cfg, teacher
+    def __init__(self, cfg: EvalConfig, teacher: TeacherConfig, device: str = "cpu") -> None:
+        self.cfg, self.teacher_cfg, self.device = cfg, teacher, device
+        self.cuda = torch.device(device).type == "cuda"
         self.ev: Any = None
 
     def teacher(self) -> dict[str, Any]:
         """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
         if self.ev is None:
             ev = Evaluator(self.cfg, self.teacher_cfg, progress=False)
-            with torch_eval_settings(self.cfg.num_threads):
+            with torch_eval_settings(self.cfg.num_threads, cuda=self.cuda):
                 ev.run_reference()
             self.ev = ev
         return {"config": self.cfg.resolved(), **self.ev.reference}
@@ -76,10 +81,10 @@ class RoundEvaluator:
         """msta-eval's run record (raw and normalized figures, intervals, trials) of the
         checkpoint ``ckpt`` per test mask, keyed ``f"{mask:g}"``."""
         self.teacher()
-        entry = student_entry(ckpt, ckpt.name, str(ckpt))
+        entry = student_entry(ckpt, ckpt.name, str(ckpt), device=self.device)
         ctx = ScenarioContext(tuple(entry.obj.required_sensors), self.cfg.mask_ratios,
                               self.cfg.seed)
-        with torch_eval_settings(self.cfg.num_threads):
+        with torch_eval_settings(self.cfg.num_threads, cuda=self.cuda):
             return {f"{c.value:g}": self.ev.condition(entry, c)
                     for c in get_scenario("token_removal").build(ctx)}
 

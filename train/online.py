@@ -150,7 +150,8 @@ class CorrectConfig(LoopConfig):
         val_fraction: share of episodes held out for the validation loss (by episode).
         eval: the per-round evaluation.
         resume: continue the run in output_dir.
-        device: auto (CUDA when available), cpu, cuda, ...
+        device: auto (CUDA when available), cpu, cuda, ...: training, rollouts and the
+            per-round evaluation.
         num_threads: torch threads (0 = default).
         push_to: hub model repo ``user/name``: push each ``round_<r>`` with tag
             ``stage2-r<r>`` and a model card after its evaluation; empty = no push.
@@ -455,7 +456,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
         policy = prepare(policy, root)
         if not trained:
             ckpt = policy.save_pretrained(out / "start")
-    evaluator = RoundEvaluator(cfg.eval, cfg.teacher) if cfg.eval.enabled else None
+    evaluator = RoundEvaluator(cfg.eval, cfg.teacher, str(device)) if cfg.eval.enabled else None
     if evaluator and not trained and not prog["rounds"].get("0", {}).get("evaluated"):
         prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
                                "episodes_after": int(load_info(root)["total_episodes"]),
