@@ -6,7 +6,7 @@
      on the executed actions (DART: states off the teacher's path, each labelled with the
      teacher's clean action; recording costs seconds, a student's rollouts minutes);
   3. a local Hugging Face-compatible hub starts and the dataset is pushed (tag v3.0);
-  4. msta-train: stage 1 of the MSTA student (cpu preset at T = 3, mask ratio 0.75, the
+  4. msta-train: stage 1 of the MSTA student (cpu preset at T = 4, mask ratio 0.75, the
      paper's stage-1 ratio) on the hub dataset; --push_to pushes the final checkpoint with
      tag stage1 and a model card;
   5. msta-correct: seven DAgger rounds (the student drives alone, half of the robots with
@@ -31,8 +31,10 @@ stage-2 mask of 0.5: at the demo's budget that student fits its rounds' data bet
 and survival 0.88 / 0.77 at test masks 0 / 50 % in 8.9 min, against 0.70 / 0.71 and
 0.78 / 0.78 in 12.4 min at T = 7 and mask 0.75). Rollouts at test masks 0 and 0.5 side by
 side (the rounds then label the states a masked student reaches) and seven rounds instead
-of five: tracking 0.79 / 0.74 and survival 0.94 / 0.81 in 10.9 min (docs/training.md,
-"Window and stage-2 mask", "Masked rollouts").
+of five: tracking 0.79 / 0.74 and survival 0.94 / 0.81 in 10.9 min. T = 4 instead of 3:
+at test mask 50 % each scalar's last four readings are all removed one step in 16, not one
+in 8; tracking 0.80 / 0.78 and survival 0.95 / 0.86 in 11.3 min (docs/training.md,
+"Window and stage-2 mask", "Masked rollouts", "Window at test mask 50 %").
 
 Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
 """
@@ -256,8 +258,8 @@ class DemoConfig:
         history: the student's window T.
         train_steps: stage-1 optimizer steps.
         train_mask_ratio: stage-1 training mask ratio (the paper's 0.75).
-        rounds: stage-2 rounds (0: stage 1 only); each takes ~1 min on 2 cores (rollouts
-            ~0.2, retraining ~0.8), the rest of the demo ~3.5 min.
+        rounds: stage-2 rounds (0: stage 1 only); each takes ~1.1 min on 2 cores (rollouts
+            ~0.2, retraining ~0.9), the rest of the demo ~3.5 min.
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
         correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5; 0.75 costs half
@@ -286,7 +288,7 @@ class DemoConfig:
     episodes: int = 288
     episode_length_s: float = 10.0
     action_noise: float = 0.5
-    history: int = 3
+    history: int = 4
     train_steps: int = 4000
     train_mask_ratio: float = 0.75
     rounds: int = 7
