@@ -20,6 +20,7 @@ docs/eval.md for the metric definitions.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -116,7 +117,8 @@ class EvalConfig(TrialConfig):
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
         d = super().resolved()
-        d.update(scenarios=self.scenario_list, policies=self.policy_list,
+        d.update(device=select_device(self.device).type,  # what ran, not "auto"
+                 scenarios=self.scenario_list, policies=self.policy_list,
                  matrix={k: list(v) for k, v in self.matrix_map.items()})
         return d
 
@@ -251,19 +253,25 @@ def torch_eval_settings(threads: int, cuda: bool = False) -> Iterator[None]:
     """torch as an evaluation needs it (``threads`` threads, deterministic algorithms), and
     afterwards as it was, global RNG state included (evaluation seeds it per run).
 
-    ``cuda``: students run on CUDA. Deterministic algorithms then only warn where an op has
-    none (cuBLAS needs ``CUBLAS_WORKSPACE_CONFIG`` set before its first use, which a process
-    that trained on the GPU first has already passed)."""
+    ``cuda``: students run on CUDA. TF32 is off (full fp32 matrix products and convolutions)
+    and deterministic algorithms only warn where an op has none: cuBLAS is deterministic
+    only with ``CUBLAS_WORKSPACE_CONFIG`` set before its first use (msta-eval sets it at
+    start; a process that trained on the GPU first, msta-correct or msta-repro, has passed
+    that point)."""
+    tf32 = (torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
     before = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
               torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_rng_state())
     torch.set_num_threads(threads)
     torch.use_deterministic_algorithms(True, warn_only=cuda)
+    if cuda:
+        torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
     try:
         yield
     finally:
         torch.set_num_threads(before[0])
         torch.use_deterministic_algorithms(before[1], warn_only=before[2])
         torch.set_rng_state(before[3])
+        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = tf32
 
 
 def _digest(key: tuple) -> str:
@@ -282,9 +290,6 @@ def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
     TrialConfig setting that changes a figure) and the reference teacher's revision."""
     names = {f.name for f in fields(TrialConfig)} | set(_RESOLVED)
     trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
-    device = select_device(getattr(cfg, "device", "cpu")).type
-    if device != "cpu":  # CPU runs keep the key they had before students could run on CUDA
-        trials["device"] = device
     return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
 
 
@@ -332,19 +337,22 @@ class Evaluator:
         self.timing: dict[str, float] = {}
         self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
 
-    def _run(self, label: str, make_actor, key: tuple = ()) -> TrialResults:
+    def _run(self, label: str, make_actor, key: tuple = (), device: str = "cpu") -> TrialResults:
         """One run over every trial. With a store (``key``: what the actor sees) the run is
         ``store/<digest>.npz`` once finished, and each finished round of trials
         ``<digest>.round<r>.npz`` (its sums and the torch RNG state after it) until then: an
-        interrupted run continues at its next round, with the same figures."""
-        path = self.store / f"{_digest((self._fingerprint, key))}.npz" \
+        interrupted run continues at its next round, with the same figures. ``device``: the
+        device type the actor computes on; a CUDA run is stored apart from a CPU one (float
+        rounding differs), and CPU runs keep the digest they had before CUDA was possible."""
+        stored = (self._fingerprint, key) if device == "cpu" else (self._fingerprint, key, device)
+        path = self.store / f"{_digest(stored)}.npz" \
             if self.store is not None and key else None
         if path is not None and path.is_file():
             return load_trials(path)
         if self._ran:
             check_deadline(self.deadline, f"before {label}")
-        # MSTA draws token order from the global torch RNG when no generator is passed
-        # (StudentActor passes one only for mask_ratio > 0): seed it per run.
+        # a policy drawing from the global torch RNG (none of msta's: StudentActor passes
+        # its own generator) gets the same draws on every run
         torch.manual_seed(self.cfg.seed)
         done: list[TrialResults] = []
         while path is not None and _round_path(path, len(done)).is_file():
@@ -414,7 +422,8 @@ class Evaluator:
                     raise NotApplicable(f"{type(e).__name__}: {e}") from e
                 make = self._student_factory(entry, cond.spec)
             if key not in self._cache:
-                res = self._run(label, make, key)
+                res = self._run(label, make, key,
+                                entry.obj.device.type if entry.kind == "student" else "cpu")
                 self._cache[key] = (res, aggregate(res, self.layout))
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}
@@ -516,6 +525,8 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-eval``)."""
+    # deterministic cuBLAS (students on CUDA): only read before CUDA's first matrix product
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     cfg = parse_config(EvalConfig, argv, "msta-eval")  # bad flags: one line, exit 2
     try:
         metrics = evaluate(cfg)

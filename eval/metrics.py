@@ -30,8 +30,8 @@ trials and a 95 % confidence interval per figure (:mod:`eval.intervals`: Student
 trials, the delta method on paired trials for ratios, Wilson for survival).
 
 ``msta-eval`` (:mod:`eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
-through :class:`eval.evaluate.Evaluator`, so the same checkpoint on the same trials gets
-the same figures in both; msta-correct's round table and the stage-2 model card pick theirs
+through :class:`eval.evaluate.Evaluator`, so the same checkpoint on the same trials (and
+device type) gets the same figures in both; msta-correct's round table and the stage-2 model card pick theirs
 from the run record with :func:`headline`. The teacher report summarizes its tiles with
 :func:`summarize` (one trial per finished episode).
 """

@@ -380,8 +380,11 @@ def describe(e: BaseException) -> str:
     """One line for a parsing error: the field or class draccus names, then the innermost
     reason (our ``__post_init__`` checks raise inside draccus' wrappers)."""
     def inner(x: BaseException) -> BaseException | None:  # ``raise ... from None`` ends it
-        return x.__cause__ if x.__cause__ is not None \
-            else None if x.__suppress_context__ else x.__context__
+        if x.__cause__ is not None:
+            return x.__cause__
+        if x.__suppress_context__:
+            return None
+        return x.__context__
 
     where, root = "", e
     while (nxt := inner(root)) is not None:

@@ -140,19 +140,28 @@ def make_policy(cfg: PolicyConfig, stats: Mapping[str, Mapping[str, Any]]) -> St
 
 
 def select_device(name: str = "auto") -> torch.device:
-    """``auto``: CUDA when available, else CPU. Anything else is passed to torch.device.
+    """``auto``: CUDA when available, else CPU; otherwise ``cpu``, ``cuda`` or
+    ``cuda:<index>`` (the devices msta runs on; anything else is a one-line ValueError here,
+    not a traceback at the first tensor).
 
     Args:
         name: "auto", "cpu", "cuda", "cuda:1", ...
     """
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    bad = f"unknown device {name!r}; use auto, cpu, cuda or cuda:<index>"
     try:
         device = torch.device(name)
     except RuntimeError:
-        raise ValueError(f"unknown device {name!r}; use auto, cpu, cuda or cuda:<index>") from None
+        raise ValueError(bad) from None
+    if device.type not in ("cpu", "cuda"):
+        raise ValueError(bad)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise ValueError(f"device {name!r} requested but CUDA is not available")
+    if device.type == "cuda" and device.index is not None \
+            and device.index >= torch.cuda.device_count():
+        raise ValueError(f"device {name!r}: this machine has {torch.cuda.device_count()} "
+                         "CUDA device(s)")
     return device
 
 

@@ -7,7 +7,7 @@ teacher on the same trials. The records stored in progress.json are msta-eval's 
 records (``raw``, ``normalized``, trials and 95 % intervals per cell), so msta-correct's
 table (:func:`print_table`), the model card (``train.push.round_eval``) and
 ``msta-eval --policies teacher,<round_r> --scenarios token_removal`` with the same options
-report the same figures.
+on the same device type report the same figures.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ class EvalConfig(TrialConfig):
     on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
     figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
-    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s and
-    seed; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
+    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
+    seed and device type; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
     episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
     simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
     """

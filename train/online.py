@@ -25,7 +25,8 @@ Each round r = 1..R:
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
    --scenarios token_removal`` with the same suite / trials / terrains / levels /
-   episode_length_s / seed reports the same figures, and so does the model card (``--push_to``).
+   episode_length_s / seed on the same device type reports the same figures, and so does the
+   model card (``--push_to``).
 
 Resume and crash windows (``progress.json``, written atomically after every phase):
 the round's episodes are kept in memory until all are collected, then appended by a single

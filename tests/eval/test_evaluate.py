@@ -200,14 +200,32 @@ def test_eval_settings_are_restored_and_cuda_only_warns():
 
     from eval.evaluate import torch_eval_settings
 
-    before = (torch.are_deterministic_algorithms_enabled(),
-              torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_num_threads())
-    with torch_eval_settings(1, cuda=True):
-        assert torch.are_deterministic_algorithms_enabled()
-        assert torch.is_deterministic_algorithms_warn_only_enabled()
-    with torch_eval_settings(1):
-        assert torch.are_deterministic_algorithms_enabled()
-        assert not torch.is_deterministic_algorithms_warn_only_enabled()
-    assert (torch.are_deterministic_algorithms_enabled(),
-            torch.is_deterministic_algorithms_warn_only_enabled(),
-            torch.get_num_threads()) == before
+    def state():
+        return (torch.are_deterministic_algorithms_enabled(),
+                torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_num_threads(),
+                torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
+
+    before = state()
+    torch.backends.cudnn.allow_tf32 = True  # torch's default: TF32 convolutions on CUDA
+    try:
+        with torch_eval_settings(1, cuda=True):
+            assert state() == (True, True, 1, False, False)  # full fp32, warn where no
+        with torch_eval_settings(1):                           # deterministic op exists
+            assert state()[:2] == (True, False) and state()[4]
+        assert state()[4]
+    finally:
+        torch.backends.cudnn.allow_tf32 = before[4]
+    assert state() == before
+
+
+@pytest.mark.parametrize("name, message", [
+    ("tpu9", "unknown device 'tpu9'"), ("meta", "unknown device 'meta'"),
+    ("mps", "unknown device 'mps'"), ("cuda:99", "cuda:99"),
+])
+def test_select_device_accepts_only_the_devices_msta_runs_on(name, message):
+    from policies.factory import select_device
+
+    assert select_device("cpu").type == "cpu"
+    assert select_device("auto").type in ("cpu", "cuda")
+    with pytest.raises(ValueError, match=message):
+        select_device(name)

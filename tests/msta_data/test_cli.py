@@ -193,3 +193,24 @@ def test_a_group_given_a_value_names_its_options(main, arg, hint, capsys):
     assert e.value.code == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "is a group of options" in err and hint in err, err
+
+
+@dataclass
+class _Checked:
+    level: str = "0"
+
+    def __post_init__(self) -> None:
+        try:
+            int(self.level)
+        except ValueError:
+            raise ValueError(f"--level {self.level!r} must be an integer") from None
+
+
+def test_an_error_raised_from_none_is_shown_as_raised_not_its_hidden_cause(capsys):
+    """``raise ValueError(ours) from None`` inside a check: the line is ours, not the
+    suppressed exception's (Python's own wording about int())."""
+    with pytest.raises(SystemExit) as exc:
+        parse_config(_Checked, ["--level", "x"], "prog")
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "prog: error: _Checked: --level 'x' must be an integer", err
