@@ -100,10 +100,10 @@ SCALES: dict[str, Scale] = {
     "tiny": Scale(3, 0.4, "tiny", 3, 1, 2, 2, 0.3, 8, 2, "0", "flat", 1.0, (0.75,),
                   (0.0, 0.5), 1, 1.0),
     # 2 CPU cores, <= 2.5 h: the demo's recipe per policy (288 DART episodes, cpu preset at
-    # the paper's T = 15); the estimate is the run of 2026-12-04 (docs/reference): 99 min
-    # to the end of the MSTA sweeps, about 40 more for the heatmap
+    # the paper's T = 15); the estimate is the run of 2026-12-04 (docs/reference), every
+    # phase timed on idle cores: 134.5 min, 88 without the heatmap
     "reference": Scale(288, 10.0, "cpu", 2000, 2, 32, 800, 10.0, 64, 100, "0,1,2", "", 5.0,
-                       (0.5, 0.75), (0.0, 0.5), 1, 140.0),
+                       (0.5, 0.75), (0.0, 0.5), 1, 135.0),
     # the paper's sizes (a GPU machine): 5000 trials over every level, the full 4 x 4 grid
     "paper": Scale(4000, 20.0, "paper", 20000, 5, 256, 4000, 20.0, 256, 5000, "", "", 0.0,
                    (0.0, 0.25, 0.5, 0.75), (0.0, 0.25, 0.5, 0.75), 5, 1440.0),
