@@ -33,7 +33,8 @@ and survival 0.88 / 0.77 at test masks 0 / 50 % in 8.9 min, against 0.70 / 0.71 
 side (the rounds then label the states a masked student reaches) and seven rounds instead
 of five: tracking 0.79 / 0.74 and survival 0.94 / 0.81 in 10.9 min. T = 4 instead of 3:
 at test mask 50 % each scalar's last four readings are all removed one step in 16, not one
-in 8; tracking 0.80 / 0.78 and survival 0.95 / 0.86 in 11.3 min (docs/training.md,
+in 8; tracking 0.80 / 0.78 and 0.83 / 0.76, survival 0.95 / 0.86 and 0.92 / 0.81 in
+11.3 and 12.1 min (two runs; docs/training.md,
 "Window and stage-2 mask", "Masked rollouts", "Window at test mask 50 %").
 
 Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
