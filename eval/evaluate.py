@@ -112,12 +112,13 @@ class EvalConfig(TrialConfig):
         for s in self.scenario_list:
             get_scenario(s)
         self.matrix_map = _parse_matrix(self.matrix, self.policy_list)
-        select_device(self.device)  # a bad or unavailable device fails here, in one line
+        # resolved once (a bad or unavailable device fails here, in one line)
+        self.torch_device = select_device(self.device)
 
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
         d = super().resolved()
-        d.update(device=select_device(self.device).type,  # what ran, not "auto"
+        d.update(device=self.torch_device.type,  # what ran, not "auto"
                  scenarios=self.scenario_list, policies=self.policy_list,
                  matrix={k: list(v) for k, v in self.matrix_map.items()})
         return d
@@ -191,7 +192,7 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
                                 f"{sorted(TEACHERS)})") from None
     name = source if reads_as_hub_id(source) else Path(source).resolve().name
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
-                         device=str(select_device(cfg.device)))
+                         device=str(cfg.torch_device))
 
 
 def student_entry(path: Path, name: str, source: str,

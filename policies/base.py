@@ -46,8 +46,16 @@ from policies.processor import Batch, Channels, StudentProcessor
 __all__ = [
     "CONFIG_NAME", "PROCESSOR_NAME", "WEIGHTS_NAME", "Batch", "Channels", "CheckpointError",
     "Policy", "PolicyConfig", "Processor", "StudentPolicy", "StudentProcessor", "load_weights",
-    "resolve_pretrained",
+    "resolve_pretrained", "uniform",
 ]
+
+
+def uniform(B: int, N: int, generator: torch.Generator | None, device: torch.device) -> Tensor:
+    """(B, N) uniforms in [0, 1) for random input removal, drawn on the generator's device
+    (``device`` without one) and moved to ``device``: a CPU generator (StudentActor's)
+    drives a policy on CUDA, and the same seed removes the same inputs on either device."""
+    gen_dev = generator.device if generator is not None else device
+    return torch.rand(B, N, generator=generator, device=gen_dev).to(device)
 
 
 @runtime_checkable

@@ -29,7 +29,7 @@ import torch
 from torch import Tensor, nn
 
 from msta_data import sensors
-from policies.base import Batch, Channels, PolicyConfig, StudentPolicy
+from policies.base import Batch, Channels, PolicyConfig, StudentPolicy, uniform
 from policies.processor import StudentProcessor
 
 FORMAT = "timestep-processor/1"
@@ -168,9 +168,7 @@ def random_input_mask(
     k = round(ratio * n)
     if k == 0:
         return out
-    # drawn on the generator's device (a CPU generator may drive a policy on CUDA)
-    gen_dev = generator.device if generator is not None else missing.device
-    scores = torch.rand(B, n, generator=generator, device=gen_dev).to(missing.device)  # (B, T*Cp)
+    scores = uniform(B, n, generator, missing.device)  # (B, T*Cp)
     drop = torch.zeros(B, n, dtype=torch.bool, device=missing.device)
     drop.scatter_(1, scores.topk(k, dim=1, largest=False).indices, True)
     out[:, :, present] = drop.view(B, T, present.numel())

@@ -55,7 +55,7 @@ import torch
 from torch import Tensor, nn
 
 from msta_data.sensors import get
-from policies.base import Batch, Channels, StudentPolicy
+from policies.base import Batch, Channels, StudentPolicy, uniform
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
@@ -355,12 +355,9 @@ class MSTATransformer(nn.Module):
     def _drop_scores(
         self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None
     ) -> Tensor:
-        """Random keep scores (B, N) in [0, 1); padded tokens get -1 so they are dropped first.
-        Drawn on the generator's device and moved: a CPU generator (StudentActor's) drives a
-        policy on CUDA, and the same seed removes the same tokens on either device."""
-        dev = self.bin_embed.weight.device
-        gen_dev = generator.device if generator is not None else dev
-        scores = torch.rand(B, N, generator=generator, device=gen_dev).to(dev)
+        """Random keep scores (B, N) in [0, 1) (:func:`policies.base.uniform`); padded tokens
+        get -1 so they are dropped first."""
+        scores = uniform(B, N, generator, self.bin_embed.weight.device)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
     def _remove_masked(
