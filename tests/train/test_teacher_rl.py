@@ -141,6 +141,26 @@ def test_msta_train_teacher_runs_both_stages_and_resumes(tmp_path):
                               first.act(obs))
 
 
+def test_ppo_can_start_from_an_existing_rma_teacher(tmp_path):
+    shipped = "policies/teacher/checkpoints/rma_dart"
+    cfg = TrainTeacherConfig(
+        output_dir=str(tmp_path), num_threads=1, device="cpu", init_from=shipped,
+        ppo=PPOConfig(iterations=2, num_steps_per_env=4, save_interval=2, critic_warmup=2),
+        env=small_env())
+    logs: list[str] = []
+    path = train_teacher(cfg, log=logs.append)
+    assert not (tmp_path / "warmstart").exists()          # no warm start was run
+    assert any("starts from the rma teacher" in line for line in logs)
+    assert json.loads((tmp_path / "train_teacher.json").read_text())["init_from"] == shipped
+    # the critic-only iterations leave the actor as loaded: the export is the shipped teacher
+    obs = RslVecEnv(small_env(4)).raw_obs
+    np.testing.assert_allclose(build_teacher(TeacherConfig(type="rma", path=str(path))).act(obs),
+                               RMATeacher.from_pretrained(shipped).act(obs), atol=1e-6)
+    bad = TrainTeacherConfig(output_dir=str(tmp_path / "b"), init_from=str(tmp_path / "none"))
+    with pytest.raises(ValueError, match="--init_from="):
+        train_teacher(bad, log=logs.append)
+
+
 def test_bad_settings_are_one_line_errors():
     with pytest.raises(ValueError, match="init_std"):
         PPOConfig(init_std=0)

@@ -121,6 +121,10 @@ class TrainTeacherConfig:
         seed: seeds torch, the warm start and the simulator (env.seed follows it).
         device: torch device for PPO: auto (CUDA when present), cpu, cuda.
         num_threads: torch threads (0: one per core).
+        init_from: an existing ``rma`` teacher checkpoint (a directory with config.json and
+            model.safetensors, e.g. policies/teacher/checkpoints/rma_dart, the shipped warm
+            start) that PPO starts from instead of running the warm start; empty: run the
+            warm start (warmstart.iterations) as configured.
         warmstart: the warm start: imitation of the gait controller (DART by default).
         ppo: rsl_rl PPO settings.
         env: the simulator (robots, terrains and curriculum, rewards, randomization);
@@ -131,6 +135,7 @@ class TrainTeacherConfig:
     seed: int = 0
     device: str = "auto"
     num_threads: int = 0
+    init_from: str = ""
     warmstart: WarmStartConfig = field(default_factory=WarmStartConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     env: EnvConfig = field(default_factory=_default_env)
@@ -138,6 +143,19 @@ class TrainTeacherConfig:
     def __post_init__(self) -> None:
         check_at_least(self, 0, "num_threads")
         self.env.seed = self.seed
+
+
+def load_init(path: str, rma: RMAConfig) -> RMATeacher:
+    """The ``rma`` teacher at ``path`` (``--init_from``); a one-line error when it is not
+    one or its layers differ from the actor PPO trains (``rma``)."""
+    try:
+        net = RMATeacher.from_pretrained(path)
+    except (OSError, ValueError) as e:
+        raise ValueError(f"--init_from={path}: {e}") from None
+    if net.config.to_dict() != rma.to_dict():
+        raise ValueError(f"--init_from={path}: its network ({net.config.to_dict()}) is not "
+                         f"the one PPO trains ({rma.to_dict()})")
+    return net
 
 
 def latest_checkpoint(ppo_dir: Path) -> tuple[Path, int] | None:
@@ -183,7 +201,10 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
     rma = RMAConfig()
     (out / "train_teacher.json").write_text(json.dumps(asdict(cfg), indent=2, default=str) + "\n")
     start_net = None
-    if cfg.warmstart.iterations:
+    if cfg.init_from:
+        start_net = load_init(cfg.init_from, rma)
+        log(f"== PPO starts from the rma teacher {cfg.init_from} (no warm start run) ==")
+    elif cfg.warmstart.iterations:
         log(f"== warm start: {cfg.warmstart.iterations} imitation iterations from the gait "
             f"controller, {cfg.env.num_envs} robots x {cfg.warmstart.steps} steps each ==")
         start_net = warm_start(cfg.env, rma, cfg.warmstart, out / "warmstart", cfg.seed, log)
