@@ -116,7 +116,7 @@ def test_msta_train_teacher_runs_both_stages_and_resumes(tmp_path):
             output_dir=str(tmp_path), num_threads=1, device="cpu",
             warmstart=WarmStartConfig(iterations=1, steps=20, fit_steps=5),
             ppo=PPOConfig(iterations=iterations, num_steps_per_env=4, save_interval=2,
-                          critic_warmup=2),
+                          critic_warmup=2, snapshot_interval=3),
             env=small_env())
 
     logs: list[str] = []
@@ -137,6 +137,12 @@ def test_msta_train_teacher_runs_both_stages_and_resumes(tmp_path):
     assert [r["iteration"] for r in curve] == [2, 4, 6]
     assert curve[2]["env_steps"] == 6 * 4 * 8
     obs = RslVecEnv(small_env(4)).raw_obs
+    # a snapshot at the end of each chunk that reached a multiple of 3 (chunks end at 2, 4, 6)
+    snaps = sorted(p.name for p in (tmp_path / "snapshots").iterdir())
+    assert snaps == ["iter_4", "iter_6"]
+    last = build_teacher(TeacherConfig(type="rma", path=str(tmp_path / "snapshots" / "iter_6")))
+    np.testing.assert_array_equal(last.act(obs), build_teacher(
+        TeacherConfig(type="rma", path=str(path))).act(obs))
     assert not np.array_equal(build_teacher(TeacherConfig(type="rma", path=str(path))).act(obs),
                               first.act(obs))
 

@@ -66,6 +66,11 @@ class PPOConfig:
         gamma: discount.
         lam: GAE lambda.
         save_interval: iterations per chunk (a checkpoint, a curve row, an export each).
+        snapshot_interval: every this many iterations the exported teacher is also kept as
+            ``snapshots/iter_<n>/`` (an ``rma`` checkpoint, ~1 MB), so the run's progress can
+            be evaluated afterwards and its best checkpoint chosen; 0 keeps none. Taken at
+            the end of the chunk that reaches or passes each multiple, and named by that
+            chunk's last iteration.
     """
 
     iterations: int = 300
@@ -81,9 +86,10 @@ class PPOConfig:
     gamma: float = 0.99
     lam: float = 0.95
     save_interval: int = 10
+    snapshot_interval: int = 100
 
     def __post_init__(self) -> None:
-        check_at_least(self, 0, "iterations", "critic_warmup")
+        check_at_least(self, 0, "iterations", "critic_warmup", "snapshot_interval")
         check_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches",
                        "save_interval")
         for name in ("learning_rate", "desired_kl", "init_std", "clip_param"):
@@ -254,7 +260,11 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
                             seconds=round(time.time() - t0, 1), critic_only=frozen)
         curve.append(row)
         curve_path.write_text(json.dumps(curve, indent=1) + "\n")
-        to_teacher(actor, rma).save_pretrained(teacher_dir)
+        exported = to_teacher(actor, rma)
+        exported.save_pretrained(teacher_dir)
+        every = cfg.ppo.snapshot_interval
+        if every and done // every > (done - chunk) // every:  # crossed a multiple
+            exported.save_pretrained(out / "snapshots" / f"iter_{done}")
         _save_levels(env, ppo_dir)
         prune_checkpoints(ppo_dir, keep=2)
         log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
