@@ -1,0 +1,57 @@
+"""eval.teacher_curve: a teacher run's snapshots evaluated on fixed tiles, cached."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import eval.teacher_curve as tc
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
+from train.teacher.warmstart import WarmStartConfig
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    env = EnvConfig(num_envs=8, episode_length_s=1.0, nthread=1,
+                    terrain=TerrainConfig(types=("flat", "smooth_slope"), num_levels=3,
+                                          max_init_level=1))
+    train_teacher(TrainTeacherConfig(
+        output_dir=str(out), num_threads=1, device="cpu",
+        warmstart=WarmStartConfig(iterations=1, steps=20, fit_steps=5),
+        ppo=PPOConfig(iterations=4, num_steps_per_env=4, save_interval=2, critic_warmup=2,
+                      snapshot_interval=2), env=env), log=lambda s: None)
+    return out
+
+
+def test_every_snapshot_and_both_references_are_evaluated_once(run, tmp_path, monkeypatch):
+    argv = [f"--run={run}", "--terrains=flat", "--level=0", "--episodes=2",
+            "--envs_per_tile=2", "--episode_length_s=0.4", "--nthread=1",
+            f"--image={tmp_path / 'curve.png'}", "--progress=false"]
+    calls: list[str] = []
+    real = tc.survival_of
+    monkeypatch.setattr(tc, "survival_of",
+                        lambda teacher, cfg: calls.append(teacher.type) or real(teacher, cfg))
+    tc.main(argv)
+    assert calls == ["gait", "rma", "rma", "rma"]          # gait, start, iterations 2 and 4
+    cache = json.loads((run / "curve_eval.json").read_text())
+    assert set(cache["references"]) == {"gait controller", "start"}
+    assert set(cache["snapshots"]) == {"2", "4"}
+    assert all(0.0 <= v["flat"] <= 1.0 for v in cache["snapshots"].values())
+    assert (tmp_path / "curve.png").stat().st_size > 10_000
+    # a re-run evaluates nothing already cached; other settings start a fresh cache
+    calls.clear()
+    tc.main(argv)
+    assert calls == []
+    tc.main([a if not a.startswith("--episodes=") else "--episodes=4" for a in argv])
+    assert len(calls) == 4
+
+
+def test_a_directory_without_a_curve_is_a_one_line_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        tc.main([f"--run={tmp_path}"])
+    assert e.value.code == 2
+    assert "no curve.json" in capsys.readouterr().err
