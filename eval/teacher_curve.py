@@ -7,9 +7,10 @@ run's progress is measured here on fixed tiles instead: every snapshot the run k
 (``snapshots/iter_<n>/``, ``--ppo.snapshot_interval``), the run's starting point and the
 gait controller each walk ``--episodes`` episodes of ``--episode_length_s`` per terrain type
 at ``--level`` (the harness of ``eval.teacher_report``: terrain curriculum off,
-randomization and observation noise on, seed 0). Results are cached in
+randomization and observation noise on, seed 0; 95 % Wilson intervals). Results are cached in
 ``<run>/curve_eval.json`` (re-running evaluates only new snapshots); the image has two
-panels: survival per terrain type vs environment steps (the references as dashed lines),
+panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
+controller as dashed lines),
 and the curriculum's survival per episode and mean level from ``curve.json``.
 """
 
@@ -22,6 +23,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from eval.intervals import wilson_interval
 from eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
 from msta_data.cli import check_at_least, parse_config
 from policies.teacher.config import TeacherConfig
@@ -130,18 +132,26 @@ def render(cache: dict, run: Path, image: Path) -> None:
     s = cache["settings"]
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.2))
     its = sorted(int(i) for i in cache["snapshots"])
+    n = s["episodes"]
+    start = cache["references"].get("start")
     for k, t in enumerate(s["terrains"].split(",")):
         color = f"C{k}"
         xs = [steps.get(i, float("nan")) / 1e6 for i in its]
-        ax.plot(xs, [cache["snapshots"][str(i)][t] for i in its], "o-", color=color,
-                label=f"{t} (PPO)")
-        for name, style in (("gait controller", "--"), ("start", ":")):
-            if name in cache["references"]:
-                ax.axhline(cache["references"][name][t], color=color, ls=style, lw=1)
+        ys = [cache["snapshots"][str(i)][t] for i in its]
+        if start is not None:  # PPO's starting point sits at 0 steps
+            xs, ys = [0.0] + xs, [start[t]] + ys
+        lo, hi = zip(*(wilson_interval(y, n) for y in ys), strict=True) if ys else ((), ())
+        ax.errorbar(xs, ys, yerr=[[y - a for y, a in zip(ys, lo, strict=True)],
+                                  [b - y for y, b in zip(ys, hi, strict=True)]],
+                    fmt="o-", color=color, capsize=2, label=f"{t}")
+        if "gait controller" in cache["references"]:
+            ax.axhline(cache["references"]["gait controller"][t], color=color, ls="--", lw=1)
+    ax.set_xlim(left=-0.05 * max([steps.get(i, 0) / 1e6 for i in its] + [1.0]))
     ax.set_xlabel("environment steps (millions)")
     ax.set_ylabel(f"survival, level {s['level']}")
-    ax.set_title(f"fixed tiles: {s['episodes']} episodes of {s['episode_length_s']:g} s "
-                 "per point\n(dashed: gait controller, dotted: PPO's start)", fontsize=9)
+    ax.set_title(f"fixed tiles: {s['episodes']} episodes of {s['episode_length_s']:g} s per "
+                 "point, 95 % Wilson intervals\n(0 steps: PPO's start; dashed: the gait "
+                 "controller)", fontsize=9)
     ax.set_ylim(0, 1)
     ax.legend(fontsize=8)
     rows = json.loads((run / "curve.json").read_text())
@@ -165,17 +175,24 @@ def render(cache: dict, run: Path, image: Path) -> None:
 
 
 def table(cache: dict, run: Path) -> str:
-    """A Markdown table of the cache: one row per checkpoint."""
+    """A Markdown table of the cache: one row per checkpoint, survival with its 95 % Wilson
+    interval over the episodes."""
     steps = env_steps_at(run)
     terrains = cache["settings"]["terrains"].split(",")
+    n = cache["settings"]["episodes"]
+
+    def cell(p: float) -> str:
+        lo, hi = wilson_interval(p, n)
+        return f"{p:.2f} ({lo:.2f}-{hi:.2f})"
+
     lines = ["| checkpoint | env steps | " + " | ".join(terrains) + " |",
              "|---|---|" + "---|" * len(terrains)]
     for name, res in cache["references"].items():
-        lines.append(f"| {name} | - | " + " | ".join(f"{res[t]:.2f}" for t in terrains) + " |")
+        lines.append(f"| {name} | - | " + " | ".join(cell(res[t]) for t in terrains) + " |")
     for it in sorted(int(i) for i in cache["snapshots"]):
         res = cache["snapshots"][str(it)]
         lines.append(f"| iteration {it} | {steps.get(it, 0):,} | "
-                     + " | ".join(f"{res[t]:.2f}" for t in terrains) + " |")
+                     + " | ".join(cell(res[t]) for t in terrains) + " |")
     return "\n".join(lines)
 
 
