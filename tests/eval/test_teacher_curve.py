@@ -46,8 +46,10 @@ def test_every_snapshot_and_both_references_are_evaluated_once(run, tmp_path, mo
     calls.clear()
     tc.main(argv)
     assert calls == []
-    tc.main([a if not a.startswith("--episodes=") else "--episodes=4" for a in argv])
-    assert len(calls) == 4
+    other = [a if not a.startswith("--episodes=") else "--episodes=4" for a in argv]
+    tc.main([*other, "--every=4"])                         # snapshots at multiples of 4 only
+    assert len(calls) == 3
+    assert set(json.loads((run / "curve_eval.json").read_text())["snapshots"]) == {"4"}
 
 
 def test_a_directory_without_a_curve_is_a_one_line_error(tmp_path, capsys):
