@@ -21,6 +21,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
 from tqdm import tqdm
 
 from eval.intervals import wilson_interval
@@ -42,7 +43,7 @@ class TeacherCurveConfig:
         episodes: episodes per terrain type and checkpoint.
         envs_per_tile: robots per tile (each runs episodes / envs_per_tile episodes).
         episode_length_s: episode length (s); 20 is the length of docs/teacher_quality.md.
-        nthread: MuJoCo rollout threads.
+        nthread: MuJoCo rollout threads and torch threads.
         every: evaluate only the snapshots whose iteration is a multiple of this (0: all);
             a snapshot costs ~1.5 min on 2 idle cores at the defaults.
         image: the PNG to write ('' skips it).
@@ -202,6 +203,7 @@ def table(cache: dict, run: Path) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     cfg = parse_config(TeacherCurveConfig, argv, prog=PROG)
+    torch.set_num_threads(cfg.nthread)  # the teachers' networks too: no oversubscribed cores
     try:
         cache = build(cfg)
         if cfg.image:
