@@ -5,12 +5,20 @@ from __future__ import annotations
 import json
 
 import pytest
+import torch
 
 import eval.teacher_curve as tc
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
 from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
 from train.teacher.warmstart import WarmStartConfig
+
+
+@pytest.fixture(autouse=True)
+def _restore_torch_threads():
+    before = torch.get_num_threads()    # main() sets torch's threads to --nthread
+    yield
+    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")
