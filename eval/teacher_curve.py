@@ -1,22 +1,26 @@
 """Progress of an ``msta-train-teacher`` run at fixed terrains: survival vs environment steps.
 
-    python -m eval.teacher_curve --run=outputs/teacher --image=docs/teacher_rma_curve.png
+    python -m eval.teacher_curve --run=outputs/teacher --image=outputs/teacher/curve.png
 
 The curriculum's own survival (``curve.json``) mixes levels that move with the policy, so a
-run's progress is measured here on fixed tiles instead: every snapshot the run kept
-(``snapshots/iter_<n>/``, ``--ppo.snapshot_interval``), the run's starting point and the
-gait controller each walk ``--episodes`` episodes of ``--episode_length_s`` per terrain type
-at ``--level`` (the harness of ``eval.teacher_report``: terrain curriculum off,
-randomization and observation noise on, seed 0; 95 % Wilson intervals). Results are cached in
-``<run>/curve_eval.json`` (re-running evaluates only new snapshots); the image has two
+run's progress is measured here on fixed tiles instead: the snapshots the run kept
+(``snapshots/iter_<n>/``, ``--ppo.snapshot_interval``; ``--every`` thins them), the run's
+starting point (``init/`` or ``warmstart/``) and the gait controller each walk
+``--episodes`` episodes of ``--episode_length_s`` per terrain type at ``--level`` (the
+harness of ``eval.teacher_report``: terrain curriculum off, randomization and observation
+noise on, seed 0; 95 % Wilson intervals). Results are cached in ``<run>/curve_eval.json``,
+one cache per setting, each entry with the evaluated checkpoint's content revision:
+re-running evaluates only snapshots that are new or whose files changed. The image has two
 panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
-controller as dashed lines),
-and the curriculum's survival per episode and mean level from ``curve.json``.
+controller as dashed lines), and the curriculum's survival per episode and mean level from
+``curve.json``. The last line names the snapshot whose worst margin to the gait controller
+over the terrain types is highest.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,28 +28,32 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from collect.sim.terrain import TERRAIN_TYPES
 from eval.intervals import wilson_interval
 from eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
 from msta_data.cli import check_at_least, parse_config
-from policies.teacher.config import TeacherConfig
+from policies.teacher.config import TeacherConfig, teacher_revision
 
 PROG = "python -m eval.teacher_curve"
 _SNAP = re.compile(r"^iter_(\d+)$")
+GAIT, START = "gait controller", "start"
 
 
 @dataclass
 class TeacherCurveConfig:
     """Args:
-        run: an msta-train-teacher output directory (curve.json, snapshots/,
-            train_teacher.json).
+        run: an msta-train-teacher output directory (curve.json, snapshots/, init/ or
+            warmstart/).
         terrains: comma-separated terrain types evaluated at ``level``.
         level: the terrain level of every evaluated tile.
-        episodes: episodes per terrain type and checkpoint.
+        episodes: episodes per terrain type and checkpoint (rounded up to a multiple of
+            envs_per_tile, as eval.teacher_report runs them).
         envs_per_tile: robots per tile (each runs episodes / envs_per_tile episodes).
         episode_length_s: episode length (s); 20 is the length of docs/teacher_quality.md.
         nthread: MuJoCo rollout threads and torch threads.
-        every: evaluate only the snapshots whose iteration is a multiple of this (0: all);
-            a snapshot costs ~1.5 min on 2 idle cores at the defaults.
+        every: evaluate one snapshot per this many iterations (the first at or after each
+            multiple) and the newest one; 0: every snapshot. A snapshot costs ~1.5 min on 2
+            idle cores at the defaults.
         image: the PNG to write ('' skips it).
         progress: a progress bar over checkpoints.
     """
@@ -58,16 +66,29 @@ class TeacherCurveConfig:
     episode_length_s: float = 20.0
     nthread: int = 2
     every: int = 0
-    image: str = "docs/teacher_rma_curve.png"
+    image: str = "outputs/teacher/curve.png"
     progress: bool = True
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "episodes", "envs_per_tile", "nthread")
         check_at_least(self, 0, "every")
         parse_levels(str(self.level))
+        names = [t.strip() for t in self.terrains.split(",") if t.strip()]
+        if not names:
+            raise ValueError("--terrains: name at least one terrain type")
+        for t in names:
+            if t not in TERRAIN_TYPES:
+                raise ValueError(f"unknown terrain {t!r}; known terrains: {list(TERRAIN_TYPES)}")
+        self.terrains = ",".join(names)
+        self.envs_per_tile = min(self.envs_per_tile, self.episodes)
         if not (Path(self.run) / "curve.json").is_file():
             raise ValueError(f"--run={self.run}: no curve.json (not an msta-train-teacher "
                              "output directory, or no PPO chunk finished yet)")
+
+    @property
+    def episodes_run(self) -> int:
+        """Episodes per tile that eval.teacher_report actually runs."""
+        return self.envs_per_tile * math.ceil(self.episodes / self.envs_per_tile)
 
 
 def snapshots(run: Path) -> list[tuple[int, Path]]:
@@ -77,14 +98,24 @@ def snapshots(run: Path) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
+def thin(found: list[tuple[int, Path]], every: int) -> list[tuple[int, Path]]:
+    """The first snapshot at or after each multiple of ``every``, and the newest one."""
+    if not every or not found:
+        return found
+    kept, last_bucket = [], -1
+    for it, path in found:
+        if it // every > last_bucket:
+            kept.append((it, path))
+            last_bucket = it // every
+    return kept if kept[-1] == found[-1] else [*kept, found[-1]]
+
+
 def start_teacher(run: Path) -> TeacherConfig | None:
-    """The checkpoint PPO started from: ``--init_from`` or the run's own warm start."""
-    cfg = json.loads((run / "train_teacher.json").read_text()) \
-        if (run / "train_teacher.json").is_file() else {}
-    if cfg.get("init_from"):
-        return TeacherConfig(type="rma", path=cfg["init_from"])
-    if (run / "warmstart" / "model.safetensors").is_file():
-        return TeacherConfig(type="rma", path=str(run / "warmstart"))
+    """The checkpoint PPO started from: ``init/`` (a copy of ``--init_from``) or the run's
+    own warm start."""
+    for sub in ("init", "warmstart"):
+        if (run / sub / "model.safetensors").is_file():
+            return TeacherConfig(type="rma", path=str(run / sub))
     return None
 
 
@@ -104,27 +135,47 @@ def env_steps_at(run: Path) -> dict[int, int]:
     return {int(r["iteration"]): int(r["env_steps"]) for r in rows}
 
 
+def settings_key(cfg: TeacherCurveConfig) -> dict:
+    return {"terrains": cfg.terrains, "level": cfg.level, "episodes": cfg.episodes_run,
+            "episode_length_s": cfg.episode_length_s}
+
+
 def build(cfg: TeacherCurveConfig) -> dict:
-    """Evaluate what is not cached yet; return the cache (also written to the run)."""
+    """Evaluate what is not cached yet (new, or whose files changed); return this setting's
+    cache: ``settings``, ``references`` and ``snapshots`` (name -> ``revision``,
+    ``survival`` per terrain type). Snapshots whose directory is gone are dropped."""
     run = Path(cfg.run)
     cache_path = run / "curve_eval.json"
-    key = {k: getattr(cfg, k) for k in ("terrains", "level", "episodes", "envs_per_tile",
-                                         "episode_length_s")}
-    cache = json.loads(cache_path.read_text()) if cache_path.is_file() else {}
-    if cache.get("settings") != key:
+    caches = json.loads(cache_path.read_text())["caches"] if cache_path.is_file() else []
+    key = settings_key(cfg)
+    cache = next((c for c in caches if c["settings"] == key), None)
+    if cache is None:
         cache = {"settings": key, "references": {}, "snapshots": {}}
-    todo: list[tuple[str, str, TeacherConfig]] = []
+        caches.append(cache)
+    found = dict(snapshots(run))
+    cache["snapshots"] = {k: v for k, v in cache["snapshots"].items() if int(k) in found}
+    wanted: list[tuple[str, str, TeacherConfig]] = [
+        ("references", GAIT, TeacherConfig(type="gait"))]
     start = start_teacher(run)
-    for name, teacher in (("gait controller", TeacherConfig(type="gait")), ("start", start)):
-        if teacher is not None and name not in cache["references"]:
-            todo.append(("references", name, teacher))
-    for it, path in snapshots(run):
-        if str(it) not in cache["snapshots"] and not (cfg.every and it % cfg.every):
-            todo.append(("snapshots", str(it), TeacherConfig(type="rma", path=str(path))))
-    for group, name, teacher in tqdm(todo, desc="checkpoints", disable=not cfg.progress):
-        cache[group][name] = survival_of(teacher, cfg)
-        cache_path.write_text(json.dumps(cache, indent=1) + "\n")
+    if start is not None:
+        wanted.append(("references", START, start))
+    wanted += [("snapshots", str(it), TeacherConfig(type="rma", path=str(path)))
+               for it, path in thin(sorted(found.items()), cfg.every)]
+    todo = []
+    for group, name, teacher in wanted:
+        rev = teacher_revision(teacher)
+        if cache[group].get(name, {}).get("revision") != rev:
+            todo.append((group, name, teacher, rev))
+    for group, name, teacher, rev in tqdm(todo, desc="checkpoints", disable=not cfg.progress):
+        cache[group][name] = {"revision": rev, "survival": survival_of(teacher, cfg)}
+        cache_path.write_text(json.dumps({"caches": caches}, indent=1) + "\n")
+    cache_path.write_text(json.dumps({"caches": caches}, indent=1) + "\n")  # drops too
     return cache
+
+
+def _interval(p: float, n: int) -> tuple[float, float]:
+    lo, hi = wilson_interval(p, n)
+    return min(lo, p), max(hi, p)   # rounding may put p a hair outside its own interval
 
 
 def render(cache: dict, run: Path, image: Path) -> None:
@@ -135,28 +186,28 @@ def render(cache: dict, run: Path, image: Path) -> None:
 
     steps = env_steps_at(run)
     s = cache["settings"]
+    n = s["episodes"]
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.2))
     its = sorted(int(i) for i in cache["snapshots"])
-    n = s["episodes"]
-    start = cache["references"].get("start")
+    refs = cache["references"]
     for k, t in enumerate(s["terrains"].split(",")):
         color = f"C{k}"
         xs = [steps.get(i, float("nan")) / 1e6 for i in its]
-        ys = [cache["snapshots"][str(i)][t] for i in its]
-        if start is not None:  # PPO's starting point sits at 0 steps
-            xs, ys = [0.0] + xs, [start[t]] + ys
-        lo, hi = zip(*(wilson_interval(y, n) for y in ys), strict=True) if ys else ((), ())
-        ax.errorbar(xs, ys, yerr=[[y - a for y, a in zip(ys, lo, strict=True)],
-                                  [b - y for y, b in zip(ys, hi, strict=True)]],
-                    fmt="o-", color=color, capsize=2, label=f"{t}")
-        if "gait controller" in cache["references"]:
-            ax.axhline(cache["references"]["gait controller"][t], color=color, ls="--", lw=1)
+        ys = [cache["snapshots"][str(i)]["survival"][t] for i in its]
+        if START in refs:  # PPO's starting point sits at 0 steps
+            xs, ys = [0.0, *xs], [refs[START]["survival"][t], *ys]
+        bounds = [_interval(y, n) for y in ys]
+        ax.errorbar(xs, ys, yerr=[[y - lo for y, (lo, _) in zip(ys, bounds, strict=True)],
+                                  [hi - y for y, (_, hi) in zip(ys, bounds, strict=True)]],
+                    fmt="o-", color=color, capsize=2, label=t)
+        if GAIT in refs:
+            ax.axhline(refs[GAIT]["survival"][t], color=color, ls="--", lw=1)
     ax.set_xlim(left=-0.05 * max([steps.get(i, 0) / 1e6 for i in its] + [1.0]))
     ax.set_xlabel("environment steps (millions)")
     ax.set_ylabel(f"survival, level {s['level']}")
-    ax.set_title(f"fixed tiles: {s['episodes']} episodes of {s['episode_length_s']:g} s per "
-                 "point, 95 % Wilson intervals\n(0 steps: PPO's start; dashed: the gait "
-                 "controller)", fontsize=9)
+    ax.set_title(f"fixed tiles: {n} episodes of {s['episode_length_s']:g} s per point, 95 % "
+                 "Wilson intervals\n(0 steps: PPO's start; dashed: the gait controller)",
+                 fontsize=9)
     ax.set_ylim(0, 1)
     ax.legend(fontsize=8)
     rows = json.loads((run / "curve.json").read_text())
@@ -179,6 +230,18 @@ def render(cache: dict, run: Path, image: Path) -> None:
     plt.close(fig)
 
 
+def best_snapshot(cache: dict) -> tuple[str, float] | None:
+    """The snapshot whose worst margin to the gait controller over the terrain types is
+    highest, with that margin."""
+    gait = cache["references"].get(GAIT)
+    if gait is None or not cache["snapshots"]:
+        return None
+    margins = {k: min(v["survival"][t] - gait["survival"][t] for t in gait["survival"])
+               for k, v in cache["snapshots"].items()}
+    best = max(margins, key=lambda k: (margins[k], int(k)))
+    return best, margins[best]
+
+
 def table(cache: dict, run: Path) -> str:
     """A Markdown table of the cache: one row per checkpoint, survival with its 95 % Wilson
     interval over the episodes."""
@@ -186,18 +249,17 @@ def table(cache: dict, run: Path) -> str:
     terrains = cache["settings"]["terrains"].split(",")
     n = cache["settings"]["episodes"]
 
-    def cell(p: float) -> str:
-        lo, hi = wilson_interval(p, n)
-        return f"{p:.2f} ({lo:.2f}-{hi:.2f})"
+    def cells(res: dict) -> str:
+        return " | ".join(f"{res[t]:.2f} ({_interval(res[t], n)[0]:.2f}-"
+                          f"{_interval(res[t], n)[1]:.2f})" for t in terrains)
 
     lines = ["| checkpoint | env steps | " + " | ".join(terrains) + " |",
              "|---|---|" + "---|" * len(terrains)]
     for name, res in cache["references"].items():
-        lines.append(f"| {name} | - | " + " | ".join(cell(res[t]) for t in terrains) + " |")
+        lines.append(f"| {name} | - | {cells(res['survival'])} |")
     for it in sorted(int(i) for i in cache["snapshots"]):
-        res = cache["snapshots"][str(it)]
-        lines.append(f"| iteration {it} | {steps.get(it, 0):,} | "
-                     + " | ".join(cell(res[t]) for t in terrains) + " |")
+        st = f"{steps[it]:,}" if it in steps else "-"
+        lines.append(f"| iteration {it} | {st} | {cells(cache['snapshots'][str(it)]['survival'])} |")
     return "\n".join(lines)
 
 
@@ -213,6 +275,10 @@ def main(argv: list[str] | None = None) -> None:
     print(table(cache, Path(cfg.run)))
     if cfg.image:
         print(f"image: {cfg.image}")
+    best = best_snapshot(cache)
+    if best is not None:
+        print(f"best snapshot: iter_{best[0]} (worst margin to the gait controller "
+              f"{best[1]:+.2f} at level {cfg.level}; {cfg.episodes_run} episodes per point)")
 
 
 if __name__ == "__main__":

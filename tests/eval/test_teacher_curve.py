@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 import torch
@@ -14,9 +15,9 @@ from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
 from train.teacher.warmstart import WarmStartConfig
 
 
-@pytest.fixture(autouse=True)
+@pytest.fixture(scope="module", autouse=True)
 def _restore_torch_threads():
-    before = torch.get_num_threads()    # main() sets torch's threads to --nthread
+    before = torch.get_num_threads()    # main() and train_teacher set torch's threads
     yield
     torch.set_num_threads(before)
 
@@ -45,19 +46,38 @@ def test_every_snapshot_and_both_references_are_evaluated_once(run, tmp_path, mo
                         lambda teacher, cfg: calls.append(teacher.type) or real(teacher, cfg))
     tc.main(argv)
     assert calls == ["gait", "rma", "rma", "rma"]          # gait, start, iterations 2 and 4
-    cache = json.loads((run / "curve_eval.json").read_text())
+    caches = json.loads((run / "curve_eval.json").read_text())["caches"]
+    assert len(caches) == 1 and caches[0]["settings"]["episodes"] == 2
+    cache = caches[0]
     assert set(cache["references"]) == {"gait controller", "start"}
     assert set(cache["snapshots"]) == {"2", "4"}
-    assert all(0.0 <= v["flat"] <= 1.0 for v in cache["snapshots"].values())
+    assert all(0.0 <= v["survival"]["flat"] <= 1.0 for v in cache["snapshots"].values())
     assert (tmp_path / "curve.png").stat().st_size > 10_000
-    # a re-run evaluates nothing already cached; other settings start a fresh cache
+    # a re-run evaluates nothing already cached ...
     calls.clear()
     tc.main(argv)
     assert calls == []
+    # ... but a snapshot whose files changed, and a removed snapshot is dropped
+    snap2 = run / "snapshots" / "iter_2"
+    shutil.copy(run / "snapshots" / "iter_4" / "model.safetensors", snap2 / "model.safetensors")
+    tc.main(argv)
+    assert calls == ["rma"]
+    shutil.rmtree(snap2)
+    tc.main(argv)
+    assert calls == ["rma"]
+    assert set(json.loads((run / "curve_eval.json").read_text())["caches"][0]["snapshots"]) == {"4"}
+    # other settings get a cache of their own; --every keeps one snapshot per multiple + newest
+    calls.clear()
     other = [a if not a.startswith("--episodes=") else "--episodes=4" for a in argv]
-    tc.main([*other, "--every=4"])                         # snapshots at multiples of 4 only
-    assert len(calls) == 3
-    assert set(json.loads((run / "curve_eval.json").read_text())["snapshots"]) == {"4"}
+    tc.main([*other, "--every=8"])
+    assert calls == ["gait", "rma", "rma"]                  # gait, start, the newest (4)
+    assert len(json.loads((run / "curve_eval.json").read_text())["caches"]) == 2
+
+
+def test_thin_keeps_the_first_snapshot_at_or_after_each_multiple_and_the_newest():
+    found = [(it, None) for it in (100, 201, 301, 390, 401, 460)]
+    assert [it for it, _ in tc.thin(found, 200)] == [100, 201, 401, 460]
+    assert [it for it, _ in tc.thin(found, 0)] == [it for it, _ in found]
 
 
 def test_a_directory_without_a_curve_is_a_one_line_error(tmp_path, capsys):

@@ -13,7 +13,7 @@ from rsl_rl.runners import OnPolicyRunner
 
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
-from policies.teacher.config import TeacherConfig, build_teacher
+from policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 from policies.teacher.imported import InputScaler
 from policies.teacher.rma import RMAConfig, RMATeacher
 from train.teacher.cli import PPOConfig, TrainTeacherConfig, latest_checkpoint, train_teacher
@@ -148,23 +148,56 @@ def test_msta_train_teacher_runs_both_stages_and_resumes(tmp_path):
 
 
 def test_ppo_can_start_from_an_existing_rma_teacher(tmp_path):
-    shipped = "policies/teacher/checkpoints/rma_dart"
-    cfg = TrainTeacherConfig(
-        output_dir=str(tmp_path), num_threads=1, device="cpu", init_from=shipped,
-        ppo=PPOConfig(iterations=2, num_steps_per_env=4, save_interval=2, critic_warmup=2),
-        env=small_env())
+    def cfg(iterations: int, init_from: str = str(SHIPPED_RMA)) -> TrainTeacherConfig:
+        return TrainTeacherConfig(
+            output_dir=str(tmp_path), num_threads=1, device="cpu", init_from=init_from,
+            ppo=PPOConfig(iterations=iterations, num_steps_per_env=4, save_interval=2,
+                          critic_warmup=2),
+            env=small_env())
+
     logs: list[str] = []
-    path = train_teacher(cfg, log=logs.append)
+    path = train_teacher(cfg(2), log=logs.append)
     assert not (tmp_path / "warmstart").exists()          # no warm start was run
     assert any("starts from the rma teacher" in line for line in logs)
-    assert json.loads((tmp_path / "train_teacher.json").read_text())["init_from"] == shipped
-    # the critic-only iterations leave the actor as loaded: the export is the shipped teacher
+    record = json.loads((tmp_path / "train_teacher.json").read_text())
+    assert record["init_from"] == str(SHIPPED_RMA.resolve())
+    # the critic-only iterations leave the actor as loaded: the export is the shipped teacher,
+    # and the run keeps a copy of its start in init/
     obs = RslVecEnv(small_env(4)).raw_obs
-    np.testing.assert_allclose(build_teacher(TeacherConfig(type="rma", path=str(path))).act(obs),
-                               RMATeacher.from_pretrained(shipped).act(obs), atol=1e-6)
-    bad = TrainTeacherConfig(output_dir=str(tmp_path / "b"), init_from=str(tmp_path / "none"))
+    shipped = RMATeacher.from_pretrained(SHIPPED_RMA).act(obs)
+    for d in (path, tmp_path / "init"):
+        np.testing.assert_allclose(
+            build_teacher(TeacherConfig(type="rma", path=str(d))).act(obs), shipped, atol=1e-6)
+    # resuming with another start is refused; without --init_from too (it would warm-start)
+    for other in (str(tmp_path / "init"), ""):
+        with pytest.raises(ValueError, match="resume it with --init_from="):
+            train_teacher(cfg(4, other), log=logs.append)
+    assert json.loads((tmp_path / "train_teacher.json").read_text()) == record
+    logs.clear()
+    train_teacher(cfg(4), log=logs.append)                 # the same start resumes
+    assert any("resuming from model_1.pt (2/4" in line for line in logs)
+    assert not any("starts from the rma teacher" in line for line in logs)
+    bad = TrainTeacherConfig(output_dir=str(tmp_path / "b"), num_threads=1,
+                             init_from=str(tmp_path / "none"))
     with pytest.raises(ValueError, match="--init_from="):
         train_teacher(bad, log=logs.append)
+
+
+def test_a_run_resumed_mid_chunk_realigns_its_chunks(tmp_path):
+    def cfg(iterations: int) -> TrainTeacherConfig:
+        return TrainTeacherConfig(
+            output_dir=str(tmp_path), num_threads=1, device="cpu",
+            warmstart=WarmStartConfig(iterations=0),
+            ppo=PPOConfig(iterations=iterations, num_steps_per_env=4, save_interval=3,
+                          critic_warmup=0, snapshot_interval=3),
+            env=small_env())
+
+    train_teacher(cfg(4), log=lambda s: None)     # chunks end at 3 and 4 (the total)
+    train_teacher(cfg(9), log=lambda s: None)     # resumes at 4: the next chunk ends at 6
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    assert [r["iteration"] for r in curve] == [3, 4, 6, 9]
+    assert sorted(p.name for p in (tmp_path / "snapshots").iterdir()) == [
+        "iter_3", "iter_6", "iter_9"]
 
 
 def test_bad_settings_are_one_line_errors():

@@ -205,15 +205,29 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
     torch.manual_seed(cfg.seed)
     rma = RMAConfig()
-    (out / "train_teacher.json").write_text(json.dumps(asdict(cfg), indent=2, default=str) + "\n")
+    resuming = cfg.ppo.iterations > 0 and latest_checkpoint(out / "ppo") is not None
+    init_from = str(Path(cfg.init_from).resolve()) if cfg.init_from else ""
+    record_path = out / "train_teacher.json"
+    if resuming and record_path.is_file():
+        recorded = json.loads(record_path.read_text()).get("init_from", "")
+        if recorded != init_from:
+            raise ValueError(
+                f"{out} holds a PPO run that started from "
+                f"{recorded or 'its own warm start'}; resume it with "
+                f"{'--init_from=' + recorded if recorded else 'no --init_from'} "
+                "(or train into a fresh --output_dir)")
     start_net = None
-    if cfg.init_from:
-        start_net = load_init(cfg.init_from, rma)
-        log(f"== PPO starts from the rma teacher {cfg.init_from} (no warm start run) ==")
-    elif cfg.warmstart.iterations:
+    if init_from and not resuming:
+        start_net = load_init(init_from, rma)
+        start_net.save_pretrained(out / "init")  # the run keeps its own starting point
+        log(f"== PPO starts from the rma teacher {init_from} (no warm start run; a copy in "
+            f"{out / 'init'}) ==")
+    elif cfg.warmstart.iterations and not resuming:
         log(f"== warm start: {cfg.warmstart.iterations} imitation iterations from the gait "
             f"controller, {cfg.env.num_envs} robots x {cfg.warmstart.steps} steps each ==")
         start_net = warm_start(cfg.env, rma, cfg.warmstart, out / "warmstart", cfg.seed, log)
+    record_path.write_text(json.dumps({**asdict(cfg), "init_from": init_from}, indent=2,
+                                      default=str) + "\n")
     teacher_dir = out / "teacher"
     if not cfg.ppo.iterations:
         (start_net or RMATeacher(rma)).save_pretrained(teacher_dir)
@@ -241,9 +255,12 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
     steps_so_far = curve[-1]["env_steps"] if curve else 0
     actor = runner.alg.get_policy()
     first = True  # spread the time-outs (rsl_rl's init_at_random_ep_len), also on a resume
+    warm = bool(init_from or cfg.warmstart.iterations)  # PPO started from a walking policy
     while done < cfg.ppo.iterations:
-        chunk = min(cfg.ppo.save_interval, cfg.ppo.iterations - done)
-        frozen = done < cfg.ppo.critic_warmup and start_net is not None
+        # chunks end at multiples of save_interval, also after a resume from mid-chunk
+        chunk = min(cfg.ppo.save_interval - done % cfg.ppo.save_interval,
+                    cfg.ppo.iterations - done)
+        frozen = done < cfg.ppo.critic_warmup and warm
         if frozen:
             chunk = min(chunk, cfg.ppo.critic_warmup - done)
         for p in actor.parameters():
