@@ -33,6 +33,11 @@ PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
 #: gait controller imitated by ``msta-train-teacher --ppo.iterations=0`` (10 DART iterations;
 #: ``produced_by.json`` in the folder; docs/teacher_quality_rma.md).
 SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
+#: The PPO-trained RMA teacher shipped with msta (``--teacher.path`` of it with
+#: ``--teacher.type=rma``): rsl_rl's PPO from ``SHIPPED_RMA``, 1,900 iterations (23 M steps)
+#: on the 2-core machine; survives stairs and discrete obstacles better than the gait
+#: controller (docs/teacher_quality_rma.md, ``produced_by.json`` in the folder).
+SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
 
 
 @dataclass

@@ -193,3 +193,29 @@ def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> Non
     _, zero_lin = _walk(build_teacher(TeacherConfig(type="zero")))
     assert surv >= 0.9 and gait_surv >= 0.9
     assert lin >= 0.85 * gait_lin and lin > 2 * zero_lin, (lin, gait_lin, zero_lin)
+
+
+def test_the_shipped_ppo_teacher_climbs_stairs_the_gait_controller_falls_on() -> None:
+    from collect.sim.terrain import TerrainConfig
+    from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
+
+    made = json.loads((SHIPPED_RMA_PPO / "produced_by.json").read_text())
+    assert made["command"].startswith("msta-train-teacher") and made["iteration"] == 1900
+
+    def stairs_survival(teacher, n: int = 60, seconds: float = 12.0) -> float:
+        env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=5, episode_length_s=seconds,
+                                     terrain=TerrainConfig(types=("stairs_up", "stairs_down"),
+                                                           curriculum=False)))
+        env.set_tiles(np.arange(n) % 2, np.full(n, 5))       # level 5 of both stair types
+        obs, alive, fell = env.reset(), np.ones(n, bool), np.zeros(n, bool)
+        teacher.reset(np.arange(n))
+        for _ in range(env.max_steps):
+            res = env.step(teacher.act(obs))
+            obs = res.obs
+            fell |= alive & res.terminated
+            alive &= ~res.done
+        return 1.0 - fell.mean()
+
+    ppo = stairs_survival(build_teacher(TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))))
+    gait = stairs_survival(build_teacher(TeacherConfig(type="gait")))
+    assert ppo >= gait + 0.15, (ppo, gait)
