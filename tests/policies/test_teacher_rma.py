@@ -162,14 +162,16 @@ def test_drives_the_real_env() -> None:
     assert not np.allclose(actions[0], actions[-1])
 
 
-def _walk(teacher, n: int = 40, seconds: float = 4.0) -> tuple[float, float]:
-    """(survival, mean per-step linear tracking) on flat and smooth slopes, levels 0-1."""
+def _walk(teacher, n: int = 40, seconds: float = 4.0, types=("flat", "smooth_slope"),
+          level: int | None = None, seed: int = 3) -> tuple[float, float]:
+    """(survival, mean per-step linear tracking) on two terrain types (robots alternate),
+    at levels 0-1 (alternating) or all at ``level``."""
     from collect.sim.terrain import TerrainConfig
 
-    env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=3, episode_length_s=seconds,
-                                 terrain=TerrainConfig(types=("flat", "smooth_slope"),
-                                                       curriculum=False)))
-    env.set_tiles(np.arange(n) % 2, (np.arange(n) // 2) % 2)
+    env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=seed, episode_length_s=seconds,
+                                 terrain=TerrainConfig(types=types, curriculum=False)))
+    env.set_tiles(np.arange(n) % 2,
+                  (np.arange(n) // 2) % 2 if level is None else np.full(n, level))
     obs, alive, fell, lin = env.reset(), np.ones(n, bool), np.zeros(n, bool), []
     teacher.reset(np.arange(n))
     for _ in range(env.max_steps):
@@ -196,25 +198,13 @@ def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> Non
 
 
 def test_the_shipped_ppo_teacher_climbs_stairs_the_gait_controller_falls_on() -> None:
-    from collect.sim.terrain import TerrainConfig
     from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
 
     made = json.loads((SHIPPED_RMA_PPO / "produced_by.json").read_text())
     assert made["command"].startswith("msta-train-teacher") and made["iteration"] == 1900
 
-    def stairs_survival(teacher, n: int = 60, seconds: float = 12.0) -> float:
-        env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=5, episode_length_s=seconds,
-                                     terrain=TerrainConfig(types=("stairs_up", "stairs_down"),
-                                                           curriculum=False)))
-        env.set_tiles(np.arange(n) % 2, np.full(n, 5))       # level 5 of both stair types
-        obs, alive, fell = env.reset(), np.ones(n, bool), np.zeros(n, bool)
-        teacher.reset(np.arange(n))
-        for _ in range(env.max_steps):
-            res = env.step(teacher.act(obs))
-            obs = res.obs
-            fell |= alive & res.terminated
-            alive &= ~res.done
-        return 1.0 - fell.mean()
+    def stairs_survival(teacher) -> float:   # level 5 of both stair types
+        return _walk(teacher, 60, 12.0, ("stairs_up", "stairs_down"), level=5, seed=5)[0]
 
     ppo = stairs_survival(build_teacher(TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))))
     gait = stairs_survival(build_teacher(TeacherConfig(type="gait")))
