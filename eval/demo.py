@@ -1,6 +1,6 @@
 """``make demo`` / ``msta-demo``: the whole msta pipeline on built-in defaults, CPU-sized.
 
-  1. the teacher (default: the shipped RMA MLP) walks every terrain type (summary table +
+  1. the teacher (default: the shipped PPO-trained RMA MLP, rma_ppo) walks every terrain type (summary table +
      image strip);
   2. msta-collect records a teacher dataset (LeRobot v3.0): 288 episodes of 10 s with noise
      on the executed actions (DART: states off the teacher's path, each labelled with the
@@ -53,7 +53,7 @@ from pathlib import Path
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
 from msta_data.cli import check_at_least
-from policies.teacher.config import TeacherConfig
+from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
@@ -278,11 +278,13 @@ class DemoConfig:
         eval_episode_length_s: msta-eval episode length (s).
         num_threads: torch threads for training and evaluation.
         teacher: the teacher that records, labels the stage-2 rounds and is the evaluation's
-            reference: ``rma`` (default: the shipped RMA MLP; memoryless, so its labels
-            on the student's states are consistent and the rounds lift the student) or
-            ``gait`` (the gait controller: a little better walker, survival 0.983 against
-            0.960 at levels 0-2, but its rounds do not lift an MSTA student,
-            docs/training.md).
+            reference. Default: the shipped PPO-trained RMA MLP
+            (policies/teacher/checkpoints/rma_ppo; memoryless, so its labels on the
+            student's states are consistent and the rounds lift the student; it survives
+            stairs and discrete obstacles better than the gait controller,
+            docs/teacher_quality_rma.md). ``--teacher.type=rma`` alone: the shipped warm
+            start (rma_dart, the default before 2026-12-04); ``--teacher.type=gait``: the
+            gait controller, whose rounds do not lift an MSTA student (docs/training.md).
     """
 
     output_dir: str = "outputs/demo"
@@ -304,7 +306,8 @@ class DemoConfig:
     eval_trials: int = 100
     eval_episode_length_s: float = 5.0
     num_threads: int = 2
-    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(type="rma"))
+    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(
+        type="rma", path=str(SHIPPED_RMA_PPO)))
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "episodes", "history", "train_steps", "correct_steps", "correct_episodes",
