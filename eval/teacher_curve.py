@@ -249,9 +249,12 @@ def table(cache: dict, run: Path) -> str:
     terrains = cache["settings"]["terrains"].split(",")
     n = cache["settings"]["episodes"]
 
+    def cell(p: float) -> str:
+        lo, hi = _interval(p, n)
+        return f"{p:.2f} ({lo:.2f}-{hi:.2f})"
+
     def cells(res: dict) -> str:
-        return " | ".join(f"{res[t]:.2f} ({_interval(res[t], n)[0]:.2f}-"
-                          f"{_interval(res[t], n)[1]:.2f})" for t in terrains)
+        return " | ".join(cell(res[t]) for t in terrains)
 
     lines = ["| checkpoint | env steps | " + " | ".join(terrains) + " |",
              "|---|---|" + "---|" * len(terrains)]
