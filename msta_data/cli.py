@@ -162,10 +162,14 @@ class HelpFormatter(argparse.MetavarTypeHelpFormatter):
         return getattr(action.type, "__name__", None) or "value"
 
 
-def _default_of(config_class: type, dest: str) -> Any:
-    """The default value at ``dest`` in a default-constructed config (None if unknown)."""
+_UNKNOWN = object()
+
+
+def _default_of(config_class: type, dest: str, instance: Any = _UNKNOWN) -> Any:
+    """The default value at ``dest`` in a default-constructed config (None if unknown).
+    ``instance``: that config, when the caller already built it."""
     try:
-        obj: Any = config_class()
+        obj: Any = config_class() if instance is _UNKNOWN else instance
         for part in dest.split("."):
             obj = getattr(obj, part)
         return obj
@@ -173,10 +177,36 @@ def _default_of(config_class: type, dest: str) -> Any:
         return None
 
 
+def _nested_default(instance: Any, dest: str, fallback: Any) -> Any:
+    """The value at a nested ``dest`` (``teacher.path``) in the default-built config
+    ``instance``, or ``fallback`` (draccus' default) for a top-level option, a config without
+    full defaults, or a path through a choice type (``policy.*``: its options belong to
+    several registered types, the built default is only one of them)."""
+    if "." not in dest or instance is _UNKNOWN:
+        return fallback
+    obj = instance
+    for part in dest.split("."):
+        if isinstance(obj, draccus.ChoiceRegistry) or not hasattr(obj, part):
+            return fallback
+        obj = getattr(obj, part)
+    return obj
+
+
+def _default_instance(config_class: type) -> Any:
+    """A default-constructed config, or ``_UNKNOWN`` when it has required fields."""
+    try:
+        return config_class()
+    except Exception:  # noqa: BLE001 - a config without full defaults
+        return _UNKNOWN
+
+
 def document(parser: argparse.ArgumentParser, config_class: type) -> None:
     """Rewrite the help of draccus' parser: descriptions and defaults on every option."""
     actions = {id(a): a for a in parser._actions}  # draccus also keeps some only in groups
     actions.update({id(a): a for g in parser._action_groups for a in g._group_actions})
+    # a nested group's defaults as the command builds them: a default_factory may differ
+    # from the group class's own defaults, which are all draccus knows
+    instance = _default_instance(config_class)
     for action in actions.values():
         if not action.option_strings or action.dest in ("help", draccus.utils.CONFIG_ARG):
             continue
@@ -187,9 +217,10 @@ def document(parser: argparse.ArgumentParser, config_class: type) -> None:
         if action.dest.endswith(".type") and action.choices:  # a draccus choice type
             group = action.dest[:-len(".type")]
             text = f"which registered {group} type to build"
-            default = _default_of(config_class, action.dest)
+            default = _default_of(config_class, action.dest, instance)
         else:
             text = field_help(config_class, action.dest) or (action.help or "").strip() or None
+            default = _nested_default(instance, action.dest, default)
         parts = [text] if text else []
         if action.choices:
             parts.append("(one of: " + ", ".join(map(str, action.choices)) + ")")

@@ -168,6 +168,37 @@ def test_descriptions_come_from_args_blocks_and_field_docstrings():
     assert cfg == Outer(name="y", inner=Inner(kd=5.0))
 
 
+def inner_kd_75() -> Inner:
+    return Inner(kd=7.5)
+
+
+@dataclass
+class Factory:
+    """Args:
+        inner: nested options, built by a factory that changes one of them.
+    """
+
+    inner: Inner = field(default_factory=inner_kd_75)
+
+    def gains(self) -> tuple[float, float]:
+        """(a docstring below the fields: see Outer.label)"""
+        return self.inner.gains()
+
+
+def test_help_shows_the_default_a_factory_builds_not_the_nested_class_default(capsys):
+    with pytest.raises(SystemExit):
+        parse_config(Factory, ["--help"], "prog")
+    opts = options(capsys.readouterr().out)
+    assert "(default: 7.5)" in opts["--inner.kd"]  # Inner's own default is 2.0
+    assert "(default: 1.0)" in opts["--inner.kp"]
+    # the demo: its teacher is the shipped PPO teacher, not TeacherConfig's own gait default
+    with pytest.raises(SystemExit):
+        demo_main(["--help"])
+    opts = options(capsys.readouterr().out)
+    assert "(default: rma)" in opts["--teacher.type"]
+    assert "rma_ppo" in opts["--teacher.path"]
+
+
 def test_a_nested_option_the_command_sets_itself_is_read_not_overridden():
     """msta-collect sets env.episode_length_s / env.seed / env.num_envs from its own
     top-level options: the nested flags mean the same, and both at once is an error."""
