@@ -4,6 +4,7 @@ the DAgger warm start from the gait controller and msta-train-teacher (resumable
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -198,6 +199,16 @@ def test_a_run_resumed_mid_chunk_realigns_its_chunks(tmp_path):
     assert [r["iteration"] for r in curve] == [3, 4, 6, 9]
     assert sorted(p.name for p in (tmp_path / "snapshots").iterdir()) == [
         "iter_3", "iter_6", "iter_9"]
+    # a run killed after its checkpoint, before the snapshot: the resume writes the snapshot
+    shutil.rmtree(tmp_path / "snapshots" / "iter_9")
+    logs: list[str] = []
+    train_teacher(cfg(9), log=logs.append)
+    assert any("snapshot iter_9 written from model_8.pt" in line for line in logs)
+    obs = RslVecEnv(small_env(4)).raw_obs
+    np.testing.assert_array_equal(
+        build_teacher(TeacherConfig(type="rma", path=str(tmp_path / "snapshots" / "iter_9")))
+        .act(obs), build_teacher(TeacherConfig(type="rma", path=str(tmp_path / "teacher")))
+        .act(obs))
 
 
 def test_bad_settings_are_one_line_errors():

@@ -245,6 +245,12 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
         runner.current_learning_iteration = done
         _load_levels(env, ppo_dir)
         log(f"== PPO: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} iterations) ==")
+        every = cfg.ppo.snapshot_interval
+        lost = out / "snapshots" / f"iter_{done}"
+        if every and done % every == 0 and not lost.is_dir():
+            # killed between the checkpoint and its snapshot: the checkpoint has the weights
+            to_teacher(runner.alg.get_policy(), rma).save_pretrained(lost)
+            log(f"snapshot {lost.name} written from {found[0].name} (the run stopped before it)")
     else:
         if start_net is not None:
             load_from_teacher(runner.alg.get_policy(), start_net)
