@@ -375,7 +375,10 @@ class MSTATransformer(nn.Module):
             return self._value(tokens) + static, pad  # (B, N, d)
         scores = self._drop_scores(B, N, pad, generator)  # (B, N)
         keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
-        x = self._value(tokens, keep) + static[keep]  # (B, K, d)
+        # index_select, not static[keep]: its backward (index_add) is ~20x faster on CPU
+        # than advanced indexing's (index_put with accumulate), and deterministic
+        x = self._value(tokens, keep) + static.index_select(0, keep.reshape(-1)).view(
+            B, keep.shape[1], -1)  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
 
     def _replace_masked(

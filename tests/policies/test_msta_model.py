@@ -285,3 +285,28 @@ def test_training_after_acting_in_inference_mode() -> None:
     loss, _ = policy.train().loss({**batch, "action": torch.zeros(4, 12)})
     loss.backward()
     assert policy.model.sensor_embed["joint_pos"].grad is not None
+
+
+def test_gradients_are_the_same_on_every_run_with_two_threads() -> None:
+    """The same batch, weights and removal seed give bit-identical gradients on 2 threads
+    (the position rows of the kept tokens are gathered with index_select: the backward of
+    ``static[keep]``, an accumulating index_put, summed rows in a varying order, so two runs
+    of ``make demo`` diverged; cpu preset, where that showed)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        torch.manual_seed(0)
+        cfg = MSTAConfig.from_preset("cpu", history=4, mask_ratio=0.75)
+        policy = make_policy(cfg, stats_for(cfg)).train()
+        batch = {**make_batch(B=64, steps=4), "action": torch.randn(64, 12)}
+        grads = []
+        for _ in range(32):  # a race: one pair of runs often agrees
+            policy.zero_grad(set_to_none=True)
+            loss, _ = policy.loss(batch, None, None, torch.Generator().manual_seed(0))
+            loss.backward()
+            grads.append(torch.cat([p.grad.reshape(-1) for p in policy.parameters()
+                                    if p.grad is not None]))
+        for g in grads[1:]:
+            assert torch.equal(g, grads[0])
+    finally:
+        torch.set_num_threads(previous)
