@@ -375,8 +375,8 @@ class MSTATransformer(nn.Module):
             return self._value(tokens) + static, pad  # (B, N, d)
         scores = self._drop_scores(B, N, pad, generator)  # (B, N)
         keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
-        # index_select, not static[keep]: its backward (index_add) is ~20x faster on CPU
-        # than advanced indexing's (index_put with accumulate), and deterministic
+        # index_select, not static[keep]: advanced indexing's backward (an accumulating
+        # index_put) sums rows in a thread-dependent order on CPU; index_select's does not
         x = self._value(tokens, keep) + static.index_select(0, keep.reshape(-1)).view(
             B, keep.shape[1], -1)  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
