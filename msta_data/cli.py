@@ -165,30 +165,20 @@ class HelpFormatter(argparse.MetavarTypeHelpFormatter):
 _UNKNOWN = object()
 
 
-def _default_of(config_class: type, dest: str, instance: Any = _UNKNOWN) -> Any:
-    """The default value at ``dest`` in a default-constructed config (None if unknown).
-    ``instance``: that config, when the caller already built it."""
-    try:
-        obj: Any = config_class() if instance is _UNKNOWN else instance
-        for part in dest.split("."):
-            obj = getattr(obj, part)
-        return obj
-    except Exception:  # noqa: BLE001 - a config without full defaults: no default shown
-        return None
-
-
-def _nested_default(instance: Any, dest: str, fallback: Any) -> Any:
-    """The value at a nested ``dest`` (``teacher.path``) in the default-built config
-    ``instance``, or ``fallback`` (draccus' default) for a top-level option, a config without
-    full defaults, or a path through a choice type (``policy.*``: its options belong to
-    several registered types, the built default is only one of them)."""
-    if "." not in dest or instance is _UNKNOWN:
-        return fallback
+def _value_at(instance: Any, dest: str, fallback: Any, *, through_choices: bool) -> Any:
+    """The value at ``dest`` (``teacher.path``) in the default-built config ``instance``;
+    ``fallback`` for a config without full defaults (``_UNKNOWN``), a field it does not
+    have, or, unless ``through_choices``, a path through a choice type (``policy.*``: its
+    options belong to several registered types, the built default is only one of them)."""
     obj = instance
-    for part in dest.split("."):
-        if isinstance(obj, draccus.ChoiceRegistry) or not hasattr(obj, part):
-            return fallback
-        obj = getattr(obj, part)
+    try:
+        for part in dest.split("."):
+            if obj is _UNKNOWN or (not through_choices
+                                   and isinstance(obj, draccus.ChoiceRegistry)):
+                return fallback
+            obj = getattr(obj, part)
+    except Exception:  # noqa: BLE001 - no such field, or a property that cannot answer
+        return fallback
     return obj
 
 
@@ -217,10 +207,11 @@ def document(parser: argparse.ArgumentParser, config_class: type) -> None:
         if action.dest.endswith(".type") and action.choices:  # a draccus choice type
             group = action.dest[:-len(".type")]
             text = f"which registered {group} type to build"
-            default = _default_of(config_class, action.dest, instance)
+            default = _value_at(instance, action.dest, None, through_choices=True)
         else:
             text = field_help(config_class, action.dest) or (action.help or "").strip() or None
-            default = _nested_default(instance, action.dest, default)
+            if "." in action.dest:  # top-level options: draccus' own default
+                default = _value_at(instance, action.dest, default, through_choices=False)
         parts = [text] if text else []
         if action.choices:
             parts.append("(one of: " + ", ".join(map(str, action.choices)) + ")")

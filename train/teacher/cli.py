@@ -174,6 +174,11 @@ def latest_checkpoint(ppo_dir: Path) -> tuple[Path, int] | None:
     return path, it
 
 
+def snapshot_dir(out: Path, iteration: int) -> Path:
+    """Where the run in ``out`` keeps the exported teacher of ``iteration``."""
+    return out / "snapshots" / f"iter_{iteration}"
+
+
 def _save_levels(env: RslVecEnv, ppo_dir: Path) -> None:
     """The curriculum's state (every robot's terrain level), so a resumed run keeps it."""
     (ppo_dir / "levels.json").write_text(json.dumps(env.sim.level.tolist()) + "\n")
@@ -246,7 +251,7 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
         _load_levels(env, ppo_dir)
         log(f"== PPO: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} iterations) ==")
         every = cfg.ppo.snapshot_interval
-        lost = out / "snapshots" / f"iter_{done}"
+        lost = snapshot_dir(out, done)
         if every and done % every == 0 and not lost.is_dir():
             # killed between the checkpoint and its snapshot: the checkpoint has the weights
             to_teacher(runner.alg.get_policy(), rma).save_pretrained(lost)
@@ -287,7 +292,7 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
         exported.save_pretrained(teacher_dir)
         every = cfg.ppo.snapshot_interval
         if every and done // every > (done - chunk) // every:  # crossed a multiple
-            exported.save_pretrained(out / "snapshots" / f"iter_{done}")
+            exported.save_pretrained(snapshot_dir(out, done))
         _save_levels(env, ppo_dir)
         prune_checkpoints(ppo_dir, keep=2)
         log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
