@@ -67,14 +67,18 @@ def is_repo_name(namespace: str, name: str) -> bool:
 def ref_name(name: object) -> str:
     """A new branch or tag name: git's rules, and never one that reads as another ref or a sha.
 
-    Refused: ``refs/...`` (a tag ``refs/heads/main`` would shadow the branch), ``HEAD``, a full
-    40-hex sha, ``..``, ``//``, a leading or trailing ``/``, a part starting with ``.`` or
-    ``-``, a part ending with ``.lock`` or ``.``.
+    Refused: ``refs/...`` (a tag ``refs/heads/main`` would shadow the branch), ``HEAD``, 7 to 40
+    lowercase hex characters (a ref named like a short sha would take over ``repo@<short sha>``
+    pins), ``..``, ``//``, a leading or trailing ``/``, a part starting with ``.`` or ``-``, a
+    part ending with ``.lock`` or ``.``.
     """
     if not isinstance(name, str) or not _REF_RE.match(name):
         raise InputError(f"invalid branch or tag name '{_shown(name)}'")
+    if SHA1_RE.match(name) or SHORT_SHA_RE.match(name):
+        raise InputError(f"invalid branch or tag name '{_shown(name)}': "
+                         "7 to 40 hex characters read as a commit sha")
     parts = name.split("/")
-    bad = (name.startswith("refs/") or name == "HEAD" or SHA1_RE.match(name) or ".." in name
+    bad = (name.startswith("refs/") or name == "HEAD" or ".." in name
            or any(not p or p[0] in ".-" or p.endswith((".lock", ".")) for p in parts))
     if bad:
         raise InputError(f"invalid branch or tag name '{_shown(name)}'")

@@ -277,24 +277,35 @@ class Storage:
         return self.commits.commit(self.repo_dir(meta), boundary.commit_sha(sha))
 
     def resolve(self, meta: RepoMeta, revision: str) -> str:
-        """Commit sha of a branch, tag, full sha or unique short sha; StoreError otherwise."""
+        """Commit sha of a revision; StoreError("revision_not_found") when it names nothing.
+
+        ``refs/heads/x`` and ``refs/tags/x`` name only that ref. A full sha names its commit
+        before any ref. 7 to 39 hex characters name the one commit starting with them, and
+        are refused (400) when a branch or tag has that name too: such refs cannot be created
+        (boundary.ref_name) but may exist in older roots, and must never take over a pin.
+        Any other name is a branch, then a tag.
+        """
         revision = boundary.revision(revision)
         refs = self.refs(meta)
-        rev = revision.removeprefix("refs/heads/")
-        if rev in refs["branches"]:
-            return refs["branches"][rev]
-        rev = revision.removeprefix("refs/tags/")
-        if rev in refs["tags"]:
-            return refs["tags"][rev]
+        for prefix, kind in (("refs/heads/", "branches"), ("refs/tags/", "tags")):
+            if revision.startswith(prefix):
+                if revision.removeprefix(prefix) in refs[kind]:
+                    return refs[kind][revision.removeprefix(prefix)]
+                raise StoreError("revision_not_found", f"Invalid rev id: {revision}")
+        ref = refs["branches"].get(revision, refs["tags"].get(revision))
         repo_dir = self.repo_dir(meta)
         if boundary.SHA1_RE.match(revision) and self.commits.exists(repo_dir, revision):
             return revision
         if boundary.SHORT_SHA_RE.match(revision):
             matches = [p.stem for p in (repo_dir / "commits").glob(f"{revision}*.json")]
-            if len(matches) == 1:
+            if len(matches) > 1 or (matches and ref is not None):
+                raise StoreError("bad_request", f"short sha '{revision}' is ambiguous in {meta.repo_id} "
+                                 "(it starts several commits, or a commit and a branch or tag's name): "
+                                 "pass the full sha, or refs/heads/NAME or refs/tags/NAME for a ref")
+            if matches:
                 return matches[0]
-            if len(matches) > 1:
-                raise StoreError("bad_request", f"short sha '{revision}' is ambiguous in {meta.repo_id}")
+        if ref is not None:
+            return ref
         raise StoreError("revision_not_found", f"Invalid rev id: {revision}")
 
     def commit(self, meta: RepoMeta, branch: str, files: dict[str, FileEntry], deleted: list[str],
