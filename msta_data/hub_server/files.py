@@ -11,10 +11,13 @@ handler logs ``/lfs/upload/<ticket>``).
 
 from __future__ import annotations
 
+import contextlib
 import re
 import secrets
 import threading
 import time
+from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -88,31 +91,67 @@ class Ticket:
 
 
 class TicketBook:
-    """One-time upload tickets handed out by the LFS batch endpoint (kept in memory)."""
+    """Upload tickets handed out by the LFS batch endpoint (kept in memory).
+
+    A ticket allows one successful upload: ``claim`` holds it for the duration of a ``PUT``
+    and keeps it marked as used when the upload succeeds (a failed upload gives it back, so a
+    client may retry). A used ticket still serves ``verify``, which closes it. Every ticket
+    lives ``TICKET_TTL_S`` from its issue, so tickets expire in the order they were issued:
+    ``issue`` drops expired ones from the front of that order, in O(1) amortized time.
+    """
 
     def __init__(self) -> None:
-        self._tickets: dict[str, Ticket] = {}
+        self._tickets: OrderedDict[str, Ticket] = OrderedDict()
+        self._used: set[str] = set()  # being uploaded or uploaded
         self._lock = threading.Lock()
 
     def issue(self, oid: str, size: int, repo_type: str, repo_id: str) -> str:
         key = secrets.token_urlsafe(32)
         with self._lock:
             now = time.monotonic()
-            self._tickets = {k: t for k, t in self._tickets.items() if t.expires > now}
+            while self._tickets:
+                first, ticket = next(iter(self._tickets.items()))
+                if ticket.expires > now:
+                    break
+                del self._tickets[first]
+                self._used.discard(first)
             self._tickets[key] = Ticket(oid, size, repo_type, repo_id, now + TICKET_TTL_S)
         return key
 
-    def get(self, key: str) -> Ticket:
-        key = boundary.ticket(key)
-        with self._lock:
-            ticket = self._tickets.get(key)
+    def _live(self, key: str) -> Ticket:
+        """The ticket ``key`` (call with the lock held); 403 when unknown or expired."""
+        ticket = self._tickets.get(key)
         if ticket is None or ticket.expires < time.monotonic():
             raise HttpError(403, "upload ticket is unknown or expired; ask the batch endpoint again")
         return ticket
 
+    def get(self, key: str) -> Ticket:
+        key = boundary.ticket(key)
+        with self._lock:
+            return self._live(key)
+
+    @contextlib.contextmanager
+    def claim(self, key: str) -> Iterator[Ticket]:
+        """The ticket of one upload, held while it runs; 403 when it was used already."""
+        key = boundary.ticket(key)
+        with self._lock:
+            ticket = self._live(key)
+            if key in self._used:
+                raise HttpError(403, "upload ticket was already used; ask the batch endpoint again")
+            self._used.add(key)
+        done = False
+        try:
+            yield ticket
+            done = True
+        finally:
+            if not done:
+                with self._lock:
+                    self._used.discard(key)
+
     def close(self, key: str) -> None:
         with self._lock:
             self._tickets.pop(key, None)
+            self._used.discard(key)
 
 
 def lfs_batch(app: HubApp, req: Request) -> Response:
@@ -154,17 +193,19 @@ def _ticket_repo(app: HubApp, ticket: Ticket) -> RepoMeta:
 
 
 def lfs_upload(app: HubApp, req: Request) -> Response:
-    """PUT /lfs/upload/<ticket>: the object's bytes; kept only if size and sha256 match."""
-    key = req.groups["ticket"]
-    ticket = app.tickets.get(key)
-    meta = _ticket_repo(app, ticket)
-    declared = req.headers.get("Content-Length")
-    if declared is not None and int(declared) != ticket.size:
-        raise HttpError(400, f"upload is {declared} bytes but the batch request announced {ticket.size}")
-    app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
-    if req.body.read(1):
-        raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
-    app.storage.grant_blob(meta, ticket.oid)
+    """PUT /lfs/upload/<ticket>: the object's bytes; kept only if size and sha256 match.
+
+    The ticket is used up by a successful upload; a second ``PUT`` with it is refused (403).
+    """
+    with app.tickets.claim(req.groups["ticket"]) as ticket:
+        meta = _ticket_repo(app, ticket)
+        declared = req.headers.get("Content-Length")
+        if declared is not None and int(declared) != ticket.size:
+            raise HttpError(400, f"upload is {declared} bytes but the batch request announced {ticket.size}")
+        app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
+        if req.body.read(1):
+            raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
+        app.storage.grant_blob(meta, ticket.oid)
     return Response(body={})
 
 
