@@ -7,10 +7,9 @@ parses (see docs/hub.md for the list of covered calls).
 
 from __future__ import annotations
 
-import hashlib
 from typing import TYPE_CHECKING
 
-from msta_data.hub_server import boundary
+from msta_data.hub_server import boundary, trees
 from msta_data.hub_server.boundary import field
 from msta_data.hub_server.cards import card_tags, front_matter
 from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
@@ -18,7 +17,6 @@ from msta_data.hub_server.storage import (
     CommitInfo,
     FileEntry,
     RepoMeta,
-    StoreError,
     lfs_pointer,
 )
 
@@ -213,20 +211,6 @@ def delete_branch(app: HubApp, req: Request) -> Response:
 
 
 # ------------------------------------------------------------------ trees
-def _file_json(path: str, entry: FileEntry) -> dict:
-    out = {"type": "file", "oid": entry.oid, "size": entry.size, "path": path}
-    if entry.lfs:
-        out["lfs"] = {"oid": entry.sha256, "size": entry.size,
-                      "pointerSize": len(lfs_pointer(entry.sha256, entry.size))}
-    return out
-
-
-def _dir_json(path: str, files: dict[str, FileEntry]) -> dict:
-    prefix = path + "/"
-    listing = "".join(f"{p} {e.oid}\n" for p, e in sorted(files.items()) if p.startswith(prefix))
-    return {"type": "directory", "oid": hashlib.sha1(listing.encode()).hexdigest(), "size": 0, "path": path}
-
-
 def _add_last_commits(app: HubApp, meta: RepoMeta, sha: str, entries: list[dict]) -> None:
     """Set ``lastCommit`` of each file entry: the newest commit that changed it."""
     last: dict[str, CommitInfo] = app.storage.last_commits(
@@ -237,27 +221,6 @@ def _add_last_commits(app: HubApp, meta: RepoMeta, sha: str, entries: list[dict]
             e["lastCommit"] = {"id": c.id, "title": c.title, "date": c.date}
 
 
-def tree_entries(files: dict[str, FileEntry], path: str, recursive: bool) -> list[dict]:
-    """Tree listing of ``path`` ('' = root) in the hub's JSON shape; StoreError when missing."""
-    path = path.strip("/")
-    prefix = path + "/" if path else ""
-    dirs: set[str] = set()
-    out = []
-    for p, entry in sorted(files.items()):
-        if not p.startswith(prefix):
-            continue
-        parts = p[len(prefix):].split("/")
-        if len(parts) == 1 or recursive:
-            out.append(_file_json(p, entry))
-        if recursive:
-            dirs.update(prefix + "/".join(parts[:k]) for k in range(1, len(parts)))
-        elif len(parts) > 1:
-            dirs.add(prefix + parts[0])
-    if path and not out and not dirs:
-        raise StoreError("entry_not_found", f"path '{path}' not found in this revision")
-    return sorted(out + [_dir_json(d, files) for d in dirs], key=lambda e: e["path"])
-
-
 def list_tree(app: HubApp, req: Request) -> Response:
     meta = read_repo(app, req)
     sha = app.storage.resolve(meta, req.groups["rev"])
@@ -265,7 +228,7 @@ def list_tree(app: HubApp, req: Request) -> Response:
     if path:
         boundary.repo_path(path, missing_is_404=True)
     commit_ = app.storage.get_commit(meta, sha)
-    entries = tree_entries(commit_.files, path, req.flag("recursive"))
+    entries = trees.tree_entries(commit_.files, path, req.flag("recursive"))
     if req.flag("expand"):
         _add_last_commits(app, meta, sha, entries)
     return Response(body=entries)
@@ -276,13 +239,7 @@ def paths_info(app: HubApp, req: Request) -> Response:
     sha = app.storage.resolve(meta, req.groups["rev"])
     commit_ = app.storage.get_commit(meta, sha)
     form = req.form()
-    out = []
-    dirs = {p.rsplit("/", k)[0] for p in commit_.files for k in range(1, p.count("/") + 1)}
-    for path in dict.fromkeys(p.strip("/") for p in form.get("paths", [])):
-        if path in commit_.files:
-            out.append(_file_json(path, commit_.files[path]))
-        elif path in dirs:
-            out.append(_dir_json(path, commit_.files))
+    out = trees.paths_info(commit_.files, form.get("paths", []))
     if str((form.get("expand") or ["false"])[-1]).lower() == "true":
         _add_last_commits(app, meta, sha, out)
     return Response(body=out)
