@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test repro bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
+.PHONY: demo test device-check repro bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -38,6 +38,13 @@ REPRO_REPORT = $(if $(filter paper,$(SCALE)),docs/reference/paper_scale,docs/ref
 repro: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.repro --scale=$(SCALE) \
 		--output_dir=outputs/repro_$(SCALE) --report_dir=$(REPRO_REPORT)
+
+# The CUDA path of every stage (stage 1 on GPU and CPU, their action parity, one stage-2
+# round, msta-eval) sized for a lent GPU machine (~6 min); on a machine without CUDA the
+# same stages run on the CPU. Figures: $(DEVICE_OUT)/device_check.json.
+DEVICE_OUT ?= $(if $(OUT),$(OUT),outputs)/device_check
+device-check: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.device_check --output_dir=$(DEVICE_OUT)
 
 bench: bench-sim bench-data bench-train bench-learn bench-deploy
 
