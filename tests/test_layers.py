@@ -19,7 +19,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 #: eval modules that drive training (a layer above train).
 EVAL_APPS = frozenset({"eval.compare", "eval.demo", "eval.bench_learn", "eval.repro",
-                       "eval.repro_report"})
+                       "eval.repro_report", "eval.device_check"})
 _BASE = {"msta_data"}
 MAY_IMPORT: dict[str, set[str]] = {
     "msta_data": _BASE,
