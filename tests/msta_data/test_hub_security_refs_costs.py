@@ -14,6 +14,7 @@ from __future__ import annotations
 import gc
 import hashlib
 import json
+import socket
 import subprocess
 import time
 from collections.abc import Callable
@@ -122,6 +123,23 @@ def test_lfs_upload_tickets_are_one_time(srv):
     assert _put_and_verify(srv, obj, data) == (403, 200)  # verify still closes the upload
     assert _put_and_verify(srv, obj, data) == (403, 403)  # and then the ticket is gone
     assert H.commit(srv, ALICE, "alice/m", [H.lfs_file("big.bin", oid, len(data))])[0] == 200
+
+
+def test_an_lfs_ticket_in_use_is_refused_to_a_second_upload(srv):
+    H.create_repo(srv, ALICE, "m")
+    data = b"uploaded slowly " * 64
+    obj = H.lfs_batch(srv, ALICE, "alice/m", hashlib.sha256(data).hexdigest(), len(data))
+    put = urlsplit(obj["actions"]["upload"]["href"]).path
+    with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as first:
+        first.sendall(f"PUT {put} HTTP/1.1\r\nHost: x\r\nContent-Length: {len(data)}\r\n\r\n".encode()
+                      + data[:10])
+        deadline, statuses = time.monotonic() + 5, []
+        while not statuses or statuses[-1] == 400:  # 400: wrong bytes, sent before the first got its ticket
+            assert time.monotonic() < deadline, statuses
+            statuses.append(H.call(srv, "PUT", put, bytes(len(data)))[0])
+        assert statuses[-1] == 403
+        first.sendall(data[10:])
+        assert first.recv(100).startswith(b"HTTP/1.1 200")
 
 
 def test_lfs_batch_cost_is_linear_in_the_number_of_objects(srv):
