@@ -55,12 +55,19 @@ class ServeConfig:
         public_url: base URL for links when the server is behind a proxy.
         port_file: write the bound port to this file.
         max_body_bytes: largest JSON request body; larger ones get 413 before they are read.
+        max_anonymous_body_bytes: the same for requests without a token (validate-yaml).
         max_commit_bytes: largest commit body, inline files base64-encoded (use
             --lfs_threshold for bigger files).
         read_timeout: seconds a client may stay silent before it is dropped; a body must
             also average 1 KiB/s after that.
+        header_timeout: seconds a request's line and headers may take in all, however paced.
         max_card_bytes: largest README.md YAML front matter the server parses.
-        max_connections: connections served at once; more get 503.
+        max_connections: requests served at once (headers read, answer not yet sent); more
+            get 503.
+        max_anonymous: of those, requests without a token; the rest stay for users.
+        max_anonymous_per_client: anonymous requests served at once from one IP address.
+        max_open_connections: open connections (idle, sending headers or served); more get 503.
+        max_open_per_client: open connections from one IP address.
         verbose: log requests and progress (serve always logs requests).
     """
 
@@ -74,10 +81,16 @@ class ServeConfig:
     public_url: str | None = None
     port_file: Path | None = None
     max_body_bytes: int = _LIMITS.max_body_bytes
+    max_anonymous_body_bytes: int = _LIMITS.max_anonymous_body_bytes
     max_commit_bytes: int = _LIMITS.max_commit_bytes
     read_timeout: float = _LIMITS.read_timeout_s
+    header_timeout: float = _LIMITS.header_timeout_s
     max_card_bytes: int = _LIMITS.max_card_bytes
     max_connections: int = _LIMITS.max_connections
+    max_anonymous: int = _LIMITS.max_anonymous
+    max_anonymous_per_client: int = _LIMITS.max_anonymous_per_client
+    max_open_connections: int = _LIMITS.max_open_connections
+    max_open_per_client: int = _LIMITS.max_open_per_client
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -88,9 +101,12 @@ class ServeConfig:
             raise ValueError(f"port={self.port} must be in [0, 65535]")
 
     def limits(self) -> Limits:
-        return Limits(max_body_bytes=self.max_body_bytes, max_commit_bytes=self.max_commit_bytes,
-                      read_timeout_s=self.read_timeout, max_card_bytes=self.max_card_bytes,
-                      max_connections=self.max_connections)
+        return Limits(max_body_bytes=self.max_body_bytes, max_anonymous_body_bytes=self.max_anonymous_body_bytes,
+                      max_commit_bytes=self.max_commit_bytes, read_timeout_s=self.read_timeout,
+                      header_timeout_s=self.header_timeout, max_card_bytes=self.max_card_bytes,
+                      max_connections=self.max_connections, max_anonymous=self.max_anonymous,
+                      max_anonymous_per_client=self.max_anonymous_per_client,
+                      max_open_connections=self.max_open_connections, max_open_per_client=self.max_open_per_client)
 
 
 @dataclass

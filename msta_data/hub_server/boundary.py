@@ -11,6 +11,7 @@ A failed check raises :class:`InputError`, which the HTTP layer answers with its
 from __future__ import annotations
 
 import json
+import json.scanner
 import re
 from typing import Any
 
@@ -25,6 +26,8 @@ RESERVED_NAMESPACES = frozenset({"api", "datasets", "spaces", "models", "lfs", "
 MAX_PATH_BYTES = 4096
 MAX_SEGMENT_BYTES = 255
 MAX_JSON_DEPTH = 64
+MAX_JSON_VALUES = 200_000  # objects, arrays, strings and numbers in one JSON body
+MAX_ANONYMOUS_JSON_VALUES = 10_000  # the same for a request without a token
 
 
 class InputError(ValueError):
@@ -155,12 +158,47 @@ def ticket(key: object) -> str:
 
 
 # ------------------------------------------------------------------ JSON bodies
-def parse_json(raw: bytes, empty: Any = None) -> Any:
-    """Decode a JSON document; malformed, non-UTF-8 or too deeply nested input is a 400."""
+class _TooManyValues(Exception):
+    pass
+
+
+class _CountingDecoder(json.JSONDecoder):
+    """A JSON decoder (the pure-Python scanner) that stops once it has built ``max_values``
+    values, so a body of ``[{},{},...]`` costs at most that many objects before its 400."""
+
+    def __init__(self, max_values: int):
+        super().__init__()
+        self.left = max_values
+        for name in ("parse_object", "parse_array", "parse_string", "parse_int", "parse_float"):
+            setattr(self, name, self._counted(getattr(self, name)))
+        self.scan_once = json.scanner.py_make_scanner(self)
+
+    def _counted(self, parse: Any) -> Any:
+        def counted(*args: Any) -> Any:
+            self.left -= 1
+            if self.left < 0:
+                raise _TooManyValues
+            return parse(*args)
+        return counted
+
+
+def parse_json(raw: bytes, empty: Any = None, max_values: int = MAX_JSON_VALUES) -> Any:
+    """Decode a JSON document; malformed, non-UTF-8, too deeply nested input, or one of more
+    than ``max_values`` values (objects, arrays, strings, numbers) is a 400.
+
+    The values are bounded before they are built: when the body's commas and brackets allow
+    at most ``max_values`` values the C decoder runs; otherwise (commas inside strings, or
+    really too many values) a counting decoder stops at the limit.
+    """
     if not raw.strip():
         return {} if empty is None else empty
     try:
-        value = json.loads(raw)
+        if raw.count(b",") + raw.count(b"[") + raw.count(b"{") < max_values:
+            value = json.loads(raw)
+        else:
+            value = _CountingDecoder(max_values).decode(raw.decode(json.detect_encoding(raw), "surrogatepass"))
+    except _TooManyValues:
+        raise InputError(f"request body holds more than {max_values} JSON values") from None
     except (ValueError, RecursionError):
         raise InputError("request body is not valid JSON") from None
     if _depth_exceeds(value, MAX_JSON_DEPTH):

@@ -1,12 +1,21 @@
 """YAML front matter of README.md cards, as the hub server reads and validates it.
 
-Cards come from anyone who may write a repo and are answered to anyone who may read it, so the
-YAML is loaded with limits: the front matter is at most ``max_bytes`` long (default 1 MiB),
-loaded with PyYAML's safe loader (libyaml when present: nesting deeper than 1000 levels is
-refused), and the loaded value must stay small once aliases are expanded (at most
-``EXPANSION_FACTOR`` times the front matter's size, no alias cycles): a few hundred bytes of
-nested aliases can otherwise expand to gigabytes of JSON ("billion laughs"). Values YAML
-builds that JSON cannot hold (dates, binary, sets) are turned into strings or lists.
+Cards come from anyone who may write a repo, validate-yaml takes them from anyone, and they are
+answered to anyone who may read the repo, so the YAML is loaded with limits that this module
+owns (they do not depend on how a PyYAML version builds merges or aliases):
+
+- the front matter is at most ``max_bytes`` long (default 1 MiB);
+- before any node is built, the parser's event stream (constant memory) is counted: the
+  document may hold at most ``MAX_NODES`` nodes *once every alias and merge key (``<<``) is
+  expanded*, so neither a "billion laughs" of nested aliases nor a merge-key bomb gets
+  further than this count;
+- it is then loaded with PyYAML's safe loader (libyaml when present: nesting deeper than
+  1000 levels is refused), at most ``PARSERS`` cards at a time (the work is CPU-bound, so
+  this costs no throughput and bounds the memory of parallel requests);
+- the loaded value must stay small once aliases are expanded (at most ``EXPANSION_FACTOR``
+  times the front matter's size, no alias cycles, at most ``MAX_DEPTH`` levels).
+
+Values YAML builds that JSON cannot hold (dates, binary, sets) are turned into strings or lists.
 """
 
 from __future__ import annotations
@@ -15,6 +24,7 @@ import base64
 import datetime
 import math
 import re
+import threading
 from typing import Any
 
 import yaml
@@ -24,6 +34,9 @@ _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_CARD_BYTES = 1 << 20
 EXPANSION_FACTOR = 4
 MAX_DEPTH = 100
+MAX_NODES = 100_000
+PARSERS = 2
+_PARSING = threading.BoundedSemaphore(PARSERS)
 
 
 class CardError(ValueError):
@@ -55,7 +68,11 @@ def _front_matter(text: str, max_bytes: int) -> dict | None:
     if size > max_bytes:
         raise CardError(f"YAML front matter is {size} bytes; this server accepts at most {max_bytes}")
     try:
-        data = yaml.load(source, Loader=_LOADER)
+        _count_nodes(source)
+        with _PARSING:
+            data = yaml.load(source, Loader=_LOADER)
+    except CardError:
+        raise
     except (yaml.YAMLError, ValueError, TypeError, RecursionError) as err:
         raise CardError(f"YAML front matter does not parse: {str(err)[:300]}") from None
     if data is None:
@@ -64,6 +81,36 @@ def _front_matter(text: str, max_bytes: int) -> dict | None:
         raise CardError(f"YAML front matter must be a mapping, got {type(data).__name__}")
     budget = _Budget(max(EXPANSION_FACTOR * max(size, 1024), 1024))
     return budget.convert(data)
+
+
+def _count_nodes(source: str) -> None:
+    """Refuse YAML whose node count, with every alias and merge expanded, exceeds MAX_NODES.
+
+    Reads the parser's events one by one (nothing is built): each collection's expanded size
+    is summed as it closes and remembered under its anchor, so an alias (also one used as a
+    merge key's value) counts as the size of what it names.
+    """
+    sizes: dict[str, int] = {}  # anchor -> expanded node count
+    open_: list[list[Any]] = [[None, 0]]  # [anchor, expanded nodes so far] of each open collection
+    total = 0
+    for event in yaml.parse(source, Loader=_LOADER):
+        if isinstance(event, (yaml.ScalarEvent, yaml.AliasEvent)):
+            n = sizes.get(event.anchor, 1) if isinstance(event, yaml.AliasEvent) else 1
+            if isinstance(event, yaml.ScalarEvent) and event.anchor:
+                sizes[event.anchor] = 1
+            open_[-1][1] += n
+            total += n
+        elif isinstance(event, yaml.CollectionStartEvent):
+            open_.append([event.anchor, 1])
+            total += 1
+        elif isinstance(event, yaml.CollectionEndEvent) and len(open_) > 1:
+            anchor, n = open_.pop()
+            if anchor:
+                sizes[anchor] = n
+            open_[-1][1] += n
+        if total > MAX_NODES:
+            raise CardError(f"YAML front matter holds more than {MAX_NODES} nodes once its aliases "
+                            "and merge keys are expanded")
 
 
 class _Budget:

@@ -96,6 +96,16 @@ class _Ops:
         self.files[path] = FileEntry(oid, size, git_blob_sha1(lfs_pointer(oid, size)), True)
 
 
+def _still_there(app: HubApp, meta: RepoMeta) -> None:
+    """404 when the repo was deleted while the commit body arrived, 409 when it was also
+    created anew under the same name (the commit was meant for the old one)."""
+    now = app.storage.get_repo(meta.repo_type, meta.repo_id)
+    if now is None:
+        raise HttpError(404, f"Repository Not Found: {meta.repo_id} (deleted during the commit)", "RepoNotFound")
+    if now.created_at != meta.created_at:
+        raise HttpError(409, f"{meta.repo_id} was deleted and created again during the commit")
+
+
 def commit(app: HubApp, req: Request) -> Response:
     """POST .../commit/{branch}: NDJSON header + operations; advances the branch atomically."""
     meta = write_repo(app, req)
@@ -115,11 +125,13 @@ def commit(app: HubApp, req: Request) -> Response:
     if parent is not None:
         boundary.commit_sha(parent, "parentCommit")
     branch = req.groups["rev"].removeprefix("refs/heads/")
-    if branch not in app.storage.refs(meta)["branches"]:
-        app.storage.resolve(meta, branch)  # RevisionNotFound for unknown names
-        raise HttpError(400, f"Invalid rev id: {branch} is not a branch; commits go to branches")
-    new = app.storage.commit(meta, branch, ops.files, ops.deleted, ops.deleted_folders, header["summary"],
-                             field(header, "description", str, ""), req.user or "", parent)
+    with app.storage.repo_lock(meta.repo_type, meta.repo_id):  # no delete between check and write
+        _still_there(app, meta)
+        if branch not in app.storage.refs(meta)["branches"]:
+            app.storage.resolve(meta, branch)  # RevisionNotFound for unknown names
+            raise HttpError(400, f"Invalid rev id: {branch} is not a branch; commits go to branches")
+        new = app.storage.commit(meta, branch, ops.files, ops.deleted, ops.deleted_folders, header["summary"],
+                                 field(header, "description", str, ""), req.user or "", parent)
     return Response(body={"commitUrl": f"{repo_url(req.base_url, meta)}/commit/{new.id}",
                           "commitOid": new.id, "success": True, "pullRequestUrl": None})
 

@@ -1,16 +1,22 @@
-"""The hub server's request handler: framing, limits, authentication, routing, answers, logs.
+"""The hub server's request handler: deadlines, framing, limits, authentication, routing,
+answers, logs.
 
-Order of work for each request, cheapest checks first: the body's framing (Content-Length /
-chunked) is checked (400), the route is found (404/405), the declared body size is checked
-against the route's limit (413, nothing read), then the token is checked (401) and only then
-the endpoint reads the body, bounded in size (413) and time (408). Small bodies are drained
-after an error answer so keep-alive clients keep their connection; large or broken ones close
-it. Logged lines carry the method, the path without its query string (LFS upload tickets
-replaced by ``<ticket>``) and the status: never headers, query strings, bodies or tokens.
+Order of work for each request, cheapest checks first. The request line and headers must
+arrive within ``header_timeout_s`` and 64 KiB (else 408 / 431, connection closed). The framing
+(Content-Length / chunked, no folded or malformed header lines) is checked (400), the route is
+found (404/405), the token is checked (401), the declared body size is checked against the
+route's limit, smaller for anonymous requests (413, nothing read), a request slot is taken
+(503 when none is left for this kind of client), and only then the endpoint reads the body,
+bounded in size (413) and pace (408). Small bodies are drained after an error answer so
+keep-alive clients keep their connection; large or broken ones close it. A full disk is a
+507. Logged lines carry the method, the path without its query string (LFS upload tickets
+replaced by ``<ticket>``, control characters escaped) and the status: never headers, query
+strings, bodies or tokens.
 """
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import logging
@@ -20,7 +26,9 @@ from http.server import BaseHTTPRequestHandler
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs, unquote, urlsplit
 
+from msta_data.hub_server import boundary
 from msta_data.hub_server.boundary import InputError
+from msta_data.hub_server.connections import MAX_HEADER_BYTES, HeadersTooLarge, SocketInput
 from msta_data.hub_server.protocol import (
     CHUNK,
     BodyReader,
@@ -38,12 +46,23 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger("msta_data.hub_server")
 _TICKET_PATH = re.compile(r"^/lfs/(upload|verify)/[^/]*")
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_BAD_HEADER_VALUE = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")  # CR, LF (folded lines), NUL ...
+_CONTENT_LENGTH = re.compile(r"[0-9]{1,18}")
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+_CLOSING = {408: b"408 Request Timeout", 431: b"431 Request Header Fields Too Large"}
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with control characters written as ``\\xNN`` (safe for headers and logs)."""
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
 def redact(path: str) -> str:
-    """The path as it may be logged: no query string, LFS tickets replaced by ``<ticket>``."""
+    """The path as it may be logged: no query string, LFS tickets replaced by ``<ticket>``,
+    control characters escaped."""
     path = urlsplit(path).path
-    return _TICKET_PATH.sub(r"/lfs/\1/<ticket>", path)[:1000]
+    return escape_controls(_TICKET_PATH.sub(r"/lfs/\1/<ticket>", path)[:1000])
 
 
 class HubHandler(BaseHTTPRequestHandler):
@@ -53,6 +72,68 @@ class HubHandler(BaseHTTPRequestHandler):
     server_version = "msta-hub/1"
     app: HubApp  # set on the subclass made by the server
     timeout: float | None = None  # socket timeout, set from Limits.read_timeout_s by the server
+    _slot: bool | None = None  # the request slot taken (True: an anonymous one), None: none
+    _reader: BodyReader | None = None  # the current request's body, once a slot is taken
+
+    def setup(self) -> None:
+        super().setup()
+        self.rfile.close()  # reads go through SocketInput and its deadlines instead
+        self.conn = SocketInput(self.connection, self.app.limits.read_timeout_s)
+        self.rfile = io.BufferedReader(self.conn)
+
+    def handle_one_request(self) -> None:
+        """Wait for a request (read_timeout_s), read its line and headers against their own
+        deadline (header_timeout_s) and size (64 KiB), then answer it."""
+        limits = self.app.limits
+        self.conn.start("idle", limits.read_timeout_s)
+        try:
+            if not self.rfile.peek(1):
+                self.close_connection = True
+                return
+        except OSError:  # timed out or reset: an idle keep-alive connection ends
+            logger.debug("idle connection from %s closed", self.client_address[0])
+            self.close_connection = True
+            return
+        self.conn.start("headers", limits.header_timeout_s, MAX_HEADER_BYTES)
+        try:
+            self.raw_requestline = self.rfile.readline(65537)
+            if len(self.raw_requestline) > 65536:
+                raise HeadersTooLarge("request line too long")
+            if not self.raw_requestline.endswith(b"\n"):  # the client left mid-line
+                self.close_connection = True
+                return
+            if not self.parse_request():
+                return  # answered (400, 431, ...) by parse_request
+        except TimeoutError:
+            logger.warning("request headers from %s not received within %g s: closed",
+                           self.client_address[0], limits.header_timeout_s)
+            return self._close_with(408)
+        except HeadersTooLarge:
+            logger.warning("request headers from %s longer than %d bytes: closed",
+                           self.client_address[0], MAX_HEADER_BYTES)
+            return self._close_with(431)
+        except OSError:
+            self.close_connection = True
+            return
+        self.connection.settimeout(limits.read_timeout_s)
+        method = getattr(self, "do_" + self.command, None)
+        if method is None:
+            self.send_error(501, f"Unsupported method ({self.command!r})")
+            return
+        try:
+            method()
+            self.wfile.flush()
+        except OSError:  # the client stopped reading the answer
+            logger.debug("answer to %s not taken in time: closed", self.client_address[0])
+            self.close_connection = True
+
+    def _close_with(self, status: int) -> None:
+        self.close_connection = True
+        try:
+            self.connection.settimeout(1.0)
+            self.wfile.write(b"HTTP/1.1 %s\r\nContent-Length: 0\r\nConnection: close\r\n\r\n" % _CLOSING[status])
+        except OSError:
+            pass
 
     def do_GET(self) -> None:
         self._handle()
@@ -60,41 +141,72 @@ class HubHandler(BaseHTTPRequestHandler):
     do_HEAD = do_POST = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = do_GET
 
     def _handle(self) -> None:
-        reader: BodyReader | None = None
         try:
-            length, chunked = self._framing()
-            route, groups = self._match()
-            limit = self._body_limit(route)
-            if length is not None and length > limit:
-                raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
-            reader = BodyReader(self.rfile, length, chunked, limit, self.app.limits.read_timeout_s)
-            response = self._dispatch(route, groups, io.BufferedReader(reader, buffer_size=CHUNK))
-        except HttpError as err:
-            response = self._error_response(err)
-        except InputError as err:
-            response = self._error_response(http_error_from_input(err))
-        except StoreError as err:
-            response = self._error_response(http_error_from_store(err, None))
-        except Exception:
-            logger.exception("internal error on %s %s", self.command, redact(self.path))
-            response = self._error_response(HttpError(500, "internal server error"))
-        if reader is None or not reader.drain(self.app.limits.max_body_bytes):
-            self.close_connection = True
-        self._send(response)
+            try:
+                response = self._respond()
+            except HttpError as err:
+                response = self._error_response(err)
+            except InputError as err:
+                response = self._error_response(http_error_from_input(err))
+            except StoreError as err:
+                response = self._error_response(http_error_from_store(err, None))
+            except OSError as err:
+                response = self._error_response(self._os_error(err))
+            except Exception:
+                logger.exception("internal error on %s %s", self.command, redact(self.path))
+                response = self._error_response(HttpError(500, "internal server error"))
+            if self._reader is None or not self._reader.drain(self.app.limits.max_body_bytes):
+                self.close_connection = True
+            self._send(response)
+        finally:
+            self._reader = None
+            if self._slot is not None:
+                self.server.admission.end(self.client_address[0], self._slot)  # type: ignore[attr-defined]
+                self._slot = None
+
+    def _respond(self) -> Response:
+        """Check the request, take a request slot, and run the endpoint."""
+        length, chunked = self._framing()
+        route, groups = self._match()
+        user = self._authenticate()
+        anonymous = user is None and not self._has_ticket(groups)
+        limit = self._body_limit(route, anonymous)
+        if length is not None and length > limit:
+            raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
+        if not self.server.admission.begin(self.client_address[0], anonymous):  # type: ignore[attr-defined]
+            raise HttpError(503, "the server is busy (too many requests in progress); retry later",
+                            headers={"Retry-After": "1"})
+        self._slot = anonymous
+        self.conn.start("body", self.app.limits.read_timeout_s)  # BodyReader moves the deadline on
+        self._reader = BodyReader(self.rfile, length, chunked, limit, self.app.limits.read_timeout_s, self.conn)
+        values = boundary.MAX_ANONYMOUS_JSON_VALUES if anonymous else boundary.MAX_JSON_VALUES
+        return self._dispatch(route, groups, user, io.BufferedReader(self._reader, buffer_size=CHUNK), values)
+
+    def _os_error(self, err: OSError) -> HttpError:
+        if err.errno in _DISK_FULL:
+            logger.error("no space left for %s %s (%s)", self.command, redact(self.path), errno.errorcode[err.errno])
+            return HttpError(507, "the server has no space left to store this request")
+        logger.exception("internal error on %s %s", self.command, redact(self.path))
+        return HttpError(500, "internal server error")
 
     def _framing(self) -> tuple[int | None, bool]:
         """(Content-Length or None, chunked); 400 for anything ambiguous or malformed."""
+        if self.headers.defects or self.headers.get_payload():
+            raise HttpError(400, "malformed header line (no colon, or a space before it)")
+        if any(_BAD_HEADER_VALUE.search(v) for v in self.headers.values()):
+            raise HttpError(400, "header values may not be folded or hold control characters")
         lengths = self.headers.get_all("Content-Length") or []
-        encoding = (self.headers.get("Transfer-Encoding") or "").strip().lower()
-        if encoding not in ("", "chunked") or (encoding and lengths) or len(lengths) > 1:
+        encodings = self.headers.get_all("Transfer-Encoding") or []
+        encoding = encodings[0].strip().lower() if encodings else ""
+        if (encoding not in ("", "chunked") or (encodings and lengths) or len(lengths) > 1
+                or len(encodings) > 1):
             raise HttpError(400, "unsupported or ambiguous request framing (Transfer-Encoding, Content-Length)")
         if not lengths:
             return None, encoding == "chunked"
-        value = lengths[0].strip()
-        if not value.isdigit() or len(value) > 18:
+        value = lengths[0].strip(" \t")
+        if not _CONTENT_LENGTH.fullmatch(value):
             raise HttpError(400, "Content-Length must be a non-negative integer")
         return int(value), False
-
     def _match(self) -> tuple[Route, dict[str, str]]:
         path = urlsplit(self.path).path
         method = "GET" if self.command == "HEAD" else self.command
@@ -114,24 +226,33 @@ class HubHandler(BaseHTTPRequestHandler):
             raise HttpError(405, f"method {self.command} not allowed here")
         raise HttpError(404, "not found")
 
-    def _body_limit(self, route: Route) -> int:
+    def _body_limit(self, route: Route, anonymous: bool) -> int:
         limits = self.app.limits
-        if route.body == "commit":
-            return limits.max_commit_bytes
         if route.body == "upload":
             return 1 << 62  # bounded by the ticket's announced size in the endpoint
-        return limits.max_body_bytes
+        limit = limits.max_commit_bytes if route.body == "commit" else limits.max_body_bytes
+        return min(limit, limits.max_anonymous_body_bytes) if anonymous else limit
 
-    def _dispatch(self, route: Route, groups: dict[str, str], body: io.BufferedReader) -> Response:
+    def _has_ticket(self, groups: dict[str, str]) -> bool:
+        """Whether the URL carries a valid LFS upload ticket (it stands in for the token)."""
+        if "ticket" not in groups:
+            return False
+        try:
+            self.app.tickets.get(groups["ticket"])
+        except (HttpError, InputError):
+            return False
+        return True
+
+    def _dispatch(self, route: Route, groups: dict[str, str], user: str | None, body: io.BufferedReader,
+                  max_json_values: int) -> Response:
         parts = urlsplit(self.path)
         try:
             query = parse_qs(parts.query, keep_blank_values=True, max_num_fields=100, errors="strict")
         except (ValueError, UnicodeDecodeError):
             raise HttpError(400, "malformed query string") from None
         params = {k: v[-1] for k, v in query.items()}
-        user = self._authenticate()
         req = Request(self.command, parts.path, params, self.headers, body, user,
-                      self.app.base_url(self.headers.get("Host")), groups)
+                      self.app.base_url(self.headers.get("Host")), groups, max_json_values)
         try:
             return route.endpoint(self.app, req)
         except StoreError as err:
@@ -148,13 +269,14 @@ class HubHandler(BaseHTTPRequestHandler):
         return user
 
     def _error_response(self, err: HttpError) -> Response:
-        message = err.message.encode("ascii", "backslashreplace").decode()  # headers are latin-1
-        headers = {"X-Error-Message": message.replace("\n", " ").replace("\r", " ")[:500], **err.headers}
+        message = escape_controls(err.message.encode("ascii", "backslashreplace").decode())  # latin-1, no CR/LF
+        headers = {"X-Error-Message": message[:500], **err.headers}
         if err.code:
             headers["X-Error-Code"] = err.code
         return Response(err.status, {"error": err.message, **err.extra}, headers)
 
     def _send(self, response: Response) -> None:
+        self.connection.settimeout(self.app.limits.read_timeout_s)  # reads may have left it shorter
         if response.stream is not None:
             payload, length = b"", response.stream[2]
         elif isinstance(response.body, bytes):
@@ -188,12 +310,9 @@ class HubHandler(BaseHTTPRequestHandler):
     # Logging: method, redacted path and status only.
     def log_request(self, code: Any = "-", size: Any = "-") -> None:
         path = redact(self.path) if hasattr(self, "path") else "?"
-        logger.info("%s %s -> %s", getattr(self, "command", "?"), path, code)
+        logger.info("%s %s -> %s", escape_controls(getattr(self, "command", "?")[:20]), path, code)
 
     def log_error(self, format: str, *args: Any) -> None:
-        if format.startswith("Request timed out"):  # an idle keep-alive connection closed
-            logger.debug("idle connection from %s closed", self.client_address[0])
-            return
         logger.warning("bad request from %s", self.client_address[0])
 
     def log_message(self, format: str, *args: Any) -> None:

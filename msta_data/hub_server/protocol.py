@@ -17,39 +17,63 @@ from msta_data.hub_server.boundary import InputError
 from msta_data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
+    from msta_data.hub_server.connections import SocketInput
     from msta_data.hub_server.server import HubApp
 
 CHUNK = 1 << 20
 MIN_UPLOAD_RATE = 1024  # bytes/s a body must average once its first read_timeout_s is over
+MAX_CHUNK_LINE = 1024  # a chunk-size line (with extensions) or a trailer line
+MAX_TRAILER_BYTES = 8 << 10
+_CHUNK_SIZE = re.compile(rb"([0-9A-Fa-f]{1,16})[ \t]*(?:;[^\r\n]*)?\r\n")
 
 
 @dataclass(frozen=True)
 class Limits:
-    """Request limits of the server (``msta-hub serve --max_body_bytes`` ...).
+    """Request limits of the server (``msta-hub serve --max_body_bytes`` ...; docs/security.md).
 
     Args:
-        max_body_bytes: largest body of a JSON request (everything but commits and LFS uploads);
-            checked against Content-Length before anything is read or authenticated (413).
+        max_body_bytes: largest body of an authenticated JSON request (everything but commits
+            and LFS uploads); checked against Content-Length before anything is read (413).
+        max_anonymous_body_bytes: the same for requests without a token (validate-yaml).
         max_commit_bytes: largest commit body (NDJSON; inline files travel base64-encoded in it,
             and one file is held in memory at a time).
-        read_timeout_s: a client that sends nothing for this long is disconnected (408 while a
-            body is expected); a body must also average 1 KiB/s after this time.
+        read_timeout_s: longest silence: a connection waiting for its next request, or a
+            single read, is closed after it (408 while a body is expected); a body must also
+            average 1 KiB/s after this time.
+        header_timeout_s: the request line and headers must arrive within this time from
+            the request's first byte, however they are paced (else closed with 408).
         max_card_bytes: largest YAML front matter of a README.md the server parses.
-        max_connections: connections served at once; more are answered 503 and closed.
+        max_connections: requests served at once (from their headers to their answer);
+            more get 503.
+        max_anonymous: of those, at most this many without a token (or upload ticket); the
+            rest stay free for authenticated users.
+        max_anonymous_per_client: anonymous requests served at once from one IP address.
+        max_open_connections: open connections (idle, sending headers or being served); more
+            are answered 503 and closed at once.
+        max_open_per_client: open connections from one IP address.
     """
 
     max_body_bytes: int = 8 << 20
+    max_anonymous_body_bytes: int = 2 << 20
     max_commit_bytes: int = 2 << 30
     read_timeout_s: float = 60.0
+    header_timeout_s: float = 20.0
     max_card_bytes: int = 1 << 20
     max_connections: int = 64
+    max_anonymous: int = 32
+    max_anonymous_per_client: int = 8
+    max_open_connections: int = 512
+    max_open_per_client: int = 128
 
     def __post_init__(self) -> None:
-        for name in ("max_body_bytes", "max_commit_bytes", "max_card_bytes", "max_connections"):
+        for name in ("max_body_bytes", "max_anonymous_body_bytes", "max_commit_bytes", "max_card_bytes",
+                     "max_connections", "max_anonymous", "max_anonymous_per_client", "max_open_connections",
+                     "max_open_per_client"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
-        if not self.read_timeout_s > 0:
-            raise ValueError(f"read_timeout_s must be positive, got {self.read_timeout_s}")
+        for name in ("read_timeout_s", "header_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
 
 
 class HttpError(Exception):
@@ -89,15 +113,23 @@ def http_error_from_input(err: InputError) -> HttpError:
 class BodyReader(io.RawIOBase):
     """The request body as a stream (Content-Length or chunked), bounded in size and time.
 
+    ``received`` counts every byte read for the body, chunk framing and trailers included,
+    and that count is what the size limit and the pace are checked against: the body (with
+    its trailers) must arrive within ``timeout_s`` plus one second per KiB received. Chunk
+    sizes must be plain hex digits and every framing line must end with CRLF (400 otherwise).
+
     Args:
         rfile: the connection's input.
         length: Content-Length, or None (chunked or no body).
         chunked: Transfer-Encoding: chunked.
         limit: most bytes accepted (413 beyond).
-        timeout_s: see ``Limits.read_timeout_s``; the socket itself times out single reads.
+        timeout_s: see ``Limits.read_timeout_s``.
+        conn: the socket reader under ``rfile``; its deadline is kept at the body's, so no
+            single read waits past it.
     """
 
-    def __init__(self, rfile: io.BufferedIOBase, length: int | None, chunked: bool, limit: int, timeout_s: float):
+    def __init__(self, rfile: io.BufferedIOBase, length: int | None, chunked: bool, limit: int,
+                 timeout_s: float, conn: SocketInput | None = None):
         super().__init__()
         self._rfile = rfile
         self._chunked = chunked
@@ -105,6 +137,7 @@ class BodyReader(io.RawIOBase):
         self._eof = not chunked and not length
         self._limit = limit
         self._timeout_s = timeout_s
+        self._conn = conn
         self._started = time.monotonic()
         self.received = 0
         self.broken = False  # the stream is unusable: do not drain, close the connection
@@ -116,19 +149,38 @@ class BodyReader(io.RawIOBase):
         self.broken = True
         return HttpError(status, message)
 
+    def _pace(self) -> None:
+        deadline = self._started + self._timeout_s + self.received / MIN_UPLOAD_RATE
+        if time.monotonic() > deadline:
+            raise self._fail(408, "request body arrives too slowly")
+        if self._conn is not None:
+            self._conn.deadline = deadline
+
+    def _count(self, n: int) -> None:
+        self.received += n
+        if self.received > self._limit:
+            raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
+
+    def _line(self) -> bytes:
+        self._pace()
+        line = self._rfile.readline(MAX_CHUNK_LINE)
+        self._count(len(line))
+        if not line.endswith(b"\r\n"):
+            raise self._fail(400, "malformed chunked request body (a line is too long or does not end with CRLF)")
+        return line
+
     def _next_chunk(self) -> None:
-        line = self._rfile.readline(1024)
-        try:
-            size = int(line.split(b";")[0].strip(), 16)
-        except ValueError:
-            raise self._fail(400, "malformed chunked request body") from None
-        if size < 0:
-            raise self._fail(400, "malformed chunked request body")
-        if size == 0:
-            while self._rfile.readline(1024) not in (b"\r\n", b"\n", b""):
-                pass  # trailers
+        m = _CHUNK_SIZE.fullmatch(self._line())
+        if m is None:
+            raise self._fail(400, "malformed chunked request body (chunk size must be hex digits)")
+        self._remaining = int(m.group(1), 16)
+        if self._remaining == 0:
+            trailers = 0
+            while (line := self._line()) != b"\r\n":
+                trailers += len(line)
+                if trailers > MAX_TRAILER_BYTES:
+                    raise self._fail(431, f"request trailers are longer than {MAX_TRAILER_BYTES} bytes")
             self._eof = True
-        self._remaining = size
 
     def readinto(self, buffer: Any) -> int:
         try:
@@ -141,9 +193,6 @@ class BodyReader(io.RawIOBase):
     def _readinto(self, buffer: Any) -> int:
         if self._eof:
             return 0
-        elapsed = time.monotonic() - self._started
-        if elapsed > self._timeout_s + self.received / MIN_UPLOAD_RATE:
-            raise self._fail(408, "request body arrives too slowly")
         if self._remaining == 0:
             if not self._chunked:
                 self._eof = True
@@ -153,6 +202,7 @@ class BodyReader(io.RawIOBase):
                 return 0
         if self.received + min(len(buffer), self._remaining) > self._limit:
             raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
+        self._pace()
         data = self._rfile.read1(min(len(buffer), self._remaining, CHUNK))  # one recv: paced
         if not data:
             raise self._fail(400, "request body ended early")
@@ -160,7 +210,10 @@ class BodyReader(io.RawIOBase):
         self._remaining -= len(data)
         self.received += len(data)
         if self._chunked and self._remaining == 0:
-            self._rfile.readline(16)  # CRLF after each chunk
+            self._pace()
+            self._count(2)
+            if self._rfile.read(2) != b"\r\n":
+                raise self._fail(400, "malformed chunked request body (no CRLF after a chunk)")
         return len(data)
 
     def drain(self, max_bytes: int) -> bool:
@@ -194,10 +247,11 @@ class Request:
     user: str | None
     base_url: str
     groups: dict[str, str] = field(default_factory=dict)
+    max_json_values: int = boundary.MAX_JSON_VALUES  # smaller for anonymous requests
 
     def json(self) -> Any:
-        """The body as JSON (an empty body reads as ``{}``); 400 when malformed."""
-        return boundary.parse_json(self.body.read())
+        """The body as JSON (an empty body reads as ``{}``); 400 when malformed or too many values."""
+        return boundary.parse_json(self.body.read(), max_values=self.max_json_values)
 
     def json_object(self) -> dict[str, Any]:
         """The body as a JSON object; 400 for any other shape."""
@@ -207,7 +261,7 @@ class Request:
         """Body as form fields (x-www-form-urlencoded) or as a JSON object; only string values."""
         raw = self.body.read()
         if "json" in (self.headers.get("Content-Type") or ""):
-            data = boundary.json_object(boundary.parse_json(raw))
+            data = boundary.json_object(boundary.parse_json(raw, max_values=self.max_json_values))
             out: dict[str, list[str]] = {}
             for k, v in data.items():
                 values = v if isinstance(v, list) else [v]

@@ -12,6 +12,7 @@ from typing import Any, Self
 
 from msta_data.hub_server import api, commit_routes, files
 from msta_data.hub_server.auth import AuthConfig, read_token_file
+from msta_data.hub_server.connections import Admission
 from msta_data.hub_server.handler import HubHandler
 from msta_data.hub_server.protocol import Limits, Route
 from msta_data.hub_server.storage import Storage
@@ -84,16 +85,20 @@ _BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\
 
 
 class _HttpServer(ThreadingHTTPServer):
-    """A threading HTTP server that caps open connections and logs broken ones in one line."""
+    """A threading HTTP server that caps open connections (in all and per client address),
+    holds the request slots its handlers take, and logs broken connections in one line."""
 
     daemon_threads = True
+    request_queue_size = 128  # a burst of connections waits in the kernel, not in SYN retries
 
-    def __init__(self, address: tuple[str, int], handler: type, max_connections: int):
-        self._slots = threading.BoundedSemaphore(max_connections)
+    def __init__(self, address: tuple[str, int], handler: type, limits: Limits):
+        self.admission = Admission(limits.max_open_connections, limits.max_open_per_client,
+                                   limits.max_connections, limits.max_anonymous, limits.max_anonymous_per_client)
         super().__init__(address, handler)
 
     def process_request(self, request: Any, client_address: Any) -> None:
-        if not self._slots.acquire(blocking=False):
+        if not self.admission.open(client_address[0]):
+            logger.warning("too many open connections: one from %s refused (503)", client_address[0])
             try:
                 request.sendall(_BUSY)
             except OSError:
@@ -103,14 +108,14 @@ class _HttpServer(ThreadingHTTPServer):
         try:
             super().process_request(request, client_address)
         except BaseException:
-            self._slots.release()
+            self.admission.close(client_address[0])
             raise
 
     def process_request_thread(self, request: Any, client_address: Any) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._slots.release()
+            self.admission.close(client_address[0])
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         logger.warning("connection from %s ended with %s", client_address[0], sys.exc_info()[0].__name__)
@@ -129,7 +134,7 @@ class HubServer:
         handler = type("BoundHubHandler", (HubHandler,),
                        {"app": self.app, "timeout": config.limits.read_timeout_s})
         try:
-            self.httpd = _HttpServer((config.host, config.port), handler, config.limits.max_connections)
+            self.httpd = _HttpServer((config.host, config.port), handler, config.limits)
         except OSError:
             self.app.storage.close()
             raise

@@ -238,15 +238,19 @@ class Storage:
                 raise StoreError("conflict", f"You already created this {repo_type} repo: {repo_id}")
             final = self._repo_dir(repo_type, namespace, name)
             staging = self.root / "tmp" / f"repo-{secrets.token_hex(8)}"
-            (staging / "commits").mkdir(parents=True)
             created = now_iso()
-            commit = self.commits.write(staging, [], {}, "initial commit", "", author, created)
-            write_json(staging / "refs.json", {"branches": {"main": commit.id}, "tags": {}})
-            write_json(staging / "repo.json", {"id": repo_id, "type": repo_type, "private": private,
-                                               "createdAt": created})
-            atomic_write(staging / "blobs.txt", b"")
-            final.parent.mkdir(parents=True, exist_ok=True)
-            os.rename(staging, final)
+            try:
+                (staging / "commits").mkdir(parents=True)
+                commit = self.commits.write(staging, [], {}, "initial commit", "", author, created)
+                write_json(staging / "refs.json", {"branches": {"main": commit.id}, "tags": {}})
+                write_json(staging / "repo.json", {"id": repo_id, "type": repo_type, "private": private,
+                                                   "createdAt": created})
+                atomic_write(staging / "blobs.txt", b"")
+                final.parent.mkdir(parents=True, exist_ok=True)
+                os.rename(staging, final)
+            except BaseException:  # a full disk, say: leave no half-made repo in tmp/
+                shutil.rmtree(staging, ignore_errors=True)
+                raise
         return RepoMeta(repo_type, namespace, name, private, created)
 
     def delete_repo(self, repo_type: str, repo_id: str) -> None:

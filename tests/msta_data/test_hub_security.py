@@ -125,6 +125,10 @@ def test_yaml_alias_bomb_is_refused_and_never_expanded(hub):
     assert len(bomb) < 600
     status, body, _ = H.call(srv, "POST", "/api/validate-yaml", json.dumps(
         {"content": bomb.decode(), "repoType": "model"}), BOB)
+    assert status == 400 and b"more than 100000 nodes once its aliases" in body  # counted, never built
+    small = _alias_bomb(levels=5)  # 9**5 nodes: few enough to build, too large once expanded
+    status, body, _ = H.call(srv, "POST", "/api/validate-yaml", json.dumps(
+        {"content": small.decode(), "repoType": "model"}), BOB)
     assert status == 400 and b"expands to more than" in body
     # a raw commit skips validate-yaml: the anonymous model info must stay small anyway
     assert H.commit(srv, BOB, "bob/mine", [H.inline_file("README.md", bomb)])[0] == 200

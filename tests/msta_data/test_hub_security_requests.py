@@ -102,7 +102,7 @@ def test_trickled_body_is_cut_off(srv):
 
 def test_idle_connections_are_closed_and_connections_capped(tmp_path, caplog):
     caplog.set_level(logging.DEBUG, logger="msta_data.hub_server")
-    srv = H.start_server(tmp_path / "hub", read_timeout_s=1.0, max_connections=2)
+    srv = H.start_server(tmp_path / "hub", read_timeout_s=1.0, max_open_connections=2)
     try:
         idle = [socket.create_connection(("127.0.0.1", srv.port), timeout=5) for _ in range(2)]
         time.sleep(0.2)
