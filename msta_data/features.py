@@ -295,6 +295,7 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
     for key in ("fps", "features", "total_episodes", "total_frames", "chunks_size", "data_path"):
         if key not in info:
             raise DatasetFormatError(f"{path}: missing key {key!r}")
+    _check_sizes(path, info)
     if fps is not None and info["fps"] != fps:
         raise DatasetFormatError(f"{path}: fps is {info['fps']}, expected {fps}")
     if info["data_path"] != L.DATA_PATH:
@@ -304,6 +305,24 @@ def load_info(root: str | Path, fps: int | None = None) -> dict[str, Any]:
             raise DatasetFormatError(f"{path}: feature {col!r} lacks dtype/shape: {ft!r}")
         ft["shape"] = tuple(ft["shape"])
     return info
+
+
+def _check_sizes(path: Path, info: dict[str, Any]) -> None:
+    """The counts and sizes of ``info.json`` are integers in range (``1e12``, ``0`` or
+    ``-1`` would end in a numpy allocation or a division by zero far from the file)."""
+    for key, low in (("fps", 1), ("total_episodes", 0), ("total_frames", 0),
+                     ("chunks_size", 1)):
+        value = info[key]
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise DatasetFormatError(f"{path}: {key} must be an integer >= {low}, got {value!r}")
+    if info["total_episodes"] > info["total_frames"]:
+        raise DatasetFormatError(
+            f"{path}: total_episodes {info['total_episodes']} > total_frames "
+            f"{info['total_frames']} (every episode has at least one frame)")
+    size = info.get("data_files_size_in_mb", 1)
+    if isinstance(size, bool) or not isinstance(size, (int, float)) or not 0 < size < 1e6:
+        raise DatasetFormatError(
+            f"{path}: data_files_size_in_mb must be a number in (0, 1e6), got {size!r}")
 
 
 def check_column_feature(info: dict[str, Any], column: str, root: str | Path) -> None:
@@ -346,12 +365,15 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
     """The committed episodes' rows of ``meta/episodes`` (``episode_index`` order).
 
     Rows of episodes >= ``info["total_episodes"]`` (left by a writer killed between
-    writing an episode file and committing ``info.json``) are dropped.
+    writing an episode file and committing ``info.json``) are dropped; such files hold no
+    committed episode (a writer commits whole files).
 
     Raises:
-        DatasetFormatError: unreadable file, missing column, or committed episodes missing.
+        DatasetFormatError: unreadable file, missing column, an empty episode, a file holding
+            episodes on both sides of the count, or committed episodes missing.
     """
     tables = []
+    total = int(info["total_episodes"])
     for path in episode_files(root):
         names = read_parquet_schema(path).names
         cols = [c for c in names if with_stats or not c.startswith("stats/")]
@@ -359,7 +381,7 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
             if col not in names:
                 raise DatasetFormatError(f"{path}: column {col!r} missing")
         tables.append(read_parquet(path, cols))
-    total = int(info["total_episodes"])
+        _check_episode_rows(path, tables[-1], total)
     if not tables:
         if total:
             raise DatasetFormatError(
@@ -373,11 +395,42 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
     table = table.filter(pa.array(ep < total)).sort_by("episode_index")
     got = table.column("episode_index").to_numpy()
     if len(got) != total or (total and not np.array_equal(got, np.arange(total))):
-        missing = sorted(set(range(total)) - set(got.tolist()))[:10]
+        present = set(got.tolist())  # a count of 1e12 must not build a range of it
+        missing = [i for i in range(min(total, len(got) + 10)) if i not in present][:10]
         raise DatasetFormatError(
             f"{Path(root) / L.EPISODES_DIR}: info.json has {total} episodes but the episode "
             f"table has {len(got)} (missing e.g. {missing}, or duplicates)")
     return table
+
+
+def _check_episode_rows(path: Path, table: pa.Table, total: int) -> None:
+    """One episode file's rows: at least one frame each, ``dataset_to_index - from ==
+    length``, and not episodes on both sides of ``total`` (a writer commits whole files)."""
+    length = table.column("length").to_numpy()
+    span = (table.column("dataset_to_index").to_numpy()
+            - table.column("dataset_from_index").to_numpy())
+    ep = table.column("episode_index").to_numpy()
+    bad = np.flatnonzero((length < 1) | (span != length))
+    if len(bad):
+        i = int(bad[0])
+        raise DatasetFormatError(
+            f"{path}: episode {ep[i]} has length {length[i]} and frames {span[i]} "
+            "(dataset_to_index - dataset_from_index); every episode has at least one frame")
+    if len(ep) and ep.min() < total <= ep.max():
+        raise DatasetFormatError(
+            f"{path}: holds episodes {ep.min()}-{ep.max()}, on both sides of meta/info.json's "
+            f"total_episodes {total} (a writer commits whole files): a changed count?")
+
+
+def episode_index_ranges(root: str | Path) -> list[tuple[Path, int, int]]:
+    """``(file, first, last episode_index)`` of every ``meta/episodes`` file (empty files
+    left out)."""
+    out = []
+    for path in episode_files(root):
+        ep = read_parquet(path, ["episode_index"]).column("episode_index").to_numpy()
+        if len(ep):
+            out.append((path, int(ep.min()), int(ep.max())))
+    return out
 
 
 def read_parquet_schema(path: Path) -> pa.Schema:

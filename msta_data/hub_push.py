@@ -24,7 +24,7 @@ from msta_data.locking import lock_directory
 logger = logging.getLogger(__name__)
 
 PICKLE_SUFFIXES = (".pt", ".pth", ".pkl", ".pickle", ".bin", ".ckpt", ".joblib")
-_SKIP_DIRS = (".git", ".cache/huggingface")
+_SKIP_DIRS = (".git", ".cache/huggingface", L.QUARANTINE_DIR)  # never pushed
 
 
 def _local_files(root: Path) -> dict[str, Path]:

@@ -32,6 +32,7 @@ import hashlib
 import json
 import logging
 import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -65,14 +66,23 @@ def digest_bytes(data: bytes) -> FileRecord:
 
 
 def digest_file(path: Path, use_cache: bool = True) -> FileRecord:
-    """sha256 of a file, read in 1 MiB chunks (cached by size, mtime, ctime and inode)."""
-    st = os.stat(path)
-    key = (st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
-    hit = _cache.get(str(path)) if use_cache else None
-    if hit is not None and hit[0] == key:
-        return hit[1]
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
+    """sha256 of a file, read in 1 MiB chunks (cached by size, mtime, ctime and inode).
+
+    Raises:
+        DatasetIntegrityError: ``path`` is not a regular file (a device such as /dev/zero
+            would be read forever, a FIFO would block): refused before reading.
+    """
+    # O_NONBLOCK: opening a FIFO must not wait for a writer; it is refused just below.
+    with os.fdopen(os.open(path, os.O_RDONLY | os.O_NONBLOCK), "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise DatasetIntegrityError(f"{path}: not a regular file (a device, FIFO, socket "
+                                        "or directory); refused, nothing was read")
+        key = (st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+        hit = _cache.get(str(path)) if use_cache else None
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        h = hashlib.sha256()
         while chunk := f.read(_CHUNK):
             h.update(chunk)
     rec = FileRecord(st.st_size, h.hexdigest())
@@ -140,10 +150,39 @@ class Manifest:
             raise DatasetIntegrityError(f"{path}: malformed checksum manifest ({e})") from None
         if gens[0] is None and gens[1] is None:
             raise DatasetIntegrityError(f"{path}: records no generation")
+        for gen in gens:
+            for rel in gen.files if gen else ():
+                check_entry(path, rel)
         return cls(*gens)
 
     def generations(self) -> list[Generation]:
         return [g for g in (self.committed, self.pending) if g is not None]
+
+
+def check_entry(manifest: Path, rel: str) -> None:
+    """A manifest entry must name a file inside the dataset: a relative ``/``-separated path
+    with no empty, ``.`` or ``..`` part, no backslash or control character (a manifest
+    pushed by someone else could name ``/dev/zero`` or ``../../secret``).
+
+    Raises:
+        DatasetIntegrityError: naming the manifest and the entry.
+    """
+    parts = rel.split("/")
+    if (not rel or rel.startswith("/") or "\\" in rel or any(ord(c) < 32 for c in rel)
+            or any(p in ("", ".", "..") for p in parts) or ":" in parts[0]):
+        raise DatasetIntegrityError(
+            f"{manifest}: entry {rel!r} is not a relative path inside the dataset (absolute, "
+            "'..', empty part, backslash or control character); refused, nothing was read")
+
+
+def _inside(root: Path, rel: str) -> Path:
+    """``root / rel`` after checking that symbolic links do not lead outside ``root``."""
+    path = root / rel
+    real, base = Path(os.path.realpath(path)), Path(os.path.realpath(root))
+    if real != base and base not in real.parents:
+        raise DatasetIntegrityError(f"{path}: a symbolic link leading outside the dataset "
+                                    f"(to {real}); refused, nothing was read")
+    return path
 
 
 def current_generation(root: str | Path, manifest: Manifest) -> Generation:
@@ -175,14 +214,18 @@ def current_generation(root: str | Path, manifest: Manifest) -> Generation:
 
 def _check_file(root: Path, rel: str, gen: Generation, others: list[Generation],
                 mode: VerifyMode) -> None:
-    path = root / rel
+    path = _inside(root, rel)
     want = gen.files[rel]
     try:
-        size = path.stat().st_size
+        st = path.stat()
     except FileNotFoundError:
         raise DatasetIntegrityError(
             f"{path}: missing (recorded at commit in {L.MANIFEST_PATH}, {want.size} bytes)") \
             from None
+    if not stat.S_ISREG(st.st_mode):
+        raise DatasetIntegrityError(f"{path}: not a regular file (a device, FIFO, socket or "
+                                    "directory); refused, nothing was read")
+    size = st.st_size
     accepted = [want] + [g.files[rel] for g in others if rel in g.files]
     if all(size != a.size for a in accepted):
         raise DatasetIntegrityError(
@@ -219,8 +262,49 @@ def check_generation(root: str | Path, manifest: Manifest, gen: Generation,
             _check_file(Path(root), rel, gen, others, mode)
 
 
+def check_counts(root: str | Path, gen: Generation | None) -> None:
+    """``meta/info.json``'s episode and frame counts against the episode files present.
+
+    A count that is wrong but agrees with the manifest (both edited, or a dataset without
+    one) would train on a subset, and a writer would write over the files beyond it. So:
+    the counts must be the ones the commit recorded; an episode file the commit lists (any,
+    without a manifest) may not hold only episodes beyond the count; and
+    :func:`msta_data.features.read_episode_table` refuses a file holding episodes on both
+    sides of the count, an empty episode and a count the files do not reach. Files the
+    commit does not list are a killed writer's: readers ignore them.
+
+    Raises:
+        DatasetFormatError: one line naming the file (DatasetIntegrityError for counts that
+            differ from the commit's).
+    """
+    from msta_data import features as F
+
+    root = Path(root)
+    info = F.load_info(root)
+    total, frames = info["total_episodes"], info["total_frames"]
+    if gen is not None and (gen.total_episodes, gen.total_frames) != (total, frames):
+        raise DatasetIntegrityError(
+            f"{root / L.INFO_PATH}: {total} episodes and {frames} frames, the last commit in "
+            f"{L.MANIFEST_PATH} recorded {gen.total_episodes} and {gen.total_frames}: edited; "
+            "restore it (nothing was changed)")
+    table = F.read_episode_table(root, info)
+    end = int(table.column("dataset_to_index")[-1].as_py()) if len(table) else 0
+    if end != frames:
+        raise DatasetFormatError(f"{root / L.INFO_PATH}: total_frames {frames}, but the last "
+                                 f"episode in {L.EPISODES_DIR} ends at frame {end}")
+    listed = None if gen is None else set(gen.files)
+    for path, first, last in F.episode_index_ranges(root):
+        if first >= total and (listed is None or path.relative_to(root).as_posix() in listed):
+            raise DatasetFormatError(
+                f"{path}: beyond the {total} episodes of {L.INFO_PATH} (it holds episodes "
+                f"{first}-{last}): a lowered count, or meta/ restored from an older copy? "
+                "Nothing was changed: restore meta/, or move the file away if it is not part "
+                "of the dataset")
+
+
 def leftover_files(root: str | Path, committed: set[str]) -> list[str]:
-    """Numbered Parquet and ``.tmp`` files under data/ and meta/ that no commit lists."""
+    """Files in the chunk directories of data/ and meta/episodes/, and ``.tmp`` files in
+    meta/, that no commit lists."""
     root = Path(root)
     out = []
     for sub in (*L.NUMBERED_DIRS, L.META_DIR):
@@ -246,10 +330,12 @@ def verify_dataset(root: str | Path, mode: VerifyMode = "full",
         the generation on disk, or ``None`` for a legacy dataset (no manifest).
 
     Raises:
-        DatasetIntegrityError: one line naming the first bad file.
+        DatasetFormatError / DatasetIntegrityError: one line naming the first bad file
+            (:func:`check_generation`, :func:`check_counts`).
     """
     manifest = Manifest.load(root)
     if manifest is None:
+        check_counts(root, None)
         if str(root) in _warned:
             return None
         _warned.add(str(root))
@@ -259,13 +345,14 @@ def verify_dataset(root: str | Path, mode: VerifyMode = "full",
         return None
     gen = current_generation(root, manifest)
     check_generation(root, manifest, gen, mode)
+    check_counts(root, gen)
     if for_publish:
         extra = leftover_files(root, set(gen.files))
         if extra:
             raise DatasetIntegrityError(
                 f"{Path(root) / extra[0]}: not part of the last commit (left by a killed "
                 f"writer?; {len(extra)} such file(s)); DatasetWriter.open / msta-collect "
-                "--resume removes them")
+                f"--resume moves them to {L.QUARANTINE_DIR}/")
     return gen
 
 

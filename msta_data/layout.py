@@ -33,6 +33,10 @@ EPISODES_PATH = f"{EPISODES_DIR}/chunk-{{chunk_index:03d}}/file-{{file_index:03d
 NUMBERED_GLOB = "chunk-*/file-*.parquet"
 #: Directories whose numbered Parquet files make up the committed episodes.
 NUMBERED_DIRS = (DATA_DIR, EPISODES_DIR)
+#: Where a writer moves files it finds in the chunk directories that no commit lists
+#: (``<QUARANTINE_DIR>/<UTC time>/<relative path>``; msta_data.quarantine): never read, never
+#: pushed.
+QUARANTINE_DIR = ".msta-quarantine"
 #: The exclusive lock of a directory (a dataset root, a training run; msta_data.locking).
 LOCK_NAME = ".msta.lock"
 #: A dataset card or model card on the hub.

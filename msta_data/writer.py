@@ -26,9 +26,11 @@ buffered (unflushed) episodes; a kill during step 2-3 can leave the new files of
 flush uncommitted (lerobot still loads the dataset: its frame count comes from
 ``info.json``). :meth:`DatasetWriter.open` first verifies every committed file against the
 manifest (and refuses, naming the file, when one is missing, truncated or changed, or when
-``info.json`` matches no recorded commit), then deletes the files of an unfinished commit
-and ``.tmp`` leftovers — never a file the manifest lists as committed — and recomputes
-``stats.json`` from the committed per-episode stats when it is not the committed one.
+``info.json`` matches no recorded commit, or when its counts disagree with the episode files:
+:func:`~msta_data.integrity.check_counts`), then moves every file of the chunk directories the
+commit does not list to ``.msta-quarantine/`` (it deletes nothing but its own partial ``.tmp``
+writes: :mod:`msta_data.quarantine`), and recomputes ``stats.json`` from the committed
+per-episode stats when it is not the committed one.
 
 The writer also fills ``observation.state`` and ``observation.environment_state`` from the
 sensor columns, with their statistics (:mod:`msta_data.derived`). A dataset written before
@@ -59,8 +61,9 @@ from msta_data import derived as D
 from msta_data import features as F
 from msta_data import integrity as I
 from msta_data import layout as L
+from msta_data import quarantine as Q
 from msta_data import stats as S
-from msta_data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
+from msta_data.errors import DatasetFormatError, DatasetLockedError
 from msta_data.features import validate_episode
 from msta_data.hub_cards import write_dataset_card
 from msta_data.layout import LOCK_NAME
@@ -192,8 +195,8 @@ class DatasetWriter:
              verify: I.VerifyMode = "full") -> DatasetWriter:
         """Re-open a dataset written by msta to append episodes (stage 2, ``--resume``).
 
-        Everything committed is verified first (see module docstring); files of an
-        unfinished commit are then removed.
+        Everything committed is verified first; files no commit lists are then moved aside
+        (module docstring).
 
         Args:
             root: dataset root.
@@ -219,6 +222,7 @@ class DatasetWriter:
             else:
                 gen = I.current_generation(root, manifest)
                 I.check_generation(root, manifest, gen, verify, skip=(L.STATS_PATH,))
+            I.check_counts(root, gen)
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
             self._committed = gen
             self._recover(manifest)
@@ -242,7 +246,7 @@ class DatasetWriter:
             self._next_file = max(nums) + 1
         committed = {F.numbered_path(t, n, cs) for n in range(self._next_file)
                      for t in (L.DATA_PATH, L.EPISODES_PATH)}
-        self._remove_leftovers(committed)
+        Q.set_aside_leftovers(self.root, self._committed, committed, self.info["total_episodes"])
         if (self.root / L.TASKS_PATH).exists():
             tasks = pd.read_parquet(self.root / L.TASKS_PATH)
             self._tasks = {str(t): int(i) for t, i in zip(tasks.index, tasks["task_index"],
@@ -257,24 +261,6 @@ class DatasetWriter:
             self._new_files[L.STATS_PATH] = _atomic_json(stats_path, S.to_json(self._stats))
         if gen is None or manifest is None or manifest.pending is not None or self._new_files:
             self._record_generation(committed)
-
-    def _remove_leftovers(self, committed: set[str]) -> None:
-        """Delete ``.tmp`` files and the numbered files of an unfinished commit; refuse
-        (deleting nothing) when a file cannot be proven uncommitted."""
-        gen = self._committed
-        listed = set(gen.files) if gen else committed
-        leftovers = I.leftover_files(self.root, listed)
-        for rel in leftovers:
-            if rel.endswith(".tmp"):
-                continue
-            if gen is None or rel in committed:
-                raise DatasetIntegrityError(
-                    f"{self.root / rel}: beyond the {self.info['total_episodes']} episodes of "
-                    f"{L.INFO_PATH}, and no record ({L.MANIFEST_PATH}) tells a killed "
-                    "writer's leftover from a stale info.json; nothing was deleted: check "
-                    "info.json, or move the file away if it is a leftover")
-        for rel in leftovers:
-            (self.root / rel).unlink()
 
     def _record_generation(self, committed: set[str]) -> None:
         """Write the manifest for the generation on disk (after recovery or an upgrade)."""

@@ -29,8 +29,21 @@ Channels = Mapping[str, Sequence[int]]
 Batch = Mapping[str, Any]
 
 PAD_KEY = "pad"
-#: std floor: a channel that never varied in the data still maps to finite z-scores.
+#: A channel whose std is below this never varied in the data (a constant channel, or
+#: statistics that say so): it is z-scored with std 1 (:func:`effective_std`).
 MIN_STD = 1e-6
+
+
+def effective_std(std: Tensor) -> Tensor:
+    """The std a normalizer divides by: ``std``, with 1 where it is below :data:`MIN_STD`.
+
+    A constant channel is legitimate data, but dividing by its (near) zero std turns any
+    later difference from the constant (a validation episode, the robot, statistics that
+    do not match the data) into a z-score of 1e6 or more: an unclipped action target then
+    gave training losses of 1e12. With 1 the z-score of such a channel is its offset from
+    the mean in raw units, as scikit-learn's StandardScaler does for constant features.
+    """
+    return torch.where(std < MIN_STD, torch.ones_like(std), std)
 
 
 class StudentProcessor:
@@ -221,7 +234,7 @@ class StudentProcessor:
         if key not in self._cache:
             s = self.stats[column]
             mean = torch.tensor(s["mean"], dtype=torch.float32, device=device)
-            std = torch.tensor(s["std"], dtype=torch.float32, device=device).clamp(min=MIN_STD)
+            std = effective_std(torch.tensor(s["std"], dtype=torch.float32, device=device))
             self._cache[key] = (mean, std)
         return self._cache[key]
 

@@ -5,7 +5,7 @@ as LeRobot's own steps (saved next to the weights as ``policy_preprocessor*.json
 Pre: rename (none) -> add batch dim -> device -> ``NormalizerProcessorStep`` (z-scores of
 ``observation.state`` and of the action target). Post: ``UnnormalizerProcessorStep`` (the
 action back to raw units) -> cpu. The statistics are msta's processor's, bit for bit
-(:func:`msta_stats`): std floored at ``policies.processor.MIN_STD``, ``eps=0`` (msta divides
+(:func:`msta_stats`): std through ``policies.processor.effective_std``, ``eps=0`` (msta divides
 by the std itself), and the binary channels (foot contacts) pass through unchanged (mean 0,
 std 1), because msta thresholds their raw values at 0.5. Binning the z-scores into tokens is
 the model's input layer (``modeling_msta``), not a normalization.
@@ -32,7 +32,7 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from msta_data import sensors
-from policies.processor import MIN_STD, read_stats
+from policies.processor import effective_std, read_stats
 
 Stats = dict[str, dict[str, torch.Tensor]]
 
@@ -40,7 +40,8 @@ Stats = dict[str, dict[str, torch.Tensor]]
 def msta_stats(config: MSTAConfig, dataset_stats: Mapping[str, Mapping[str, Any]] | None
                ) -> Stats:
     """The normalizers' statistics: ``observation.state`` and (with ``normalize_action``) the
-    action, as float32 mean / std, std floored at ``MIN_STD``, binary channels mean 0 std 1.
+    action, as float32 mean / std, std 1 where below ``MIN_STD`` (``effective_std``), binary
+    channels mean 0 std 1.
 
     Args:
         config: the policy config (``state_sensors`` gives the channel layout).
@@ -63,11 +64,11 @@ def msta_stats(config: MSTAConfig, dataset_stats: Mapping[str, Mapping[str, Any]
         if spec.binary:  # thresholded raw at 0.5 by the model, as msta's processor does
             mean[start:start + spec.dim], std[start:start + spec.dim] = 0.0, 1.0
         start += spec.dim
-    out: Stats = {OBS_STATE: {"mean": mean, "std": std.clamp(min=MIN_STD)}}
+    out: Stats = {OBS_STATE: {"mean": mean, "std": effective_std(std)}}
     if config.normalize_action:
         act = read_stats(dataset_stats, ACTION, config.action_dim, "the action target")
         out[ACTION] = {"mean": torch.tensor(act["mean"], dtype=torch.float32),
-                       "std": torch.tensor(act["std"], dtype=torch.float32).clamp(min=MIN_STD)}
+                       "std": effective_std(torch.tensor(act["std"], dtype=torch.float32))}
     return out
 
 
