@@ -143,3 +143,20 @@ def test_yaml_alias_bomb_is_refused_and_never_expanded(hub):
     assert H.commit(srv, BOB, "bob/mine", [H.inline_file("README.md", dated)])[0] == 200
     info = HfApi(endpoint=srv.url, token=False).model_info("bob/mine")
     assert info.card_data["date"] == "2024-01-01" and info.tags == ["mytag"]
+
+
+def test_yaml_merge_key_bomb_is_counted_before_it_is_built(hub):
+    """Each level merges the previous one twice: 2**40 nodes once expanded. The server counts
+    merges as expansions before building anything, whatever the PyYAML version does with them."""
+    srv, _ = hub
+    levels = "".join(f"l{i}: &l{i} {{<<: [*l{i - 1}, *l{i - 1}]}}\n" for i in range(1, 41))
+    bomb = f"---\nl0: &l0 {{x: 1}}\n{levels}---\n# card\n"
+    t0 = time.monotonic()
+    status, body, _ = H.call(srv, "POST", "/api/validate-yaml", json.dumps({"content": bomb}))
+    assert status == 400 and b"nodes once its aliases and merge keys are expanded" in body, body
+    assert time.monotonic() - t0 < 5
+    assert H.commit(srv, BOB, "bob/mine", [H.inline_file("README.md", bomb.encode())])[0] == 200
+    status, body, _ = H.call(srv, "GET", "/api/models/bob/mine")
+    assert status == 200 and "cardData" not in json.loads(body)
+    merged = "---\nbase: &base {license: mit}\nmodel: {<<: *base, tags: [a]}\n---\n"
+    assert H.call(srv, "POST", "/api/validate-yaml", json.dumps({"content": merged}))[0] == 200
