@@ -398,8 +398,8 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
         present = set(got.tolist())  # a count of 1e12 must not build a range of it
         missing = [i for i in range(min(total, len(got) + 10)) if i not in present][:10]
         raise DatasetFormatError(
-            f"{Path(root) / L.EPISODES_DIR}: info.json has {total} episodes but the episode "
-            f"table has {len(got)} (missing e.g. {missing}, or duplicates)")
+            f"{Path(root) / L.INFO_PATH}: total_episodes {total}, but {L.EPISODES_DIR} holds "
+            f"{len(got)} of them (missing e.g. {missing}, or duplicates)")
     return table
 
 

@@ -38,7 +38,7 @@ def _resume(root: Path, episodes: int) -> subprocess.CompletedProcess:
     """``msta-collect --resume`` as a subprocess (what a user runs)."""
     return subprocess.run([sys.executable, "-m", "collect.record", f"--root={root}",
                            "--resume=true", f"--episodes={episodes}", *SMALL], cwd=REPO,
-                          capture_output=True, text=True, timeout=300)
+                          capture_output=True, text=True, timeout=300, check=False)
 
 
 def test_resume_after_an_older_meta_pair_keeps_the_newer_episodes(tmp_path, write_dataset):
