@@ -4,8 +4,12 @@ JSON / NDJSON bodies thrown at every route of a real server on 127.0.0.1.
 Invariants checked on every answer: no 5xx; no byte of a canary file that sits next to the
 root, of /etc/passwd or of alice's private file reaches anyone but alice; and, through a Python
 audit hook on the server's request threads, no file outside the root (and the interpreter's
-own install) is ever opened. ``MSTA_FUZZ_EXAMPLES`` (default 300 per test) sets the budget;
-the examples are the same on every run unless ``MSTA_FUZZ_RANDOM=1``.
+own install) is ever opened. Slow and oversized senders (random framing, sizes around the
+limits, header floods, requests cut into pieces with pauses or never finished) against a
+server with short deadlines: every connection is answered or closed within its deadline,
+never with a 5xx, and the server keeps serving. ``MSTA_FUZZ_EXAMPLES`` (default 300 per
+test, a twentieth of it for the slow senders) sets the budget; the examples are the same on
+every run unless ``MSTA_FUZZ_RANDOM=1``.
 """
 
 from __future__ import annotations
@@ -13,8 +17,10 @@ from __future__ import annotations
 import base64
 import json
 import os
+import socket
 import sys
 import threading
+import time
 from pathlib import Path
 from urllib.parse import quote
 
@@ -158,3 +164,107 @@ def test_random_commits_never_fail_or_leak(hub, data, repo, who):
     for file in ("p.txt", "s.txt", "dir/a.txt"):
         _check(hub, "GET", f"/{repo}/resolve/main/{file}", None, who)
     _check(hub, "GET", f"/api/models/{repo}", None, who)
+
+
+# ------------------------------------------------------------------ slow and oversized senders
+_DEADLINE_S = 0.3  # read_timeout_s and header_timeout_s of the server below
+SLOW = settings(FUZZ, max_examples=max(EXAMPLES // 20, 10))
+
+
+@pytest.fixture(scope="module")
+def strict(tmp_path_factory):
+    srv = H.start_server(tmp_path_factory.mktemp("slow") / "hub", read_timeout_s=_DEADLINE_S,
+                         header_timeout_s=_DEADLINE_S, max_body_bytes=2048, max_anonymous_body_bytes=1024)
+    H.create_repo(srv, ALICE, "pub")
+    yield srv
+    srv.stop()
+
+
+def _chunked(draw: st.DrawFn, payload: bytes) -> bytes:
+    """``payload`` in random chunks (sizes in any hex case, optional extensions) and trailers."""
+    out, rest = [], payload
+    while rest:
+        n = draw(st.integers(1, max(len(rest), 1)))
+        ext = draw(st.sampled_from([b"", b";a=b", b" ;x"]))
+        out.append(draw(st.sampled_from([b"%x", b"%X"])) % n + ext + b"\r\n" + rest[:n] + b"\r\n")
+        rest = rest[n:]
+    trailers = draw(st.lists(st.sampled_from([b"X-T: 1\r\n", b"bad\r\n", b"X-Big: " + b"a" * 3000 + b"\r\n"]),
+                             max_size=4))
+    return b"".join(out) + b"0\r\n" + b"".join(trailers) + b"\r\n"
+
+
+@st.composite
+def wire_request(draw: st.DrawFn) -> tuple[list[bytes], list[float]]:
+    """A request's bytes, cut into pieces sent after pauses, possibly never finished."""
+    method, url = draw(request_line())
+    who = draw(token)
+    payload = draw(body) or b""
+    payload = (payload + b" " * draw(st.sampled_from([0, 900, 1100, 2100, 5000])))[:6000]
+    framing = draw(st.sampled_from(["length", "longer", "shorter", "chunked", "none"]))
+    head = [f"{method} {url} HTTP/1.1", "Host: x"] + ([f"Authorization: Bearer {who}"] if who else [])
+    head += [f"X-Pad-{i}: " + "p" * draw(st.sampled_from([1, 900])) for i in range(draw(st.sampled_from([0, 5, 150])))]
+    sent = payload
+    if framing == "chunked":
+        head.append("Transfer-Encoding: chunked")
+        sent = _chunked(draw, payload)
+    elif framing != "none":
+        extra = {"length": 0, "longer": draw(st.integers(1, 10**12)), "shorter": -draw(st.integers(0, 50))}[framing]
+        head.append(f"Content-Length: {max(len(payload) + extra, 0)}")
+    data = ("\r\n".join(head) + "\r\n\r\n").encode() + sent
+    if draw(st.booleans()):  # a sender that stops before the end
+        data = data[: draw(st.integers(0, len(data)))]
+    cuts = sorted(draw(st.lists(st.integers(0, len(data)), max_size=4)))
+    pieces = [data[a:b] for a, b in zip([0, *cuts], [*cuts, len(data)], strict=True)]
+    return pieces, draw(st.lists(st.floats(0, 0.1), min_size=len(pieces), max_size=len(pieces)))
+
+
+@SLOW
+@given(request=wire_request())
+def test_slow_and_oversized_senders_are_answered_or_closed_in_time(strict, request):
+    pieces, pauses = request
+    with socket.create_connection(("127.0.0.1", strict.port), timeout=10) as s:
+        sent = 0
+        for piece, pause in zip(pieces, pauses, strict=True):
+            time.sleep(pause)
+            try:
+                s.sendall(piece)
+            except OSError:
+                break  # answered and closed already
+            sent += len(piece)
+        # after the last byte: the header deadline, or the body's (one second per KiB received)
+        s.settimeout(2 * _DEADLINE_S + sent / 1024 + 3.0)
+        try:
+            answer = s.recv(4096)
+        except TimeoutError:
+            pytest.fail(f"connection held past its deadline: {[p[:60] for p in pieces]}")
+        except ConnectionResetError:
+            answer = b""
+    status = int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/") else 0
+    assert status < 500, (status, answer[:300], [p[:80] for p in pieces])
+    assert H.call(strict, "GET", "/api/whoami-v2", token=ALICE)[0] == 200
+
+
+_SIZE_FORMS = {b"%x": True, b"%X": True, b"%04x": True, b"0x%x": False, b"+%x": False, b"0_%x": False,
+               b" %x": False, b"%x\n": False}  # spelling of a chunk size -> valid HTTP/1.1
+
+
+@FUZZ
+@given(data=st.data())
+def test_chunk_sizes_are_accepted_only_as_plain_hex(strict, data):
+    """A valid validate-yaml body in random chunks: 200 when every size line is plain hex ending
+    in CRLF, 400 as soon as one is spelled the way Python's int() would also take."""
+    payload = json.dumps({"content": "---\ntags: [a]\n---\n", "repoType": "model"}).encode()
+    chunks, rest, valid = [], payload, True
+    while rest:
+        n = data.draw(st.integers(1, len(rest)))
+        form = data.draw(st.sampled_from(sorted(_SIZE_FORMS)))
+        valid &= _SIZE_FORMS[form]
+        line = form % n if form.endswith(b"\n") else form % n + b"\r\n"
+        chunks.append(line + rest[:n] + b"\r\n")
+        rest = rest[n:]
+    request = (b"POST /api/validate-yaml HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
+               b"Transfer-Encoding: chunked\r\n\r\n" + b"".join(chunks) + b"0\r\n\r\n")
+    with socket.create_connection(("127.0.0.1", strict.port), timeout=10) as s:
+        s.sendall(request)
+        answer = s.recv(4096)
+    assert answer.startswith(b"HTTP/1.1 200 " if valid else b"HTTP/1.1 400 "), (answer[:200], chunks)
