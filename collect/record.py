@@ -30,6 +30,7 @@ from tqdm import tqdm
 
 from collect.rollout import Step, as_policy, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
+from collect.sim.env_config import check_sizes
 from collect.sim.terrain import TerrainConfig
 from msta_data import cli, layout
 from msta_data.errors import DatasetError, DirectoryLockedError
@@ -260,13 +261,9 @@ class CollectConfig:
                 raise ValueError(f"extra_sensors: {name!r} is not an extension sensor (the others "
                                  f"are always recorded); extension sensors: "
                                  f"{', '.join(EXTENSION_SENSORS)}")
-        if self.action_noise < 0:
-            raise ValueError(f"action_noise={self.action_noise} must be >= 0")
-        if self.episodes < 1 or self.num_envs < 1:
-            raise ValueError(f"episodes={self.episodes} and num_envs={self.num_envs} must be >= 1")
-        if not self.episode_length_s > 0 or self.flush_every_frames < 1:
-            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0 and "
-                             f"flush_every_frames={self.flush_every_frames} >= 1")
+        cli.check_number("action_noise", self.action_noise, 0)
+        cli.check_at_least(self, 1, "episodes", "flush_every_frames")
+        check_sizes(self.num_envs, self.episode_length_s)
         terrain = self.env.terrain
         default = TerrainConfig.__dataclass_fields__["max_init_level"].default
         if terrain.max_init_level >= terrain.num_levels and terrain.max_init_level != default:

@@ -37,7 +37,9 @@ import draccus
 from msta_data import layout
 from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, minutes_left, stop
 from msta_data.cli import check_at_least, parse_config
+from msta_data.errors import DirectoryLockedError
 from msta_data.features import load_info
+from msta_data.locking import hold_directory
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
@@ -438,23 +440,24 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     out = Path(cfg.output_dir)
     if not cfg.collect_episodes:
         check_dataset(cfg.dataset_root)  # before anything is written
-    check_run_config(cfg, out)
-    prog = Progress(out, deadline=deadline_after(cfg.max_minutes))
-    try:
-        root = ensure_dataset(cfg, prog)
-        ckpts = []
-        for i, name in enumerate(cfg.policy_list, 1):
-            print(f"[msta-compare] policy {i}/{len(cfg.policy_list)}: {name}", flush=True)
-            ckpts.append(train_policy(cfg, name, root, prog))
-        metrics = run_eval(cfg, ckpts, prog)
-    except TimeLimitReached:
-        prog.stopped()
-        raise
-    md = comparison_markdown(cfg, metrics, command or "msta-compare", prog.timing)
-    (out / "comparison.md").write_text(md)
-    print("\n" + paper_table(metrics) + "\n\n" + table_one(metrics, "total"))
-    print(f"\nmsta-compare: wrote {out / 'comparison.md'} and {out / 'eval'}/", flush=True)
-    return metrics
+    with hold_directory(out, "another msta-compare run"):  # one run per output_dir
+        check_run_config(cfg, out)
+        prog = Progress(out, deadline=deadline_after(cfg.max_minutes))
+        try:
+            root = ensure_dataset(cfg, prog)
+            ckpts = []
+            for i, name in enumerate(cfg.policy_list, 1):
+                print(f"[msta-compare] policy {i}/{len(cfg.policy_list)}: {name}", flush=True)
+                ckpts.append(train_policy(cfg, name, root, prog))
+            metrics = run_eval(cfg, ckpts, prog)
+        except TimeLimitReached:
+            prog.stopped()
+            raise
+        md = comparison_markdown(cfg, metrics, command or "msta-compare", prog.timing)
+        (out / "comparison.md").write_text(md)
+        print("\n" + paper_table(metrics) + "\n\n" + table_one(metrics, "total"))
+        print(f"\nmsta-compare: wrote {out / 'comparison.md'} and {out / 'eval'}/", flush=True)
+        return metrics
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -465,7 +468,7 @@ def main(argv: list[str] | None = None) -> None:
         compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
     except TimeLimitReached as e:
         stop("msta-compare", e)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, DirectoryLockedError) as e:
         print(f"msta-compare: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
 

@@ -57,7 +57,9 @@ from eval.scenarios import (
 )
 from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta_data.cli import parse_config
+from msta_data.errors import DirectoryLockedError
 from msta_data.locate import locate, reads_as_hub_id
+from msta_data.locking import hold_directory
 from msta_data.revision import content_revision, file_parts
 from msta_data.sensors import STUDENT_SENSORS
 from policies.actor import InputSpec, StudentActor
@@ -458,10 +460,19 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
         entries: already loaded policies (default: load ``cfg.policies``).
     Returns:
         the content of metrics.json.
+
+    output_dir is locked once the policies are loaded, until the files are written:
+    another process on it fails at once, naming this one's pid.
     """
     deadline = deadline_after(cfg.max_minutes)
     entries = entries if entries is not None else load_entries(cfg)
-    out = Path(cfg.output_dir)
+    with hold_directory(cfg.output_dir, "another msta-eval run") as out:
+        return _evaluate_locked(cfg, entries, out, deadline)
+
+
+def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
+                     deadline: float | None) -> dict[str, Any]:
+    """:func:`evaluate` once output_dir is locked."""
     store = out / RUNS
     if not cfg.resume and store.is_dir():
         for f in store.glob("*.npz"):
@@ -533,7 +544,8 @@ def main(argv: list[str] | None = None) -> None:
         metrics = evaluate(cfg)
     except TimeLimitReached as e:
         stop("msta-eval", e, "the same command with --resume=true")
-    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError) as e:
+    except (KeyError, ValueError, FileNotFoundError, NotADirectoryError,
+            DirectoryLockedError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-eval: error: {msg}", file=sys.stderr)
         raise SystemExit(2) from None

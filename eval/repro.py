@@ -61,7 +61,9 @@ from eval.compare import (
 from msta_data import layout
 from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import check_at_least, parse_config
+from msta_data.errors import DirectoryLockedError
 from msta_data.features import load_info
+from msta_data.locking import hold_directory
 from policies.factory import select_device
 from policies.teacher.config import TeacherConfig
 
@@ -276,16 +278,17 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
 
 
 def repro(cfg: ReproConfig, command: str = PROG) -> Path:
-    """Run (or continue) the study; returns report.md's path."""
-    out = Path(cfg.output_dir)
-    check_run(cfg, out)
-    print_sizes(cfg)
-    prog = Progress(out, PROG, deadline_after(cfg.max_minutes))
-    try:
-        return _study(cfg, command, out, prog)
-    except TimeLimitReached:
-        prog.stopped()
-        raise
+    """Run (or continue) the study; returns report.md's path. output_dir is locked for the
+    run: another process on it fails at once, naming this one's pid."""
+    with hold_directory(cfg.output_dir, f"another {PROG} run") as out:
+        check_run(cfg, out)
+        print_sizes(cfg)
+        prog = Progress(out, PROG, deadline_after(cfg.max_minutes))
+        try:
+            return _study(cfg, command, out, prog)
+        except TimeLimitReached:
+            prog.stopped()
+            raise
 
 
 def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
@@ -336,7 +339,7 @@ def main(argv: list[str] | None = None) -> None:
         repro(cfg, " ".join([PROG, *map(shlex.quote, args)]))
     except TimeLimitReached as e:
         stop(PROG, e)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, FileNotFoundError, DirectoryLockedError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         raise SystemExit(2) from None
 

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from collect.sim.env_config import check_sizes
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialLayout
 from msta_data.cli import check_at_least
@@ -306,12 +307,12 @@ class TrialConfig:
         bad = [lv for lv in self.level_list if not 0 <= lv < TerrainConfig().num_levels]
         if bad:
             raise ValueError(f"level {bad[0]} out of range [0, {TerrainConfig().num_levels})")
+        check_at_least(self, 0, "trials", "num_envs", "episode_length_s")  # 0: the suite's
         self.num_trials = self.trials or suite.trials
         self.episode = self.episode_length_s or suite.episode_length_s
         self.envs = self.num_envs or suite.num_envs
-        check_at_least(self, 1, "num_trials", "envs", "num_threads")
-        if self.episode <= 0:
-            raise ValueError(f"episode_length_s={self.episode} must be > 0")
+        check_at_least(self, 1, "num_threads")
+        check_sizes(self.envs, self.episode, self.nthread)
 
     def layout(self) -> TrialLayout:
         """The trial layout these options describe."""

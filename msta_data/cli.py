@@ -24,6 +24,8 @@ import difflib
 import functools
 import inspect
 import itertools
+import math
+import numbers
 import re
 import sys
 import textwrap
@@ -334,12 +336,43 @@ def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
     return out
 
 
-def check_at_least(config: Any, minimum: float, *names: str) -> None:
-    """Raise ``ValueError("<name>=<value> must be >= <minimum>")`` for the first of the config's
-    fields ``names`` below ``minimum`` (the range check every command's config makes)."""
+def check_number(name: str, value: Any, minimum: float | None = None,
+                 maximum: float | None = None, *, above: bool = False, why: str = "") -> None:
+    """The range check every command's config makes: raise a one-line
+    ``ValueError("<name>=<value> must be ...")`` unless ``value`` is a finite number (NaN
+    and infinity never pass, a bool is not a number) within the bounds.
+
+    Args:
+        name: the option, as the user spells it (``batch_size``, ``env.num_envs``).
+        value: its value.
+        minimum: the lowest value allowed (None: no lower bound).
+        maximum: the highest value allowed (None: no upper bound).
+        above: ``value`` must be strictly greater than ``minimum``.
+        why: why the upper bound is what it is, appended to the message.
+    """
+    ok = (isinstance(value, numbers.Real) and not isinstance(value, bool)
+          and math.isfinite(value))
+    if ok and (minimum is None or value > minimum or (value == minimum and not above)) and (
+            maximum is None or value <= maximum):
+        return
+    low = "" if minimum is None else f"{'>' if above else '>='} {minimum}"
+    if maximum is None:
+        bound = low
+    elif minimum is None:
+        bound = f"<= {maximum}"
+    else:
+        bound = f"in {'(' if above else '['}{minimum}, {maximum}]"
+    finite = "" if ok else "a finite number "
+    raise ValueError(f"{name}={value} must be {finite}{bound}" + (f" ({why})" if why else ""))
+
+
+def check_at_least(config: Any, minimum: float, *names: str, maximum: float | None = None,
+                   why: str = "") -> None:
+    """:func:`check_number` on each of the config's fields ``names``: ``ValueError("<name>=
+    <value> must be >= <minimum>")`` for the first one below ``minimum`` (or above
+    ``maximum``, or not finite)."""
     for name in names:
-        if getattr(config, name) < minimum:
-            raise ValueError(f"{name}={getattr(config, name)} must be >= {minimum}")
+        check_number(name, getattr(config, name), minimum, maximum, why=why)
 
 
 def _check_groups(config_class: type, args: Sequence[str], prog: str) -> None:

@@ -1,15 +1,19 @@
 """One process at a time per directory: an exclusive ``flock`` on ``<dir>/.msta.lock``.
 
-The dataset writer holds it on a dataset root, ``msta-train`` on its ``--output_dir`` and
-``msta-hub push-dataset`` on the dataset it publishes. The lock is released when the file
-descriptor is closed or the process dies (SIGKILL included), so a killed holder never
-leaves a stale lock; the file keeps the holder's pid for the error message.
+The dataset writer holds it on a dataset root, ``msta-hub push-dataset`` on the dataset it
+publishes, and every command that writes a run directory (msta-train, msta-correct,
+msta-finetune, msta-finetune-ppo, msta-train-teacher, msta-eval, msta-compare, msta-repro)
+on its ``--output_dir`` for the whole run (:func:`hold_directory`). The lock is released
+when the file descriptor is closed or the process dies (SIGKILL included), so a killed
+holder never leaves a stale lock; the file keeps the holder's pid for the error message.
 """
 
 from __future__ import annotations
 
 import fcntl
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from msta_data.errors import DirectoryLockedError
@@ -43,3 +47,25 @@ def lock_directory(directory: str | Path, holder: str = "another writer",
     os.ftruncate(fd, 0)
     os.write(fd, str(os.getpid()).encode())
     return fd
+
+
+@contextmanager
+def hold_directory(directory: str | Path, holder: str = "another run") -> Iterator[Path]:
+    """Create ``directory`` and hold its lock (:func:`lock_directory`) for the block: a run
+    directory has one writer, and another process gets :class:`DirectoryLockedError` at
+    once, naming the holder's pid.
+
+    Args:
+        directory: the run directory.
+        holder: who holds it, for the error message ("another msta-correct run").
+
+    Yields:
+        ``directory`` as a Path.
+    """
+    path = Path(directory)
+    path.mkdir(parents=True, exist_ok=True)
+    fd = lock_directory(path, holder)
+    try:
+        yield path
+    finally:
+        os.close(fd)

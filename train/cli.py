@@ -72,6 +72,7 @@ def builds_a_policy(config_class: type) -> bool:
 
 
 #: Errors a user's input causes (a damaged dataset, a locked directory, a bad checkpoint or
-#: value): the CLIs print them as one line naming the file, without a traceback.
+#: value, a learning rate the loss diverges at): the CLIs print them as one line naming the
+#: file, without a traceback.
 USER_ERRORS = (PushError, DatasetError, DirectoryLockedError, CheckpointError,
-               FileNotFoundError, FileExistsError, ValueError)
+               FileNotFoundError, FileExistsError, ValueError, FloatingPointError)

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from msta_data.cli import check_at_least
+from msta_data.cli import check_at_least, check_number
+
+#: The largest ``batch_size``: 65,536 windows of T = 15 steps of the 49 student input
+#: channels are 190 MB of float32, and the model's activations several times that.
+MAX_BATCH_SIZE = 65_536
 
 
 @dataclass
@@ -56,11 +60,12 @@ class LoopConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
-        check_at_least(self, 1, "steps", "batch_size", "log_every", "val_samples")
+        check_at_least(self, 1, "steps", "log_every", "val_samples")
+        check_at_least(self, 1, "batch_size", maximum=MAX_BATCH_SIZE,
+                       why="a batch's windows are gathered in memory at once")
         check_at_least(self, 0, "warmup_steps", "eval_every", "save_every", "grad_clip",
                        "weight_decay", "dummy_tokens", "max_minutes")
-        if not self.lr > 0:
-            raise ValueError(f"lr={self.lr} must be > 0")
+        check_number("lr", self.lr, 0, above=True)
         if not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.min_lr_ratio <= 1.0:

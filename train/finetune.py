@@ -94,6 +94,7 @@ class FinetuneConfig(CorrectConfig):
 
     RESUME_FIELDS: ClassVar[tuple[str, ...]] = (*RESUME_FIELDS, "sensors", "history",
                                                 "trainable")
+    PROG: ClassVar[str] = "msta-finetune"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -248,9 +249,7 @@ def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> dict[str
         if on_phase is not None:
             on_phase(phase, r)
 
-    prog = correct(cfg, on_phase=hook, prepare=prep)
-    prep.write(out)
-    return prog
+    return correct(cfg, on_phase=hook, prepare=prep)  # "done": the last write, still locked
 
 
 def parse_args(argv: Sequence[str] | None = None) -> FinetuneConfig:

@@ -50,7 +50,9 @@ from torch import nn
 from collect.sim.env import EnvConfig
 from msta_data import sensors as registry
 from msta_data.cli import check_at_least, parse_config
+from msta_data.errors import DirectoryLockedError
 from msta_data.locate import locate_checkpoint
+from msta_data.locking import hold_directory
 from msta_data.stats import load_stats
 from policies.actor import StudentActor
 from policies.base import PolicyConfig, StudentPolicy
@@ -434,9 +436,14 @@ def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], log
 
 
 def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
-    """Run (or resume) the fine-tune; return ``output_dir/student``."""
-    out = Path(cfg.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """Run (or resume) the fine-tune; return ``output_dir/student``. output_dir is locked
+    for the run: another process on it fails at once, naming this one's pid."""
+    with hold_directory(cfg.output_dir, f"another {PROG} run") as out:
+        return _finetune_ppo_locked(cfg, out, log)
+
+
+def _finetune_ppo_locked(cfg: FinetunePPOConfig, out: Path, log) -> Path:
+    """:func:`finetune_ppo` once output_dir is locked."""
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
     torch.manual_seed(cfg.seed)
     check_resume(cfg, out)
@@ -484,7 +491,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_config(FinetunePPOConfig, argv, prog=PROG, aliases={"env.seed": "seed"})
     try:
         path = finetune_ppo(cfg)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, DirectoryLockedError) as e:
         raise SystemExit(f"{PROG}: error: {e}") from None
     print(f"student: {path} (msta-eval --policies teacher,{path} --scenarios token_removal)")
 

@@ -21,7 +21,6 @@ every round.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -33,7 +32,7 @@ import torch
 from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.layout import LOCK_NAME
 from msta_data.locate import locate_dataset
-from msta_data.locking import lock_directory
+from msta_data.locking import hold_directory
 from msta_data.stats import load_stats
 from msta_data.windows import episode_split
 from policies.base import PolicyConfig
@@ -128,12 +127,6 @@ def prepare_output(out: Path, resume: bool) -> bool:
     return False
 
 
-def lock_run(out: Path) -> int:
-    """Create ``out`` and take its lock (one msta-train per directory); returns the fd."""
-    out.mkdir(parents=True, exist_ok=True)
-    return lock_directory(out, "another msta-train run")
-
-
 def check_resume_config(out: Path, cfg: TrainConfig) -> None:
     saved = json.loads((out / "train_config.json").read_text())
     now = draccus.encode(cfg)
@@ -158,11 +151,8 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
     root = locate_dataset(cfg.dataset, "--dataset")  # verified before anything is created
-    lock = lock_run(out)
-    try:
+    with hold_directory(out, "another msta-train run"):
         return _train_locked(cfg, root, out, on_step, deadline)
-    finally:
-        os.close(lock)
 
 
 def _train_locked(cfg: TrainConfig, root: Path, out: Path,

@@ -59,10 +59,13 @@ import torch
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.record import LabelledActor, record_rollouts
 from collect.sim.env import EnvConfig, QuadrupedEnv
+from collect.sim.env_config import check_sizes
 from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta_data.cli import check_at_least
 from msta_data.features import load_info, sensor_column_to_name
+from msta_data.layout import LOCK_NAME
 from msta_data.locate import locate_checkpoint, locate_dataset
+from msta_data.locking import hold_directory
 from msta_data.revision import content_revision
 from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
@@ -189,13 +192,16 @@ class CorrectConfig(LoopConfig):
 
     #: Fields that must match progress.json when resuming (a subclass may add its own).
     RESUME_FIELDS: ClassVar[tuple[str, ...]] = RESUME_FIELDS
+    #: The command, as named in the lock error another run on the same output_dir gets.
+    PROG: ClassVar[str] = "msta-correct"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
             self.policy = PolicyPath(str(self.policy))
         check_push_to(self.push_to)
-        check_at_least(self, 1, "rounds", "episodes_per_round", "num_envs")
+        check_at_least(self, 1, "rounds", "episodes_per_round")
+        check_sizes(self.num_envs, self.episode_length_s)
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
             raise ValueError(f"beta={self.beta} and beta_decay={self.beta_decay} must be in [0, 1]")
         if not 0.0 < self.recent_weight <= 1.0:
@@ -355,17 +361,24 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
 
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
-    """(checkpoint directory, local dataset root to append to)."""
+    """(checkpoint directory, dataset root), both checked before output_dir is touched; a
+    hub dataset is appended to through a copy in output_dir (:func:`own_dataset`)."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
     PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
     if local.is_dir():  # a hub dataset copied by an earlier run
         return ckpt, local
-    root = locate_dataset(cfg.dataset, "--dataset")
-    if not Path(cfg.dataset).expanduser().is_dir():  # pulled from the hub: append to a copy
-        shutil.copytree(root, local)
-        root = local
-    return ckpt, root
+    return ckpt, locate_dataset(cfg.dataset, "--dataset")
+
+
+def own_dataset(cfg: CorrectConfig, out: Path, root: Path) -> Path:
+    """The local dataset root to append to: a dataset pulled from the hub is copied into
+    ``output_dir/dataset`` first (called with output_dir locked)."""
+    local = out / "dataset"
+    if root == local or Path(cfg.dataset).expanduser().is_dir():
+        return root
+    shutil.copytree(root, local)
+    return local
 
 
 def rollout_levels(cfg: CorrectConfig, root: Path, prog: dict[str, Any]) -> CorrectConfig:
@@ -421,19 +434,30 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
         cfg: the parsed configuration.
         on_phase: called as ``on_phase(phase, round)`` at ``rolled_out`` (before the
             append), ``committed`` (episodes in the dataset, progress.json not yet updated),
-            ``trained`` and ``evaluated``; tests raise there to simulate a kill.
+            ``trained`` and ``evaluated``, and as ``on_phase("done", rounds)`` once every
+            round is finished; tests raise there to simulate a kill.
         prepare: applied to the student after every load (msta-finetune: fewer inputs and a
             frozen transformer; it must give the same student when applied again to its own
             result). Before round 1 is trained, the prepared starting student is saved as
             ``output_dir/start/``: round 0 evaluates it and round 1 starts from it.
+
+    Once the inputs are checked, output_dir is locked until the run ends
+    (:func:`msta_data.locking.hold_directory`): another process on it fails at once.
     """
-    hook = on_phase or (lambda phase, r: None)
     deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
-    if not cfg.resume and out.exists() and any(out.iterdir()):
+    if not cfg.resume and out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()):
         raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
                               "choose another --output_dir")
     ckpt, root = resolve_inputs(cfg, out)
+    with hold_directory(out, f"another {cfg.PROG} run"):  # one run per output_dir
+        return _correct_locked(cfg, out, ckpt, own_dataset(cfg, out, root),
+                               on_phase or (lambda phase, r: None), prepare, deadline)
+
+
+def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook: PhaseHook,
+                    prepare: Prepare | None, deadline: float | None) -> dict[str, Any]:
+    """:func:`correct` once output_dir is locked."""
     prog = load_progress(out, cfg, root)
     cfg = rollout_levels(cfg, root, prog)
     if (warning := check_labeller(cfg, root)) is not None:
@@ -474,6 +498,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
         if cfg.push_to and rec.get("pushed", {}).get("repo") != cfg.push_to:
             rec["pushed"] = push_round(cfg, prog, r)
             atomic_json(path, prog)
+    hook("done", cfg.rounds)
     return prog
 
 

@@ -47,7 +47,8 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
     else:
         loss, metrics = policy.loss(batch, channels, mask_ratio, generator)
     if not torch.isfinite(loss):
-        raise FloatingPointError(f"training loss is {float(loss)}; metrics {metrics}")
+        raise FloatingPointError(f"training loss is {float(loss.detach())}; metrics {metrics} "
+                                 "(a smaller --lr may help)")
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     params = [p for g in optimizer.param_groups for p in g["params"] if p.grad is not None]

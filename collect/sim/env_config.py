@@ -9,7 +9,27 @@ from collect.sim.commands import CommandConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.rewards import RewardConfig
 from collect.sim.terrain import TerrainConfig
+from msta_data.cli import check_number
 from msta_data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
+
+#: The most environments one simulator steps (legged_gym trains with 4,096; every
+#: environment holds its own state arrays and recording buffers).
+MAX_NUM_ENVS = 65_536
+#: The longest episode time limit (s): an hour, 180,000 control steps at 50 Hz.
+MAX_EPISODE_S = 3600.0
+#: The most rollout threads (each holds a MuJoCo MjData).
+MAX_NTHREAD = 1024
+
+
+def check_sizes(num_envs: int, episode_length_s: float, nthread: int = 0) -> None:
+    """One-line ``ValueError`` unless the simulator's sizes are finite and within
+    ``[1, MAX_NUM_ENVS]``, ``(0, MAX_EPISODE_S]`` and ``[0, MAX_NTHREAD]`` (the checks of
+    every config that sizes a simulator: msta-collect's, msta-correct's, msta-eval's)."""
+    check_number("num_envs", num_envs, 1, MAX_NUM_ENVS,
+                 why="every environment holds its own state and recording buffers")
+    check_number("episode_length_s", episode_length_s, 0, MAX_EPISODE_S, above=True,
+                 why="an hour; recordings buffer whole episodes")
+    check_number("nthread", nthread, 0, MAX_NTHREAD, why="0 = one per CPU core")
 
 
 @dataclass
@@ -82,10 +102,7 @@ class EnvConfig:
     control: ControlConfig = field(default_factory=ControlConfig)
 
     def __post_init__(self) -> None:
-        if self.num_envs < 1:
-            raise ValueError(f"num_envs={self.num_envs} must be >= 1")
-        if self.episode_length_s <= 0:
-            raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
+        check_sizes(self.num_envs, self.episode_length_s, self.nthread)
         self.type_weights = tuple(self.type_weights)
         robot.check_collision_set(self.collision)
         if self.type_weights and len(self.type_weights) != len(self.terrain.types):

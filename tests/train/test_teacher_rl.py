@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -227,12 +228,37 @@ def test_an_interrupted_warm_start_continues_after_its_last_iteration(tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         warm_start(small_env(), RMAConfig(), cfg, tmp_path, log=killed_in_iteration_2)
-    assert (tmp_path / "partial.pt").is_file() and not (tmp_path / "config.json").exists()
+    assert (tmp_path / "partial.safetensors").is_file()  # tensors and JSON, nothing pickled
+    assert not (tmp_path / "config.json").exists()
     logs: list[str] = []
     warm_start(small_env(), RMAConfig(), cfg, tmp_path, log=logs.append)
     assert logs[0] == "warm start: resuming after iteration 1/2"
     assert [line[:14] for line in logs[1:]] == ["warm start 2/2"]
     history = json.loads((tmp_path / "warmstart.json").read_text())["history"]
     assert [h["iteration"] for h in history] == [0, 1]
-    assert not (tmp_path / "partial.pt").exists()   # a finished warm start cleans up
+    assert not (tmp_path / "partial.safetensors").exists()   # a finished warm start cleans up
 
+
+
+class _Payload:
+    """Unpickling it creates the file ``path``: what a hostile resume file could run."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __reduce__(self):
+        return (open, (str(self.path), "w"))
+
+
+@pytest.mark.parametrize("name", ["partial.pt", "partial.safetensors"])
+def test_a_resume_file_carrying_a_pickle_payload_is_refused_and_never_runs(tmp_path, name):
+    """Issue 41 (15): the warm start's resume state is loaded without unpickling code."""
+    marker = tmp_path / "payload_ran"
+    out = tmp_path / "warmstart"
+    out.mkdir()
+    torch.save({"net": _Payload(marker), "opt": {}, "history": []}, out / name)
+    cfg = WarmStartConfig(iterations=1, steps=5, fit_steps=1, batch_size=16)
+    with pytest.raises(ValueError) as err:
+        warm_start(small_env(n=2), RMAConfig(), cfg, out, log=lambda line: None)
+    assert str(out / name) in str(err.value) and "\n" not in str(err.value)
+    assert not marker.exists()

@@ -30,7 +30,9 @@ from pathlib import Path
 import torch
 
 from collect.sim.env import EnvConfig
-from msta_data.cli import check_at_least, parse_config
+from msta_data.cli import check_at_least, check_number, parse_config
+from msta_data.errors import DirectoryLockedError
+from msta_data.locking import hold_directory
 from policies.teacher.rma import RMAConfig, RMATeacher
 from train.optim import select_device
 from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
@@ -93,8 +95,10 @@ class PPOConfig:
         check_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches",
                        "save_interval")
         for name in ("learning_rate", "desired_kl", "init_std", "clip_param"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ppo.{name}={getattr(self, name)} must be > 0")
+            check_number(f"ppo.{name}", getattr(self, name), 0, above=True)
+        check_number("ppo.entropy_coef", self.entropy_coef, 0)
+        check_number("ppo.gamma", self.gamma, 0, 1)
+        check_number("ppo.lam", self.lam, 0, 1)
 
     def runner_cfg(self, rma: RMAConfig) -> dict:
         """rsl_rl ``OnPolicyRunner`` train_cfg."""
@@ -202,11 +206,16 @@ def prune_checkpoints(ppo_dir: Path, keep: int) -> None:
 
 
 def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
-    """Run (or resume) both stages; return the exported teacher's directory."""
+    """Run (or resume) both stages; return the exported teacher's directory. output_dir is
+    locked for the run: another process on it fails at once, naming this one's pid."""
+    with hold_directory(cfg.output_dir, f"another {PROG} run") as out:
+        return _train_teacher_locked(cfg, out, log)
+
+
+def _train_teacher_locked(cfg: TrainTeacherConfig, out: Path, log) -> Path:
+    """:func:`train_teacher` once output_dir is locked."""
     from rsl_rl.runners import OnPolicyRunner
 
-    out = Path(cfg.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
     torch.manual_seed(cfg.seed)
     rma = RMAConfig()
@@ -310,7 +319,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_config(TrainTeacherConfig, argv, prog=PROG, aliases={"env.seed": "seed"})
     try:
         path = train_teacher(cfg)
-    except (OSError, ValueError) as e:
+    except (OSError, ValueError, DirectoryLockedError) as e:
         raise SystemExit(f"{PROG}: error: {e}") from None
     print(f"teacher: {path} (use --teacher.type=rma --teacher.path={path})")
 

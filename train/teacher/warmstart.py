@@ -21,19 +21,24 @@ comparison is in docs/teacher_quality_rma.md.
 from __future__ import annotations
 
 import json
+import os
+import pickle
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import save_file
 
 from collect.record import LabelledActor
 from collect.rollout import Step, rollout
 from collect.sim.env import REASONS, EnvConfig
-from msta_data.cli import check_at_least
+from msta_data.cli import check_at_least, check_number
 from policies.teacher.config import TeacherConfig, build_teacher
 from policies.teacher.rma import RMAConfig, RMATeacher
+from train.state import flatten_optimizer_state, unflatten_optimizer_state
 from train.teacher.env import RslVecEnv
 
 _FALL = REASONS.index("fall")
@@ -74,12 +79,9 @@ class WarmStartConfig:
         check_at_least(self, 0, "iterations")
         check_at_least(self, 1, "steps", "fit_steps", "batch_size", "buffer_size")
         for name in ("beta_decay", "beta_min"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"{name}={getattr(self, name)} must be in [0, 1]")
-        if self.action_noise < 0:
-            raise ValueError(f"action_noise={self.action_noise} must be >= 0")
-        if not self.lr > 0:
-            raise ValueError(f"lr={self.lr} must be > 0")
+            check_number(name, getattr(self, name), 0, 1)
+        check_number("action_noise", self.action_noise, 0)
+        check_number("lr", self.lr, 0, above=True)
 
 
 class _Buffer:
@@ -145,8 +147,9 @@ def warm_start(env_cfg: EnvConfig, rma: RMAConfig, cfg: WarmStartConfig, out: Pa
     """Run the warm start; write the ``rma`` checkpoint to ``out`` (with
     ``warmstart.json``: per-iteration label loss, fall rate and beta) and return it.
     A finished ``out`` (config.json present) is loaded instead of trained again; an
-    interrupted one continues after its last finished iteration (``out/partial.pt``: the
-    network, the optimizer and the history; the sample buffer starts empty again)."""
+    interrupted one continues after its last finished iteration (``out/partial.safetensors``:
+    the network, the optimizer and the history, :func:`save_partial`; the sample buffer
+    starts empty again)."""
     if (out / "config.json").is_file() and (out / "warmstart.json").is_file():
         log(f"warm start: {out} exists, loaded")
         return RMATeacher.from_pretrained(out)
@@ -158,12 +161,8 @@ def warm_start(env_cfg: EnvConfig, rma: RMAConfig, cfg: WarmStartConfig, out: Pa
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     buffer = _Buffer(cfg.buffer_size, (vec.priv_in.dim, vec.proprio_in.dim, 12))
     history: list[dict] = []
-    partial = out / "partial.pt"
-    if partial.is_file():
-        state = torch.load(partial, weights_only=False)
-        net.load_state_dict(state["net"])
-        opt.load_state_dict(state["opt"])
-        history = state["history"]
+    if (out / PARTIAL).is_file() or (out / LEGACY_PARTIAL).is_file():
+        history = load_partial(out, net, opt)
         log(f"warm start: resuming after iteration {len(history)}/{cfg.iterations}")
     for k in range(len(history), cfg.iterations):
         beta = max(cfg.beta_min, cfg.beta_decay ** k)
@@ -177,11 +176,66 @@ def warm_start(env_cfg: EnvConfig, rma: RMAConfig, cfg: WarmStartConfig, out: Pa
         log(f"warm start {k + 1}/{cfg.iterations}: beta {beta:.3f}, label MSE on its rollout "
             f"{mse:.4f}, fit {loss:.4f}, falls {falls}/{ends} "
             f"episodes ended, buffer {buffer.size}")
-        out.mkdir(parents=True, exist_ok=True)
-        torch.save({"net": net.state_dict(), "opt": opt.state_dict(), "history": history},
-                   partial)
+        save_partial(out, net, opt, history)
     net.save_pretrained(out)
     (out / "warmstart.json").write_text(json.dumps({"config": asdict(cfg), "seed": seed,
                                                     "history": history}, indent=2) + "\n")
-    partial.unlink(missing_ok=True)
+    for name in (PARTIAL, LEGACY_PARTIAL):
+        (out / name).unlink(missing_ok=True)
     return net
+
+
+#: The resume state of an interrupted warm start (no pickle), and the format before it.
+PARTIAL, LEGACY_PARTIAL = "partial.safetensors", "partial.pt"
+
+
+def save_partial(out: Path, net: RMATeacher, opt: torch.optim.Optimizer,
+                 history: list[dict]) -> None:
+    """``out/partial.safetensors``: the network's and the optimizer's tensors, with the
+    optimizer's other state and the history as JSON in its metadata; nothing in it is
+    pickled, so loading it runs no code. Written under a temporary name, then renamed."""
+    out.mkdir(parents=True, exist_ok=True)
+    tensors, opt_meta = flatten_optimizer_state(opt.state_dict())
+    tensors = {f"opt.{k}": v for k, v in tensors.items()}
+    tensors.update({f"net.{k}": v.detach().cpu().contiguous()
+                    for k, v in net.state_dict().items()})
+    tmp = out / (PARTIAL + ".tmp")
+    save_file(tensors, str(tmp), metadata={"optimizer": json.dumps(opt_meta),
+                                           "history": json.dumps(history)})
+    os.replace(tmp, out / PARTIAL)
+    (out / LEGACY_PARTIAL).unlink(missing_ok=True)
+
+
+def load_partial(out: Path, net: RMATeacher, opt: torch.optim.Optimizer) -> list[dict]:
+    """Restore :func:`save_partial`'s state into ``net`` and ``opt``; returns the history.
+
+    A ``partial.pt`` of the format before is read with ``torch.load(weights_only=True)``,
+    which refuses anything but tensors and plain types, so a pickle that would run code
+    is an error, never executed.
+
+    Raises:
+        ValueError: one line naming the file, when it cannot be restored.
+    """
+    path = out / PARTIAL if (out / PARTIAL).is_file() else out / LEGACY_PARTIAL
+    try:
+        if path.name == PARTIAL:
+            with safe_open(str(path), "pt", device="cpu") as f:
+                meta = f.metadata() or {}
+                tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
+            part = {p: {k[len(p) + 1:]: v for k, v in tensors.items() if k.startswith(p + ".")}
+                    for p in ("net", "opt")}
+            state = {"net": part["net"], "history": json.loads(meta["history"]),
+                     "opt": unflatten_optimizer_state(part["opt"], json.loads(meta["optimizer"]))}
+        else:
+            state = torch.load(path, weights_only=True)
+        net.load_state_dict(state["net"])
+        opt.load_state_dict(state["opt"])
+        history = state["history"]
+        if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
+            raise TypeError("its history is not a list of iteration records")
+    except (pickle.UnpicklingError, SafetensorError, RuntimeError, KeyError, TypeError,
+            ValueError, EOFError, AttributeError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise ValueError(f"{path}: cannot resume the warm start from it ({type(e).__name__}: "
+                         f"{first}); delete it to start the warm start again") from None
+    return history

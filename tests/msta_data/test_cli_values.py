@@ -1,0 +1,65 @@
+"""Issue 41 (14): a value no run can use (NaN, infinity, a size no memory holds, a negative
+thread count) is refused when the command line is parsed: exit 2, one line naming the
+option, never a traceback. The bounds come from one helper, ``msta_data.cli.check_number``."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from collect.record import main as collect_main
+from eval.evaluate import main as eval_main
+from train.finetune import main as finetune_main
+from train.finetune_ppo import main as finetune_ppo_main
+from train.offline import main as train_main
+from train.online import main as correct_main
+from train.teacher.cli import main as train_teacher_main
+
+REPO = Path(__file__).resolve().parents[2]
+
+#: (console script, entry point, the bad option, what the message must name)
+CASES = [
+    ("msta-collect", collect_main, "--episode_length_s=inf", "episode_length_s=inf"),
+    ("msta-collect", collect_main, "--num_envs=100000000", "num_envs=100000000"),
+    ("msta-collect", collect_main, "--action_noise=nan", "action_noise=nan"),
+    ("msta-collect", collect_main, "--env.nthread=-1", "nthread=-1"),
+    ("msta-train", train_main, "--lr=inf", "lr=inf"),
+    ("msta-train", train_main, "--weight_decay=nan", "weight_decay=nan"),
+    ("msta-train", train_main, "--batch_size=100000000", "batch_size=100000000"),
+    ("msta-train", train_main, "--grad_clip=nan", "grad_clip=nan"),
+    ("msta-correct", correct_main, "--num_envs=100000000", "num_envs=100000000"),
+    ("msta-correct", correct_main, "--episode_length_s=inf", "episode_length_s=inf"),
+    ("msta-finetune", finetune_main, "--max_minutes=nan", "max_minutes=nan"),
+    ("msta-eval", eval_main, "--nthread=-1", "nthread=-1"),
+    ("msta-eval", eval_main, "--num_envs=100000000", "num_envs=100000000"),
+    ("msta-eval", eval_main, "--episode_length_s=nan", "episode_length_s=nan"),
+    ("msta-train-teacher", train_teacher_main, "--ppo.gamma=nan", "ppo.gamma=nan"),
+    ("msta-train-teacher", train_teacher_main, "--warmstart.lr=inf", "lr=inf"),
+    ("msta-finetune-ppo", finetune_ppo_main, "--env.episode_length_s=inf", "episode_length_s=inf"),
+]
+
+
+@pytest.mark.parametrize(("prog", "main", "option", "names"), CASES,
+                         ids=[f"{c[0]} {c[2]}" for c in CASES])
+def test_unusable_values_are_one_line_errors_at_parse_time(prog, main, option, names, capsys,
+                                                           tmp_path):
+    with pytest.raises(SystemExit) as e:
+        main([option, f"--output_dir={tmp_path / 'out'}"] if "collect" not in prog
+             else [option, f"--root={tmp_path / 'out'}"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"{prog}: error: "), err
+    assert names in err and "must be" in err and "Traceback" not in err, err
+    assert not (tmp_path / "out").exists()  # refused before anything was written
+
+
+def test_the_real_command_line_says_it_in_one_line():
+    """The console script itself (a subprocess): exit 2, one line on stderr, no traceback."""
+    proc = subprocess.run([sys.executable, "-m", "train.offline", "--lr=inf", "--dataset=x"],
+                          check=False, cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    err = proc.stderr.strip()
+    assert err == "msta-train: error: TrainConfig: lr=inf must be a finite number > 0", err
