@@ -168,7 +168,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     step = 0
     ema = WeightEMA(policy, cfg.ema_decay) if cfg.ema_decay > 0 else None
     if resume and (out / "checkpoints" / "last").exists():
-        step = restore_checkpoint(out, policy, state, ema)
+        step = restore_checkpoint(out, policy, state, ema, max_step=cfg.steps)
         scheduler.lr_lambdas[0].total = cfg.steps  # a raised --steps stretches the cosine
     logger = MetricsLogger(out, step)
     bar = tqdm(total=cfg.steps, initial=step, disable=not cfg.progress, desc=desc, unit="step")

@@ -105,8 +105,9 @@ def save_training_state(directory: Path, step: int, optimizer: torch.optim.Optim
 
 def load_training_state(directory: Path, optimizer: torch.optim.Optimizer,
                         scheduler: torch.optim.lr_scheduler.LRScheduler,
-                        sampler: WindowSampler, mask_generator: torch.Generator) -> int:
-    """Restore what :func:`save_training_state` wrote; returns the step reached."""
+                        sampler: WindowSampler, mask_generator: torch.Generator) -> Any:
+    """Restore what :func:`save_training_state` wrote; returns the recorded step as stored
+    (:func:`check_step` checks it)."""
     missing = [n for n in ("optimizer.safetensors", "optimizer.json", "scheduler.json",
                            "rng.safetensors", "rng.json", "training_step.json")
                if not (directory / n).is_file()]
@@ -120,7 +121,7 @@ def load_training_state(directory: Path, optimizer: torch.optim.Optimizer,
                   json.loads((directory / "rng.json").read_text()), mask_generator)
     step_info = json.loads((directory / "training_step.json").read_text())
     sampler.load_state_dict(step_info["sampler"])
-    return int(step_info["step"])
+    return step_info["step"]
 
 
 def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str, Any],
@@ -142,10 +143,52 @@ def save_checkpoint(out: Path, step: int, policy: StudentPolicy, state: dict[str
     return final
 
 
+def last_checkpoint(out: Path) -> Path:
+    """``out/checkpoints/last`` resolved: it must be a checkpoint folder of this run (directly
+    in ``out/checkpoints``), not a link to another run's, so a resume never continues a
+    stranger's training silently.
+
+    Raises:
+        CheckpointError: ``last`` leads out of ``out/checkpoints``.
+    """
+    link = out / "checkpoints" / "last"
+    last = link.resolve()
+    if last.parent != out.resolve() / "checkpoints":
+        raise CheckpointError(f"{link} points to {last}, outside this run's checkpoints "
+                              f"({link.parent}); a resume continues only its own run")
+    return last
+
+
+def check_step(step: Any, last: Path, max_step: int) -> int:
+    """The step recorded in ``last``'s training state, checked: an integer in
+    ``[0, max_step]`` that matches the checkpoint folder's name (``000300``)."""
+    where = last / "training_state" / "training_step.json"
+    if type(step) is not int or step < 0:
+        raise CheckpointError(f"{where}: step {step!r} is not a step count (an integer >= 0)")
+    if step > max_step:
+        raise CheckpointError(f"{where}: step {step} is beyond --steps={max_step}; give "
+                              f"--steps={step} or more to continue this run")
+    if last.name.isdigit() and int(last.name) != step:
+        raise CheckpointError(f"{where}: step {step} but the checkpoint folder is {last.name}")
+    return step
+
+
 def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any],
-                       ema: WeightEMA | None = None) -> int:
-    """Load ``checkpoints/last`` into the policy and the loop state; returns its step."""
-    last = (out / "checkpoints" / "last").resolve()
+                       ema: WeightEMA | None = None, max_step: int | None = None) -> int:
+    """Load ``checkpoints/last`` into the policy and the loop state; returns its step.
+
+    Args:
+        out: the run directory.
+        policy: the student (weights loaded in place).
+        state: the loop's optimizer, scheduler, sampler and mask generator.
+        ema: the weight average, when the run keeps one.
+        max_step: the run's total steps: a recorded step beyond it is an error.
+
+    Raises:
+        CheckpointError: ``last`` leads out of this run, or the state cannot be restored
+            (damaged files, a step that is not an integer in ``[0, max_step]``).
+    """
+    last = last_checkpoint(out)
     weights = last / "pretrained_model" / WEIGHTS_NAME
     if not weights.is_file():
         raise FileNotFoundError(f"checkpoint {last} has no {weights.name}")
@@ -153,7 +196,8 @@ def restore_checkpoint(out: Path, policy: StudentPolicy, state: dict[str, Any],
     if ema is not None:
         ema.load(last / "training_state")
     try:
-        return load_training_state(last / "training_state", **state)
+        step = load_training_state(last / "training_state", **state)
     except (ValueError, KeyError, TypeError, RuntimeError, SafetensorError) as e:
         raise CheckpointError(f"{last / 'training_state'}: cannot restore ({type(e).__name__}: "
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
+    return check_step(step, last, max_step if max_step is not None else step)

@@ -1,10 +1,14 @@
 """Issue 15 (8, 9): one msta-train per --output_dir, and a run killed before its first
-checkpoint starts again cleanly (with or without --resume)."""
+checkpoint starts again cleanly (with or without --resume). Issue 41 (13): a resume
+refuses a tampered training state (a step that is not an integer in [0, --steps]) and a
+``checkpoints/last`` that leads to another run."""
 
 from __future__ import annotations
 
 import csv
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -89,3 +93,60 @@ def test_a_run_killed_before_its_first_checkpoint_restarts_cleanly(synthetic_dat
     with open(out / "metrics.csv", newline="") as f:
         assert [int(r["step"]) for r in csv.DictReader(f)] == [1, 2, 3, 4]
     assert len(list((out / "tensorboard").iterdir())) == 1
+
+
+# ----- issue 41 (13): the resume state is checked ------------------------------------------
+@pytest.fixture(scope="module")
+def finished(synthetic_dataset, tmp_path_factory) -> Path:
+    """A run of 3 steps with its checkpoint 000003 (read-only: tests resume copies)."""
+    out = tmp_path_factory.mktemp("finished") / "run"
+    train(cfg_for(synthetic_dataset, out, "--steps=3", "--save_every=3", "--eval_every=0"))
+    return out
+
+
+def _resume_fails(dataset: Path, out: Path, steps: int = 6) -> str:
+    """Resume the run in ``out``: it must end in one line naming the problem, with nothing
+    trained or logged."""
+    ckpts, metrics = sorted(p.name for p in (out / "checkpoints").iterdir()), \
+        (out / "metrics.csv").read_bytes()
+    with pytest.raises(SystemExit) as err:
+        main([f"--dataset={dataset}", f"--output_dir={out}", *FAST, f"--steps={steps}",
+              "--save_every=3", "--eval_every=0", "--resume=true"])
+    message = str(err.value)
+    assert message.startswith("msta-train: error: ") and "\n" not in message, message
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ckpts
+    assert (out / "metrics.csv").read_bytes() == metrics
+    return message
+
+
+@pytest.mark.parametrize("step", [1e12, 10**12, -1, "3", 2])
+def test_a_tampered_resume_step_is_refused(synthetic_dataset, finished, tmp_path, step):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out, symlinks=True)
+    path = out / "checkpoints" / "000003" / "training_state" / "training_step.json"
+    info = json.loads(path.read_text())
+    info["step"] = step
+    path.write_text(json.dumps(info))
+    assert str(path) in _resume_fails(synthetic_dataset, out)
+
+
+def test_a_resume_with_fewer_steps_than_done_says_how_many(synthetic_dataset, finished,
+                                                            tmp_path):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out, symlinks=True)
+    assert "step 3 is beyond --steps=2; give --steps=3 or more" in _resume_fails(
+        synthetic_dataset, out, steps=2)
+
+
+@pytest.mark.parametrize("spelling", ["absolute", "relative"])
+def test_a_last_pointer_to_another_run_is_refused(synthetic_dataset, finished, tmp_path,
+                                                  spelling):
+    out = tmp_path / "run"
+    shutil.copytree(finished, out, symlinks=True)
+    last = out / "checkpoints" / "last"
+    stranger = finished / "checkpoints" / "000003"  # another run's checkpoint
+    last.unlink()
+    last.symlink_to(stranger if spelling == "absolute"
+                    else os.path.relpath(stranger, last.parent))
+    assert last.resolve() == stranger.resolve()
+    assert "outside this run's checkpoints" in _resume_fails(synthetic_dataset, out)
