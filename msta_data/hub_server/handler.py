@@ -6,10 +6,11 @@ arrive within ``header_timeout_s`` and 64 KiB (else 408 / 431, connection closed
 (Content-Length / chunked, no folded or malformed header lines) is checked (400), the route is
 found (404/405), the token is checked (401), the declared body size is checked against the
 route's limit, smaller for anonymous requests (413, nothing read), a request slot is taken
-(503 when none is left for this kind of client), and only then the endpoint reads the body,
-bounded in size (413) and pace (408). Small bodies are drained after an error answer so
-keep-alive clients keep their connection; large or broken ones close it. A full disk is a
-507. Logged lines carry the method, the path without its query string (LFS upload tickets
+(503 when none is left for this kind of client, connection closed), and only then the
+endpoint reads the body, bounded in size (413) and pace (408). After another error answer a
+body of at most ``max_anonymous_body_bytes`` (``max_body_bytes`` for users) is drained, at the
+same pace, so keep-alive clients keep their connection; larger or broken ones close it. A full
+disk is a 507. Logged lines carry the method, the path without its query string (LFS upload tickets
 replaced by ``<ticket>``, control characters escaped) and the status: never headers, query
 strings, bodies or tokens.
 """
@@ -155,7 +156,9 @@ class HubHandler(BaseHTTPRequestHandler):
             except Exception:
                 logger.exception("internal error on %s %s", self.command, redact(self.path))
                 response = self._error_response(HttpError(500, "internal server error"))
-            if self._reader is None or not self._reader.drain(self.app.limits.max_body_bytes):
+            limits = self.app.limits
+            drain = limits.max_body_bytes if self._slot is False else limits.max_anonymous_body_bytes
+            if self._reader is None or not self._reader.drain(drain):  # small bodies: keep-alive
                 self.close_connection = True
             self._send(response)
         finally:
@@ -165,8 +168,13 @@ class HubHandler(BaseHTTPRequestHandler):
                 self._slot = None
 
     def _respond(self) -> Response:
-        """Check the request, take a request slot, and run the endpoint."""
+        """Check the request, take a request slot, and run the endpoint. The body is read
+        only once the slot is taken (or drained, at most an anonymous body, after an error)."""
+        limits = self.app.limits
         length, chunked = self._framing()
+        self.conn.start("body", limits.read_timeout_s)  # BodyReader moves the deadline on
+        self._reader = BodyReader(self.rfile, length, chunked, limits.max_anonymous_body_bytes,
+                                  limits.read_timeout_s, self.conn)
         route, groups = self._match()
         user = self._authenticate()
         anonymous = user is None and not self._has_ticket(groups)
@@ -174,11 +182,11 @@ class HubHandler(BaseHTTPRequestHandler):
         if length is not None and length > limit:
             raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
         if not self.server.admission.begin(self.client_address[0], anonymous):  # type: ignore[attr-defined]
+            self._reader.broken = True  # busy: close rather than read the body
             raise HttpError(503, "the server is busy (too many requests in progress); retry later",
                             headers={"Retry-After": "1"})
         self._slot = anonymous
-        self.conn.start("body", self.app.limits.read_timeout_s)  # BodyReader moves the deadline on
-        self._reader = BodyReader(self.rfile, length, chunked, limit, self.app.limits.read_timeout_s, self.conn)
+        self._reader.limit = limit
         values = boundary.MAX_ANONYMOUS_JSON_VALUES if anonymous else boundary.MAX_JSON_VALUES
         return self._dispatch(route, groups, user, io.BufferedReader(self._reader, buffer_size=CHUNK), values)
 

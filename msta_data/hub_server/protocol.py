@@ -122,7 +122,8 @@ class BodyReader(io.RawIOBase):
         rfile: the connection's input.
         length: Content-Length, or None (chunked or no body).
         chunked: Transfer-Encoding: chunked.
-        limit: most bytes accepted (413 beyond).
+        limit: most bytes accepted (413 beyond); ``limit`` may be changed before the first
+            read (the handler raises it once the request is authenticated).
         timeout_s: see ``Limits.read_timeout_s``.
         conn: the socket reader under ``rfile``; its deadline is kept at the body's, so no
             single read waits past it.
@@ -135,7 +136,7 @@ class BodyReader(io.RawIOBase):
         self._chunked = chunked
         self._remaining = 0 if chunked else (length or 0)
         self._eof = not chunked and not length
-        self._limit = limit
+        self.limit = limit
         self._timeout_s = timeout_s
         self._conn = conn
         self._started = time.monotonic()
@@ -158,8 +159,8 @@ class BodyReader(io.RawIOBase):
 
     def _count(self, n: int) -> None:
         self.received += n
-        if self.received > self._limit:
-            raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
+        if self.received > self.limit:
+            raise self._fail(413, f"request body is larger than this server accepts ({self.limit} bytes)")
 
     def _line(self) -> bytes:
         self._pace()
@@ -200,8 +201,8 @@ class BodyReader(io.RawIOBase):
             self._next_chunk()
             if self._eof:
                 return 0
-        if self.received + min(len(buffer), self._remaining) > self._limit:
-            raise self._fail(413, f"request body is larger than this server accepts ({self._limit} bytes)")
+        if self.received + min(len(buffer), self._remaining) > self.limit:
+            raise self._fail(413, f"request body is larger than this server accepts ({self.limit} bytes)")
         self._pace()
         data = self._rfile.read1(min(len(buffer), self._remaining, CHUNK))  # one recv: paced
         if not data:
@@ -258,7 +259,8 @@ class Request:
         return boundary.json_object(self.json())
 
     def form(self) -> dict[str, list[str]]:
-        """Body as form fields (x-www-form-urlencoded) or as a JSON object; only string values."""
+        """Body as form fields (x-www-form-urlencoded) or as a JSON object; only string values;
+        at most ``max_json_values`` fields or values (400 beyond)."""
         raw = self.body.read()
         if "json" in (self.headers.get("Content-Type") or ""):
             data = boundary.json_object(boundary.parse_json(raw, max_values=self.max_json_values))
@@ -268,7 +270,7 @@ class Request:
                 out[k] = [str(x).lower() if isinstance(x, bool) else x for x in values if isinstance(x, (str, bool))]
             return out
         try:
-            return parse_qs(raw.decode(), keep_blank_values=True, max_num_fields=100_000)
+            return parse_qs(raw.decode(), keep_blank_values=True, max_num_fields=self.max_json_values)
         except (UnicodeDecodeError, ValueError):
             raise HttpError(400, "request body is not a valid form") from None
 
