@@ -205,7 +205,9 @@ def lfs_upload(app: HubApp, req: Request) -> Response:
         app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
         if req.body.read(1):
             raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
-        app.storage.grant_blob(meta, ticket.oid)
+        with app.storage.repo_lock(meta.repo_type, meta.repo_id):  # no delete between check and grant
+            _ticket_repo(app, ticket)  # 404 when the repo was deleted during the upload
+            app.storage.grant_blob(meta, ticket.oid)
     return Response(body={})
 
 

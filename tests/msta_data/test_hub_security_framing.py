@@ -3,12 +3,14 @@
 
 Lenient chunk sizes, folded or malformed header lines and odd Content-Length values are 400,
 never accepted and never a 500; a repo deleted while its commit arrives is 404 (409 when it was
-created again); a full disk is 507 with no temporary file left behind; control characters sent
-by a client are escaped in X-Error-Message and in the log.
+created again), and while an LFS upload to it arrives 404; a full disk is 507 with no
+temporary file left behind; control characters sent by a client are escaped in
+X-Error-Message and in the log.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import resource
@@ -16,6 +18,7 @@ import socket
 import subprocess
 import sys
 import time
+from urllib.parse import urlsplit
 
 import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
 import pytest
@@ -113,6 +116,20 @@ def test_a_repo_deleted_during_its_commit_is_404_and_recreated_409(srv):
         answer = _raw(srv.port, request, pause_after=len(request) - 10, between=delete_it)
         assert _status(answer) == expected, answer[:300]
         assert H.call(srv, "DELETE", "/api/repos/delete", delete, ALICE)[0] in (200, 404)
+
+
+def test_a_repo_deleted_during_an_lfs_upload_is_404(srv):
+    H.create_repo(srv, ALICE, "lfsgone")
+    data = b"z" * 5000
+    obj = H.lfs_batch(srv, ALICE, "alice/lfsgone", hashlib.sha256(data).hexdigest(), len(data))
+    put = urlsplit(obj["actions"]["upload"]["href"]).path.encode()
+    request = b"PUT " + put + b" HTTP/1.1\r\nHost: x\r\nContent-Length: %d\r\n\r\n" % len(data) + data
+
+    def delete_it() -> None:
+        assert H.call(srv, "DELETE", "/api/repos/delete", json.dumps({"name": "lfsgone"}), ALICE)[0] == 200
+
+    answer = _raw(srv.port, request, pause_after=len(request) - 100, between=delete_it)
+    assert _status(answer) == 404, answer[:300]
 
 
 def test_a_full_disk_is_507_and_leaves_no_temporary_files(tmp_path):
