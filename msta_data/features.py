@@ -381,7 +381,7 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
             if col not in names:
                 raise DatasetFormatError(f"{path}: column {col!r} missing")
         tables.append(read_parquet(path, cols))
-        _check_episode_rows(path, tables[-1], total)
+        check_episode_rows(path, tables[-1], total)
     if not tables:
         if total:
             raise DatasetFormatError(
@@ -403,7 +403,7 @@ def read_episode_table(root: str | Path, info: dict[str, Any],
     return table
 
 
-def _check_episode_rows(path: Path, table: pa.Table, total: int) -> None:
+def check_episode_rows(path: Path, table: pa.Table, total: int) -> None:
     """One episode file's rows: at least one frame each, ``dataset_to_index - from ==
     length``, and not episodes on both sides of ``total`` (a writer commits whole files)."""
     length = table.column("length").to_numpy()
@@ -420,17 +420,6 @@ def _check_episode_rows(path: Path, table: pa.Table, total: int) -> None:
         raise DatasetFormatError(
             f"{path}: holds episodes {ep.min()}-{ep.max()}, on both sides of meta/info.json's "
             f"total_episodes {total} (a writer commits whole files): a changed count?")
-
-
-def episode_index_ranges(root: str | Path) -> list[tuple[Path, int, int]]:
-    """``(file, first, last episode_index)`` of every ``meta/episodes`` file (empty files
-    left out)."""
-    out = []
-    for path in episode_files(root):
-        ep = read_parquet(path, ["episode_index"]).column("episode_index").to_numpy()
-        if len(ep):
-            out.append((path, int(ep.min()), int(ep.max())))
-    return out
 
 
 def read_parquet_schema(path: Path) -> pa.Schema:

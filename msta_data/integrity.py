@@ -43,6 +43,7 @@ from msta_data.errors import DatasetFormatError, DatasetIntegrityError
 logger = logging.getLogger(__name__)
 
 MANIFEST_FORMAT = 1
+_EPISODE_ROW_COLUMNS = ("episode_index", "length", "dataset_from_index", "dataset_to_index")
 VerifyMode = Literal["full", "sizes"]
 _CHUNK = 1 << 20
 _cache: dict[str, tuple[tuple[int, int, int, int], FileRecord]] = {}
@@ -268,15 +269,18 @@ def check_counts(root: str | Path, gen: Generation | None) -> None:
     A count that is wrong but agrees with the manifest (both edited, or a dataset without
     one) would train on a subset, and a writer would write over the files beyond it. So:
     the counts must be the ones the commit recorded; an episode file the commit lists (any,
-    without a manifest) may not hold only episodes beyond the count; and
-    :func:`msta_data.features.read_episode_table` refuses a file holding episodes on both
-    sides of the count, an empty episode and a count the files do not reach. Files the
-    commit does not list are a killed writer's: readers ignore them.
+    without a manifest) may not hold only episodes beyond the count; no file may hold
+    episodes on both sides of the count or an empty episode
+    (:func:`msta_data.features.check_episode_rows`); and the other files must hold exactly
+    episodes ``0 .. total_episodes - 1``, ending at frame ``total_frames``. Files the commit
+    does not list are a killed writer's: readers ignore them.
 
     Raises:
         DatasetFormatError: one line naming the file (DatasetIntegrityError for counts that
             differ from the commit's).
     """
+    import numpy as np
+
     from msta_data import features as F
 
     root = Path(root)
@@ -287,19 +291,31 @@ def check_counts(root: str | Path, gen: Generation | None) -> None:
             f"{root / L.INFO_PATH}: {total} episodes and {frames} frames, the last commit in "
             f"{L.MANIFEST_PATH} recorded {gen.total_episodes} and {gen.total_frames}: edited; "
             "restore it (nothing was changed)")
-    table = F.read_episode_table(root, info)
-    end = int(table.column("dataset_to_index")[-1].as_py()) if len(table) else 0
+    listed = None if gen is None else set(gen.files)
+    committed, end = [], 0
+    for path in F.episode_files(root):  # the index columns only: one pass, small reads
+        rows = F.read_parquet(path, list(_EPISODE_ROW_COLUMNS))
+        F.check_episode_rows(path, rows, total)
+        ep = rows.column("episode_index").to_numpy()
+        if len(ep) and ep.min() >= total:
+            if listed is None or path.relative_to(root).as_posix() in listed:
+                raise DatasetFormatError(
+                    f"{path}: beyond the {total} episodes of {L.INFO_PATH} (it holds episodes "
+                    f"{ep.min()}-{ep.max()}): a lowered count, or meta/ restored from an older "
+                    "copy? Nothing was changed: restore meta/, or move the file away if it is "
+                    "not part of the dataset")
+            continue  # a killed writer's leftover (a writer moves it aside)
+        committed.append(ep)
+        if len(ep):
+            end = max(end, int(rows.column("dataset_to_index").to_numpy().max()))
+    got = np.sort(np.concatenate(committed)) if committed else np.zeros(0, np.int64)
+    if len(got) != total or not np.array_equal(got, np.arange(len(got))):
+        raise DatasetFormatError(
+            f"{root / L.INFO_PATH}: total_episodes {total}, but {L.EPISODES_DIR} holds "
+            f"{len(got)} of them (or duplicates, or gaps)")
     if end != frames:
         raise DatasetFormatError(f"{root / L.INFO_PATH}: total_frames {frames}, but the last "
                                  f"episode in {L.EPISODES_DIR} ends at frame {end}")
-    listed = None if gen is None else set(gen.files)
-    for path, first, last in F.episode_index_ranges(root):
-        if first >= total and (listed is None or path.relative_to(root).as_posix() in listed):
-            raise DatasetFormatError(
-                f"{path}: beyond the {total} episodes of {L.INFO_PATH} (it holds episodes "
-                f"{first}-{last}): a lowered count, or meta/ restored from an older copy? "
-                "Nothing was changed: restore meta/, or move the file away if it is not part "
-                "of the dataset")
 
 
 def leftover_files(root: str | Path, committed: set[str]) -> list[str]:
