@@ -338,10 +338,7 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
 def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
     path = out / PROGRESS
     encoded = draccus.encode(cfg)
-    if not path.exists():
-        if cfg.resume:
-            raise FileNotFoundError(f"--resume=true but {path} does not exist (nothing to "
-                                    "resume; drop --resume to start)")
+    if not path.exists():  # a new run (check_output has refused a resume without it)
         out.mkdir(parents=True, exist_ok=True)
         prog = {"format": PROGRESS_FORMAT, "config": encoded, "dataset": str(root),
                 "rounds": {}}
@@ -358,6 +355,17 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
     if bad:
         raise ValueError(f"--resume=true with different {bad} than {path}")
     return prog
+
+
+def check_output(cfg: CorrectConfig, out: Path) -> None:
+    """Before output_dir is created or locked: a new run needs it empty, a resume needs
+    its progress.json."""
+    if cfg.resume and not (out / PROGRESS).exists():
+        raise FileNotFoundError(f"--resume=true but {out / PROGRESS} does not exist (nothing "
+                                "to resume; drop --resume to start)")
+    if not cfg.resume and out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()):
+        raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
+                              "choose another --output_dir")
 
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
@@ -446,9 +454,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
     """
     deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
-    if not cfg.resume and out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()):
-        raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
-                              "choose another --output_dir")
+    check_output(cfg, out)
     ckpt, root = resolve_inputs(cfg, out)
     with hold_directory(out, f"another {cfg.PROG} run"):  # one run per output_dir
         return _correct_locked(cfg, out, ckpt, own_dataset(cfg, out, root),
