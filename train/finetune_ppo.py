@@ -64,7 +64,7 @@ from policies.teacher.rma import RMAConfig
 from train.finetune import freeze, module_of, sensor_names, trainable_modules
 from train.optim import select_device
 from train.state import atomic_json
-from train.teacher.cli import PPOConfig, latest_checkpoint, prune_checkpoints
+from train.teacher.cli import PPOConfig, latest_checkpoint, load_runner, prune_checkpoints
 from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 
 PROG = "msta-finetune-ppo"
@@ -418,7 +418,7 @@ def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], log
     assert isinstance(actor, MSTAActor)
     found = latest_checkpoint(ppo_dir)
     if found is not None:
-        runner.load(str(found[0]), map_location=device)
+        load_runner(runner, found[0], device)
         done = found[1] + 1
         runner.current_learning_iteration = done
         log(f"== {PROG}: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} "

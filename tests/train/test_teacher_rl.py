@@ -262,3 +262,18 @@ def test_a_resume_file_carrying_a_pickle_payload_is_refused_and_never_runs(tmp_p
         warm_start(small_env(n=2), RMAConfig(), cfg, out, log=lambda line: None)
     assert str(out / name) in str(err.value) and "\n" not in str(err.value)
     assert not marker.exists()
+
+
+def test_a_ppo_checkpoint_carrying_a_pickle_payload_is_refused_and_never_runs(tmp_path):
+    """rsl_rl unpickles its checkpoints with weights_only=False: a resume reads the newest
+    one with weights_only=True first and refuses it in one line."""
+    marker = tmp_path / "payload_ran"
+    (tmp_path / "ppo").mkdir()
+    torch.save({"model_state_dict": _Payload(marker), "iter": 0}, tmp_path / "ppo" / "model_1.pt")
+    cfg = TrainTeacherConfig(output_dir=str(tmp_path), num_threads=1, device="cpu",
+                             ppo=PPOConfig(iterations=4, num_steps_per_env=4, save_interval=2),
+                             env=small_env(n=2))
+    with pytest.raises(ValueError) as err:
+        train_teacher(cfg, log=lambda line: None)
+    assert str(tmp_path / "ppo" / "model_1.pt") in str(err.value) and "\n" not in str(err.value)
+    assert not marker.exists()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import re
 import time
 from collections.abc import Sequence
@@ -178,6 +179,20 @@ def latest_checkpoint(ppo_dir: Path) -> tuple[Path, int] | None:
     return path, it
 
 
+def load_runner(runner, path: Path, device: str) -> None:
+    """Resume rsl_rl's ``runner`` from its checkpoint ``path``. rsl_rl reads it with
+    ``torch.load(weights_only=False)``, which runs whatever code a pickle carries, so the
+    file is read first with ``weights_only=True`` (tensors and plain types only) and
+    refused in one line when that fails: a tampered checkpoint never runs code."""
+    try:
+        torch.load(path, weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise ValueError(f"{path}: not a plain rsl_rl checkpoint ({type(e).__name__}: "
+                         f"{first}); delete it to resume from the one before") from None
+    runner.load(str(path), map_location=device)
+
+
 def snapshot_dir(out: Path, iteration: int) -> Path:
     """Where the run in ``out`` keeps the exported teacher of ``iteration``."""
     return out / "snapshots" / f"iter_{iteration}"
@@ -254,7 +269,7 @@ def _train_teacher_locked(cfg: TrainTeacherConfig, out: Path, log) -> Path:
     found = latest_checkpoint(ppo_dir)
     done = 0
     if found is not None:
-        runner.load(str(found[0]), map_location=device)
+        load_runner(runner, found[0], device)
         done = found[1] + 1
         runner.current_learning_iteration = done
         _load_levels(env, ppo_dir)
