@@ -10,13 +10,20 @@ from msta_data.cli import check_at_least, check_number
 #: channels are 190 MB of float32, and the model's activations several times that.
 MAX_BATCH_SIZE = 65_536
 
+#: ``--optimizer`` choices (train/optim.py builds them).
+OPTIMIZERS = ("adamw", "muon")
+
 
 @dataclass
 class LoopConfig:
     """Args:
         steps: optimizer steps.
         batch_size: windows per step.
-        lr: peak learning rate (AdamW).
+        lr: peak learning rate.
+        optimizer: ``adamw`` (every weight), or ``muon``: Muon on the transformer blocks'
+            weight matrices and AdamW on the rest (embeddings, value tables, norms, head),
+            one ``lr`` for both (Muon's update RMS matched to AdamW's); a student without
+            transformer blocks (gru, rma_tcn) trains with AdamW either way.
         weight_decay: AdamW decoupled weight decay (not applied to biases, norms, embeddings).
         warmup_steps: linear warm-up from 0 to ``lr``, then cosine decay.
         min_lr_ratio: the cosine ends at ``lr * min_lr_ratio``.
@@ -44,6 +51,7 @@ class LoopConfig:
     steps: int = 2000
     batch_size: int = 64
     lr: float = 1e-3
+    optimizer: str = "adamw"
     weight_decay: float = 0.01
     warmup_steps: int = 100
     min_lr_ratio: float = 0.1
@@ -60,6 +68,8 @@ class LoopConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         check_at_least(self, 1, "steps", "log_every", "val_samples")
         check_at_least(self, 1, "batch_size", maximum=MAX_BATCH_SIZE,
                        why="a batch's windows are gathered in memory at once")

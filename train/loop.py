@@ -159,7 +159,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     out.mkdir(parents=True, exist_ok=True)
     mask_ratio = _mask(policy, cfg.mask_ratio)
     policy.config.mask_ratio = mask_ratio  # the saved config.json says what was used
-    optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay)
+    optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay, cfg.optimizer)
     scheduler = make_scheduler(optimizer, cfg)
     sampler = WindowSampler(len(train_ds), cfg.batch_size, cfg.seed, weights)
     gen = torch.Generator(device=policy.device).manual_seed(cfg.seed)

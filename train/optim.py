@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
-from train.config import LoopConfig
+from train.config import OPTIMIZERS, LoopConfig
 
 
 def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
@@ -26,12 +26,74 @@ def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
             {"params": no_decay, "weight_decay": 0.0}]
 
 
-def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.AdamW:
+def make_adamw(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.AdamW:
     """AdamW on :func:`parameter_groups` (weight decay on matrices only), fused: one kernel
     for every parameter instead of a loop over them (a cpu-preset step's optimizer update
     8.3 -> 1.5 ms on 2 threads, the MSTA value tables being ~0.8 M of its ~0.9 M weights)."""
     return torch.optim.AdamW(parameter_groups(model, weight_decay), lr=lr, betas=(0.9, 0.999),
                              eps=1e-8, fused=True)
+
+
+class MuonAdamW(torch.optim.Optimizer):
+    """Muon on the transformer blocks' weight matrices, fused AdamW on everything else.
+
+    Muon (torch.optim.Muon, ``adjust_lr_fn="match_rms_adamw"``, so one ``lr`` suits both)
+    orthogonalizes each matrix's momentum with Newton-Schulz steps; embeddings, value tables,
+    norms, biases, readout tokens and the action head stay on AdamW, as Muon's authors
+    advise. One optimizer to the loop: one ``param_groups`` list (the schedule scales every
+    group) and one ``state`` (saved and resumed as any optimizer's).
+
+    Args:
+        muon_params: 2-D matrices for Muon.
+        adamw_groups: :func:`parameter_groups`-style groups for AdamW.
+        lr: peak learning rate of both.
+        weight_decay: decoupled weight decay of the Muon matrices.
+    """
+
+    def __init__(self, muon_params: list[torch.nn.Parameter], adamw_groups: list[dict],
+                 lr: float, weight_decay: float) -> None:
+        self._muon = torch.optim.Muon(muon_params, lr=lr, weight_decay=weight_decay,
+                                      adjust_lr_fn="match_rms_adamw")
+        self._adamw = torch.optim.AdamW(adamw_groups, lr=lr, betas=(0.9, 0.999), eps=1e-8,
+                                        fused=True)
+        groups = self._muon.param_groups + self._adamw.param_groups
+        super().__init__(groups, {"lr": lr})
+        self._share()
+
+    def _share(self) -> None:
+        """The inner optimizers read and write this optimizer's groups and state."""
+        n = len(self._muon.param_groups)
+        self._muon.param_groups, self._adamw.param_groups = (self.param_groups[:n],
+                                                             self.param_groups[n:])
+        self._muon.state = self._adamw.state = self.state
+
+    def load_state_dict(self, state_dict: dict) -> None:
+        super().load_state_dict(state_dict)
+        self._share()
+
+    @torch.no_grad()
+    def step(self, closure=None):  # noqa: ANN001, ANN201 (torch's signature)
+        self._muon.step()
+        self._adamw.step()
+
+
+def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float,
+                   kind: str = "adamw") -> torch.optim.Optimizer:
+    """``adamw``: :func:`make_adamw`. ``muon``: :class:`MuonAdamW`, Muon on the 2-D weights
+    of the transformer blocks (``blocks.*``), AdamW on the rest; a student without
+    transformer blocks gets :func:`make_adamw`."""
+    if kind == "adamw":
+        return make_adamw(model, lr, weight_decay)
+    if kind != "muon":
+        raise ValueError(f"optimizer={kind!r}: choose one of {', '.join(OPTIMIZERS)}")
+    muon = [p for n, p in model.named_parameters()
+            if p.requires_grad and p.ndim == 2 and ".blocks." in f".{n}"]
+    if not muon:  # no transformer blocks (gru, rma_tcn, mlp): every weight on AdamW
+        return make_adamw(model, lr, weight_decay)
+    ids = {id(p) for p in muon}
+    groups = [{**g, "params": [p for p in g["params"] if id(p) not in ids]}
+              for g in parameter_groups(model, weight_decay)]
+    return MuonAdamW(muon, [g for g in groups if g["params"]], lr, weight_decay)
 
 
 class WarmupCosine:
