@@ -43,6 +43,7 @@ from msta_data.locking import hold_directory
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
+from train.config import OPTIMIZERS
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
@@ -58,7 +59,7 @@ PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {
 RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collect_num_envs", "preset",
               "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
               "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs", "stage2_mask_ratio",
-              "batch_size", "seed")
+              "stage2_rollout_masks", "optimizer", "batch_size", "seed")
 
 
 @dataclass
@@ -84,6 +85,12 @@ class CompareConfig:
             at most 32).
         stage2_mask_ratio: training mask ratio in stage 2 for policies trained with masking
             (config ``mask_ratio`` > 0; the paper: 0.5); the others keep 0.
+        stage2_rollout_masks: test-time token-removal ratios the stage-2 rollouts of policies
+            trained with masking drive at, spread over each round's robots (msta-correct's
+            ``rollout_mask_ratios``; the demo's 0, 0.5: the rounds then label the states a
+            masked student reaches); empty, and for the others: unmasked.
+        optimizer: ``adamw``, or ``muon`` (Muon on transformer block matrices, AdamW on the
+            rest; a student without transformer blocks gets AdamW alone), both stages.
         batch_size: windows per optimizer step (both stages).
         output_dir: output directory (per-policy runs, checkpoints/, eval/, comparison.md).
         seed: seeds training, rollouts and evaluation.
@@ -113,6 +120,8 @@ class CompareConfig:
     stage2_episode_length_s: float = 10.0
     stage2_num_envs: int = 0
     stage2_mask_ratio: float = 0.5
+    stage2_rollout_masks: tuple[float, ...] = ()
+    optimizer: str = "adamw"
     batch_size: int = 64
     output_dir: str = "outputs/compare"
     seed: int = 0
@@ -141,6 +150,12 @@ class CompareConfig:
                        "stage2_num_envs", "trials", "num_threads", "max_minutes")
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
+        self.stage2_rollout_masks = tuple(float(r) for r in self.stage2_rollout_masks)
+        bad = [r for r in self.stage2_rollout_masks if not 0.0 <= r < 1.0]
+        if bad:
+            raise ValueError(f"stage2_rollout_masks: {bad[0]} must be in [0, 1)")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         if not self.dataset and not self.collect_episodes:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
 
@@ -284,6 +299,7 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
     train(TrainConfig(
         dataset=str(root), policy=config or policy_config(name, cfg.preset), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
+        optimizer=cfg.optimizer,
         save_every=max(100, cfg.stage1_steps // 4), eval_every=cfg.stage1_steps,
         num_threads=cfg.num_threads, progress=cfg.progress,
         max_minutes=prog.minutes_left()))
@@ -309,7 +325,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
 
     Args:
         mask: the retraining mask ratio (default: ``cfg.stage2_mask_ratio`` for a policy
-            trained with masking, else 0).
+            trained with masking, else 0); given, the student is taken for a token-masking
+            one and rolls out at ``cfg.stage2_rollout_masks``.
     """
     from train.online import CorrectConfig, EvalConfig, correct
 
@@ -319,8 +336,10 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         return last
     own = copy_dataset(root, run / "dataset")
     resume = (out / "progress.json").exists()
+    masked = True  # an explicit mask: a token-masking student (msta-repro's heatmap)
     if mask is None:
-        mask = cfg.stage2_mask_ratio if policy_config(name, cfg.preset).mask_ratio > 0 else 0.0
+        masked = policy_config(name, cfg.preset).mask_ratio > 0
+        mask = cfg.stage2_mask_ratio if masked else 0.0
     envs = cfg.stage2_num_envs or min(cfg.episodes_per_round, 32)
     t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"
@@ -330,7 +349,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         rounds=cfg.stage2_rounds,
         episodes_per_round=cfg.episodes_per_round, num_envs=envs,
         episode_length_s=cfg.stage2_episode_length_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
-        batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed,
+        batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed, optimizer=cfg.optimizer,
+        rollout_mask_ratios=cfg.stage2_rollout_masks if masked else (),
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
         eval=EvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
         progress=cfg.progress, max_minutes=prog.minutes_left()))

@@ -65,7 +65,8 @@ from msta_data.errors import DirectoryLockedError
 from msta_data.features import load_info
 from msta_data.locking import hold_directory
 from policies.factory import select_device
-from policies.teacher.config import TeacherConfig
+from train.config import OPTIMIZERS
+from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
 PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).
@@ -111,7 +112,12 @@ SCALES: dict[str, Scale] = {
                    (0.0, 0.25, 0.5, 0.75), (0.0, 0.25, 0.5, 0.75), 5, 1440.0),
 }
 #: Fields that must match output_dir/repro_config.json when a run is continued.
-RUN_FIELDS = ("scale", "policies", "teacher", "seed")
+RUN_FIELDS = ("scale", "policies", "teacher", "optimizer", "seed")
+#: Test-time masks of the stage-2 rollouts of students trained with masking (the demo's
+#: recipe: half of the robots drive with half of their tokens removed).
+ROLLOUT_MASKS = (0.0, 0.5)
+#: The harder levels the main students (and the teacher) are also evaluated at.
+HARD_LEVELS = "3,4"
 
 
 @dataclass
@@ -126,7 +132,9 @@ class ReproConfig:
             msta_mask, gru, rma_tcn, tert_concat, tert_separate, tert_mask). The MSTA
             experiments (sensors, joints, window, heatmap) need msta in the list.
         teacher: records the dataset, labels stage 2 and is the evaluation's reference
-            (default: the shipped RMA MLP).
+            (default: the shipped PPO-trained RMA MLP, rma_ppo, the demo's teacher).
+        optimizer: every student's optimizer, both stages (msta-compare's ``--optimizer``:
+            adamw, or muon on transformer block matrices with AdamW on the rest).
         heatmap: train and evaluate the train-mask heatmap's MSTA students (false: skip
             them; the report says finding (a) was not measured). A finished study re-run
             with false writes its report from the evaluations it has.
@@ -144,7 +152,9 @@ class ReproConfig:
     output_dir: str = "outputs/repro"
     report_dir: str = ""
     policies: str = ""
-    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(type="rma"))
+    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(
+        type="rma", path=str(SHIPPED_RMA_PPO)))
+    optimizer: str = "adamw"
     heatmap: bool = True
     seed: int = 0
     num_threads: int = 0
@@ -154,6 +164,8 @@ class ReproConfig:
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; scales: {', '.join(SCALES)}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         check_at_least(self, 0, "num_threads", "max_minutes")
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()] \
             or list(PAPER_POLICIES)
@@ -178,6 +190,7 @@ def compare_config(cfg: ReproConfig, root: Path) -> CompareConfig:
         stage2_steps=s.stage2_steps, episodes_per_round=s.episodes_per_round,
         stage2_episode_length_s=s.stage2_episode_length_s,
         stage2_num_envs=min(s.episodes_per_round, 32), batch_size=s.batch_size,
+        stage2_rollout_masks=ROLLOUT_MASKS, optimizer=cfg.optimizer,
         output_dir=str(Path(cfg.output_dir) / "compare"), seed=cfg.seed,
         num_threads=cfg.num_threads, progress=cfg.progress)
 
@@ -254,8 +267,9 @@ def heatmap_students(cfg: ReproConfig, ccfg: CompareConfig, root: Path,
 
 
 def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
-             prog: Progress, matrix: str = "") -> dict[str, Any]:
-    """One msta-eval run (skipped when its metrics.json exists)."""
+             prog: Progress, matrix: str = "", levels: str = "") -> dict[str, Any]:
+    """One msta-eval run (skipped when its metrics.json exists); ``levels``: other terrain
+    levels than the scale's."""
     from eval.evaluate import EvalConfig, evaluate
 
     out = Path(cfg.output_dir) / "eval" / name
@@ -265,7 +279,7 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
     s = cfg.sizes
     ecfg = EvalConfig(policies=",".join(["teacher", *map(str, policies)]),
                       suite="quick" if cfg.scale == "tiny" else "paper", trials=s.trials,
-                      terrains=s.terrains, levels=s.levels,
+                      terrains=s.terrains, levels=levels or s.levels,
                       episode_length_s=s.eval_episode_length_s, scenarios=scenarios,
                       matrix=matrix, seed=cfg.seed, teacher=cfg.teacher,
                       output_dir=str(out), progress=cfg.progress, resume=True,
@@ -299,6 +313,10 @@ def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
     ccfg = compare_config(cfg, root)
     ckpts = {name: train_policy(ccfg, name, root, prog) for name in ccfg.policy_list}
     evals = {"table1": run_eval(cfg, "table1", list(ckpts.values()), "token_removal", prog)}
+    hard = [ckpts[n] for n in ("msta", "gru") if n in ckpts]
+    if hard:
+        evals["levels34"] = run_eval(cfg, "levels34", hard, "token_removal", prog,
+                                     levels=HARD_LEVELS)
     if "msta" in ckpts:
         evals["msta"] = run_eval(cfg, "msta", [ckpts["msta"]],
                                  "sensor_removal,dead_joints,history", prog)

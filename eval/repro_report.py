@@ -146,6 +146,8 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
                  machine: str, out: Path) -> Path:
     """``out/report.md`` from the evaluations (``table1``, and ``msta`` / ``heatmap`` when
     MSTA was in the study)."""
+    from eval.repro import ROLLOUT_MASKS
+
     t1, msta, heat = evals["table1"], evals.get("msta"), evals.get("heatmap")
     ec = t1["config"]
     students = [p["name"] for p in t1["policies"] if p["kind"] == "student"]
@@ -157,7 +159,9 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
         f"dataset {s.collect_episodes} teacher episodes of {s.collect_episode_length_s:g} s "
         f"(levels 0-2, DART noise 0.5); preset `{s.preset}`; stage 1 {s.stage1_steps} steps x "
         f"{s.batch_size}; stage 2 {s.stage2_rounds} rounds x {s.episodes_per_round} episodes "
-        f"+ {s.stage2_steps} steps (MSTA's masks 0.75 / 0.5). Evaluation: {ec['trials']} "
+        f"+ {s.stage2_steps} steps (MSTA's masks 0.75 / 0.5; rollouts of masked students at "
+        f"test masks {' / '.join(f'{m:g}' for m in ROLLOUT_MASKS)}); optimizer "
+        f"`{cfg.optimizer}`. Evaluation: {ec['trials']} "
         f"trials of {ec['episode_length_s']:g} s per (policy, condition) over "
         f"{', '.join(ec['terrains'])} at levels {ec['levels']}, seed {ec['seed']}; every "
         "figure is normalized to the teacher on the same trials except survival; 95 % "
@@ -170,6 +174,14 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
         "## Table I: every figure", "",
         headline_table(t1, ["mask 0%", "mask 25%", "mask 50%"], students), "",
         table_one(t1, "lin_tracking"), "", table_one(t1, "ang_tracking"), ""]
+    hard = evals.get("levels34")
+    if hard:
+        names = [p["name"] for p in hard["policies"] if p["kind"] == "student"]
+        lines += [f"## Levels {', '.join(map(str, hard['config']['levels']))}: where the teacher still walks", "",
+                  f"The students trained on levels 0-2 only; {hard['config']['trials']} trials "
+                  "per condition at the harder levels, normalized to the teacher on the same "
+                  "trials (the teacher's own survival there is in `levels34/report.md`).", "",
+                  headline_table(hard, ["mask 0%", "mask 25%", "mask 50%"], names), ""]
     if msta:
         lines += ["## MSTA: one sensor removed, dead joint encoders, the window T", "",
                   headline_table(msta, _conditions(msta, "msta"), ["msta"]), "",

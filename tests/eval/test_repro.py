@@ -89,11 +89,27 @@ def test_the_report_has_every_row_and_column(study) -> None:
     for finding in ("(a)", "(b)", "(c)", "(d)"):
         assert f"- {finding} " in md
     assert md.count("**met**") + md.count("**not met**") + md.count(": n/a") >= 6
-    for name in ("table1", "msta", "heatmap"):
+    assert "## Levels 3, 4: where the teacher still walks" in md
+    hard = md.split("## Levels 3, 4")[1].split("\n## ")[0]
+    for name in ("msta", "gru"):
+        for mask in ("mask 0%", "mask 50%"):
+            assert f"| {name} | {mask} | 2 | " in hard, (name, mask)
+    assert "| msta_mask |" not in hard
+    for name in ("table1", "msta", "heatmap", "levels34"):
         metrics = json.loads((out / "report" / name / "metrics.json").read_text())
         assert metrics["config"]["trials"] == 2 and metrics["runs"]
+    assert json.loads((out / "report" / "levels34" / "metrics.json").read_text()
+                      )["config"]["levels"] == [3, 4]
     assert (out / "report" / "heatmap" / "mask_matrix.png").is_file()
     assert (out / "report" / "msta" / "history.png").is_file()
+
+
+def test_masked_students_roll_out_masked_in_stage_2_and_the_others_do_not(study) -> None:
+    out, _ = study
+    runs = out / "compare" / "runs"
+    masks = {name: json.loads((runs / name / "stage2" / "progress.json").read_text()
+                              )["config"]["rollout_mask_ratios"] for name in POLICIES.split(",")}
+    assert masks == {"msta": [0.0, 0.5], "msta_mask": [0.0, 0.5], "gru": []}
 
 
 def test_heatmap_cells_are_distinct_students_on_the_shared_stage1(study) -> None:
