@@ -128,10 +128,11 @@ def test_max_minutes_stops_with_a_checkpoint_and_the_resume_is_bit_identical(
     assert all(torch.equal(a[k], b[k]) for k in a), "the stopped and resumed run differs"
 
 
-@pytest.mark.parametrize("ema", [0.0, 0.9], ids=["plain", "ema"])
-def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, ema):
+@pytest.mark.parametrize("extra", ["--ema_decay=0.0", "--ema_decay=0.9", "--optimizer=muon"],
+                         ids=["plain", "ema", "muon"])
+def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, extra):
     args = ("--steps=8", "--save_every=4", "--eval_every=4", "--log_every=1", "--lr=3e-3",
-            f"--ema_decay={ema}")
+            extra)
     ref = train(cfg_for(synthetic_dataset, tmp_path / "ref", *args))
 
     def crash_at_6(step, metrics):  # two steps after checkpoint 4: those are lost
