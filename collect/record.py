@@ -294,6 +294,8 @@ def collect(cfg: CollectConfig) -> Path:
         todo = cfg.episodes - have
         if todo <= 0:
             print(f"{root}: already holds {have} episodes (>= {cfg.episodes}); nothing to do")
+            if writer is not None:
+                writer.close()  # its lock too: the caller may append or push in this process
             return root
         seed = cfg.seed + have
         env_cfg = cfg.env

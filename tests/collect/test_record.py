@@ -73,6 +73,15 @@ def test_existing_dataset_requires_resume(tmp_path):
     assert len(load_episode_table(tmp_path / "ds")) == 4
 
 
+def test_a_collect_with_nothing_to_do_releases_the_dataset(tmp_path):
+    """The 'nothing to do' return closes its writer: the same process can extend the dataset
+    (as make demo and bench-learn do with easy_terrain_dataset) instead of finding it locked."""
+    collect(small_cfg(tmp_path / "ds", episodes=2))
+    collect(small_cfg(tmp_path / "ds", episodes=2, resume=True))  # nothing to do
+    collect(small_cfg(tmp_path / "ds", episodes=3, resume=True))
+    assert len(load_episode_table(tmp_path / "ds")) == 3
+
+
 def test_sigkill_mid_run_then_resume_reaches_the_count(tmp_path):
     root = tmp_path / "ds"
     args = [sys.executable, "-m", "collect.record", "--teacher.type=zero", "--episodes=400",
