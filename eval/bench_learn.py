@@ -3,10 +3,10 @@
 Does the MSTA student imitate the teacher as well as a GRU does? On one fixed, seeded
 teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10 s, terrain
 levels 0-2, split by episode 43 / 5 as ``msta-train`` splits it), every learner trains for
-the same wall-clock budget (``--seconds``, default 120 s each, ``--num_threads`` 2) with AdamW
-at its learning rate, batch 64, 100 warm-up steps then a constant rate, and is validated
-every ``--eval_every`` s on the same 512 validation windows (validation time is not charged
-to the budget):
+the same wall-clock budget (``--seconds``, default 120 s each, ``--num_threads`` 2) with
+msta-train's optimizer (``--optimizer``) at ``--lr``, batch 64, 100 warm-up steps then a
+constant rate, and is validated every ``--eval_every`` s on the same 512 validation windows
+(validation time is not charged to the budget):
 
 - ``msta_cpu`` and ``msta_paper``: the MSTA student, ``cpu`` and ``paper`` presets, trained at
   its default mask ratio (0.75); validated unmasked and at test mask 0.5;
@@ -36,6 +36,7 @@ import torch
 from torch import nn
 
 from msta_data import layout
+from train.config import OPTIMIZERS, LoopConfig
 
 SEED = 0
 #: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
@@ -114,7 +115,7 @@ def _mlp_learner(root: Path, train_eps: list[int], val_eps: list[int], T: int):
 
 
 def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
-                lr: float, batch_size: int) -> Curve:
+                lr: float, batch_size: int, optimizer: str = "adamw") -> Curve:
     """Train one learner for ``budget_s`` seconds of optimizer steps; validate as it goes."""
     from msta_data.stats import load_stats
     from msta_data.windows import WindowDataset, episode_split
@@ -128,7 +129,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
     torch.manual_seed(SEED)
     if name == "mlp":
         model, train, val, tensors = _mlp_learner(root, train_eps, val_eps, 15)
-        opt = make_optimizer(model, lr, 0.01)
+        opt = make_optimizer(model, lr, 0.01, optimizer)
 
         def step(idx: np.ndarray) -> None:
             x, y = tensors(train.get_batch(idx))
@@ -151,7 +152,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
                               episodes=train_eps)
         val = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
                             episodes=val_eps)
-        opt = make_optimizer(policy, lr, 0.01)
+        opt = make_optimizer(policy, lr, 0.01, optimizer)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(100, 10**9, 1.0))
         gen = torch.Generator().manual_seed(SEED)
         masked = name.startswith("msta")
@@ -224,7 +225,10 @@ class BenchLearnConfig:
         episodes: teacher episodes to record (>= 40 for the issue's benchmark).
         episode_length_s: teacher episode length (s).
         learners: comma-separated subset of msta_cpu, msta_paper, gru, mlp.
-        lr: AdamW learning rate (every learner).
+        lr: learning rate (every learner).
+        optimizer: adamw, or muon (Muon on the transformer block matrices of the MSTA
+            learners, AdamW on the rest; the GRU and the MLP have no such blocks and keep
+            AdamW); default: msta-train's.
     """
 
     output_dir: str = "outputs/bench_learn"
@@ -235,8 +239,11 @@ class BenchLearnConfig:
     episode_length_s: float = 10.0
     learners: str = ",".join(LEARNERS)
     lr: float = 1e-3
+    optimizer: str = LoopConfig.optimizer
 
     def __post_init__(self) -> None:
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
         bad = sorted(set(self.names()) - set(LEARNERS))
         if bad:
             raise ValueError(f"unknown learners {bad}; choose from {list(LEARNERS)}")
@@ -263,14 +270,16 @@ def main(argv: list[str] | None = None) -> None:
           f"{len(learners)} learners x {args.seconds:.0f} s on {args.num_threads} threads", flush=True)
     curves = []
     for name in learners:
-        c = run_learner(name, root, args.seconds, args.eval_every, args.lr, 64)
+        c = run_learner(name, root, args.seconds, args.eval_every, args.lr, 64, args.optimizer)
         curves.append(c)
         tail = "" if math.isnan(c.val_masked[-1]) else f", at test mask 0.5 {c.val_masked[-1]:.4f}"
-        print(f"{name:<11} {c.steps[-1]:>6} steps ({c.samples_per_s:.0f} samples/s): "
+        print(f"{name:<11} {c.steps[-1]:>6} steps ({c.samples_per_s / 64:.1f} steps/s, "
+              f"{c.samples_per_s:.0f} samples/s): "
               f"val MSE {c.val[-1]:.4f}{tail}", flush=True)
     plot(curves, out / "learning_curves.png")
     (out / "results.json").write_text(json.dumps(
         {"seconds_per_learner": args.seconds, "threads": args.num_threads, "lr": args.lr,
+         "optimizer": args.optimizer,
          "curves": [c.__dict__ for c in curves]}, indent=1) + "\n")
     print(f"curves: {out / 'learning_curves.png'}; figures: {out / 'results.json'}")
     final = {c.name: c.val[-1] for c in curves}

@@ -199,7 +199,7 @@ def print_summary(figs: dict[str, Any]) -> None:
     for dev, sps in figs["stage1_samples_per_s"].items():
         print(f"| stage-1 samples/s on {dev} | {sps:,.0f} |")
     p = figs["parity"]
-    print(f"| CPU vs CUDA actions | " + (f"max {p['max_abs']:.2e} (mean {p['mean_abs']:.2e}; "
+    print("| CPU vs CUDA actions | " + (f"max {p['max_abs']:.2e} (mean {p['mean_abs']:.2e}; "
           f"{p['max_in_action_std']:.2e} action std) over {p['windows']} windows"
           if p["compared"] else p["why"]) + " |")
     tr = figs["stage2"].get("train", {})

@@ -65,8 +65,8 @@ from msta_data.errors import DirectoryLockedError
 from msta_data.features import load_info
 from msta_data.locking import hold_directory
 from policies.factory import select_device
-from train.config import OPTIMIZERS
 from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+from train.config import OPTIMIZERS
 
 PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).

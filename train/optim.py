@@ -72,7 +72,10 @@ class MuonAdamW(torch.optim.Optimizer):
         self._share()
 
     @torch.no_grad()
-    def step(self, closure=None):  # noqa: ANN001, ANN201 (torch's signature)
+    def step(self, closure: None = None) -> None:
+        """Muon's update, then AdamW's (neither needs a closure; one is refused)."""
+        if closure is not None:
+            raise ValueError("MuonAdamW.step takes no closure")
         self._muon.step()
         self._adamw.step()
 
