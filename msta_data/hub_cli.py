@@ -64,8 +64,10 @@ class ServeConfig:
         max_card_bytes: largest README.md YAML front matter the server parses.
         max_connections: requests served at once (headers read, answer not yet sent); more
             get 503.
-        max_anonymous: of those, requests without a token; the rest stay for users.
-        max_anonymous_per_client: anonymous requests served at once from one IP address.
+        max_anonymous: of those, requests without a token (more get 429); the rest stay
+            for users.
+        max_anonymous_per_client: anonymous requests served at once from one IP address
+            (more get 429).
         max_open_connections: open connections (idle, sending headers or served); more get 503.
         max_open_per_client: open connections from one IP address.
         verbose: log requests and progress (serve always logs requests).

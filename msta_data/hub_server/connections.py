@@ -104,19 +104,22 @@ class Admission:
             if self._open[client] <= 0:
                 del self._open[client]
 
-    def begin(self, client: str, anonymous: bool) -> bool:
-        """Take a request slot; False when none is left for this kind of request."""
+    def begin(self, client: str, anonymous: bool) -> int | None:
+        """Take a request slot: None when taken, else the status of the refusal: 503 when
+        the server has no slot left, 429 when the anonymous share (in all or of ``client``)
+        is used. huggingface_hub retries a file download on 429, not on 503, so a client
+        downloading with more threads than its share waits instead of failing."""
         _, _, max_busy, max_anonymous, per_client = self._limits
         with self._lock:
             if self._n_busy >= max_busy:
-                return False
+                return 503
             if anonymous:
                 if self._n_anonymous >= max_anonymous or self._anonymous[client] >= per_client:
-                    return False
+                    return 429
                 self._n_anonymous += 1
                 self._anonymous[client] += 1
             self._n_busy += 1
-            return True
+            return None
 
     def end(self, client: str, anonymous: bool) -> None:
         with self._lock:

@@ -6,7 +6,7 @@ arrive within ``header_timeout_s`` and 64 KiB (else 408 / 431, connection closed
 (Content-Length / chunked, no folded or malformed header lines) is checked (400), the route is
 found (404/405), the token is checked (401), the declared body size is checked against the
 route's limit, smaller for anonymous requests (413, nothing read), a request slot is taken
-(503 when none is left for this kind of client, connection closed), and only then the
+(503 when none is left, 429 when the anonymous share is used; connection closed), and only then the
 endpoint reads the body, bounded in size (413) and pace (408). After another error answer a
 body of at most ``max_anonymous_body_bytes`` (``max_body_bytes`` for users) is drained, at the
 same pace, so keep-alive clients keep their connection; larger or broken ones close it. A full
@@ -52,6 +52,9 @@ _BAD_HEADER_VALUE = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")  # CR, LF (folded li
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,18}")
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 _CLOSING = {408: b"408 Request Timeout", 431: b"431 Request Header Fields Too Large"}
+_BUSY_MESSAGE = {503: "the server is busy (too many requests in progress); retry later",
+                 429: "too many requests without a token in progress (from this address or in all); "
+                      "retry later, or pass a token"}
 
 
 def escape_controls(text: str) -> str:
@@ -181,10 +184,10 @@ class HubHandler(BaseHTTPRequestHandler):
         limit = self._body_limit(route, anonymous)
         if length is not None and length > limit:
             raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
-        if not self.server.admission.begin(self.client_address[0], anonymous):  # type: ignore[attr-defined]
+        refused = self.server.admission.begin(self.client_address[0], anonymous)  # type: ignore[attr-defined]
+        if refused is not None:
             self._reader.broken = True  # busy: close rather than read the body
-            raise HttpError(503, "the server is busy (too many requests in progress); retry later",
-                            headers={"Retry-After": "1"})
+            raise HttpError(refused, _BUSY_MESSAGE[refused], headers={"Retry-After": "1"})
         self._slot = anonymous
         self._reader.limit = limit
         values = boundary.MAX_ANONYMOUS_JSON_VALUES if anonymous else boundary.MAX_JSON_VALUES

@@ -46,8 +46,9 @@ class Limits:
         max_connections: requests served at once (from their headers to their answer);
             more get 503.
         max_anonymous: of those, at most this many without a token (or upload ticket); the
-            rest stay free for authenticated users.
-        max_anonymous_per_client: anonymous requests served at once from one IP address.
+            rest stay free for authenticated users. More get 429 (huggingface_hub retries it).
+        max_anonymous_per_client: anonymous requests served at once from one IP address
+            (429 beyond).
         max_open_connections: open connections (idle, sending headers or being served); more
             are answered 503 and closed at once.
         max_open_per_client: open connections from one IP address.

@@ -9,11 +9,15 @@ connections are open. Linux routes all of 127.0.0.0/8 to loopback, so connection
 
 from __future__ import annotations
 
+import io
 import select
 import socket
+import threading
 import time
 
 import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+from huggingface_hub import hf_hub_url
+from huggingface_hub.file_download import http_get
 
 ALICE = H.ALICE
 _YAML_HEAD = b"POST /api/validate-yaml HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n"
@@ -109,7 +113,7 @@ def test_endless_chunked_trailers_are_cut_off_by_pace_and_by_size(tmp_path):
 def test_64_slow_anonymous_connections_leave_authenticated_users_served(tmp_path):
     """With the default limits, 32 trickled headers and 32 endless trailers from one address:
     an authenticated request is answered within 1 s; the address holds 8 anonymous request
-    slots (``max_anonymous_per_client``), its other slow bodies got 503 at once."""
+    slots (``max_anonymous_per_client``), its other slow bodies got 429 at once."""
     srv = H.start_server(tmp_path / "hub")
     slow = [_slow_headers(srv) for _ in range(32)]
     trailers = [_slow_trailers(srv) for _ in range(32)]
@@ -118,9 +122,9 @@ def test_64_slow_anonymous_connections_leave_authenticated_users_served(tmp_path
         t0 = time.monotonic()
         status, body, _ = H.call(srv, "GET", "/api/whoami-v2", token=ALICE)
         assert status == 200 and time.monotonic() - t0 < 1.0, body
-        assert refused == [503] * (32 - 8)
+        assert refused == [429] * (32 - 8)
         status, _, headers = H.call(srv, "POST", "/api/validate-yaml", b"{}")
-        assert status == 503 and headers["retry-after"] == "1"  # this address's anonymous share is used
+        assert status == 429 and headers["retry-after"] == "1"  # this address's anonymous share is used
         assert H.call(srv, "POST", "/api/validate-yaml", b"{}", ALICE)[0] == 200
     finally:
         for s in slow + trailers:
@@ -139,9 +143,35 @@ def test_per_client_caps_hold_one_address_and_not_the_others(tmp_path):
         with _slow_headers(srv, "127.0.0.2") as s:
             assert _status(_answer(s, 5)) == 503  # 127.0.0.2 has 3 open connections
         with _slow_trailers(srv, "127.0.0.3") as s:
-            assert _status(_answer(s, 5)) == 503  # 127.0.0.3 holds its one anonymous slot
+            assert _status(_answer(s, 5)) == 429  # 127.0.0.3 holds its one anonymous slot
         assert H.call(srv, "POST", "/api/validate-yaml", b"{}")[0] == 200  # from 127.0.0.1
     finally:
         for s in [*idle, held]:
+            s.close()
+        srv.stop()
+
+
+def test_a_download_over_the_anonymous_share_waits_and_succeeds(tmp_path):
+    """An anonymous client over its share is told 429 with Retry-After, which huggingface_hub's
+    file download retries (it does not retry 503): a snapshot_download with more threads than
+    ``max_anonymous_per_client`` gets every file. Here the address's two slots are held by slow
+    bodies released after 1 s, while a file download is refused and retried."""
+    srv = H.start_server(tmp_path / "hub", max_anonymous_per_client=2)
+    H.create_repo(srv, ALICE, "pub", repo_type="dataset")
+    data = bytes(range(256)) * 64
+    assert H.commit(srv, ALICE, "alice/pub", [H.inline_file("f.bin", data)], repo_type="datasets")[0] == 200
+    held = [_slow_trailers(srv) for _ in range(2)]
+    try:
+        deadline = time.monotonic() + 10
+        while H.call(srv, "GET", "/api/whoami-v2")[0] not in (429, 503):  # 401 while a slot is free
+            assert time.monotonic() < deadline, "the slow bodies never took their slots"
+            time.sleep(0.05)
+        threading.Timer(1.0, lambda: [s.close() for s in held]).start()
+        got = io.BytesIO()
+        http_get(hf_hub_url("alice/pub", "f.bin", repo_type="dataset",
+                            endpoint=f"http://127.0.0.1:{srv.port}"), got)
+        assert got.getvalue() == data
+    finally:
+        for s in held:
             s.close()
         srv.stop()
