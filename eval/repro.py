@@ -7,17 +7,19 @@
 Phases (each skipped when its output exists, so re-running the command after a kill
 continues where it stopped; a killed training resumes from its last checkpoint):
 
-1. **dataset**: the teacher (``--teacher.type``, default the shipped RMA MLP) records
+1. **dataset**: the teacher (``--teacher.*``, default the shipped PPO teacher rma_ppo) records
    ``collect_episodes`` episodes on terrain levels 0-2 with DART noise (the demo's recipe);
 2. **policies**: every policy of ``--policies`` (default the paper's seven: MSTA, MSTA w/
    learnable mask, GRU, RMA-TCN, TERT concat / separate / w/ learnable mask) gets stage 1 and
    stage 2 with the same budgets, each on its own dataset copy (msta-compare's code:
-   :func:`eval.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5;
+   :func:`eval.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
+   the stage-2 rollouts of masked students drive half of the robots at test mask 0.5;
 3. **heatmap**: MSTA students at every (stage-1, stage-2) training mask of the scale's grid
    (a reduced grid at reference scale; the paper's 4 x 4 at paper scale);
 4. **evaluation** (msta-eval, the same trials, terrains, levels and seed everywhere):
    Table I (test masks 0 / 25 / 50 %) for every policy; one sensor removed, k dead joint
-   encoders and the window T for MSTA; the heatmap's test masks for the grid;
+   encoders and the window T for MSTA; the heatmap's test masks for the grid; MSTA and
+   the GRU at levels 3-4 too;
 5. **report**: ``report_dir/report.md`` (every table with the paper's value beside ours,
    the issue's minimums and the paper's qualitative findings checked with the numbers, the
    command, the machine, the revision and the time per phase), each evaluation's
@@ -104,9 +106,9 @@ SCALES: dict[str, Scale] = {
                   (0.0, 0.5), 1, 1.0),
     # 2 CPU cores, <= 2.5 h: the demo's recipe per policy (288 DART episodes, cpu preset at
     # the paper's T = 15); the estimate is the run of 2026-12-04 (docs/reference), every
-    # phase timed on idle cores: 134.5 min, 88 without the heatmap
+    # phase timed on idle cores: 134.5 min, 88 without the heatmap; + ~5 min for levels 3-4
     "reference": Scale(288, 10.0, "cpu", 2000, 2, 32, 800, 10.0, 64, 100, "0,1,2", "", 5.0,
-                       (0.5, 0.75), (0.0, 0.5), 1, 135.0),
+                       (0.5, 0.75), (0.0, 0.5), 1, 140.0),
     # the paper's sizes (a GPU machine): 5000 trials over every level, the full 4 x 4 grid
     "paper": Scale(4000, 20.0, "paper", 20000, 5, 256, 4000, 20.0, 256, 5000, "", "", 0.0,
                    (0.0, 0.25, 0.5, 0.75), (0.0, 0.25, 0.5, 0.75), 5, 1440.0),
