@@ -11,6 +11,7 @@ import base64
 import hashlib
 import http.client
 import json
+import socket
 from pathlib import Path
 from urllib.parse import urlsplit
 
@@ -20,6 +21,22 @@ __test__ = False  # nothing to collect here
 
 ALICE, BOB = "hf_aaaaaaaa", "hf_bbbbbbbb"
 TOKENS = [f"alice:{ALICE}", f"bob:{BOB}"]
+
+
+def read_until_closed(s: socket.socket) -> bytes:
+    """Everything the server sends on ``s`` until it hangs up (or the socket's timeout)."""
+    chunks = []
+    try:
+        while chunk := s.recv(65536):
+            chunks.append(chunk)
+    except (TimeoutError, ConnectionResetError):
+        pass
+    return b"".join(chunks)
+
+
+def status(answer: bytes) -> int:
+    """The status code of a raw HTTP answer (-1: no status line)."""
+    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/") else -1
 
 
 def start_server(root: Path, **limits: float) -> HubServer:

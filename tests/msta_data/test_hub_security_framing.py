@@ -44,17 +44,10 @@ def _raw(port: int, data: bytes, pause_after: int | None = None, between=None) -
             time.sleep(0.2)
             between()
             s.sendall(data[pause_after:])
-        chunks = []
-        try:
-            while chunk := s.recv(65536):
-                chunks.append(chunk)
-        except (TimeoutError, ConnectionResetError):
-            pass
-    return b"".join(chunks)
+        return H.read_until_closed(s)
 
 
-def _status(answer: bytes) -> int:
-    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/") else -1
+_status = H.status
 
 
 def _post(head: bytes, body: bytes = b"") -> bytes:

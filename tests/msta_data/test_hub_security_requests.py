@@ -34,17 +34,11 @@ def _raw(srv, head: bytes, body: bytes = b"", wait_s: float = 0.0, read_s: float
     with socket.create_connection(("127.0.0.1", srv.port), timeout=read_s) as s:
         s.sendall(head + body)
         time.sleep(wait_s)
-        chunks = []
-        try:
-            while chunk := s.recv(65536):
-                chunks.append(chunk)
-        except (TimeoutError, ConnectionResetError):
-            pass
-    return b"".join(chunks), time.monotonic() - t0
+        answer = H.read_until_closed(s)
+    return answer, time.monotonic() - t0
 
 
-def _status(answer: bytes) -> int:
-    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/") else -1
+_status = H.status
 
 
 def _alive(srv) -> bool:

@@ -62,8 +62,7 @@ def _answers(socks: list[socket.socket], expected: int, wait_s: float = 10.0) ->
     return list(got.values()) + [_status(_answer(s, 1.0)) for s in ready]
 
 
-def _status(answer: bytes) -> int:
-    return int(answer.split(b" ", 2)[1]) if answer.startswith(b"HTTP/") else -1
+_status = H.status
 
 
 def _trickle(s: socket.socket, pieces: list[bytes], every_s: float) -> tuple[bytes, float]:
