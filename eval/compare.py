@@ -259,7 +259,7 @@ def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
     if cfg.collect_episodes and have < cfg.collect_episodes:  # recorded, or extended
         from collect.record import CollectConfig, collect
 
-        t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.type} episodes of "
+        t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.label} episodes of "
                        f"{cfg.collect_episode_length_s:g} s -> {root}")
         collect(CollectConfig(teacher=cfg.teacher, episodes=cfg.collect_episodes,
                               num_envs=cfg.collect_num_envs, root=str(root), resume=True,
@@ -429,7 +429,7 @@ def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: st
 
     ec = metrics["config"]
     setup = (
-        f"Teacher `{cfg.teacher.type}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
+        f"Teacher `{cfg.teacher.label}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
         f"stage 1 {cfg.stage1_steps} steps; stage 2 {cfg.stage2_rounds} round(s) x "
         f"{cfg.episodes_per_round} episodes of {cfg.stage2_episode_length_s:g} s + {cfg.stage2_steps} "
         f"steps (mask {cfg.stage2_mask_ratio:g} for masked-trained policies); batch "

@@ -215,7 +215,7 @@ def check_run(cfg: ReproConfig, out: Path) -> None:
 def print_sizes(cfg: ReproConfig) -> None:
     s = cfg.sizes
     grid = len(s.heatmap_stage1) * len(s.heatmap_stage2) if cfg.heatmap else 0
-    print(f"[{PROG}] scale {cfg.scale}: teacher {cfg.teacher.type}; dataset "
+    print(f"[{PROG}] scale {cfg.scale}: teacher {cfg.teacher.label}; dataset "
           f"{s.collect_episodes} episodes of {s.collect_episode_length_s:g} s (levels 0-2, DART "
           f"noise 0.5); {len(cfg.policy_list)} policies ({', '.join(cfg.policy_list)}), preset "
           f"{s.preset}: stage 1 {s.stage1_steps} steps x {s.batch_size}, stage 2 "
@@ -234,7 +234,7 @@ def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:
     s = cfg.sizes
     have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
     if have < s.collect_episodes:  # recorded, or extended after a kill
-        t = prog.start("dataset", f"{s.collect_episodes} {cfg.teacher.type} episodes")
+        t = prog.start("dataset", f"{s.collect_episodes} {cfg.teacher.label} episodes")
         easy_terrain_dataset(root, s.collect_episodes, s.collect_episode_length_s,
                              "repro/a1_teacher", cfg.teacher, action_noise=0.5)
         prog.done("dataset", t)

@@ -155,7 +155,7 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
     lines = [
         f"# The paper's experiments, {cfg.scale} scale (msta-repro)", "",
         "```bash", command, "```", "",
-        f"Made {datetime.date.today().isoformat()} on {machine}. Teacher `{cfg.teacher.type}`; "
+        f"Made {datetime.date.today().isoformat()} on {machine}. Teacher `{cfg.teacher.label}`; "
         f"dataset {s.collect_episodes} teacher episodes of {s.collect_episode_length_s:g} s "
         f"(levels 0-2, DART noise 0.5); preset `{s.preset}`; stage 1 {s.stage1_steps} steps x "
         f"{s.batch_size}; stage 2 {s.stage2_rounds} rounds x {s.episodes_per_round} episodes "

@@ -65,6 +65,11 @@ class TeacherConfig:
         if self.path and not Path(self.path).exists():
             raise FileNotFoundError(f"teacher path {self.path!r} does not exist")
 
+    @property
+    def label(self) -> str:
+        """The teacher as reports name it: ``rma (rma_ppo)``, ``gait``."""
+        return f"{self.type} ({Path(self.path).name})" if self.path else self.type
+
 
 def build_teacher(cfg: TeacherConfig) -> Teacher:
     """Instantiate the configured teacher."""

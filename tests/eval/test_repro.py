@@ -150,3 +150,11 @@ def test_without_the_heatmap_the_report_says_finding_a_was_not_measured(study) -
     assert "- (a) stage-2 mask vs stage-1 mask: n/a (no heatmap)" in md
     assert "## Train-mask heatmap" not in md and "| msta | T=20 | 2 | " in md
     assert not (out / "report_nh" / "heatmap").exists()
+
+
+def test_the_study_defaults_to_the_demos_teacher_and_names_it() -> None:
+    from eval.demo import DemoConfig
+
+    cfg = ReproConfig(scale="tiny")
+    assert cfg.teacher == DemoConfig().teacher
+    assert cfg.teacher.label == "rma (rma_ppo)"
