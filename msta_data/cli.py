@@ -366,6 +366,28 @@ def check_number(name: str, value: Any, minimum: float | None = None,
     raise ValueError(f"{name}={value} must be {finite}{bound}" + (f" ({why})" if why else ""))
 
 
+def check_finite_fields(config: Any, prefix: str = "") -> None:
+    """Raise a one-line ``ValueError("<prefix><name>=nan must be a finite number")`` for the
+    first float of the dataclass ``config`` (nested dataclasses, tuples, lists and dict values
+    included) that is NaN or infinite: options without a range check of their own (a reward
+    scale, a PD gain, a command range) must not reach the simulator as NaN either."""
+    for f in dataclasses.fields(config):
+        _check_finite(f"{prefix}{f.name}", getattr(config, f.name))
+
+
+def _check_finite(name: str, value: Any) -> None:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        check_finite_fields(value, name + ".")
+    elif isinstance(value, tuple | list):
+        for v in value:
+            _check_finite(name, v)
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(f"{name}.{k}", v)
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"{name}={value} must be a finite number")
+
+
 def check_at_least(config: Any, minimum: float, *names: str, maximum: float | None = None,
                    why: str = "") -> None:
     """:func:`check_number` on each of the config's fields ``names``: ``ValueError("<name>=

@@ -9,7 +9,7 @@ from collect.sim.commands import CommandConfig
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.rewards import RewardConfig
 from collect.sim.terrain import TerrainConfig
-from msta_data.cli import check_number
+from msta_data.cli import check_finite_fields, check_number
 from msta_data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
 
 #: The most environments one simulator steps (legged_gym trains with 4,096; every
@@ -103,6 +103,7 @@ class EnvConfig:
 
     def __post_init__(self) -> None:
         check_sizes(self.num_envs, self.episode_length_s, self.nthread)
+        check_finite_fields(self, "env.")
         self.type_weights = tuple(self.type_weights)
         robot.check_collision_set(self.collision)
         if self.type_weights and len(self.type_weights) != len(self.terrain.types):

@@ -39,6 +39,12 @@ CASES = [
     ("msta-train-teacher", train_teacher_main, "--ppo.gamma=nan", "ppo.gamma=nan"),
     ("msta-train-teacher", train_teacher_main, "--warmstart.lr=inf", "lr=inf"),
     ("msta-finetune-ppo", finetune_ppo_main, "--env.episode_length_s=inf", "episode_length_s=inf"),
+    # every float of the simulator's nested configs, not only the sizes
+    ("msta-collect", collect_main, "--env.commands.resample_s=nan", "env.commands.resample_s=nan"),
+    ("msta-collect", collect_main, "--env.rewards.tracking_sigma=inf",
+     "env.rewards.tracking_sigma=inf"),
+    ("msta-train-teacher", train_teacher_main, "--env.control.kp=inf", "env.control.kp=inf"),
+    ("msta-finetune-ppo", finetune_ppo_main, "--env.noise.scale=nan", "env.noise.scale=nan"),
 ]
 
 
