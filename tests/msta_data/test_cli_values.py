@@ -44,6 +44,10 @@ CASES = [
     ("msta-collect", collect_main, "--env.rewards.tracking_sigma=inf",
      "env.rewards.tracking_sigma=inf"),
     ("msta-train-teacher", train_teacher_main, "--env.control.kp=inf", "env.control.kp=inf"),
+    ("msta-train-teacher", train_teacher_main, "--ppo.num_steps_per_env=100000000",
+     "num_steps_per_env=100000000"),
+    ("msta-finetune-ppo", finetune_ppo_main, "--ppo.num_steps_per_env=100000000",
+     "num_steps_per_env=100000000"),
     ("msta-finetune-ppo", finetune_ppo_main, "--env.noise.scale=nan", "env.noise.scale=nan"),
 ]
 

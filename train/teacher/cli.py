@@ -44,6 +44,11 @@ PROG = "msta-train-teacher"
 _MODEL = re.compile(r"^model_(\d+)\.pt$")
 
 
+#: The longest rollout per robot and PPO iteration (200 s at 50 Hz; rsl_rl recipes use 24-48
+#: steps): rsl_rl allocates the whole rollout of every robot before the first step.
+MAX_STEPS_PER_ENV = 10_000
+
+
 @dataclass
 class PPOConfig:
     """rsl_rl PPO settings (legged_gym's defaults unless noted).
@@ -93,8 +98,9 @@ class PPOConfig:
 
     def __post_init__(self) -> None:
         check_at_least(self, 0, "iterations", "critic_warmup", "snapshot_interval")
-        check_at_least(self, 1, "num_steps_per_env", "num_learning_epochs", "num_mini_batches",
-                       "save_interval")
+        check_at_least(self, 1, "num_learning_epochs", "num_mini_batches", "save_interval")
+        check_at_least(self, 1, "num_steps_per_env", maximum=MAX_STEPS_PER_ENV,
+                       why="rsl_rl stores each iteration's whole rollout")
         for name in ("learning_rate", "desired_kl", "init_std", "clip_param"):
             check_number(f"ppo.{name}", getattr(self, name), 0, above=True)
         check_number("ppo.entropy_coef", self.entropy_coef, 0)
