@@ -138,7 +138,7 @@ def repo_info(app: HubApp, req: Request) -> Response:
             sib["lfs"] = {"size": entry.size, "sha256": entry.sha256,
                           "pointerSize": len(lfs_pointer(entry.sha256, entry.size))}
         siblings.append(sib)
-    card = _card(app, commit.files.get("README.md"))
+    card = _card(app, commit.files.get("README.md"), anonymous=req.user is None)
     body = {"_id": meta.repo_id, "id": meta.repo_id, "author": meta.namespace, "sha": sha,
             "lastModified": commit.date, "createdAt": meta.created_at, "private": meta.private,
             "disabled": False, "gated": False, "downloads": 0, "likes": 0,
@@ -153,14 +153,15 @@ def repo_info(app: HubApp, req: Request) -> Response:
     return Response(body=body)
 
 
-def _card(app: HubApp, entry: FileEntry | None) -> dict | None:
-    """The README's front matter (read from its first bytes only), or None."""
+def _card(app: HubApp, entry: FileEntry | None, anonymous: bool) -> dict | None:
+    """The README's front matter (read from its first bytes only), or None; ``anonymous``:
+    read for a request without a token (cards.front_matter's parser slots)."""
     if entry is None:
         return None
     limit = app.limits.max_card_bytes
     with open(app.storage.blob_path(entry.sha256), "rb") as f:
         head = f.read(limit + 64 * 1024)
-    return front_matter(head.decode("utf-8", errors="replace"), max_bytes=limit)
+    return front_matter(head.decode("utf-8", errors="replace"), max_bytes=limit, anonymous=anonymous)
 
 
 # ------------------------------------------------------------------ refs

@@ -10,8 +10,9 @@ owns (they do not depend on how a PyYAML version builds merges or aliases):
   expanded*, so neither a "billion laughs" of nested aliases nor a merge-key bomb gets
   further than this count;
 - it is then loaded with PyYAML's safe loader (libyaml when present: nesting deeper than
-  1000 levels is refused), at most ``PARSERS`` cards at a time (the work is CPU-bound, so
-  this costs no throughput and bounds the memory of parallel requests);
+  1000 levels is refused), at most ``PARSERS`` cards at a time for anonymous requests and as
+  many for authenticated ones (the work is CPU-bound, so this costs no throughput and bounds
+  the memory of parallel requests; a user's card never waits behind anonymous ones);
 - the loaded value must stay small once aliases are expanded (at most ``EXPANSION_FACTOR``
   times the front matter's size, no alias cycles, at most ``MAX_DEPTH`` levels).
 
@@ -36,30 +37,33 @@ EXPANSION_FACTOR = 4
 MAX_DEPTH = 100
 MAX_NODES = 100_000
 PARSERS = 2
-_PARSING = threading.BoundedSemaphore(PARSERS)
+#: anonymous request -> its parser slots (separate, so users never queue behind anonymous cards)
+_PARSING = {True: threading.BoundedSemaphore(PARSERS), False: threading.BoundedSemaphore(PARSERS)}
 
 
 class CardError(ValueError):
     """The card's YAML front matter is malformed or too large."""
 
 
-def front_matter(text: str, strict: bool = False, max_bytes: int = MAX_CARD_BYTES) -> dict | None:
+def front_matter(text: str, strict: bool = False, max_bytes: int = MAX_CARD_BYTES, *,
+                 anonymous: bool = True) -> dict | None:
     """The YAML mapping at the top of a card as JSON-ready data, or None when there is none.
 
     Args:
         text: README.md content (its first ``max_bytes`` bytes and a little more suffice).
         strict: raise CardError on malformed or oversized YAML instead of returning None.
         max_bytes: longest front matter accepted, in bytes of UTF-8.
+        anonymous: parsed for a request without a token (it takes an anonymous parser slot).
     """
     try:
-        return _front_matter(text, max_bytes)
+        return _front_matter(text, max_bytes, anonymous)
     except CardError:
         if strict:
             raise
         return None
 
 
-def _front_matter(text: str, max_bytes: int) -> dict | None:
+def _front_matter(text: str, max_bytes: int, anonymous: bool) -> dict | None:
     m = _FRONT_MATTER.match(text.lstrip("\ufeff"))
     if m is None:
         return None
@@ -69,7 +73,7 @@ def _front_matter(text: str, max_bytes: int) -> dict | None:
         raise CardError(f"YAML front matter is {size} bytes; this server accepts at most {max_bytes}")
     try:
         _count_nodes(source)
-        with _PARSING:
+        with _PARSING[anonymous]:
             data = yaml.load(source, Loader=_LOADER)
     except CardError:
         raise
@@ -164,10 +168,12 @@ class _Budget:
         return value
 
 
-def validate_card(text: str, repo_type: str, max_bytes: int = MAX_CARD_BYTES) -> list[str]:
-    """Errors found in a card's metadata (empty list when valid)."""
+def validate_card(text: str, repo_type: str, max_bytes: int = MAX_CARD_BYTES, *,
+                  anonymous: bool = True) -> list[str]:
+    """Errors found in a card's metadata (empty list when valid); ``anonymous`` as for
+    :func:`front_matter`."""
     try:
-        data = front_matter(text, strict=True, max_bytes=max_bytes)
+        data = front_matter(text, strict=True, max_bytes=max_bytes, anonymous=anonymous)
     except CardError as err:
         return [str(err)]
     errors = []

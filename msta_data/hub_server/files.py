@@ -228,7 +228,7 @@ def validate_yaml(app: HubApp, req: Request) -> Response:
     """POST /api/validate-yaml {content, repoType}: 400 with ``errors`` when the metadata is bad."""
     data = req.json_object()
     errors = validate_card(field(data, "content", str, ""), field(data, "repoType", str, "model"),
-                           app.limits.max_card_bytes)
+                           app.limits.max_card_bytes, anonymous=req.user is None)
     if errors:
         raise HttpError(400, "Invalid metadata in README.md", extra={"errors": [{"message": e} for e in errors]})
     return Response(body={"warnings": []})
