@@ -308,13 +308,15 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
 
 
 def copy_dataset(root: Path, dest: Path) -> Path:
-    """The policy's own copy of the teacher dataset (atomic: copied, then renamed)."""
+    """The policy's own copy of the teacher dataset (atomic: copied, then renamed), without
+    the lock and what a resume set aside (``.msta-quarantine/``, left with the original)."""
     if dest.is_dir():
         return dest
     tmp = dest.with_name(dest.name + ".tmp")
     if tmp.exists():
         shutil.rmtree(tmp)
-    shutil.copytree(root, tmp, ignore=shutil.ignore_patterns(*layout.LOCAL_ONLY_FILES))
+    shutil.copytree(root, tmp, ignore=shutil.ignore_patterns(*layout.LOCAL_ONLY_FILES,
+                                                             layout.QUARANTINE_DIR))
     tmp.rename(dest)
     return dest
 

@@ -113,3 +113,23 @@ def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishe
     timing = json.loads((tmp_path / "timing.json").read_text())
     assert 0.2 <= timing["msta stage 1"] < 5  # the first call's share is in the total
     assert json.loads((tmp_path / "timing_partial.json").read_text()) == {}
+
+
+def test_a_policys_copy_leaves_the_quarantine_and_the_lock_behind(tmp_path) -> None:
+    """Each policy appends to its own copy of the teacher dataset: what a resume set aside
+    (``.msta-quarantine/``: up to 100 MB per file of an interrupted flush) stays with the
+    original, where the user checks it, instead of being copied once per policy."""
+    from eval.compare import copy_dataset
+    from msta_data.layout import LOCK_NAME, QUARANTINE_DIR
+
+    root = tmp_path / "teacher"
+    files = {"data/chunk-000/file-000.parquet": b"episodes", "meta/info.json": b"{}",
+             f"{QUARANTINE_DIR}/20261204T000000Z/data/chunk-000/file-001.parquet": b"aside",
+             LOCK_NAME: b"123"}
+    for rel, content in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(content)
+    own = copy_dataset(root, tmp_path / "run" / "dataset")
+    copied = sorted(p.relative_to(own).as_posix() for p in own.rglob("*") if p.is_file())
+    assert copied == ["data/chunk-000/file-000.parquet", "meta/info.json"]
+    assert (own / "data/chunk-000/file-000.parquet").read_bytes() == b"episodes"
