@@ -9,6 +9,7 @@ action target, presets) are :class:`policies.config.PolicyConfig`'s.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -103,7 +104,7 @@ class MSTAConfig(PolicyConfig):
                              f"got {self.value_embedding!r}")
         if self.value_init not in VALUE_INITS:
             raise ValueError(f"value_init must be one of {VALUE_INITS}, got {self.value_init!r}")
-        if self.init_std < 0:
-            raise ValueError(f"init_std must be >= 0, got {self.init_std}")
-        if self.sensor_embed_std < 0:
-            raise ValueError(f"sensor_embed_std must be >= 0, got {self.sensor_embed_std}")
+        for name in ("init_std", "sensor_embed_std"):  # NaN would make every weight NaN
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value}")

@@ -30,6 +30,8 @@ CASES = [
     ("msta-train", train_main, "--weight_decay=nan", "weight_decay=nan"),
     ("msta-train", train_main, "--batch_size=100000000", "batch_size=100000000"),
     ("msta-train", train_main, "--grad_clip=nan", "grad_clip=nan"),
+    ("msta-train", train_main, "--policy.init_std=nan", "init_std must be a finite number"),
+    ("msta-train", train_main, "--policy.sensor_embed_std=inf", "sensor_embed_std"),
     ("msta-correct", correct_main, "--num_envs=100000000", "num_envs=100000000"),
     ("msta-correct", correct_main, "--episode_length_s=inf", "episode_length_s=inf"),
     ("msta-finetune", finetune_main, "--max_minutes=nan", "max_minutes=nan"),
