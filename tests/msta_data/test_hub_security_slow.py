@@ -150,6 +150,23 @@ def test_per_client_caps_hold_one_address_and_not_the_others(tmp_path):
         srv.stop()
 
 
+def _hold_anonymous_slots(srv, n: int) -> list[socket.socket]:
+    """``n`` slow bodies holding this address's ``n`` anonymous request slots, checked by an
+    anonymous probe that is refused (401 while a slot is free). A slow body refused because a
+    probe held a slot at that moment (it got an answer) is sent again."""
+    held = [_slow_trailers(srv) for _ in range(n)]
+    deadline = time.monotonic() + 20
+    while True:
+        assert time.monotonic() < deadline, "the slow bodies never took their slots"
+        refused, _, _ = select.select(held, [], [], 0.05)
+        for s in refused:
+            held.remove(s)
+            s.close()
+            held.append(_slow_trailers(srv))
+        if not refused and H.call(srv, "GET", "/api/whoami-v2")[0] in (429, 503):
+            return held
+
+
 def test_a_download_over_the_anonymous_share_waits_and_succeeds(tmp_path):
     """An anonymous client over its share is told 429 with Retry-After, which huggingface_hub's
     file download retries (it does not retry 503): a snapshot_download with more threads than
@@ -159,12 +176,8 @@ def test_a_download_over_the_anonymous_share_waits_and_succeeds(tmp_path):
     H.create_repo(srv, ALICE, "pub", repo_type="dataset")
     data = bytes(range(256)) * 64
     assert H.commit(srv, ALICE, "alice/pub", [H.inline_file("f.bin", data)], repo_type="datasets")[0] == 200
-    held = [_slow_trailers(srv) for _ in range(2)]
+    held = _hold_anonymous_slots(srv, 2)
     try:
-        deadline = time.monotonic() + 10
-        while H.call(srv, "GET", "/api/whoami-v2")[0] not in (429, 503):  # 401 while a slot is free
-            assert time.monotonic() < deadline, "the slow bodies never took their slots"
-            time.sleep(0.05)
         threading.Timer(1.0, lambda: [s.close() for s in held]).start()
         got = io.BytesIO()
         http_get(hf_hub_url("alice/pub", "f.bin", repo_type="dataset",
