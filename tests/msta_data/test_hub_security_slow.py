@@ -135,26 +135,32 @@ def test_per_client_caps_hold_one_address_and_not_the_others(tmp_path):
     """One address at its open-connection cap, another at its anonymous-request cap: a third
     address is served as usual."""
     srv = H.start_server(tmp_path / "hub", max_open_per_client=3, max_anonymous_per_client=1)
-    idle = [_connect(srv, "127.0.0.2") for _ in range(3)]
-    held = _slow_trailers(srv, "127.0.0.3")
+    idle = [_connect(srv, "127.0.0.2") for _ in range(3)]  # accepted in order: before the 4th
+    held = _hold_anonymous_slots(srv, 1, "127.0.0.3")
     try:
-        time.sleep(0.2)
         with _slow_headers(srv, "127.0.0.2") as s:
             assert _status(_answer(s, 5)) == 503  # 127.0.0.2 has 3 open connections
         with _slow_trailers(srv, "127.0.0.3") as s:
             assert _status(_answer(s, 5)) == 429  # 127.0.0.3 holds its one anonymous slot
         assert H.call(srv, "POST", "/api/validate-yaml", b"{}")[0] == 200  # from 127.0.0.1
     finally:
-        for s in [*idle, held]:
+        for s in [*idle, *held]:
             s.close()
         srv.stop()
 
 
-def _hold_anonymous_slots(srv, n: int) -> list[socket.socket]:
-    """``n`` slow bodies holding this address's ``n`` anonymous request slots, checked by an
-    anonymous probe that is refused (401 while a slot is free). A slow body refused because a
-    probe held a slot at that moment (it got an answer) is sent again."""
-    held = [_slow_trailers(srv) for _ in range(n)]
+def _probe(srv, source: str) -> int:
+    """Status of an anonymous request from ``source`` (401 while it has a slot free)."""
+    with _connect(srv, source) as s:
+        s.sendall(b"GET /api/whoami-v2 HTTP/1.1\r\nHost: x\r\n\r\n")
+        return _status(_answer(s, 10))
+
+
+def _hold_anonymous_slots(srv, n: int, source: str = "127.0.0.1") -> list[socket.socket]:
+    """``n`` slow bodies holding the ``n`` anonymous request slots of ``source``, checked by
+    an anonymous probe that is refused. A slow body refused because a probe held a slot at
+    that moment (it got an answer) is sent again."""
+    held = [_slow_trailers(srv, source) for _ in range(n)]
     deadline = time.monotonic() + 20
     while True:
         assert time.monotonic() < deadline, "the slow bodies never took their slots"
@@ -162,8 +168,8 @@ def _hold_anonymous_slots(srv, n: int) -> list[socket.socket]:
         for s in refused:
             held.remove(s)
             s.close()
-            held.append(_slow_trailers(srv))
-        if not refused and H.call(srv, "GET", "/api/whoami-v2")[0] in (429, 503):
+            held.append(_slow_trailers(srv, source))
+        if not refused and _probe(srv, source) in (429, 503):
             return held
 
 
