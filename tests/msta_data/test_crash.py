@@ -76,7 +76,7 @@ def test_sigkill_mid_run_keeps_flushed_episodes(tmp_path, synth):
     assert LeRobotDataset("local/crash", root=root).num_episodes == n
 
 
-def test_uncommitted_files_are_ignored_then_removed(tmp_path, write_dataset, synth):
+def test_uncommitted_files_are_ignored_then_moved_aside(tmp_path, write_dataset, synth):
     """Simulate a kill between writing a flush's files and committing info.json."""
     root = tmp_path / "ds"
     write_dataset(root, [5, 6], flush_every_frames=5)  # two flushes -> files 000 and 001
