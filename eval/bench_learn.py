@@ -114,14 +114,40 @@ def _mlp_learner(root: Path, train_eps: list[int], val_eps: list[int], T: int):
     return model, train, val, tensors
 
 
-def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
-                lr: float, batch_size: int, optimizer: str = "adamw") -> Curve:
-    """Train one learner for ``budget_s`` seconds of optimizer steps; validate as it goes."""
+def _student_learner(name: str, root: Path, train_eps: list[int], val_eps: list[int],
+                     lr: float, optimizer: str):
+    """(step, validate, training windows) of an msta / gru learner, as msta-train steps it."""
     from msta_data.stats import load_stats
-    from msta_data.windows import WindowDataset, episode_split
+    from msta_data.windows import WindowDataset
     from policies.factory import make_policy
     from train.optim import WarmupCosine, make_optimizer
     from train.step import train_step, validate
+
+    policy = make_policy(policy_config(name), load_stats(root))
+    T = policy.config.history
+    train = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
+                          episodes=train_eps)
+    val = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
+                        episodes=val_eps)
+    opt = make_optimizer(policy, lr, 0.01, optimizer)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(100, 10**9, 1.0))
+    gen = torch.Generator().manual_seed(SEED)
+    masked = name.startswith("msta")
+
+    def step(idx: np.ndarray) -> None:
+        train_step(policy, opt, sched, train.get_batch(idx), 1.0, None, gen)
+
+    def check() -> tuple[float, float]:
+        v0 = validate(policy, val, 256, VAL, 0.5 if masked else 0.0, seed=SEED)
+        return v0["loss_unmasked"], (v0["loss"] if masked else math.nan)
+    return step, check, len(train)
+
+
+def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
+                lr: float, batch_size: int, optimizer: str = "adamw") -> Curve:
+    """Train one learner for ``budget_s`` seconds of optimizer steps; validate as it goes."""
+    from msta_data.windows import episode_split
+    from train.optim import make_optimizer
 
     train_eps, val_eps = episode_split(root, 0.1, SEED)
     curve = Curve(name)
@@ -146,24 +172,7 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
         n_train = len(train)
         do_step: Callable[[np.ndarray], None] = step
     else:
-        policy = make_policy(policy_config(name), load_stats(root))
-        T = policy.config.history
-        train = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
-                              episodes=train_eps)
-        val = WindowDataset(root, policy.required_sensors, T, extra_columns=("action",),
-                            episodes=val_eps)
-        opt = make_optimizer(policy, lr, 0.01, optimizer)
-        sched = torch.optim.lr_scheduler.LambdaLR(opt, WarmupCosine(100, 10**9, 1.0))
-        gen = torch.Generator().manual_seed(SEED)
-        masked = name.startswith("msta")
-
-        def do_step(idx: np.ndarray) -> None:
-            train_step(policy, opt, sched, train.get_batch(idx), 1.0, None, gen)
-
-        def check() -> tuple[float, float]:
-            v0 = validate(policy, val, 256, VAL, 0.5 if masked else 0.0, seed=SEED)
-            return v0["loss_unmasked"], (v0["loss"] if masked else math.nan)
-        n_train = len(train)
+        do_step, check, n_train = _student_learner(name, root, train_eps, val_eps, lr, optimizer)
     spent, steps, next_eval = 0.0, 0, eval_every_s
     while spent < budget_s:
         idx = rng.integers(0, n_train, batch_size)
