@@ -36,7 +36,7 @@ import torch
 from torch import nn
 
 from msta_data import layout
-from train.config import OPTIMIZERS, LoopConfig
+from train.config import LoopConfig, check_optimizer
 
 SEED = 0
 #: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
@@ -251,8 +251,7 @@ class BenchLearnConfig:
     optimizer: str = LoopConfig.optimizer
 
     def __post_init__(self) -> None:
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+        check_optimizer(self.optimizer)
         bad = sorted(set(self.names()) - set(LEARNERS))
         if bad:
             raise ValueError(f"unknown learners {bad}; choose from {list(LEARNERS)}")

@@ -43,7 +43,7 @@ from msta_data.locking import hold_directory
 from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
-from train.config import OPTIMIZERS
+from train.config import check_optimizer
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
@@ -154,8 +154,7 @@ class CompareConfig:
         bad = [r for r in self.stage2_rollout_masks if not 0.0 <= r < 1.0]
         if bad:
             raise ValueError(f"stage2_rollout_masks: {bad[0]} must be in [0, 1)")
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+        check_optimizer(self.optimizer)
         if not self.dataset and not self.collect_episodes:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
 

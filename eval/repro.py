@@ -68,7 +68,7 @@ from msta_data.features import load_info
 from msta_data.locking import hold_directory
 from policies.factory import select_device
 from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
-from train.config import OPTIMIZERS
+from train.config import check_optimizer
 
 PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).
@@ -166,8 +166,7 @@ class ReproConfig:
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; scales: {', '.join(SCALES)}")
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+        check_optimizer(self.optimizer)
         check_at_least(self, 0, "num_threads", "max_minutes")
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()] \
             or list(PAPER_POLICIES)

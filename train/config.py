@@ -14,6 +14,12 @@ MAX_BATCH_SIZE = 65_536
 OPTIMIZERS = ("adamw", "muon")
 
 
+def check_optimizer(name: str) -> None:
+    """``--optimizer``'s one check (every config that takes it)."""
+    if name not in OPTIMIZERS:
+        raise ValueError(f"optimizer={name!r}: choose one of {', '.join(OPTIMIZERS)}")
+
+
 @dataclass
 class LoopConfig:
     """Args:
@@ -68,8 +74,7 @@ class LoopConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer={self.optimizer!r}: choose one of {', '.join(OPTIMIZERS)}")
+        check_optimizer(self.optimizer)
         check_at_least(self, 1, "steps", "log_every", "val_samples")
         check_at_least(self, 1, "batch_size", maximum=MAX_BATCH_SIZE,
                        why="a batch's windows are gathered in memory at once")

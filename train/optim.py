@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
-from train.config import OPTIMIZERS, LoopConfig
+from train.config import LoopConfig, check_optimizer
 
 
 def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
@@ -87,8 +87,7 @@ def make_optimizer(model: torch.nn.Module, lr: float, weight_decay: float,
     transformer blocks gets :func:`make_adamw`."""
     if kind == "adamw":
         return make_adamw(model, lr, weight_decay)
-    if kind != "muon":
-        raise ValueError(f"optimizer={kind!r}: choose one of {', '.join(OPTIMIZERS)}")
+    check_optimizer(kind)
     muon = [p for n, p in model.named_parameters()
             if p.requires_grad and p.ndim == 2 and ".blocks." in f".{n}"]
     if not muon:  # no transformer blocks (gru, rma_tcn, mlp): every weight on AdamW
