@@ -331,29 +331,6 @@ def collect(cfg: CollectConfig) -> Path:
     return root
 
 
-def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
-                         repo_id: str, teacher: TeacherConfig | None = None,
-                         action_noise: float = 0.0, extra_sensors: str = "") -> Path:
-    """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
-    up to 64 robots at once (``make demo``, ``make bench-learn`` and the learning tests
-    share it).
-
-    Args:
-        root: dataset root (extended when it already holds fewer episodes).
-        episodes: episodes to record.
-        episode_length_s: episode time limit (s).
-        repo_id: the dataset's ``repo_id``.
-        teacher: the recording teacher (None: the gait controller).
-        action_noise: ``CollectConfig.action_noise`` (DART).
-        extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
-    """
-    return collect(CollectConfig(
-        teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
-        repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
-        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
-        extra_sensors=extra_sensors, progress=False))
-
-
 def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:
     """:func:`msta_data.cli.parse_config`: an unknown option or an invalid value exits 2 with
     one line naming the field and the reason."""

@@ -19,13 +19,13 @@ import pytest
 
 from collect.record import parse_config as collect_args
 from collect.simulate import SimRunConfig
-from eval.bench_data import BenchDataConfig
-from eval.bench_deploy import BenchDeployConfig
-from eval.bench_learn import BenchLearnConfig
-from eval.bench_sim import BenchSimConfig
-from eval.bench_train import BenchTrainConfig
-from eval.compare import CompareConfig
-from eval.demo import DemoConfig
+from eval.bench.data import BenchDataConfig
+from eval.bench.deploy import BenchDeployConfig
+from eval.bench.learn import BenchLearnConfig
+from eval.bench.sim import BenchSimConfig
+from eval.bench.train import BenchTrainConfig
+from eval.apps.compare import CompareConfig
+from eval.apps.demo import DemoConfig
 from eval.evaluate import EvalConfig
 from eval.label_check import LabelCheckConfig
 from eval.report import EvalReportConfig
@@ -57,12 +57,12 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "msta-sim": _config(SimRunConfig, "msta-sim"),
     "msta-hub": parse_command,
     "msta-demo": _config(DemoConfig, "msta-demo"),
-    "python -m eval.demo": _config(DemoConfig, "python -m eval.demo"),
-    "python -m eval.bench_learn": _config(BenchLearnConfig, "python -m eval.bench_learn"),
-    "python -m eval.bench_train": _config(BenchTrainConfig, "python -m eval.bench_train"),
-    "python -m eval.bench_sim": _config(BenchSimConfig, "python -m eval.bench_sim"),
-    "python -m eval.bench_data": _config(BenchDataConfig, "python -m eval.bench_data"),
-    "python -m eval.bench_deploy": _config(BenchDeployConfig, "python -m eval.bench_deploy"),
+    "python -m eval.apps.demo": _config(DemoConfig, "python -m eval.apps.demo"),
+    "python -m eval.bench.learn": _config(BenchLearnConfig, "python -m eval.bench.learn"),
+    "python -m eval.bench.train": _config(BenchTrainConfig, "python -m eval.bench.train"),
+    "python -m eval.bench.sim": _config(BenchSimConfig, "python -m eval.bench.sim"),
+    "python -m eval.bench.data": _config(BenchDataConfig, "python -m eval.bench.data"),
+    "python -m eval.bench.deploy": _config(BenchDeployConfig, "python -m eval.bench.deploy"),
     "msta-export": _config(ExportConfig, "msta-export"),
     "python -m eval.label_check": _config(LabelCheckConfig, "python -m eval.label_check"),
     "python -m eval.teacher_report": _config(TeacherReportConfig,

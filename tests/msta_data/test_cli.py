@@ -9,13 +9,13 @@ import pytest
 
 from collect.record import main as collect_main
 from collect.simulate import main as sim_main
-from eval.bench_data import main as bench_data_main
-from eval.bench_deploy import main as bench_deploy_main
-from eval.bench_learn import main as bench_learn_main
-from eval.bench_sim import main as bench_sim_main
-from eval.bench_train import main as bench_train_main
-from eval.compare import main as compare_main
-from eval.demo import main as demo_main
+from eval.bench.data import main as bench_data_main
+from eval.bench.deploy import main as bench_deploy_main
+from eval.bench.learn import main as bench_learn_main
+from eval.bench.sim import main as bench_sim_main
+from eval.bench.train import main as bench_train_main
+from eval.apps.compare import main as compare_main
+from eval.apps.demo import main as demo_main
 from eval.evaluate import main as eval_main
 from eval.label_check import main as label_check_main
 from eval.report import main as report_main
@@ -39,12 +39,12 @@ SCRIPTS = {
     "msta-eval": (eval_main, "--trials", "--terrains=lava"),
     "msta-compare": (compare_main, "--preset", "--collect_num_envs=x"),
     "msta-sim": (sim_main, "--seconds", "--env.num_envs=-1"),
-    "python -m eval.demo": (demo_main, "--rounds", "--rounds=-1"),
-    "python -m eval.bench_learn": (bench_learn_main, "--learners", "--learners=gpt"),
-    "python -m eval.bench_train": (bench_train_main, "--rounds", "--seconds=0"),
-    "python -m eval.bench_sim": (bench_sim_main, "--nthread", "--collision=fastt"),
-    "python -m eval.bench_data": (bench_data_main, "--frames", "--frames=0"),
-    "python -m eval.bench_deploy": (bench_deploy_main, "--preset", "--preset=huge"),
+    "python -m eval.apps.demo": (demo_main, "--rounds", "--rounds=-1"),
+    "python -m eval.bench.learn": (bench_learn_main, "--learners", "--learners=gpt"),
+    "python -m eval.bench.train": (bench_train_main, "--rounds", "--seconds=0"),
+    "python -m eval.bench.sim": (bench_sim_main, "--nthread", "--collision=fastt"),
+    "python -m eval.bench.data": (bench_data_main, "--frames", "--frames=0"),
+    "python -m eval.bench.deploy": (bench_deploy_main, "--preset", "--preset=huge"),
     "msta-export": (export_main, "--sensors", "--tolerance=0"),
     "python -m eval.label_check": (label_check_main, "--robots", "--robots=0"),
     "python -m eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),

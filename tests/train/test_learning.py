@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 import torch
 
-from collect.record import easy_terrain_dataset
 from collect.sim.env import EnvConfig
 from collect.sim.terrain import TerrainConfig
+from eval.apps.demo import easy_terrain_dataset
 from policies.factory import load_policy
 from policies.msta import MSTAConfig
 from train.offline import TrainConfig, train

@@ -1,4 +1,4 @@
-"""Deployment latency benchmark: ``make bench-deploy`` / ``python -m eval.bench_deploy``.
+"""Deployment latency benchmark: ``make bench-deploy`` / ``python -m eval.bench.deploy``.
 
 How fast does the MSTA student answer one robot's control step on one CPU core? The
 ``paper`` preset (d = 128, 4 layers x 4 heads; random weights: latency does not depend on
@@ -160,7 +160,7 @@ class BenchDeployConfig:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    a = parse_config(BenchDeployConfig, argv, prog="python -m eval.bench_deploy")
+    a = parse_config(BenchDeployConfig, argv, prog="python -m eval.bench.deploy")
     torch.set_num_threads(1)
     torch.manual_seed(0)
     cfg = MSTAConfig.from_preset(a.preset)

@@ -8,7 +8,7 @@ import re
 
 import torch
 
-from eval.bench_deploy import main, model_flops
+from eval.bench.deploy import main, model_flops
 from policies.msta import MSTAConfig
 
 

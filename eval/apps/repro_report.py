@@ -11,7 +11,7 @@ import datetime
 from pathlib import Path
 from typing import Any
 
-from eval.compare import paper_table
+from eval.apps.compare import paper_table
 from eval.metrics import headline
 from eval.report import _fmt, fmt_cell, table_one
 
@@ -146,7 +146,7 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
                  machine: str, out: Path) -> Path:
     """``out/report.md`` from the evaluations (``table1``, and ``msta`` / ``heatmap`` when
     MSTA was in the study)."""
-    from eval.repro import ROLLOUT_MASKS
+    from eval.apps.repro import ROLLOUT_MASKS
 
     t1, msta, heat = evals["table1"], evals.get("msta"), evals.get("heatmap")
     ec = t1["config"]

@@ -58,6 +58,31 @@ from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
 
+def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
+                         repo_id: str, teacher: TeacherConfig | None = None,
+                         action_noise: float = 0.0, extra_sensors: str = "") -> Path:
+    """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
+    up to 64 robots at once (``make demo``, ``msta-repro``, ``make device-check``,
+    ``make bench-learn`` and the learning tests share it).
+
+    Args:
+        root: dataset root (extended when it already holds fewer episodes).
+        episodes: episodes to record.
+        episode_length_s: episode time limit (s).
+        repo_id: the dataset's ``repo_id``.
+        teacher: the recording teacher (None: the gait controller).
+        action_noise: ``CollectConfig.action_noise`` (DART).
+        extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
+    """
+    from collect.record import CollectConfig, collect
+
+    return collect(CollectConfig(
+        teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
+        repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
+        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
+        extra_sensors=extra_sensors, progress=False))
+
+
 def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig) -> None:
     from collect.simulate import SimRunConfig, simulate
 
@@ -74,8 +99,6 @@ def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: Teacher
 
 def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfig,
                  noise: float) -> Path:
-    from collect.record import easy_terrain_dataset
-
     print(f"\n== 2. msta-collect: {episodes} {teacher.type} teacher episodes of up to "
           f"{seconds:.0f} s" + (f", noise of std {noise:g} on its executed actions (DART)"
                                 if noise else "") + " ==")
@@ -329,10 +352,10 @@ class DemoConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Run the msta pipeline demo on built-in defaults (``python -m eval.demo --help``)."""
+    """Run the msta pipeline demo on built-in defaults (``python -m eval.apps.demo --help``)."""
     from msta_data.cli import parse_config
 
-    cfg = parse_config(DemoConfig, argv, prog="python -m eval.demo")
+    cfg = parse_config(DemoConfig, argv, prog="python -m eval.apps.demo")
     out = Path(cfg.output_dir)
     os.environ.setdefault("MUJOCO_GL", "egl")
     if out.exists():

@@ -12,7 +12,7 @@ continues where it stopped; a killed training resumes from its last checkpoint):
 2. **policies**: every policy of ``--policies`` (default the paper's seven: MSTA, MSTA w/
    learnable mask, GRU, RMA-TCN, TERT concat / separate / w/ learnable mask) gets stage 1 and
    stage 2 with the same budgets, each on its own dataset copy (msta-compare's code:
-   :func:`eval.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
+   :func:`eval.apps.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
    the stage-2 rollouts of masked students drive half of the robots at test mask 0.5;
 3. **heatmap**: MSTA students at every (stage-1, stage-2) training mask of the scale's grid
    (a reduced grid at reference scale; the paper's 4 x 4 at paper scale);
@@ -50,7 +50,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from eval.compare import (
+from eval.apps.compare import (
     PAPER_TABLE_I,
     CompareConfig,
     Progress,
@@ -227,7 +227,7 @@ def print_sizes(cfg: ReproConfig) -> None:
 
 
 def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:
-    from collect.record import easy_terrain_dataset
+    from eval.apps.demo import easy_terrain_dataset
 
     root = Path(cfg.output_dir) / "teacher_dataset"
     s = cfg.sizes
@@ -308,7 +308,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
 
 def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
     """:func:`repro`'s phases."""
-    from eval.repro_report import write_report
+    from eval.apps.repro_report import write_report
 
     root = ensure_dataset(cfg, prog)
     ccfg = compare_config(cfg, root)

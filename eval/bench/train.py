@@ -1,4 +1,4 @@
-"""Training-speed benchmark of the MSTA student: ``python -m eval.bench_train``.
+"""Training-speed benchmark of the MSTA student: ``python -m eval.bench.train``.
 
 Measures training samples/s (processor + forward + backward + fused AdamW step, batch 64) for
 the ``paper`` and ``cpu`` presets at mask ratios 0, 0.5 and 0.75, in fp32 and with bf16
@@ -206,7 +206,7 @@ class BenchTrainConfig:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    args = parse_config(BenchTrainConfig, argv, prog="python -m eval.bench_train")
+    args = parse_config(BenchTrainConfig, argv, prog="python -m eval.bench.train")
     torch.set_num_threads(args.num_threads)
     gen = torch.Generator().manual_seed(0)
     cases = make_cases(gen)

@@ -1,4 +1,4 @@
-"""Learning benchmark: ``make bench-learn`` / ``python -m eval.bench_learn``.
+"""Learning benchmark: ``make bench-learn`` / ``python -m eval.bench.learn``.
 
 Does the MSTA student imitate the teacher as well as a GRU does? On one fixed, seeded
 teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10 s, terrain
@@ -48,7 +48,7 @@ def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
     """The benchmark's teacher dataset (seeded: the same frames on every machine)."""
     import shutil
 
-    from collect.record import easy_terrain_dataset
+    from eval.apps.demo import easy_terrain_dataset
 
     if layout.is_dataset_root(root):
         shutil.rmtree(root)
@@ -267,7 +267,7 @@ class BenchLearnConfig:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    args = parse_config(BenchLearnConfig, argv, prog="python -m eval.bench_learn")
+    args = parse_config(BenchLearnConfig, argv, prog="python -m eval.bench.learn")
     learners = args.names()
     out = Path(args.output_dir)
     torch.set_num_threads(args.num_threads)

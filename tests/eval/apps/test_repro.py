@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-import eval.repro as repro_mod
-from eval.repro import SCALES, ReproConfig, main, repro
+import eval.apps.repro as repro_mod
+from eval.apps.repro import SCALES, ReproConfig, main, repro
 from msta_data.budget import EXIT_STOPPED
 from policies.teacher.config import TeacherConfig
 
@@ -153,7 +153,7 @@ def test_without_the_heatmap_the_report_says_finding_a_was_not_measured(study) -
 
 
 def test_the_study_defaults_to_the_demos_teacher_and_names_it() -> None:
-    from eval.demo import DemoConfig
+    from eval.apps.demo import DemoConfig
 
     cfg = ReproConfig(scale="tiny")
     assert cfg.teacher == DemoConfig().teacher

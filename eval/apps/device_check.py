@@ -1,4 +1,4 @@
-"""``make device-check`` / ``python -m eval.device_check``: the CUDA path of every stage, in one
+"""``make device-check`` / ``python -m eval.apps.device_check``: the CUDA path of every stage, in one
 prepared call sized for a lent GPU machine (<= ~6 min on one GPU and 16 cores).
 
 1. **dataset**: the shipped PPO teacher (``rma_ppo``) records DART episodes on levels 0-2;
@@ -160,7 +160,7 @@ def timed(figures: dict[str, Any], name: str, fn, *args):
 
 def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     """Every stage; returns (and writes) the figures."""
-    from collect.record import easy_terrain_dataset
+    from eval.apps.demo import easy_terrain_dataset
     from policies.factory import select_device
     from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
@@ -217,7 +217,7 @@ def print_summary(figs: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    run(parse_config(DeviceCheckConfig, argv, prog="python -m eval.device_check"))
+    run(parse_config(DeviceCheckConfig, argv, prog="python -m eval.apps.device_check"))
 
 
 if __name__ == "__main__":

@@ -4,7 +4,7 @@ Both run in the same process, interleaved in rounds, on the same states, thread 
 and environment count; the ratio is the median of per-round ratios, so it is robust to a
 busy machine (absolute figures are medians over rounds and follow the machine's speed).
 
-    python -m eval.bench_sim [--num_envs 1024] [--steps 50] [--rounds 5] [--collision fast]
+    python -m eval.bench.sim [--num_envs 1024] [--steps 50] [--rounds 5] [--collision fast]
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ class BenchSimConfig:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    args = parse_config(BenchSimConfig, argv, prog="python -m eval.bench_sim")
+    args = parse_config(BenchSimConfig, argv, prog="python -m eval.bench.sim")
     env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0,
                                collision=args.collision))
     env.reset()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from eval.compare import CompareConfig, main
+from eval.apps.compare import CompareConfig, main
 from msta_data.features import load_info
 
 TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_steps=2",
@@ -101,7 +101,7 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
 
 
 def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishes_it(tmp_path):
-    from eval.compare import Progress
+    from eval.apps.compare import Progress
 
     first = Progress(tmp_path, deadline=None)
     first.start("msta stage 1")
@@ -119,7 +119,7 @@ def test_a_policys_copy_leaves_the_quarantine_and_the_lock_behind(tmp_path) -> N
     """Each policy appends to its own copy of the teacher dataset: what a resume set aside
     (``.msta-quarantine/``: up to 100 MB per file of an interrupted flush) stays with the
     original, where the user checks it, instead of being copied once per policy."""
-    from eval.compare import copy_dataset
+    from eval.apps.compare import copy_dataset
     from msta_data.layout import LOCK_NAME, QUARANTINE_DIR
 
     root = tmp_path / "teacher"

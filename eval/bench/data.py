@@ -1,6 +1,6 @@
 """Benchmark the data layer against lerobot's stock paths, measured in the same run.
 
-    python -m eval.bench_data [--episodes 20] [--frames 1000]
+    python -m eval.bench.data [--episodes 20] [--frames 1000]
 
 Write: ``DatasetWriter`` (all registry columns, 20 x 1000 frames) vs lerobot's
 ``LeRobotDataset.create / add_frame / save_episode / finalize`` on a subset of the same
@@ -143,7 +143,7 @@ class BenchDataConfig:
 def main(argv: list[str] | None = None) -> None:
     from msta_data.cli import parse_config
 
-    args = parse_config(BenchDataConfig, argv, prog="python -m eval.bench_data")
+    args = parse_config(BenchDataConfig, argv, prog="python -m eval.bench.data")
     logging.disable(logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
         tmp = Path(tmp)
