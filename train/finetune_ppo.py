@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -63,8 +62,8 @@ from policies.msta import MSTAPolicy
 from policies.teacher.rma import RMAConfig
 from train.finetune import freeze, module_of, sensor_names, trainable_modules
 from train.optim import select_device
+from train.ppo import ChunkLoop, PPOConfig
 from train.state import atomic_json
-from train.teacher.cli import PPOConfig, latest_checkpoint, load_runner, prune_checkpoints
 from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 
 PROG = "msta-finetune-ppo"
@@ -389,9 +388,10 @@ def check_resume(cfg: FinetunePPOConfig, out: Path) -> None:
                              "the same options to continue it, or choose another --output_dir")
 
 
-def save_student(actor: MSTAActor, out: Path, record: dict[str, Any], iteration: int) -> None:
-    """``out/student/``: the actor's student with its finetune.json."""
-    student = out / "student"
+def save_student(actor: MSTAActor, student: Path, record: dict[str, Any],
+                 iteration: int) -> None:
+    """The actor's student in ``student`` (``out/student/``, a snapshot) with its
+    finetune.json."""
     actor.policy.save_pretrained(student)
     params = dict(actor.policy.named_parameters())
     atomic_json(student / RECORD, {
@@ -401,29 +401,35 @@ def save_student(actor: MSTAActor, out: Path, record: dict[str, Any], iteration:
         "action_std": [round(float(s), 5) for s in actor.distribution.std_param.detach()]})
 
 
-def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], log
-                ) -> tuple[StudentVecEnv, Any, int]:
-    """The environment, rsl_rl's runner with the student as its actor (loaded from the
-    newest checkpoint in ``output_dir/ppo`` when there is one) and the iterations done."""
+def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], out: Path,
+                log) -> tuple[ChunkLoop, int]:
+    """rsl_rl's runner with the student as its actor on :class:`StudentVecEnv`, in the PPO
+    chunk loop (:class:`train.ppo.ChunkLoop`), resumed from the newest checkpoint in
+    ``output_dir/ppo`` when there is one; returns the loop and the iterations done."""
     from rsl_rl.runners import OnPolicyRunner
 
     device = str(select_device(cfg.device))
     env = StudentVecEnv(cfg.env, load_policy(start), device=device,
                         dummy_tokens=cfg.dummy_tokens)
-    ppo_dir = Path(cfg.output_dir) / "ppo"
     runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, cfg.trainable,
                                                             cfg.dummy_tokens),
-                            log_dir=str(ppo_dir), device=device)
+                            log_dir=str(out / "ppo"), device=device)
     actor = runner.alg.get_policy()
     assert isinstance(actor, MSTAActor)
-    found = latest_checkpoint(ppo_dir)
-    if found is not None:
-        load_runner(runner, found[0], device)
-        done = found[1] + 1
-        runner.current_learning_iteration = done
-        log(f"== {PROG}: resuming from {found[0].name} ({done}/{cfg.ppo.iterations} "
-            "iterations) ==")
-        return env, runner, done
+
+    def save(dirs: Sequence[Path], iteration: int) -> None:
+        for d in dirs:
+            save_student(actor, d, record, iteration)
+
+    loop = ChunkLoop(
+        runner, env, cfg.ppo, out, out / "student", save,
+        critic_warmup=cfg.ppo.critic_warmup, label=PROG,
+        detail=lambda row: f"lin. tracking {row['lin_vel_tracking_per_step']:.4f}/step",
+        row_extra=lambda: {"action_std": float(actor.distribution.std_param.detach().mean())},
+        log=log)
+    done = loop.resume(device)
+    if done:
+        return loop, done
     n = sum(p.numel() for name, p in actor.policy.named_parameters() if name in actor.trained)
     total = sum(p.numel() for p in actor.policy.parameters())
     log(f"== {PROG}: {start} on {', '.join(record['input_sensors'])} at T = {cfg.history}; "
@@ -432,7 +438,7 @@ def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], log
         f"noise{f', {cfg.dummy_tokens} dummy tokens appended' if cfg.dummy_tokens else ''}; "
         f"{cfg.ppo.iterations} iterations x {cfg.env.num_envs} robots x "
         f"{cfg.ppo.num_steps_per_env} steps, device {device} ==")
-    return env, runner, 0
+    return loop, 0
 
 
 def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
@@ -449,41 +455,8 @@ def _finetune_ppo_locked(cfg: FinetunePPOConfig, out: Path, log) -> Path:
     check_resume(cfg, out)
     start, record = prepare_start(cfg, out)
     atomic_json(out / "finetune_ppo.json", asdict(cfg))
-    env, runner, done = open_runner(cfg, start, record, log)
-    actor = runner.alg.get_policy()
-    ppo_dir = out / "ppo"
-    curve_path = out / "curve.json"
-    curve = json.loads(curve_path.read_text()) if curve_path.is_file() and done else []
-    steps_so_far = curve[-1]["env_steps"] if curve else 0
-    first = True
-    while done < cfg.ppo.iterations:
-        chunk = min(cfg.ppo.save_interval, cfg.ppo.iterations - done)
-        frozen = done < cfg.ppo.critic_warmup
-        if frozen:
-            chunk = min(chunk, cfg.ppo.critic_warmup - done)
-        actor.set_actor_frozen(frozen)
-        t0 = time.time()
-        env.take_stats()
-        runner.learn(chunk, init_at_random_ep_len=first)
-        first = False
-        done += chunk
-        runner.current_learning_iteration = done
-        st = env.take_stats()
-        steps_so_far += st["env_steps"]
-        row = env.curve_row(st, iteration=done, env_steps=steps_so_far,
-                            seconds=round(time.time() - t0, 1), critic_only=frozen,
-                            action_std=float(actor.distribution.std_param.detach().mean()))
-        curve.append(row)
-        atomic_json(curve_path, curve)
-        save_student(actor, out, record, done)
-        prune_checkpoints(ppo_dir, keep=2)
-        log(f"PPO {done}/{cfg.ppo.iterations}: {steps_so_far:,} env steps, survival "
-            f"{row['survival_per_episode']:.3f} per {cfg.env.episode_length_s:g} s episode "
-            f"({st['falls']} falls), lin. tracking {row['lin_vel_tracking_per_step']:.4f}/step"
-            + (" (critic only)" if frozen else ""))
-    actor.set_actor_frozen(False)
-    if not (out / "student" / "model.safetensors").is_file():
-        save_student(actor, out, record, done)
+    loop, done = open_runner(cfg, start, record, out, log)
+    loop.run(done)
     return out / "student"
 
 

@@ -53,6 +53,11 @@ class RMAActor(MLPModel):
                    hidden_state=None) -> torch.Tensor:
         return torch.cat([self.encoder(obs[PRIVILEGED]), obs[PROPRIO]], dim=-1)
 
+    def set_actor_frozen(self, frozen: bool) -> None:
+        """Freeze the whole actor (critic warm-up), or train all of it again."""
+        for p in self.parameters():
+            p.requires_grad_(not frozen)
+
     def as_jit(self):  # rsl_rl's exports copy only ``mlp``; export the msta checkpoint instead
         raise NotImplementedError("export the teacher with train.teacher.model.to_teacher")
 
