@@ -1,7 +1,7 @@
 """Content hashes of a dataset's committed files, and the checks that use them.
 
 Parquet pages carry no checksum unless the writer asks for one, and a changed byte inside a
-data page decodes to a plausible number (the audit of issue 15 read ``joint_pos`` values of
+data page decodes to a plausible number (an audit read ``joint_pos`` values of
 5.9e36 that every loader accepted). So at every commit the writer records, in
 ``meta/msta_checksums.json`` (msta's own file: LeRobot's loader never reads it), the size
 and sha256 of every file the commit consists of:

@@ -29,13 +29,13 @@ TERRAIN_TYPES: tuple[str, ...] = (
     "flat", "smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete",
 )
 
-# legged_gym's terrain proportions (FACTS section 3), for sample_initial(type_weights=...).
+# legged_gym's terrain proportions (its LeggedRobotCfg.terrain), for sample_initial(type_weights=...).
 LEGGED_GYM_TYPE_WEIGHTS: dict[str, float] = {
     "smooth_slope": 0.1, "rough_slope": 0.1, "stairs_up": 0.35, "stairs_down": 0.25,
     "discrete": 0.2,
 }
 
-# legged_gym parameterization (FACTS section 3); d = level / num_levels.
+# legged_gym parameterization (its utils/terrain.py); d = level / num_levels.
 SLOPE_PER_DIFFICULTY = 0.4          # pyramid slope gradient = 0.4 d
 ROUGH_NOISE = 0.05                  # uniform noise in [-0.05, 0.05] m on rough slopes
 ROUGH_NOISE_STEP = 0.005            # noise values are multiples of this

@@ -1,7 +1,7 @@
 """``make demo`` / ``msta-demo``: the whole msta pipeline on built-in defaults, CPU-sized.
 
-  1. the teacher (default: the shipped PPO-trained RMA MLP, rma_ppo) walks every terrain type (summary table +
-     image strip);
+  1. the teacher (default: the shipped PPO-trained RMA MLP, rma_ppo) walks every terrain
+     type (summary table + image strip);
   2. msta-collect records a teacher dataset (LeRobot v3.0): 288 episodes of 10 s with noise
      on the executed actions (DART: states off the teacher's path, each labelled with the
      teacher's clean action; recording costs seconds, a student's rollouts minutes);
@@ -21,21 +21,7 @@
   7. a one-line verdict: does the student walk like its teacher (normalized linear-velocity
      tracking >= 0.80 at test mask 0 and >= 0.75 at 50 %, survival >= 0.90)?
 
-Why these defaults (docs/training.md, "The demo's route"): the gait controller's labels
-contradict a student-driven robot (it runs its own clock), so its rounds never lift the
-student; the memoryless RMA teacher's do. DART data makes the stage-1 student survive
-(0.60 against 0.00 from clean data, 30 trials). T = 3 (not the paper's deployment window
-of 7) costs half as much a step at the same loss per step, which pays for the paper's
-stage-2 mask of 0.5: at the demo's budget that student fits its rounds' data better (val
-0.14-0.19 against 0.21-0.27) and walks at least as well in less time (tracking 0.76 / 0.70
-and survival 0.88 / 0.77 at test masks 0 / 50 % in 8.9 min, against 0.70 / 0.71 and
-0.78 / 0.78 in 12.4 min at T = 7 and mask 0.75). Rollouts at test masks 0 and 0.5 side by
-side (the rounds then label the states a masked student reaches) and seven rounds instead
-of five: tracking 0.79 / 0.74 and survival 0.94 / 0.81 in 10.9 min. T = 4 instead of 3:
-at test mask 50 % each scalar's last four readings are all removed one step in 16, not one
-in 8; tracking 0.80 / 0.78 and 0.83 / 0.76, survival 0.95 / 0.86 and 0.92 / 0.81 in
-11.3 and 12.1 min (two runs; docs/training.md,
-"Window and stage-2 mask", "Masked rollouts", "Window at test mask 50 %").
+Why these defaults, and the verdicts of earlier recipes: docs/results/2026-12-04-demo-history.md.
 
 Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
 """
@@ -165,9 +151,8 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  select_s: float, teacher: TeacherConfig,
                  rollout_masks: tuple[float, ...] = ()) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
-    best on the selection trials. DAgger promises a good policy among its iterates, not
-    that the last is best, and this student's consecutive rounds differ by ~0.2 in
-    survival (docs/training.md). ``select_trials=0``: no round evaluation (it costs about as
+    best on the selection trials (DAgger promises a good policy among its iterates, not
+    that the last is best). ``select_trials=0``: no round evaluation (it costs about as
     much as a round's rollouts), the last round is evaluated."""
     import json
 
@@ -282,18 +267,16 @@ class DemoConfig:
         history: the student's window T.
         train_steps: stage-1 optimizer steps.
         train_mask_ratio: stage-1 training mask ratio (the paper's 0.75).
-        rounds: stage-2 rounds (0: stage 1 only); each takes ~1.1 min on 2 cores (rollouts
-            ~0.2, retraining ~0.9), the rest of the demo ~3.5 min.
+        rounds: stage-2 rounds (0: stage 1 only).
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
-        correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5; 0.75 costs half
-            as much a step but fits the rounds' data worse at equal time).
+        correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5).
         rollout_mask_ratios: test-time mask ratios the stage-2 student drives at, spread
             over the round's environments (msta-correct's option; the default: half of
             them with half of the tokens removed, so the rounds also hold the states the
             test at mask 50 % reaches); empty = all at 0.
         select_trials: trials per test mask on which the rounds are compared (seed 1); 0 = no
-            comparison, the last round is evaluated (saves ~40 % of a round).
+            comparison, the last round is evaluated.
         select_episode_length_s: episode length of those trials (s).
         teacher_seconds: step 1: how long each robot walks (s).
         envs_per_type: step 1: robots per terrain type.
@@ -303,11 +286,10 @@ class DemoConfig:
         teacher: the teacher that records, labels the stage-2 rounds and is the evaluation's
             reference. Default: the shipped PPO-trained RMA MLP
             (policies/teacher/checkpoints/rma_ppo; memoryless, so its labels on the
-            student's states are consistent and the rounds lift the student; it survives
-            stairs and discrete obstacles better than the gait controller,
-            docs/teacher_quality_rma.md). ``--teacher.type=rma`` alone: the shipped warm
-            start (rma_dart, the default before 2026-12-04); ``--teacher.type=gait``: the
-            gait controller, whose rounds do not lift an MSTA student (docs/training.md).
+            student's states are consistent and the rounds lift the student; docs/teachers.md).
+            ``--teacher.type=rma`` alone: the shipped warm start (rma_dart);
+            ``--teacher.type=gait``: the gait controller, whose rounds do not lift an MSTA
+            student.
     """
 
     output_dir: str = "outputs/demo"

@@ -105,8 +105,8 @@ SCALES: dict[str, Scale] = {
     "tiny": Scale(3, 0.4, "tiny", 3, 1, 2, 2, 0.3, 8, 2, "0", "flat", 1.0, (0.75,),
                   (0.0, 0.5), 1, 1.0),
     # 2 CPU cores, <= 2.5 h: the demo's recipe per policy (288 DART episodes, cpu preset at
-    # the paper's T = 15); the estimate is the run of 2026-12-04 (docs/reference), every
-    # phase timed on idle cores: 134.5 min, 88 without the heatmap; + ~5 min for levels 3-4
+    # the paper's T = 15); the estimate adds up the phases of the reference run
+    # (docs/reference/README.md) timed on idle cores, heatmap included
     "reference": Scale(288, 10.0, "cpu", 2000, 2, 32, 800, 10.0, 64, 100, "0,1,2", "", 5.0,
                        (0.5, 0.75), (0.0, 0.5), 1, 140.0),
     # the paper's sizes (a GPU machine): 5000 trials over every level, the full 4 x 4 grid

@@ -25,8 +25,8 @@ PRESETS: dict[str, dict[str, Any]] = {
     # The paper: d = 128, 256 bins, T = 15, MLP ratio 2; 4 layers x 4 heads is our choice.
     "paper": {},
     # The CPU demo: same tokenization, a quarter of the width-depth compute. A 256-wide head
-    # and sin-cos base 10 (ages and channel indices told apart at d = 64) lower val MSE ~15 %
-    # at the same time per step (docs/msta_model.md, 2026-12-03).
+    # and sin-cos base 10 (ages and channel indices told apart at d = 64) fit better at the
+    # same time per step (docs/msta_model.md).
     "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 256, "state_tokens": 8,
             "pos_base": 10.0},
     # Unit tests only.

@@ -73,9 +73,9 @@ class GaitConfig:
         period: s, gait cycle duration.
         duty: fraction of the cycle a foot is on the ground.
         follow_gap: m, with ``GaitTeacher.follow_robot`` the furthest a stance foot's plan may
-            lead its measured position (0: the plan restarts at the measured foot). Driving
-            itself the plan leads by 4.7 cm (median; 8 cm 90th percentile: servo lag), so
-            0.08 leaves the teacher's own walk nearly unchanged (docs/training.md).
+            lead its measured position (0: the plan restarts at the measured foot). The
+            default 0.08 is about the lead of the plan when the teacher drives itself (servo
+            lag), so it leaves the teacher's own walk nearly unchanged.
         phase_offsets: per-leg phase offsets (FL, FR, RL, RR); default trot.
         body_height: m, base height above the mean ground under the body.
         swing_height: m, foot clearance above the highest ground along the swing.
