@@ -16,7 +16,7 @@ Next to each latency: the model's FLOPs per step (counted from the shapes), the 
 achieves, and the machine's fp32 matmul rate measured in the same run on one thread (the
 roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower precision).
 The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the
-best parity-holding runtime's median. Goals (issue 19): full <= 10 ms, minimized <= 1.5 ms.
+best parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
 """
 
 from __future__ import annotations
