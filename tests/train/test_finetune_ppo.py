@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -149,6 +151,38 @@ def test_ppo_trains_only_the_embeddings_and_the_noise_then_resumes(base, tmp_pat
     assert json.loads((student / RECORD).read_text())["iterations"] == 3
     with pytest.raises(ValueError, match="history=3, not 4"):
         finetune_ppo(make_cfg(base, tmp_path / "run", history=4), log=lambda *_: None)
+
+
+def test_a_run_resumed_mid_chunk_realigns_its_chunks_and_replaces_its_curve(base, tmp_path):
+    """The chunk loop msta-train-teacher runs too (train.ppo.ChunkLoop): after a resume
+    from mid-chunk the chunks end at multiples of save_interval again, curve.json is
+    replaced atomically, and snapshots (also one lost to a kill) are kept."""
+    def cfg(iterations: int) -> FinetunePPOConfig:
+        return make_cfg(base, tmp_path, ppo=StudentPPOConfig(
+            iterations=iterations, num_steps_per_env=4, critic_warmup=0, save_interval=2,
+            snapshot_interval=2, num_mini_batches=2, learning_rate=1e-2, desired_kl=1.0))
+
+    finetune_ppo(cfg(3), log=lambda *_: None)          # chunks end at 2 and 3 (the total)
+    os.link(tmp_path / "curve.json", tmp_path / "held_curve.json")
+    finetune_ppo(cfg(8), log=lambda *_: None)          # resumes at 3: the next chunk ends at 4
+    curve = json.loads((tmp_path / "curve.json").read_text())
+    assert [r["iteration"] for r in curve] == [2, 3, 4, 6, 8]
+    assert [r["env_steps"] for r in curve] == [n * 4 * 4 for n in (2, 3, 4, 6, 8)]
+    # a reader holding the old curve.json keeps it whole (a new file renamed over it)
+    held = json.loads((tmp_path / "held_curve.json").read_text())
+    assert [r["iteration"] for r in held] == [2, 3]
+    assert not list(tmp_path.glob("*.tmp"))
+    snaps = tmp_path / "snapshots"
+    assert sorted(p.name for p in snaps.iterdir()) == ["iter_2", "iter_4", "iter_6", "iter_8"]
+    assert json.loads((snaps / "iter_4" / RECORD).read_text())["iterations"] == 4
+    student = tensor_hashes(tmp_path / "student")
+    assert tensor_hashes(snaps / "iter_8") == student != tensor_hashes(snaps / "iter_6")
+    # killed after the checkpoint, before the snapshot: the resume writes it
+    shutil.rmtree(snaps / "iter_8")
+    lines: list[str] = []
+    finetune_ppo(cfg(8), log=lines.append)
+    assert any("snapshot iter_8 written from model_7.pt" in line for line in lines)
+    assert tensor_hashes(snaps / "iter_8") == student
 
 
 def test_a_critic_warmup_leaves_the_student_unchanged(base, tmp_path):

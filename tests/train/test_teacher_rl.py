@@ -4,6 +4,7 @@ the DAgger warm start from the gait controller and msta-train-teacher (resumable
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -18,7 +19,8 @@ from collect.sim.terrain import TerrainConfig
 from policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 from policies.teacher.imported import InputScaler
 from policies.teacher.rma import RMAConfig, RMATeacher
-from train.teacher.cli import PPOConfig, TrainTeacherConfig, latest_checkpoint, train_teacher
+from train.ppo import latest_checkpoint
+from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
 from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 from train.teacher.model import RMAActor, load_from_teacher, to_teacher
 from train.teacher.warmstart import WarmStartConfig, warm_start
@@ -82,7 +84,7 @@ def test_rsl_rls_runner_trains_the_rma_actor_and_it_exports_to_an_rma_teacher(tm
 def label_mse(net: RMATeacher, seed: int) -> float:
     """MSE between the network and the gait controller on the controller's own rollout."""
     env = RslVecEnv(small_env(16, 2.0, seed=seed))
-    gait = build_teacher(TeacherConfig())
+    gait = build_teacher(TeacherConfig(type="gait"))
     gait.reset(np.arange(16))
     obs, errs = env.raw_obs, []
     for _ in range(50):
@@ -185,7 +187,7 @@ def test_ppo_can_start_from_an_existing_rma_teacher(tmp_path):
         train_teacher(bad, log=logs.append)
 
 
-def test_a_run_resumed_mid_chunk_realigns_its_chunks(tmp_path):
+def test_a_run_resumed_mid_chunk_realigns_its_chunks_and_replaces_its_curve(tmp_path):
     def cfg(iterations: int) -> TrainTeacherConfig:
         return TrainTeacherConfig(
             output_dir=str(tmp_path), num_threads=1, device="cpu",
@@ -195,9 +197,15 @@ def test_a_run_resumed_mid_chunk_realigns_its_chunks(tmp_path):
             env=small_env())
 
     train_teacher(cfg(4), log=lambda s: None)     # chunks end at 3 and 4 (the total)
+    # a reader holding the old curve.json keeps it whole: each row is a new file renamed
+    # over the old one (train.state.atomic_json), never the old file rewritten in place
+    os.link(tmp_path / "curve.json", tmp_path / "held_curve.json")
     train_teacher(cfg(9), log=lambda s: None)     # resumes at 4: the next chunk ends at 6
     curve = json.loads((tmp_path / "curve.json").read_text())
     assert [r["iteration"] for r in curve] == [3, 4, 6, 9]
+    held = json.loads((tmp_path / "held_curve.json").read_text())
+    assert [r["iteration"] for r in held] == [3, 4]
+    assert not list(tmp_path.glob("*.tmp"))
     assert sorted(p.name for p in (tmp_path / "snapshots").iterdir()) == [
         "iter_3", "iter_6", "iter_9"]
     # a run killed after its checkpoint, before the snapshot: the resume writes the snapshot
