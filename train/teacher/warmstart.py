@@ -15,7 +15,7 @@ takes the robot off its path. DAgger proper (beta decaying to 0) was measured wo
 the controller runs its own gait clock, so a robot driven by the network drifts out of phase
 with it and the labels contradict the robot's gait (6 iterations of beta = 0.5^k: 273 of
 512 robots fell within 5 s in the last one, and the fit got worse each iteration). The
-comparison is in docs/teacher_quality_rma.md.
+comparison is in docs/results/2026-12-04-teacher-quality-rma.md.
 """
 
 from __future__ import annotations
