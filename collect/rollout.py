@@ -72,6 +72,20 @@ def step_quantities(step: Step) -> dict[str, np.ndarray]:
             "yaw_err": np.abs(m["base_ang_vel"][:, 2] - cmd[:, 2])}
 
 
+#: Why an episode ends when it is not survived (indices into ``collect.sim.env.REASONS``).
+FALL_REASONS = ("fall", "nan")
+_FELL = np.isin(np.arange(len(REASONS)), [REASONS.index(r) for r in FALL_REASONS])
+
+
+def fell(res: StepResult) -> np.ndarray:
+    """(N,) bool: the environments whose episode ended in this step by a fall or a physics
+    blow-up (NaN). msta's one survival definition: an episode survives unless it ends so (by
+    the time limit, or still running when the figures are taken); every survival figure
+    (msta-sim's table, the evaluation's trials, the teacher report, the label check) counts
+    the episodes this marks."""
+    return res.done & _FELL[res.reason]
+
+
 #: Called after every step; returning True ends the rollout.
 StepHook = Callable[[Step], "bool | None"]
 
@@ -120,8 +134,7 @@ class TerrainStats:
 
     steps: int = 0
     episodes: int = 0
-    falls: int = 0
-    blowups: int = 0
+    fell: int = 0
     lin_tracking: float = 0.0
     ang_tracking: float = 0.0
     total: float = 0.0
@@ -133,7 +146,7 @@ class TerrainStats:
         s = max(self.steps, 1)
         started = max(self.episodes + self.unfinished, 1)
         return {"steps": self.steps, "episodes": self.episodes,
-                "survival": 1.0 - (self.falls + self.blowups) / started,
+                "survival": 1.0 - self.fell / started,
                 "lin_tracking": self.lin_tracking / s, "ang_tracking": self.ang_tracking / s,
                 "total": self.total / s, "vel_err": self.vel_err / s, "yaw_err": self.yaw_err / s}
 
@@ -159,8 +172,7 @@ class RolloutSummary:
             st.yaw_err += float(q["yaw_err"][sel].sum())
             done = sel & res.done
             st.episodes += int(done.sum())
-            st.falls += int((done & (res.reason == REASONS.index("fall"))).sum())
-            st.blowups += int((done & (res.reason == REASONS.index("nan"))).sum())
+            st.fell += int((sel & fell(res)).sum())
 
     def table(self) -> str:
         """A Markdown table, one row per terrain type."""

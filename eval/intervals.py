@@ -157,7 +157,8 @@ def wilson_interval(p: float, n: float, level: float = LEVEL) -> Interval:
 def proportion_interval(x: np.ndarray, w: np.ndarray | None = None, level: float = LEVEL
                         ) -> tuple[float, Interval]:
     """Weighted share of successes (x in {0, 1}) and its Wilson interval with the Kish
-    effective sample size ``1 / sum w^2``.
+    effective sample size ``1 / sum w^2``; equal weights (``w`` None): the share k/n over
+    n trials, exactly.
 
     Args:
         x: (n,) 0/1 per trial.
@@ -165,6 +166,9 @@ def proportion_interval(x: np.ndarray, w: np.ndarray | None = None, level: float
         level: confidence level.
     """
     x = np.asarray(x, dtype=np.float64)
+    if w is None and len(x):
+        p = float(x.sum()) / len(x)
+        return p, wilson_interval(min(max(p, 0.0), 1.0), len(x), level)
     w = _weights(len(x), w)
     p = float(np.sum(w * x))
     return p, wilson_interval(min(max(p, 0.0), 1.0), 1.0 / float(np.sum(w ** 2)), level)

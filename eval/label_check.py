@@ -16,8 +16,9 @@ takeover keeps the robots up about as well as a teacher restarted at that moment
 * ``takeover reset``: the teacher restarted at the takeover.
 
 Every row runs through msta's one rollout loop (:func:`collect.rollout.rollout`) on the
-same robots, terrains (levels 0 to ``--max_level``), commands and seeds. Survival has a
-95 % Wilson interval; linear tracking (the per-step return over the whole episode,
+same robots, terrains (levels 0 to ``--max_level``), commands and seeds. Survival is msta's
+one figure (:func:`eval.metrics.survival`: the share of robots that did not fall, with a
+95 % Wilson interval); linear tracking (the per-step return over the whole episode,
 :func:`collect.rollout.step_quantities`' ``lin``, a fallen robot scoring 0 from its fall
 on) is divided by the teacher's on the same robots, with a 95 % delta-method interval over
 the paired robots (eval/intervals.py).
@@ -31,10 +32,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from collect.rollout import Step, rollout, step_quantities
+from collect.rollout import Step, fell, rollout, step_quantities
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
-from eval.intervals import ratio_interval, wilson_interval
+from eval.intervals import ratio_interval
+from eval.metrics import survival
 from msta_data.cli import check_at_least, parse_config, usage_error
 from msta_data.locate import locate_checkpoint
 from msta_data.robot import CONTROL_DT
@@ -110,7 +112,8 @@ class TakeoverDriver:
 
 
 def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | None:
-    """One row: survival and per-robot linear-tracking return of ``mode`` (None: skipped)."""
+    """One row of ``mode`` (None: skipped): which robots fell (``fell``, each robot's first
+    episode only) and their linear-tracking returns per step (``lin``)."""
     switch = round(cfg.student_seconds / CONTROL_DT)
     steps = round(cfg.episode_length_s / CONTROL_DT)
     env = QuadrupedEnv(EnvConfig(num_envs=cfg.robots, seed=cfg.seed, nthread=1,
@@ -127,10 +130,10 @@ def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | 
 
     def on_step(step: Step) -> None:
         lin[alive] += step_quantities(step)["lin"][alive]
-        alive[step.res.terminated] = False    # a fallen robot scores nothing afterwards
+        alive[fell(step.res)] = False    # a fallen robot scores nothing afterwards
 
     rollout(env, driver, on_step, max_steps=steps, reset_done=False)
-    return {"survived": int(alive.sum()), "robots": cfg.robots, "lin": lin / steps}
+    return {"fell": ~alive, "robots": cfg.robots, "lin": lin / steps}
 
 
 def load_student(spec: str) -> Any:
@@ -156,8 +159,8 @@ def label_check(cfg: LabelCheckConfig, policy: Any = None) -> dict[str, dict[str
         if r is None:
             continue
         lin, lin_ci = ratio_interval(r["lin"], ref)
-        rows[mode] = {"robots": r["robots"], "survival": r["survived"] / r["robots"],
-                      "survival_ci": wilson_interval(r["survived"] / r["robots"], r["robots"]),
+        surv, surv_ci = survival(r["fell"])
+        rows[mode] = {"robots": r["robots"], "survival": surv, "survival_ci": surv_ci,
                       "lin_tracking": lin, "lin_tracking_ci": lin_ci}
     return rows
 

@@ -16,7 +16,8 @@ Metrics per trial (rewards are the simulator's, already scaled by dt):
 - ``lin_tracking``, ``ang_tracking``, ``total``: the episode's return of the linear- and
   angular-velocity tracking terms and of the total reward, divided by the episode's time
   limit in steps (per-step return; a fall ends the return early);
-- ``survival``: 1 if the episode ended by the time limit, 0 on a fall or physics blow-up;
+- ``survival``: 1 if the episode ended by the time limit, 0 on a fall or physics blow-up
+  (:func:`collect.rollout.fell`; the cell's figure is :func:`survival`);
 - ``vel_err``, ``yaw_err``: mean |v_xy - cmd_xy| (m/s) and |w_z - cmd_wz| (rad/s) over the
   steps lived (true base velocities);
 - ``length``: steps lived / time limit.
@@ -46,9 +47,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import STEP_QUANTITIES, Step, as_policy, rollout, step_quantities
-from collect.sim.env import REASONS, QuadrupedEnv
-from eval.intervals import mean_interval, proportion_interval, ratio_interval
+from collect.rollout import STEP_QUANTITIES, Step, as_policy, fell, rollout, step_quantities
+from collect.sim.env import QuadrupedEnv
+from eval.intervals import Interval, mean_interval, proportion_interval, ratio_interval
 
 #: Returns normalized by the teacher's (the paper's three metrics).
 RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
@@ -239,13 +240,12 @@ def _round(env: QuadrupedEnv, actor: Any, out: TrialResults, ids: np.ndarray,
     """One round: step until every environment's first episode ended; sum into ``out``."""
     n = env.num_envs
     alive = np.ones(n, dtype=bool)
-    bad = np.isin(np.arange(len(REASONS)), [REASONS.index("fall"), REASONS.index("nan")])
 
     def on_step(step: Step) -> bool:
         res = step.res
         out.add(ids, step, alive.astype(np.float64))
         ended = alive & res.done
-        out.fell[ids[ended]] = bad[res.reason[ended]]
+        out.fell[ids[ended]] = fell(res)[ended]
         alive[:] &= ~res.done
         bar.update(n)
         if not alive.any():
@@ -302,6 +302,19 @@ def _ci(interval: tuple[float, float] | None) -> list[float] | None:
     return None if interval is None else [float(interval[0]), float(interval[1])]
 
 
+def survival(fallen: np.ndarray, w: np.ndarray | None = None) -> tuple[float, Interval]:
+    """msta's survival figure: the (weighted) share of episodes that did not end by a fall
+    or a physics blow-up (``fallen``: :func:`collect.rollout.fell` at each episode's end),
+    with its 95 % Wilson interval (:func:`eval.intervals.proportion_interval`; equal weights:
+    the share survived / episodes over that many episodes).
+
+    Args:
+        fallen: (n,) bool per episode.
+        w: (n,) weights (default equal).
+    """
+    return proportion_interval((~np.asarray(fallen, dtype=bool)).astype(np.float64), w)
+
+
 def summarize(res: TrialResults, strata: list[np.ndarray]) -> dict[str, Any]:
     """One cell's metrics: the mean over its strata of each stratum's mean (module
     docstring), the cell's trial count and a 95 % interval per metric (eval.intervals).
@@ -323,7 +336,7 @@ def summarize(res: TrialResults, strata: list[np.ndarray]) -> dict[str, Any]:
                        ("yaw_err", res.yaw_err / steps, w_steps), ("length", res.steps / m, w)):
         value, interval = mean_interval(x[idx], wk)
         out[key], ci[key] = value, _ci(interval)
-    value, interval = proportion_interval((~res.fell[idx]).astype(np.float64), w)
+    value, interval = survival(res.fell[idx], w)
     out["survival"], ci["survival"] = value, _ci(interval)
     out = {k: out[k] for k in METRICS}
     return {**out, "trials": len(idx), "ci": {k: ci[k] for k in METRICS}}

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from collect.record import LabelledActor, record_rollouts
-from collect.rollout import rollout, run, step_quantities
+from collect.rollout import fell, rollout, run, step_quantities
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
@@ -69,6 +69,31 @@ def test_msta_sim_summary_counts_every_step_and_episode():
     summary = run(env, Recorder(), 25, progress=False)
     row = summary.per_type["flat"].row()
     assert row["steps"] == 75 and row["episodes"] == 6 and row["survival"] == 1.0
+
+
+def test_survival_counts_falls_and_blowups_not_time_limits():
+    """collect.rollout.fell, the one survival definition: an episode that ends by a fall (or
+    a physics blow-up) is not survived, one that ends by the time limit is; msta-sim's table
+    counts exactly these."""
+    env = QuadrupedEnv(env_cfg(n=4, seconds=1.0))
+    env.reset()
+    rng = np.random.default_rng(0)
+    marks = []
+    summary = run(env, lambda obs: rng.uniform(-20, 20, (4, 12)), 50, progress=False)
+    env.reset()
+    rollout(env, lambda obs: rng.uniform(-20, 20, (4, 12)),
+            lambda s: marks.append((fell(s.res), s.res.terminated, s.res.truncated)), 50)
+    fallen, terminated, truncated = (np.array(m) for m in zip(*marks, strict=True))
+    assert fallen.sum() > 0 and (fallen == terminated).all() and not (fallen & truncated).any()
+    row = summary.per_type["flat"].row()
+    assert row["survival"] < 1.0
+    started = row["episodes"] + summary.per_type["flat"].unfinished
+    assert row["survival"] == 1.0 - summary.per_type["flat"].fell / started
+    env.reset()
+    ends = []
+    rollout(env, Recorder(), lambda s: ends.append(s.res.done.copy()) or bool(fell(s.res).any()),
+            50)
+    assert len(ends) == 50 and ends[-1].all()   # every standing robot reached its time limit
 
 
 def test_labelled_actor_records_the_label_and_mixes_by_beta():

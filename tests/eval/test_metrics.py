@@ -8,7 +8,8 @@ import pytest
 from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
-from eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials
+from eval.intervals import wilson_interval
+from eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials, survival
 from policies.teacher.config import ZeroTeacher
 
 TYPES = ("flat", "smooth_slope")
@@ -118,3 +119,12 @@ def test_aggregate_and_normalize_by_hand():
     assert norm["per_terrain"]["average"]["total"] == pytest.approx(0.5)
     assert norm["per_level"]["a"]["0"]["lin_tracking"] == pytest.approx(0.5)
     assert norm["per_terrain"]["average"]["trials"] == 4
+
+
+def test_survival_is_the_share_not_fallen_with_its_wilson_interval():
+    fallen = np.array([True, False, False, False, True, False])
+    p, interval = survival(fallen)
+    assert p == 4 / 6 and interval == wilson_interval(4 / 6, 6)
+    # weighted (two strata of 2 and 4 episodes, each weighing 1/2): the stratified share
+    w = np.array([0.25, 0.25, 0.125, 0.125, 0.125, 0.125])
+    assert survival(fallen, w)[0] == pytest.approx(0.5 * 0.5 + 0.5 * 0.75)
