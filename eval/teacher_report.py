@@ -27,9 +27,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import Step, rollout
+from collect.rollout import Step, fell, rollout
 from collect.sim.commands import CommandConfig
-from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
+from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialResults, summarize
@@ -161,7 +161,6 @@ def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
     per_env = math.ceil(cfg.episodes / k)
     done_eps = np.zeros(n, dtype=np.int64)
     episodes = TrialResults.zeros(n * per_env, env.max_steps)  # env e's j-th: e * per_env + j
-    fell = np.isin(np.arange(len(REASONS)), [REASONS.index("fall"), REASONS.index("nan")])
     total = per_env * env.max_steps
     bar = _bar(total, cfg.progress, terrain)
 
@@ -170,7 +169,7 @@ def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
         slot = np.arange(n) * per_env + np.minimum(done_eps, per_env - 1)
         episodes.add(slot, step, active.astype(np.float64))
         ended = np.flatnonzero(step.res.done & active)
-        episodes.fell[slot[ended]] = fell[step.res.reason[ended]]
+        episodes.fell[slot[ended]] = fell(step.res)[ended]
         done_eps[ended] += 1
         if bar is not None and (step.t + 1) % 25 == 0:
             bar.n = min(total, int(np.minimum(done_eps * env.max_steps + env.episode_step,
