@@ -179,9 +179,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     rec = EpisodeRecorder(env.num_envs, env.max_steps, sensors)
     rec.start(np.arange(env.num_envs), env.type_idx, env.level)
     done_count = 0
-    bar = (tqdm(total=horizon, disable=not progress, unit="step", desc="control steps")
-           if horizon else tqdm(total=episodes, disable=not progress, unit="ep", desc="episodes"))
-    t0 = time.time()
+    bar = _Progress(horizon, episodes, progress, env.num_envs)
 
     def on_step(step: Step) -> bool:
         nonlocal done_count
@@ -193,12 +191,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
                 done_count += 1
         if len(ended):
             rec.start(ended, env.type_idx, env.level)
-            if not horizon:
-                bar.update(min(len(ended), bar.total - bar.n))
-        if horizon:
-            bar.update(1)
-        steps = (step.t + 1) * env.num_envs
-        bar.set_postfix(frames_per_s=f"{steps / max(time.time() - t0, 1e-9):,.0f}")
+        bar.update(step.t, len(ended))
         if horizon:
             return step.t + 1 >= horizon
         return done_count >= episodes
@@ -207,8 +200,28 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     if horizon:  # the episodes still running, cut at the horizon
         for i in np.flatnonzero(rec.ptr > 0):
             write(rec.take(i), int(rec.type_idx[i]), int(rec.level[i]))
-    bar.close()
+    bar.bar.close()
     return steps
+
+
+class _Progress:
+    """:func:`record_rollouts`' progress bar: control steps (with ``horizon``) or finished
+    episodes, with the simulated frames per second."""
+
+    def __init__(self, horizon: int | None, episodes: int, enabled: bool, num_envs: int) -> None:
+        self.bar = (tqdm(total=horizon, disable=not enabled, unit="step", desc="control steps")
+                    if horizon else
+                    tqdm(total=episodes, disable=not enabled, unit="ep", desc="episodes"))
+        self.horizon, self.num_envs, self.t0 = horizon, num_envs, time.time()
+
+    def update(self, t: int, ended: int) -> None:
+        """After control step ``t`` (0-based), in which ``ended`` episodes ended."""
+        if self.horizon:
+            self.bar.update(1)
+        elif ended:
+            self.bar.update(min(ended, self.bar.total - self.bar.n))
+        rate = (t + 1) * self.num_envs / max(time.time() - self.t0, 1e-9)
+        self.bar.set_postfix(frames_per_s=f"{rate:,.0f}")
 
 
 @dataclass

@@ -177,6 +177,22 @@ def export_student(
     module = DeployedStudent(policy, names)
     windows = dict(windows or {"random": random_windows(policy, names, T, 64)})
     example = tuple(torch.from_numpy(w[:1]) for w in next(iter(windows.values())).values())
+    runners = _write_formats(module, example, names, formats, out)
+    parity = _parity(module, names, windows, runners)
+    worst = max((p["max_abs_diff"] for p in parity), default=0.0)
+    spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
+    (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
+    if not worst <= tolerance:
+        raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "
+                                f"> tolerance {tolerance:g} (per file and window set: "
+                                f"{out / SPEC_NAME})")
+    return spec
+
+
+def _write_formats(module: DeployedStudent, example: tuple[torch.Tensor, ...],
+                   names: Sequence[str], formats: Sequence[str], out: Path) -> dict[str, Any]:
+    """Trace ``module`` on ``example`` into each of ``formats`` under ``out``; returns a
+    runner of each written file (inputs in ``names`` order -> (n, A)) for the parity check."""
     runners = {}
     with warnings.catch_warnings(), torch.no_grad():
         # TracerWarnings name the eager path's Python checks, which the graph leaves out
@@ -191,15 +207,7 @@ def export_student(
                               input_names=list(names), output_names=["action"],
                               dynamic_axes=axes, opset_version=ONNX_OPSET)
             runners["onnx"] = _onnx_runner(out / ONNX_NAME)
-    parity = _parity(module, names, windows, runners)
-    worst = max((p["max_abs_diff"] for p in parity), default=0.0)
-    spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
-    (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
-    if not worst <= tolerance:
-        raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "
-                                f"> tolerance {tolerance:g} (per file and window set: "
-                                f"{out / SPEC_NAME})")
-    return spec
+    return runners
 
 
 def _torchscript_runner(path: Path):

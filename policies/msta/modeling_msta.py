@@ -85,8 +85,7 @@ class MSTATransformer(nn.Module):
                              nn.Linear(2 * d, get(n).encoder_tokens * d))
             for n in self.encoded_sensors})
         self.sensor_embed = nn.ParameterDict(
-            {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors}
-        )
+            {n: nn.Parameter(torch.zeros(d)) for n in cfg.input_sensors})
         self.state_token = nn.Parameter(torch.zeros(d))
         R = cfg.state_tokens  # <S> and R - 1 more readout tokens (1: the paper)
         self.extra_state_tokens = nn.Parameter(torch.zeros(R - 1, d)) if R > 1 else None
@@ -94,13 +93,9 @@ class MSTATransformer(nn.Module):
         self.blocks = make_blocks(cfg)
         self.ln_f = nn.LayerNorm(d)
         h = cfg.head_hidden_dim
-        self.head = (
-            nn.Sequential(
-                nn.Linear(d * R, h), nn.GELU(approximate="tanh"), nn.Linear(h, cfg.action_dim)
-            )
-            if h
-            else nn.Linear(d * R, cfg.action_dim)
-        )
+        self.head = (nn.Sequential(nn.Linear(d * R, h), nn.GELU(approximate="tanh"),
+                                   nn.Linear(h, cfg.action_dim))
+                     if h else nn.Linear(d * R, cfg.action_dim))
         self._pos_cache: dict[tuple, tuple[Tensor, ...]] = {}
         self._init_weights()
 
@@ -213,13 +208,9 @@ class MSTATransformer(nn.Module):
                     offset.append(self._table_of(name, c) * self.cfg.num_bins)  # (T*c,)
             return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
 
-    def embed(
-        self,
-        inputs: MSTAInputs,
-        mask_ratio: float,
-        generator: torch.Generator | None = None,
-        dummy_tokens: int | Tensor = 0,
-    ) -> tuple[Tensor, Tensor | None]:
+    def embed(self, inputs: MSTAInputs, mask_ratio: float,
+              generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
+              ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking, D dummy tokens, then the readout tokens (<S> last):
         (B, K + D + R, d), and a key mask (B, 1, 1, K + D + R) or None."""
         missing = None
@@ -352,22 +343,15 @@ class MSTATransformer(nn.Module):
             missing[name] = absent  # (dim,) per channel, repeated over time by the caller
         return MSTAInputs(bins, channels, inputs.pad, inputs.encoded), missing
 
-    def _drop_scores(
-        self, B: int, N: int, pad: Tensor | None, generator: torch.Generator | None
-    ) -> Tensor:
+    def _drop_scores(self, B: int, N: int, pad: Tensor | None,
+                     generator: torch.Generator | None) -> Tensor:
         """Random keep scores (B, N) in [0, 1) (:func:`policies.base.uniform`); padded tokens
         get -1 so they are dropped first."""
         scores = uniform(B, N, generator, self.bin_embed.weight.device)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
-    def _remove_masked(
-        self,
-        tokens: Tensor,
-        static: Tensor,
-        pad: Tensor | None,
-        n_drop: int,
-        generator: torch.Generator | None,
-    ) -> tuple[Tensor, Tensor | None]:
+    def _remove_masked(self, tokens: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
+                       generator: torch.Generator | None) -> tuple[Tensor, Tensor | None]:
         B, N = tokens.shape[:2]
         if pad is not None:  # padding every sample shares is removed even beyond round(αN)
             n_drop = max(n_drop, int(pad.sum(1).min()))
@@ -381,21 +365,12 @@ class MSTATransformer(nn.Module):
             B, keep.shape[1], -1)  # (B, K, d)
         return x, (torch.gather(pad, 1, keep) if pad is not None else None)
 
-    def _replace_masked(
-        self,
-        tokens: Tensor,
-        static: Tensor,
-        pad: Tensor | None,
-        n_drop: int,
-        generator: torch.Generator | None,
-    ) -> Tensor:
+    def _replace_masked(self, tokens: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
+                        generator: torch.Generator | None) -> Tensor:
         B, N = tokens.shape[:2]
-        masked = (
-            pad.clone()
-            if pad is not None
-            else torch.zeros_like(tokens[..., 0] if tokens.is_floating_point() else tokens,
-                                  dtype=torch.bool)  # (B, N)
-        )
+        masked = (pad.clone() if pad is not None  # (B, N)
+                  else torch.zeros_like(tokens[..., 0] if tokens.is_floating_point() else tokens,
+                                        dtype=torch.bool))
         if n_drop:
             scores = self._drop_scores(B, N, pad, generator)  # (B, N)
             drop = torch.topk(-scores, n_drop, dim=1).indices  # (B, n_drop)
@@ -403,13 +378,9 @@ class MSTATransformer(nn.Module):
         value = torch.where(masked[..., None], self.mask_token, self._value(tokens))  # (B, N, d)
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
-    def forward(
-        self,
-        inputs: MSTAInputs,
-        mask_ratio: float = 0.0,
-        generator: torch.Generator | None = None,
-        dummy_tokens: int | Tensor = 0,
-    ) -> Tensor:
+    def forward(self, inputs: MSTAInputs, mask_ratio: float = 0.0,
+                generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
+                ) -> Tensor:
         x, attn_mask = self.embed(inputs, mask_ratio, generator, dummy_tokens)  # (B, L, d)
         R, last = self.cfg.state_tokens, len(self.blocks) - 1
         for i, block in enumerate(self.blocks):
@@ -435,14 +406,9 @@ class MSTAPolicy(StudentPolicy):
         super().__init__(config, processor)
         self.model = MSTATransformer(config)
 
-    def forward(
-        self,
-        batch: Batch,
-        channels: Channels | None = None,
-        mask_ratio: float | None = None,
-        generator: torch.Generator | None = None,
-        dummy_tokens: int | Tensor = 0,
-    ) -> Tensor:
+    def forward(self, batch: Batch, channels: Channels | None = None,
+                mask_ratio: float | None = None, generator: torch.Generator | None = None,
+                dummy_tokens: int | Tensor = 0) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
         every sample (the stress test, see the module docstring; a (B, D, 4) tensor of
