@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import Step, fell, rollout
+from collect.rollout import Step, fell, film, rollout
 from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
@@ -283,46 +283,30 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
         seed: simulator seed.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
-    import mujoco
-    from PIL import Image
+    from collect.sim.render import save_strip, tracking_camera
 
     cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),
                     randomization=RandomizationConfig(enabled=False),
                     noise=NoiseConfig(enabled=False), spawn_offset=0.0)
     env = QuadrupedEnv(cfg)
-    obs = env.reset(type_idx=np.array([cfg.terrain.types.index("stairs_up")]),
-                    level=np.array([level]))
-    policy = build_teacher(teacher or TeacherConfig())
+    env.reset(type_idx=np.array([cfg.terrain.types.index("stairs_up")]), level=np.array([level]))
     command = np.array([[0.6, 0.0, 0.0]])
-    renderer = mujoco.Renderer(env.model, 360, 480)
-    data = mujoco.MjData(env.model)
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-    cam.trackbodyid = 1
-    cam.distance, cam.elevation = 1.4, -15.0
+
+    def hold_command(obs: dict[str, np.ndarray]) -> None:  # every step: straight ahead
+        env.commands.command[:] = command
+        obs["command"][:] = command
+
+    def camera(env: QuadrupedEnv):  # beside the robot, looking across its heading
+        return tracking_camera(1.4, float(np.degrees(env.meas["yaw"][0])) + 90.0, -15.0)
+
     steps = int(round(seconds / env.dt))
     every = max(1, steps // frames)
-    images = []
-    try:
-        for t in range(steps):
-            env.commands.command[:] = command
-            obs["command"][:] = command
-            if t % every == every - 1 and len(images) < frames:
-                mujoco.mj_setState(env.model, data, env.state[0],
-                                   mujoco.mjtState.mjSTATE_FULLPHYSICS)
-                mujoco.mj_forward(env.model, data)
-                cam.azimuth = float(np.degrees(env.meas["yaw"][0])) + 90.0
-                renderer.update_scene(data, camera=cam)
-                images.append(renderer.render().copy())
-            res = env.step(policy.act(obs))
-            obs = res.obs
-            policy.reset(np.flatnonzero(res.done))
-    finally:
-        renderer.close()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.concatenate(images, axis=1)).save(path)
-    return path
+    hold_command(env.last_obs)
+    images = film(env, build_teacher(teacher or TeacherConfig()), min(steps, every * frames),
+                  every=every, first=every - 1, camera=camera,
+                  on_step=lambda step: hold_command(step.res.obs))
+    return save_strip(images, path, columns=len(images))
 
 
 # ----------------------------------------------------------------------------- CLI

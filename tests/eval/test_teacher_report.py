@@ -78,3 +78,17 @@ def test_clear_errors(arg, message, capsys):
         tr.main([arg])
     err = capsys.readouterr().err
     assert e.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_the_stairs_strip_is_a_film_of_the_rollout_loop(tmp_path):
+    """render_stairs films through collect.rollout.film: ``frames`` pictures side by side,
+    one every ``steps // frames`` steps."""
+    import os
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import matplotlib.image
+
+    path = tr.render_stairs(tmp_path / "stairs.png", TeacherConfig(type="zero"), seconds=0.2,
+                            frames=3)
+    strip = matplotlib.image.imread(path)
+    assert strip.shape[:2] == (360, 3 * 480) and strip.std() > 0.02
