@@ -5,9 +5,10 @@ and students through their adapters), or a plain callable ``obs -> actions``.
 
 :func:`rollout` is the loop every caller shares: recording (``collect.record``), stage 2
 (``train.online`` through recording), the evaluation's trials (``eval.metrics``), the
-teacher report and ``msta-sim`` (:func:`run`). What differs between them (recording frames,
-per-trial bookkeeping, when to stop) is a hook called after every step with a :class:`Step`;
-:func:`step_quantities` defines the per-step figures every summary sums.
+teacher report, ``msta-sim`` (:func:`run`) and every film (:func:`film`). What differs
+between them (recording frames, per-trial bookkeeping, when to stop) is a hook called after
+every step with a :class:`Step`; :func:`step_quantities` defines the per-step figures every
+summary sums and :func:`fell` which episodes count as not survived.
 """
 
 from __future__ import annotations
@@ -126,6 +127,57 @@ def rollout(env: QuadrupedEnv, policy: Any, on_step: StepHook, max_steps: int | 
         if stop:
             break
     return t
+
+
+#: env -> the camera of the next frame (:func:`collect.sim.render.tracking_camera`).
+CameraFn = Callable[[QuadrupedEnv], Any]
+
+
+def film(env: QuadrupedEnv, policy: Any, steps: int, every: int = 5, first: int = 0,
+         env_id: int = 0, size: tuple[int, int] = (360, 480), camera: CameraFn | None = None,
+         on_step: StepHook | None = None) -> list[np.ndarray]:
+    """:func:`rollout` for ``steps`` control steps, filming environment ``env_id``: a frame of
+    the state before step ``first`` and then before every ``every``-th step (MuJoCo offscreen,
+    ``MUJOCO_GL``; msta-sim's pictures, msta-eval's ``--video``, the teacher report's stairs).
+
+    Args:
+        env: a reset simulator.
+        policy: object with act/reset, or a callable obs -> actions.
+        steps: control steps to run.
+        every: control steps between frames.
+        first: the step before which the first frame is taken.
+        env_id: which environment to film.
+        size: (height, width) of the frames.
+        camera: the camera of each frame (default: :func:`~collect.sim.render.tracking_camera`).
+        on_step: the caller's hook, called after every step before its frame is taken.
+    Returns:
+        (height, width, 3) uint8 frames.
+    """
+    import mujoco
+
+    from collect.sim.render import make_renderer, render_state, tracking_camera
+
+    renderer = make_renderer(env.model, *size)
+    data = mujoco.MjData(env.model)
+    fixed = tracking_camera()
+    frames: list[np.ndarray] = []
+
+    def shoot(t: int) -> None:  # the state before step t
+        if t < steps and t >= first and (t - first) % every == 0:
+            cam = camera(env) if camera is not None else fixed
+            frames.append(render_state(renderer, env.model, data, env.state[env_id], cam))
+
+    def hook(step: Step) -> None:
+        if on_step is not None:
+            on_step(step)
+        shoot(step.t + 1)
+
+    try:
+        shoot(0)
+        rollout(env, policy, hook, max_steps=steps)
+    finally:
+        renderer.close()
+    return frames
 
 
 @dataclass

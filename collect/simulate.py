@@ -14,10 +14,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 import policies.teacher  # noqa: F401  (registers the built-in teachers)
-from collect.rollout import run
+from collect.rollout import film, run
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from msta_data.cli import parse_config
 from policies.teacher.config import TeacherConfig, build_teacher
@@ -59,13 +57,10 @@ def simulate(cfg: SimRunConfig) -> str:
     print(table)
     if cfg.image or cfg.video:
         os.environ.setdefault("MUJOCO_GL", "egl")
-        from collect.sim.render import record, save_strip, save_video
+        from collect.sim.render import save_strip, save_video
 
         env.reset()
-        act = policy.act if hasattr(policy, "act") else policy
-        if hasattr(policy, "reset"):
-            policy.reset(np.arange(env.num_envs))
-        frames = record(env, act, steps=min(steps, 150), every=5)
+        frames = film(env, policy, min(steps, 150), every=5)
         out = Path(cfg.output_dir)
         if cfg.image:
             print(f"image strip: {save_strip(frames, out / f'{cfg.teacher.type}_strip.png')}")

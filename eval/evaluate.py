@@ -34,6 +34,7 @@ import torch
 from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+from collect.rollout import film
 from collect.sim.commands import CommandConfig
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
@@ -509,7 +510,7 @@ def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
 
 def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) -> Path:
     """Render ``cfg.video`` = ``POLICY:TERRAIN[:LEVEL]`` (one robot, ``cfg.video_s``) to MP4."""
-    from collect.sim.render import record, save_video
+    from collect.sim.render import save_video
 
     parts = cfg.video.rsplit(":", 2) if cfg.video.count(":") >= 2 else cfg.video.rsplit(":", 1)
     if len(parts) < 2:
@@ -528,9 +529,8 @@ def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) ->
     # teachers keep per-env state sized at first use: build a fresh one for one robot
     actor = load_entry(entry.source, cfg).obj if entry.kind == "teacher" \
         else StudentActor(entry.obj, 1)
-    actor.reset(np.arange(1))
     every = 5  # 10 frames per second of simulated time (software GL renders slowly)
-    frames = record(env, actor.act, round(cfg.video_s / env.dt), every=every)
+    frames = film(env, actor, round(cfg.video_s / env.dt), every=every)
     path = out / f"video_{entry.name.replace('/', '_')}_{terrain}_L{level}.mp4"
     return save_video(frames, path, fps=round(1 / (every * env.dt)))
 

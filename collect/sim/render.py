@@ -1,9 +1,10 @@
-"""Offscreen pictures of the batched env: image strips (PNG) and short videos (MP4)."""
+"""Offscreen pictures of the batched env: one frame of a state, image strips (PNG) and short
+videos (MP4). Films of a policy are taken through the one rollout loop
+(:func:`collect.rollout.film`)."""
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from pathlib import Path
 
 import mujoco
@@ -23,7 +24,10 @@ def make_renderer(model: mujoco.MjModel, height: int = 360, width: int = 480) ->
         raise RuntimeError(GL_HELP.format(os.environ.get("MUJOCO_GL"))) from exc
 
 
-def _camera(distance: float = 1.6, azimuth: float = 135.0, elevation: float = -20.0):
+def tracking_camera(distance: float = 1.6, azimuth: float = 135.0, elevation: float = -20.0
+                    ) -> mujoco.MjvCamera:
+    """A camera following the trunk from ``distance`` m, at ``azimuth`` degrees, looking down
+    ``-elevation`` degrees."""
     cam = mujoco.MjvCamera()
     cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
     cam.trackbodyid = 1
@@ -46,35 +50,8 @@ def render_state(renderer: mujoco.Renderer, model: mujoco.MjModel, data: mujoco.
     """
     mujoco.mj_setState(model, data, state, mujoco.mjtState.mjSTATE_FULLPHYSICS)
     mujoco.mj_forward(model, data)
-    renderer.update_scene(data, camera=camera or _camera())
+    renderer.update_scene(data, camera=camera or tracking_camera())
     return renderer.render().copy()
-
-
-def record(env, policy: Callable[[dict], np.ndarray], steps: int, env_id: int = 0,
-           every: int = 5, height: int = 360, width: int = 480) -> list[np.ndarray]:
-    """Run ``policy`` on all envs for ``steps`` control steps, rendering env ``env_id``.
-
-    Args:
-        env: a reset ``QuadrupedEnv``.
-        policy: obs dict -> (N, 12) actions.
-        steps: control steps to run.
-        env_id: which environment to film.
-        every: keep one frame every ``every`` control steps.
-    Returns:
-        list of (height, width, 3) uint8 frames.
-    """
-    renderer = make_renderer(env.model, height, width)
-    data = mujoco.MjData(env.model)
-    cam = _camera()
-    frames, obs = [], env.last_obs
-    try:
-        for t in range(steps):
-            if t % every == 0:
-                frames.append(render_state(renderer, env.model, data, env.state[env_id], cam))
-            obs = env.step(policy(obs)).obs
-    finally:
-        renderer.close()
-    return frames
 
 
 def save_strip(frames: list[np.ndarray], path: str | Path, columns: int = 6) -> Path:

@@ -222,13 +222,14 @@ def test_render_returns_an_rgb_frame():
 
 def test_image_strip_and_video_are_written(tmp_path):
     os.environ.setdefault("MUJOCO_GL", "egl")
+    from collect.rollout import film
     from collect.sim.env import QuadrupedEnv
-    from collect.sim.render import record, save_strip, save_video
+    from collect.sim.render import save_strip, save_video
 
     env = QuadrupedEnv(EnvConfig(num_envs=2, nthread=1,
                                  randomization=RandomizationConfig(enabled=False)))
     env.reset()
-    frames = record(env, lambda obs: np.zeros((2, 12)), steps=20, every=5, height=96, width=128)
+    frames = film(env, lambda obs: np.zeros((2, 12)), steps=20, every=5, size=(96, 128))
     assert len(frames) == 4 and frames[0].shape == (96, 128, 3)
     assert frames[0].std() > 5, "the frame should show a scene, not a flat colour"
     strip = save_strip(frames, tmp_path / "strip.png")

@@ -3,11 +3,13 @@ actor that recording and stage 2 drive it with."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
 from collect.record import LabelledActor, record_rollouts
-from collect.rollout import fell, rollout, run, step_quantities
+from collect.rollout import fell, film, rollout, run, step_quantities
 from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
@@ -94,6 +96,29 @@ def test_survival_counts_falls_and_blowups_not_time_limits():
     rollout(env, Recorder(), lambda s: ends.append(s.res.done.copy()) or bool(fell(s.res).any()),
             50)
     assert len(ends) == 50 and ends[-1].all()   # every standing robot reached its time limit
+
+
+def test_a_film_is_the_rollout_loop_filmed_before_its_steps():
+    """film: the frame before step ``first`` and every ``every``-th after it, of env_id's
+    state at that moment, taken in the one loop (the caller's hook runs first)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    import mujoco
+
+    from collect.sim.render import make_renderer, render_state, tracking_camera
+
+    env = QuadrupedEnv(env_cfg(n=2, seconds=0.1))  # 5-step episodes: the loop resets
+    env.reset()
+    states, pol = {0: env.state[1].copy()}, Recorder(0.3)
+    frames = film(env, pol, 10, every=3, first=2, env_id=1, size=(48, 64),
+                  on_step=lambda s: states.update({s.t + 1: env.state[1].copy()}))
+    assert len(frames) == 3 and frames[0].shape == (48, 64, 3)
+    assert pol.calls.count(("reset", (0, 1))) == 3   # before the first step, at 5 and 10
+    renderer = make_renderer(env.model, 48, 64)
+    data = mujoco.MjData(env.model)
+    for frame, t in zip(frames, (2, 5, 8), strict=True):
+        np.testing.assert_array_equal(
+            frame, render_state(renderer, env.model, data, states[t], tracking_camera()))
+    renderer.close()
 
 
 def test_labelled_actor_records_the_label_and_mixes_by_beta():
