@@ -227,7 +227,8 @@ class _Progress:
 @dataclass
 class CollectConfig:
     """Args:
-        teacher: which teacher acts and labels (``--teacher.type=gait``).
+        teacher: which teacher acts and labels (default: the shipped PPO teacher, rma_ppo;
+            ``--teacher.type=gait``: the gait controller).
         episodes: total finished episodes wanted in the dataset (with ``resume``, counting
             the ones already there).
         num_envs: environments simulated together.

@@ -325,7 +325,7 @@ def command_line(cfg: TeacherReportConfig) -> str:
             continue
         if f.name == "teacher":
             parts += [f"--teacher.{k}={_word(v)}" for k, v in asdict(value).items()
-                      if k == "type" or v != getattr(base, k)]
+                      if k == "type" or v != getattr(TeacherConfig(type=value.type), k)]
         else:
             parts.append(f"--{f.name}={_word(value)}")
     return " ".join(parts)

@@ -184,11 +184,28 @@ def _value_at(instance: Any, dest: str, fallback: Any, *, through_choices: bool)
     return obj
 
 
+class _FactoryDefaults:
+    """The nested groups of a config that cannot be built without arguments, each as its
+    ``default_factory`` builds it (``teacher``: the shipped PPO teacher, not the class's "")."""
+
+    def __init__(self, config_class: type) -> None:
+        self.fields = {f.name: f for f in dataclasses.fields(config_class)}
+
+    def __getattr__(self, name: str) -> Any:
+        f = self.__dict__.get("fields", {}).get(name)
+        if f is None or f.default_factory is dataclasses.MISSING:
+            raise AttributeError(name)
+        return f.default_factory()
+
+
 def _default_instance(config_class: type) -> Any:
-    """A default-constructed config, or ``_UNKNOWN`` when it has required fields."""
+    """A default-constructed config; its nested groups' defaults when it has required
+    fields or checks that fail on the defaults; ``_UNKNOWN`` for a class without fields."""
     try:
         return config_class()
     except Exception:  # noqa: BLE001 - a config without full defaults
+        if dataclasses.is_dataclass(config_class):
+            return _FactoryDefaults(config_class)
         return _UNKNOWN
 
 

@@ -33,28 +33,34 @@ PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
 #: gait controller imitated by ``msta-train-teacher --ppo.iterations=0`` (10 DART iterations;
 #: ``produced_by.json`` in the folder; docs/teacher_quality_rma.md).
 SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
-#: The PPO-trained RMA teacher shipped with msta (``--teacher.path`` of it with
-#: ``--teacher.type=rma``): rsl_rl's PPO from ``SHIPPED_RMA``, 1,900 iterations (23 M steps)
-#: on the 2-core machine; survives stairs and discrete obstacles better than the gait
-#: controller (docs/teacher_quality_rma.md, ``produced_by.json`` in the folder).
+#: The PPO-trained RMA teacher shipped with msta, the default teacher of every command (no
+#: ``--teacher.*`` option): rsl_rl's PPO from ``SHIPPED_RMA``; survives stairs and discrete
+#: obstacles better than the gait controller, whose labels contradict a student-driven robot
+#: (docs/teacher_quality_rma.md, ``produced_by.json`` in the folder).
 SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
 
 
 @dataclass
 class TeacherConfig:
     """Args:
-        type: registered teacher name: gait (default, no training), rma (the RMA MLP; without
-            ``path`` the checkpoint shipped with msta), imported (needs ``path`` to a spec
-            file), zero.
+        type: registered teacher name: rma (the RMA MLP; the default, with ``path`` the
+            shipped PPO teacher ``rma_ppo``; ``--teacher.type=rma`` alone is the shipped DART
+            warm start ``rma_dart``), gait (the gait controller, no training), imported (needs
+            ``path`` to a spec file), zero.
         path: checkpoint directory (rma) or spec file (imported).
     """
 
-    type: str = "gait"
+    # "" (nothing chosen) becomes the best shipped teacher in __post_init__: the command line
+    # builds a group from the class defaults plus the options given, so ``--teacher.type=gait``
+    # must not inherit a default path, nor ``--teacher.type=rma`` lose its own (rma_dart)
+    type: str = ""
     path: str = ""
 
     def __post_init__(self) -> None:
         import policies.teacher  # noqa: F401  (registers the built-in teachers)
 
+        if not self.type:
+            self.type, self.path = "rma", self.path or str(SHIPPED_RMA_PPO)
         if self.type not in TEACHERS:
             raise ValueError(f"unknown teacher type {self.type!r}; registered: {sorted(TEACHERS)}")
         if self.type == "rma" and not self.path:

@@ -13,13 +13,15 @@ from eval.metrics import RETURNS
 from eval.scenarios import Condition
 from msta_data.budget import EXIT_STOPPED
 from policies.actor import InputSpec
+from policies.teacher.config import TeacherConfig
 
 FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progress": False}
 
 
 def test_teacher_is_exactly_one_and_the_default_pose_far_below(tmp_path):
     cfg = EvalConfig(policies="teacher,teacher:zero", scenarios="token_removal", trials=4,
-                     episode_length_s=3.0, output_dir=str(tmp_path), **FAST)
+                     episode_length_s=3.0, output_dir=str(tmp_path),
+                     teacher=TeacherConfig(type="gait"), **FAST)
     metrics = evaluate(cfg)
     runs = {(r["policy"], r["condition"]): r for r in metrics["runs"]}
     teacher = runs[("teacher", "mask 0%")]

@@ -6,11 +6,13 @@ import pytest
 
 from eval.label_check import LabelCheckConfig, label_check, main, render
 from policies.checkpoint import PolicyPath
+from policies.teacher.config import TeacherConfig
 
 
 def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):
     cfg = LabelCheckConfig(policy=PolicyPath(str(tiny_ckpt)), robots=3, student_seconds=0.2,
-                           episode_length_s=0.4, max_level=0)
+                           episode_length_s=0.4, max_level=0,
+                           teacher=TeacherConfig(type="gait"))  # has follow_robot
     rows = label_check(cfg)
     assert list(rows) == ["teacher", "student", "takeover shadow", "takeover follow",
                           "takeover reset"]

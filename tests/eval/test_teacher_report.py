@@ -9,7 +9,7 @@ from collect.rollout import rollout, step_quantities
 from collect.sim.env import EnvConfig, QuadrupedEnv
 from collect.sim.terrain import TerrainConfig
 from eval import teacher_report as tr
-from policies.teacher.config import TeacherConfig, build_teacher
+from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
 
 
 def tiny(**kw) -> tr.TeacherReportConfig:
@@ -61,8 +61,13 @@ def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, c
             f"--envs_per_tile=2 --terrains=flat --levels=0-1 --episode_length_s=0.1 "
             f"--nthread=1 --columns=1 --report={out} --image=''`") in md
     assert "| 1 | 2 | 100.0% |" in md and f"wrote {out}" in capsys.readouterr().out
-    assert tr.command_line(tr.TeacherReportConfig()) == (
+    gait = tr.TeacherReportConfig(teacher=TeacherConfig(type="gait"))
+    assert tr.command_line(gait) == (
         "python -m eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
+    # the default teacher (the shipped PPO one) needs its path: --teacher.type=rma is rma_dart
+    assert tr.command_line(tr.TeacherReportConfig()) == (
+        f"python -m eval.teacher_report --teacher.type=rma --teacher.path={SHIPPED_RMA_PPO} "
+        "--episodes=100 --envs_per_tile=10")
 
 
 @pytest.mark.parametrize("arg, message", [

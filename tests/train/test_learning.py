@@ -27,6 +27,7 @@ from collect.sim.terrain import TerrainConfig
 from eval.apps.demo import easy_terrain_dataset
 from policies.factory import load_policy
 from policies.msta import MSTAConfig
+from policies.teacher.config import TeacherConfig
 from train.offline import TrainConfig, train
 from train.online import CorrectConfig, EvalConfig, append_episodes, correct, roll_out
 
@@ -89,7 +90,8 @@ def test_a_stage2_round_fits_the_teacher_on_the_students_own_states(
                         rounds=1, episodes_per_round=24, num_envs=24, episode_length_s=6.0,
                         steps=400, warmup_steps=20, eval_every=0, save_every=0,
                         eval=EvalConfig(enabled=False), progress=False,
-                        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)))
+                        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)),
+                        teacher=TeacherConfig(type="gait"))  # the teacher of teacher_data
     correct(cfg)
     before = load_policy(ckpt)
     after = load_policy(tmp_path / "s2" / "round_1")
