@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from msta_test_helpers import random_episode  # registered by tests/conftest.py
 
-from msta_data import features as F
 from msta_data.writer import DatasetWriter
 
 TERRAINS = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete")
@@ -18,20 +18,9 @@ TERRAINS = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete
 
 def make_episode(length: int, seed: int, sensors: Sequence[str] | None = None
                  ) -> dict[str, np.ndarray]:
-    """Random but finite values for every input column; ``next.done`` only at the end."""
-    feats = F.build_features(sensors)
-    rng = np.random.default_rng(seed)
-    out: dict[str, np.ndarray] = {}
-    for col in F.input_columns(feats):
-        ft = feats[col]
-        if ft["dtype"] == "bool":
-            out[col] = np.arange(length) == length - 1
-        elif tuple(ft["shape"]) == (1,):
-            out[col] = rng.standard_normal(length).astype(np.float32)
-        else:
-            out[col] = (rng.standard_normal((length, ft["shape"][0])) * 2 + seed).astype(
-                np.float32)
-    return out
+    """Random but finite values for every input column (vectors 2 N(0, 1) + ``seed``, so
+    episodes differ in their means); ``next.done`` only at the end."""
+    return random_episode(length, np.random.default_rng(seed), sensors, scale=2.0, offset=seed)
 
 
 def make_provenance(i: int, source: str = "teacher", round_: int = 0) -> dict:

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import draccus
 import pytest
 import torch
+from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.base import PolicyConfig
@@ -55,13 +57,8 @@ def make(name: str, overrides: dict | None = None, **more) -> TimestepPolicy:
     return make_policy(cfg, stats_for(cfg.input_sensors))
 
 
-def make_batch(B: int = 4, steps: int = T, seed: int = 1, names=None) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    names = names or sensors.STUDENT_SENSORS
-    batch = {n: torch.randn(B, steps, sensors.get(n).dim, generator=g) for n in names}
-    if "foot_contact" in batch:
-        batch["foot_contact"] = (batch["foot_contact"] > 0).float()
-    return batch
+#: ``make_batch(B=4, steps=T, seed=1, names=None)``: seeded readings of the student inputs
+make_batch = partial(random_batch, B=4, steps=T)
 
 
 def randomize_placeholders(policy: TimestepPolicy) -> None:

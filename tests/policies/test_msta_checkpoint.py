@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import draccus
 import pytest
 import torch
+from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.base import Policy, PolicyConfig
@@ -35,13 +37,8 @@ def stats_for(cfg: MSTAConfig) -> dict:
     return stats
 
 
-def make_batch(B: int = 3, steps: int = 5) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(2)
-    batch = {
-        n: torch.randn(B, steps, sensors.get(n).dim, generator=g) for n in sensors.STUDENT_SENSORS
-    }
-    batch["foot_contact"] = (batch["foot_contact"] > 0).float()
-    return batch
+#: ``make_batch(B=3, steps=5)``: seeded readings of every student input
+make_batch = partial(random_batch, B=3, steps=5, seed=2)
 
 
 def trained_policy(**overrides) -> MSTAPolicy:

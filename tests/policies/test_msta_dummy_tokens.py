@@ -4,10 +4,12 @@ time pass through attention like real ones and never change a parameter."""
 from __future__ import annotations
 
 import hashlib
+from functools import partial
 
 import numpy as np
 import pytest
 import torch
+from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.actor import InputSpec, StudentActor
@@ -30,10 +32,8 @@ def make(**overrides) -> MSTAPolicy:
     return make_policy(cfg, stats)
 
 
-def make_batch(B: int = 4, seed: int = 1) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    return {n: torch.randn(B, T, sensors.get(n).dim, generator=g)
-            for n in sensors.STUDENT_SENSORS}
+#: ``make_batch(B=4, seed=1)``: seeded readings of every student input (foot contacts 0/1)
+make_batch = partial(random_batch, B=4, steps=T)
 
 
 def param_hash(policy) -> str:

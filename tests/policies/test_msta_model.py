@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import pytest
 import torch
+from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.factory import make_policy
@@ -34,13 +37,8 @@ def make(**overrides) -> MSTAPolicy:
     return make_policy(cfg, stats_for(cfg))
 
 
-def make_batch(B: int = 4, steps: int = T, seed: int = 1, names=None) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    names = names or sensors.STUDENT_SENSORS
-    batch = {n: torch.randn(B, steps, sensors.get(n).dim, generator=g) for n in names}
-    if "foot_contact" in batch:
-        batch["foot_contact"] = (batch["foot_contact"] > 0).float()
-    return batch
+#: ``make_batch(B=4, steps=T, seed=1, names=None)``: seeded readings of the student inputs
+make_batch = partial(random_batch, B=4, steps=T)
 
 
 def tokens(policy: MSTAPolicy, batch, mask_ratio: float, channels=None, seed: int = 0):

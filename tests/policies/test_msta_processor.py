@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import pytest
 import torch
+from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.msta import MSTAConfig, MSTAProcessor
@@ -29,11 +32,8 @@ def make_stats(seed: int = 0) -> dict[str, dict[str, list[float]]]:
     return stats
 
 
-def make_batch(B: int = 3, T: int = 5, seed: int = 1) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    batch = {n: torch.randn(B, T, sensors.get(n).dim, generator=g) for n in CFG.input_sensors}
-    batch["foot_contact"] = (batch["foot_contact"] > 0).float()
-    return batch
+#: ``make_batch(B=3, steps=5, seed=1)``: seeded readings of ``CFG``'s inputs
+make_batch = partial(random_batch, B=3, steps=5, names=CFG.input_sensors)
 
 
 def test_bins_follow_zscore_and_clip() -> None:

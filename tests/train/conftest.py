@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from msta_test_helpers import random_episode  # registered by tests/conftest.py
 
-from msta_data import features as F
 from msta_data import sensors
 from msta_data.writer import DatasetWriter
 
@@ -18,16 +18,8 @@ TERRAINS = ("flat", "stairs_up")
 
 
 def synthetic_episode(length: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    feats = F.build_features(None)
-    out: dict[str, np.ndarray] = {}
-    for col in F.input_columns(feats):
-        ft = feats[col]
-        if ft["dtype"] == "bool":
-            out[col] = np.arange(length) == length - 1
-        elif tuple(ft["shape"]) == (1,):
-            out[col] = rng.standard_normal(length).astype(np.float32)
-        else:
-            out[col] = rng.standard_normal((length, ft["shape"][0])).astype(np.float32)
+    """Random inputs, then a command and the action it determines (``W``)."""
+    out = random_episode(length, rng)
     vx = rng.uniform(-1, 1)
     out[sensors.get("command").column][:] = [vx, 0.0, 0.0]
     out["action"] = (vx * W)[None].repeat(length, 0) + 0.01 * rng.standard_normal(

@@ -1,0 +1,52 @@
+"""Builders shared by the tests of several packages (holds no tests). ``tests/conftest.py``
+registers it as the module ``msta_test_helpers``: with --import-mode=importlib the tests
+folder is not on sys.path.
+
+- :func:`random_batch`: seeded sensor readings for a student, ``{sensor: (B, steps, dim)}``.
+- :func:`random_episode`: one episode's frames with random but finite values in every input
+  column of a dataset.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from msta_data import features as F
+from msta_data import sensors
+
+
+def random_batch(B: int, steps: int, seed: int = 1, names: Sequence[str] | None = None
+                 ) -> dict[str, torch.Tensor]:
+    """Standard-normal readings ``{name: (B, steps, dim)}`` of the sensors ``names`` (None:
+    every student input), drawn in that order from a generator seeded ``seed``; a binary
+    sensor's (foot_contact) are then 0/1 (positive draws: 1)."""
+    g = torch.Generator().manual_seed(seed)
+    names = names or sensors.STUDENT_SENSORS
+    batch = {n: torch.randn(B, steps, sensors.get(n).dim, generator=g) for n in names}
+    for n, x in batch.items():
+        if sensors.get(n).binary:
+            batch[n] = (x > 0).float()
+    return batch
+
+
+def random_episode(length: int, rng: np.random.Generator, recorded: Sequence[str] | None = None,
+                   scale: float = 1.0, offset: float = 0.0) -> dict[str, np.ndarray]:
+    """Frames of one episode of ``length`` steps for a dataset recording ``recorded`` (None:
+    the default sensors): every input column drawn from ``rng`` in column order, vectors
+    ``scale * N(0, 1) + offset``, scalars N(0, 1), all float32; ``next.done`` only at the end.
+    """
+    feats = F.build_features(recorded)
+    out: dict[str, np.ndarray] = {}
+    for col in F.input_columns(feats):
+        ft = feats[col]
+        if ft["dtype"] == "bool":
+            out[col] = np.arange(length) == length - 1
+        elif tuple(ft["shape"]) == (1,):
+            out[col] = rng.standard_normal(length).astype(np.float32)
+        else:
+            out[col] = (rng.standard_normal((length, ft["shape"][0])) * scale + offset).astype(
+                np.float32)
+    return out
