@@ -14,6 +14,28 @@ MAX_BATCH_SIZE = 65_536
 OPTIMIZERS = ("adamw", "muon")
 
 
+#: The stage-2 training mask ratio when ``--mask_ratio`` is not given (the paper's; stage 1
+#: trains at the policy config's ratio, 0.75 for MSTA).
+STAGE2_MASK_RATIO = 0.5
+
+
+def training_mask_ratio(requested: float | None, policy_ratio: float, stage: int = 1) -> float:
+    """The token-removal ratio a training run uses (the one rule, both stages).
+
+    Args:
+        requested: ``--mask_ratio``; when given, it is the answer.
+        policy_ratio: the ratio the student's config records, the one stage 1 trained it
+            with (``--policy.mask_ratio``).
+        stage: 1: ``policy_ratio``; 2: :data:`STAGE2_MASK_RATIO` capped at ``policy_ratio``,
+            so a student trained without masking (a GRU) is retrained without it.
+    """
+    if requested is not None:
+        return float(requested)
+    if stage == 1:
+        return float(policy_ratio)
+    return min(STAGE2_MASK_RATIO, float(policy_ratio))
+
+
 def check_optimizer(name: str) -> None:
     """``--optimizer``'s one check (every config that takes it)."""
     if name not in OPTIMIZERS:
@@ -34,7 +56,9 @@ class LoopConfig:
         warmup_steps: linear warm-up from 0 to ``lr``, then cosine decay.
         min_lr_ratio: the cosine ends at ``lr * min_lr_ratio``.
         grad_clip: max global gradient norm (0 = no clipping).
-        mask_ratio: training token-removal ratio; null = the policy config's (0.75 for MSTA).
+        mask_ratio: training token-removal ratio; null (the default) = the policy config's
+            in stage 1 (0.75 for MSTA) and 0.5 capped at it in stage 2
+            (:func:`training_mask_ratio`).
         eval_every: validation every N steps (0 = only at the end).
         save_every: checkpoint every N steps (0 = only the final one).
         log_every: train metrics to CSV / TensorBoard every N steps.

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 
@@ -24,9 +24,12 @@ from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, iden
 from eval.scenarios import ScenarioContext, TrialConfig, get_scenario
 from policies.teacher.config import TeacherConfig
 
+if TYPE_CHECKING:
+    from train.progress import Progress
+
 
 @dataclass
-class EvalConfig(TrialConfig):
+class RoundEvalConfig(TrialConfig):
     """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
     on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
@@ -63,7 +66,7 @@ class RoundEvaluator:
             default ``--device=auto`` also picks: the same figures in both).
     """
 
-    def __init__(self, cfg: EvalConfig, teacher: TeacherConfig, device: str = "cpu") -> None:
+    def __init__(self, cfg: RoundEvalConfig, teacher: TeacherConfig, device: str = "cpu") -> None:
         self.cfg, self.teacher_cfg, self.device = cfg, teacher, device
         self.cuda = torch.device(device).type == "cuda"
         self.ev: Any = None
@@ -89,7 +92,7 @@ class RoundEvaluator:
                     for c in get_scenario("token_removal").build(ctx)}
 
 
-def print_table(prog: dict[str, Any]) -> None:
+def print_table(prog: Progress) -> None:
     """Per-round table: speeds, then per test mask the trials and msta-eval's figures
     (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
     total reward normalized by the teacher on the same trials, and survival
@@ -98,14 +101,15 @@ def print_table(prog: dict[str, Any]) -> None:
              "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
              "tracking vs teacher / survival |", "|" + "---|" * 11]
     warnings = []
-    for k in sorted(prog["rounds"], key=int):
-        rec = prog["rounds"][k]
-        ro, tr = rec.get("rollout", {}), rec.get("train", {})
-        head = (f"| {k} | {rec.get('episodes_after', '-')} | "
+    for k in sorted(prog.rounds):
+        rec = prog.rounds[k]
+        ro, tr = rec.rollout or {}, rec.train or {}
+        after = "-" if rec.episodes_after is None else rec.episodes_after
+        head = (f"| {k} | {after} | "
                 f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
                 f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
                 f"{_fmt(tr.get('val_loss'), '.4f')}")
-        runs = rec.get("eval") or {}
+        runs = rec.eval or {}
         for m, run in runs.items():
             if run.get("status") != "ok":
                 reason = run.get("reason", "evaluated by an older msta-correct")
@@ -122,7 +126,7 @@ def print_table(prog: dict[str, Any]) -> None:
                      for labels in identical_groups(list(runs.values()))]
         if not runs:
             lines.append(f"{head} | - | - | - | - | - | - |")
-    ref = prog.get("teacher_eval")
+    ref = prog.teacher_eval
     if ref:
         c, a = ref["config"], ref["per_terrain"]["average"]
         print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_length_s']:g} s "

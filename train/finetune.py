@@ -50,7 +50,7 @@ from policies.base import PolicyConfig, StudentPolicy
 from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from policies.msta import MSTAPolicy
 from train import online
-from train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, correct
+from train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, Progress, correct
 from train.state import atomic_json
 
 RECORD = "finetune.json"
@@ -234,8 +234,8 @@ class Preparation:
                 atomic_json(d / RECORD, self.record)
 
 
-def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> dict[str, Any]:
-    """Run (or resume) msta-finetune; returns the content of progress.json.
+def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> Progress:
+    """Run (or resume) msta-finetune; returns its progress.json record.
 
     Args:
         cfg: the parsed configuration.

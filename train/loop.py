@@ -17,7 +17,7 @@ from tqdm import tqdm
 from msta_data.budget import TimeLimitReached, passed
 from msta_data.windows import WindowDataset
 from policies.base import CheckpointError, StudentPolicy
-from train.config import LoopConfig
+from train.config import LoopConfig, training_mask_ratio
 from train.optim import make_optimizer, make_scheduler
 from train.sampling import WindowSampler
 from train.state import restore_checkpoint, save_checkpoint
@@ -132,6 +132,80 @@ class WeightEMA:
 
 
 # ----- the loop --------------------------------------------------------------------------
+@dataclass
+class _Run:
+    """What one :func:`fit` call trains with: the optimizer and its companions, the state a
+    checkpoint saves, the step reached, and the speed counters."""
+
+    optimizer: Any
+    scheduler: Any
+    sampler: WindowSampler
+    gen: torch.Generator
+    ema: WeightEMA | None
+    mask_ratio: float
+    step: int = 0
+    train_time: float = 0.0
+    samples: int = 0
+
+    @property
+    def state(self) -> dict[str, Any]:
+        return {"optimizer": self.optimizer, "scheduler": self.scheduler,
+                "sampler": self.sampler, "mask_generator": self.gen}
+
+    def samples_per_s(self) -> float:
+        return self.samples / max(self.train_time, 1e-9)
+
+
+def _start(policy: StudentPolicy, n: int, cfg: LoopConfig, out: Path, resume: bool,
+           weights: np.ndarray | None) -> _Run:
+    """Optimizer, schedule, sampler, mask generator and weight average, restored from
+    ``out/checkpoints/last`` when resuming."""
+    mask_ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio)
+    optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay, cfg.optimizer)
+    scheduler = make_scheduler(optimizer, cfg)
+    sampler = WindowSampler(n, cfg.batch_size, cfg.seed, weights)
+    gen = torch.Generator(device=policy.device).manual_seed(cfg.seed)
+    ema = WeightEMA(policy, cfg.ema_decay) if cfg.ema_decay > 0 else None
+    run = _Run(optimizer, scheduler, sampler, gen, ema, mask_ratio)
+    if resume and (out / "checkpoints" / "last").exists():
+        run.step = restore_checkpoint(out, policy, run.state, ema, max_step=cfg.steps)
+        scheduler.lr_lambdas[0].total = cfg.steps  # a raised --steps stretches the cosine
+    return run
+
+
+def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
+              run: _Run) -> dict[str, float]:
+    """One optimizer step (and the weight average's); the result is the average at the end."""
+    t0 = time.perf_counter()
+    batch = train_ds.get_batch(run.sampler.next_batch())
+    metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
+                         run.mask_ratio, run.gen, dummy_tokens=cfg.dummy_tokens)
+    if run.ema is not None:
+        run.ema.update()
+    run.train_time += time.perf_counter() - t0
+    run.samples += cfg.batch_size
+    run.step += 1
+    if run.ema is not None and run.step == cfg.steps:
+        run.ema.apply()  # the result is the average: validated and saved below
+    return metrics
+
+
+def _log_row(policy: StudentPolicy, val_ds: Any | None, cfg: LoopConfig, run: _Run,
+             metrics: dict[str, float]) -> tuple[dict[str, float], dict[str, float] | None]:
+    """(the metrics row due at this step, empty when none is; the validation when it ran)."""
+    row: dict[str, float] = {}
+    step, val = run.step, None
+    if step % cfg.log_every == 0 or step == cfg.steps:
+        row.update({k: metrics[k] for k in ("lr", "loss", "action_mse", "grad_norm")})
+        row["samples_per_s"] = run.samples_per_s()
+    if val_ds is not None and ((cfg.eval_every and step % cfg.eval_every == 0)
+                               or step == cfg.steps):
+        val = validate(policy, val_ds, cfg.batch_size, cfg.val_samples, run.mask_ratio,
+                       seed=cfg.seed)
+        row.update({f"val_{k}": v for k, v in val.items()})
+    return row, val
+
+
 def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfig,
         out: Path, resume: bool, weights: np.ndarray | None = None,
         on_step: Callable[[int, dict[str, float]], None] | None = None,
@@ -139,7 +213,9 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     """Train ``policy`` on random windows of ``train_ds`` for ``cfg.steps`` steps.
 
     Args:
-        policy: the student, already on its device (trained in place).
+        policy: the student, already on its device (trained in place; its config is left
+            as it is: the mask ratio trained at is :func:`train.config.training_mask_ratio`
+            of ``cfg.mask_ratio`` and the config's).
         train_ds: a ``WindowDataset`` whose batches carry the action target.
         val_ds: validation windows, or None.
         cfg: optimizer, schedule, logging and checkpoint settings.
@@ -157,64 +233,34 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
         raise ValueError(f"dummy_tokens={cfg.dummy_tokens}: a {policy.config.type!r} student "
                          "has no token input to append them to (MSTA students only)")
     out.mkdir(parents=True, exist_ok=True)
-    mask_ratio = _mask(policy, cfg.mask_ratio)
-    policy.config.mask_ratio = mask_ratio  # the saved config.json says what was used
-    optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay, cfg.optimizer)
-    scheduler = make_scheduler(optimizer, cfg)
-    sampler = WindowSampler(len(train_ds), cfg.batch_size, cfg.seed, weights)
-    gen = torch.Generator(device=policy.device).manual_seed(cfg.seed)
-    state = {"optimizer": optimizer, "scheduler": scheduler, "sampler": sampler,
-             "mask_generator": gen}
-    step = 0
-    ema = WeightEMA(policy, cfg.ema_decay) if cfg.ema_decay > 0 else None
-    if resume and (out / "checkpoints" / "last").exists():
-        step = restore_checkpoint(out, policy, state, ema, max_step=cfg.steps)
-        scheduler.lr_lambdas[0].total = cfg.steps  # a raised --steps stretches the cosine
-    logger = MetricsLogger(out, step)
-    bar = tqdm(total=cfg.steps, initial=step, disable=not cfg.progress, desc=desc, unit="step")
-    train_time, samples, metrics, val = 0.0, 0, {}, {}
+    run = _start(policy, len(train_ds), cfg, out, resume, weights)
+    logger = MetricsLogger(out, run.step)
+    bar = tqdm(total=cfg.steps, initial=run.step, disable=not cfg.progress, desc=desc,
+               unit="step")
+    metrics: dict[str, float] = {}
+    val: dict[str, float] = {}
     try:
-        while step < cfg.steps:
-            t0 = time.perf_counter()
-            batch = train_ds.get_batch(sampler.next_batch())
-            metrics = train_step(policy, optimizer, scheduler, batch, cfg.grad_clip,
-                                 mask_ratio, gen, dummy_tokens=cfg.dummy_tokens)
-            if ema is not None:
-                ema.update()
-            train_time += time.perf_counter() - t0
-            samples += cfg.batch_size
-            step += 1
-            if ema is not None and step == cfg.steps:
-                ema.apply()  # the result is the average: validated and saved below
-            row: dict[str, float] = {}
-            if step % cfg.log_every == 0 or step == cfg.steps:
-                row.update({k: metrics[k] for k in ("lr", "loss", "action_mse", "grad_norm")})
-                row["samples_per_s"] = samples / max(train_time, 1e-9)
-            if val_ds is not None and ((cfg.eval_every and step % cfg.eval_every == 0)
-                                       or step == cfg.steps):
-                val = validate(policy, val_ds, cfg.batch_size, cfg.val_samples,
-                               mask_ratio, seed=cfg.seed)
-                row.update({f"val_{k}": v for k, v in val.items()})
+        while run.step < cfg.steps:
+            metrics = _one_step(policy, train_ds, cfg, run)
+            row, new_val = _log_row(policy, val_ds, cfg, run, metrics)
+            val = val if new_val is None else new_val
             if row:
-                logger.log(step, row)
-            stopping = step < cfg.steps and passed(deadline)
-            if (cfg.save_every and step % cfg.save_every == 0) or step == cfg.steps or stopping:
-                save_checkpoint(out, step, policy, state, ema)
+                logger.log(run.step, row)
+            stopping = run.step < cfg.steps and passed(deadline)
+            if ((cfg.save_every and run.step % cfg.save_every == 0) or run.step == cfg.steps
+                    or stopping):
+                save_checkpoint(out, run.step, policy, run.state, run.ema)
             bar.update(1)
-            bar.set_postfix(loss=f"{metrics['loss']:.4f}",
-                            samples_s=f"{samples / max(train_time, 1e-9):.0f}")
+            bar.set_postfix(loss=f"{metrics['loss']:.4f}", samples_s=f"{run.samples_per_s():.0f}")
             if on_step is not None:
-                on_step(step, metrics)
+                on_step(run.step, metrics)
             if stopping:
-                raise TimeLimitReached(f"{desc}: step {step} of {cfg.steps}, checkpoint saved")
+                raise TimeLimitReached(f"{desc}: step {run.step} of {cfg.steps}, checkpoint saved")
     finally:
         bar.close()
         logger.close()
-    return FitResult(step, samples / train_time if train_time else 0.0, metrics, val)
-
-
-def _mask(policy: StudentPolicy, mask_ratio: float | None) -> float:
-    return float(policy.config.mask_ratio if mask_ratio is None else mask_ratio)
+    return FitResult(run.step, run.samples / run.train_time if run.train_time else 0.0,
+                     metrics, val)
 
 
 def load_windows(root: Path, policy: StudentPolicy, episodes: Sequence[int]) -> Any:

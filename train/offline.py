@@ -39,7 +39,7 @@ from policies.base import PolicyConfig
 from policies.factory import make_policy
 from policies.msta import MSTAConfig
 from train.cli import USER_ERRORS, parse_cli
-from train.config import LoopConfig
+from train.config import LoopConfig, training_mask_ratio
 from train.loop import fit, load_windows, warn_if_not_learned
 from train.optim import seed_everything, select_device
 from train.push import check_push_to, push_stage1
@@ -173,6 +173,9 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     if not resuming:  # without max_minutes: how long each call ran is not the run's config
         atomic_json(out / "train_config.json",
                     {k: v for k, v in draccus.encode(cfg).items() if k != "max_minutes"})
+    # the checkpoint's config.json records the ratio stage 1 trains at (--mask_ratio, when
+    # given, over --policy.mask_ratio); stage 2 reads it there and keeps it
+    policy.config.mask_ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio)
     n_params = sum(p.numel() for p in policy.parameters())
     print(f"dataset {root}: {len(train_eps)} train episodes ({len(train_ds):,} windows), "
           f"{len(val_eps)} validation; {cfg.policy.type} policy with {n_params:,} parameters "

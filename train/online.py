@@ -28,24 +28,12 @@ Each round r = 1..R:
    episode_length_s / seed on the same device type reports the same figures, and so does the
    model card (``--push_to``).
 
-Resume and crash windows (``progress.json``, written atomically after every phase):
-the round's episodes are kept in memory until all are collected, then appended by a single
-writer flush whose commit point is the atomic rename of ``meta/info.json``. Before the
-append, ``progress.json`` records the dataset's episode count. On resume a round that is
-not marked appended is checked against the dataset: the same count means the kill came
-before the commit (the rollout is redone, same seeds); the count plus this round's
-episodes, with matching provenance at the tail, means the kill came between the commit
-and the progress update (the round is marked appended); anything else is an error.
-Killed during retraining, the round resumes from its last training checkpoint
-(``output_dir/train/round_<r>/``); killed during evaluation, only the evaluation reruns.
-``--max_minutes`` stops the same way, but only at those safe points: after a training step
-(with a checkpoint), after the append, after the retraining and after each round.
+Resume and crash windows (``progress.json``, written after every phase): see
+:mod:`train.progress`.
 """
 
 from __future__ import annotations
 
-import json
-import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -63,92 +51,82 @@ from collect.sim.env_config import check_sizes
 from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta_data.cli import check_at_least
 from msta_data.features import load_info, sensor_column_to_name
-from msta_data.layout import LOCK_NAME
-from msta_data.locate import locate_checkpoint, locate_dataset
 from msta_data.locking import hold_directory
 from msta_data.revision import content_revision
 from msta_data.windows import episode_split, load_episode_table
 from msta_data.writer import DatasetWriter
 from policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
-from policies.base import PolicyConfig, StudentPolicy
+from policies.base import StudentPolicy
 from policies.checkpoint import PolicyPath
 from policies.factory import load_policy
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 from train.cli import USER_ERRORS, parse_cli
-from train.config import LoopConfig
-from train.evaluation import EvalConfig, RoundEvaluator, print_table
+from train.config import LoopConfig, training_mask_ratio
+from train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
 from train.loop import fit, load_windows
 from train.optim import seed_everything, select_device
+from train.progress import (
+    PROGRESS,
+    RESUME_FIELDS,
+    Progress,
+    RoundRecord,
+    check_labeller,
+    check_output,
+    load_progress,
+    own_dataset,
+    resolve_inputs,
+    rollout_levels,
+)
 from train.push import check_push_to, dataset_source, push_round
 from train.state import atomic_json
 
-PROGRESS = "progress.json"
-PROGRESS_FORMAT = "msta-correct/1"
-#: Fields that must match progress.json when resuming (they define the data).
-RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
-                 "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
-                 "levels_from_dataset", "teacher_follows_robot", "keep_unfinished",
-                 "rollout_mask_ratios")
-#: Values of RESUME_FIELDS in progress.json files written before the field existed.
-RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False,
-                 "keep_unfinished": False, "rollout_mask_ratios": []}
+#: A round checkpoint's record of how it was retrained (beside config.json).
+TRAINING_RECORD = "training.json"
 
 
 @dataclass
 class CorrectConfig(LoopConfig):
     """Args:
         steps: optimizer steps of each round's retraining.
-        lr: peak learning rate of each round's retraining (stage 1's 1e-3: at 3e-4 an MSTA
-            student stopped improving after its second round; docs/training.md).
-        mask_ratio: retraining token-removal ratio; null = the paper's stage-2 ratio 0.5,
-            capped at the ratio the student was trained with (a student trained without
-            masking, e.g. the GRU, keeps 0). The round checkpoints' config.json records it.
+        lr: peak learning rate of each round's retraining.
+        mask_ratio: retraining token-removal ratio; null = 0.5 capped at the ratio the
+            student was trained with (:func:`train.config.training_mask_ratio`: a student
+            trained without masking keeps 0). Each round checkpoint's training.json records
+            it; its config.json keeps the student's stage-1 ratio.
         policy: the starting student: ``--policy.path=<checkpoint directory or hub id>``
             (stage 1's ``final/``; in Python a plain path is accepted too).
         dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
         output_dir: round checkpoints, training runs and progress.json.
-        rounds: correction rounds (raise it on ``--resume`` to run more). DAgger needs
-            several: the first round usually lowers a stage-1 student (its own falls enter
-            the data), the next ones lift it (docs/training.md).
-        episodes_per_round: student episodes per round: with ``keep_unfinished`` (the
-            default) the round runs ``ceil(episodes_per_round / num_envs)`` episode lengths
-            of control steps and appends every episode in them (at least this many);
-            otherwise exactly this many, the first to finish.
+        rounds: correction rounds (raise it on ``--resume`` to run more).
+        episodes_per_round: student episodes per round: with ``keep_unfinished`` the round
+            runs ``ceil(episodes_per_round / num_envs)`` episode lengths of control steps
+            and appends every episode in them (at least this many); otherwise exactly this
+            many, the first to finish.
         num_envs: environments rolled out together.
         episode_length_s: time limit of the student episodes (s).
         keep_unfinished: keep every simulated frame of a round: the episodes still running
             when the round's steps are up are appended too, cut there (like a time limit).
-            false: the first ``episodes_per_round`` episodes to finish, which over-samples
-            short episodes (falls) and throws away the steps of the unfinished ones (a
-            stage-1 student's first round kept 6,647 of 14,656 simulated frames).
+            false: the first ``episodes_per_round`` episodes to finish (this over-samples
+            short episodes, falls, and drops the steps of the unfinished ones).
         env: simulator options of the rollouts (its seed is shifted by the round).
-        teacher: the labelling teacher (``--teacher.type=gait``).
-        beta: DAgger mixing: probability that an env executes the teacher's action in a step
-            (0, the default: the student alone drives, so its data holds the states it
-            reaches; after four rounds beta 0 tracked 0.91 of the teacher, beta 0.5 0.67,
-            docs/training.md).
+        teacher: the labelling teacher (``--teacher.type``, ``--teacher.path``).
+        beta: DAgger mixing: probability that an environment executes the teacher's action
+            in a step; 0 = the student alone drives, so its data holds the states it reaches.
         beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
-        rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, T).
+        rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, history).
         rollout_mask_ratios: test-time token-removal ratios the rounds' student drives at,
             spread over the environments (environment i at ratio ``i % len``), e.g.
-            ``[0,0.5]``: half drive with every token, half with half of them removed, so
-            the rounds also hold (and the teacher labels) the states a masked student
-            reaches, where the test at mask 50 % puts it; empty (the default) = every
-            environment at ``rollout.mask_ratio``.
+            ``[0,0.5]``: half drive with every token, half with half of them removed, so the
+            rounds also hold (and the teacher labels) the states a masked student reaches;
+            empty = every environment at ``rollout.mask_ratio``.
         levels_from_dataset: cap the rollouts' starting terrain level
-            (``env.terrain.max_init_level``, used with the terrain curriculum, the default)
-            at the highest level of the dataset's teacher episodes, so stage 2 corrects the
-            student on the ground stage 1 taught it (rolling out a levels-0-2 student on
-            levels up to 5 lowered its survival on levels 0-2: docs/training.md);
+            (``env.terrain.max_init_level``) at the highest level of the dataset's teacher
+            episodes, so stage 2 corrects the student on the ground stage 1 taught it;
             false = ``env.terrain`` as given.
         teacher_follows_robot: a teacher with a plan of its own (the gait teacher's foot
             plan) keeps that plan near the robot's measured stance feet while it labels
-            (``GaitTeacher.follow_robot``), instead of assuming its plan was executed.
-            Measured (60 robots, levels 0-2): after 3 s of student driving, the teacher
-            taking over with its shadow plan kept 55 % up, following the robot 73 % (a
-            freshly reset teacher 77 %); driving itself it walks as before (survival 1.0,
-            linear tracking 0.98 of the plain teacher). docs/training.md. false = the
-            teacher as it records its own data.
+            (``GaitTeacher.follow_robot``) instead of assuming its plan was executed;
+            false = the teacher as it records its own data.
         recent_weight: sampling weight of an episode from round k in round r is
             ``recent_weight**(r-k)`` (teacher data is round 0); 1 = uniform over all frames.
         val_fraction: share of episodes held out for the validation loss (by episode).
@@ -156,10 +134,12 @@ class CorrectConfig(LoopConfig):
         resume: continue the run in output_dir.
         device: auto (CUDA when available), cpu, cuda, ...: training, rollouts and the
             per-round evaluation.
-        num_threads: torch threads (0 = default).
+        num_threads: torch threads (0 = torch's default).
         push_to: hub model repo ``user/name``: push each ``round_<r>`` with tag
             ``stage2-r<r>`` and a model card after its evaluation; empty = no push.
         push_private: create that repo as private.
+
+    Why these defaults, with the runs that chose them: docs/results/2026-12-04-stage2-settings.md.
     """
 
     steps: int = 1000
@@ -183,7 +163,7 @@ class CorrectConfig(LoopConfig):
     teacher_follows_robot: bool = True
     recent_weight: float = 1.0
     val_fraction: float = 0.05
-    eval: EvalConfig = field(default_factory=EvalConfig)
+    eval: RoundEvalConfig = field(default_factory=RoundEvalConfig)
     resume: bool = False
     device: str = "auto"
     num_threads: int = 0
@@ -225,18 +205,6 @@ def policy_revision(policy: StudentPolicy) -> str:
     return content_revision(parts, prefix=policy.config.type)
 
 
-#: The paper's stage-2 training mask ratio (stage 1 uses 0.75).
-STAGE2_MASK_RATIO = 0.5
-
-
-def stage2_mask_ratio(requested: float | None, policy: StudentPolicy) -> float:
-    """The retraining mask ratio: ``requested``, or the paper's 0.5 capped at the ratio the
-    policy was trained with (retraining a never-masked GRU at 0.5 wrecks it: FACTS §5)."""
-    if requested is not None:
-        return float(requested)
-    return min(STAGE2_MASK_RATIO, float(policy.config.mask_ratio))
-
-
 def student_actor(policy: StudentPolicy, n: int, spec: InputSpec,
                   mask_ratios: tuple[float, ...] = ()) -> StudentActor | SplitActor:
     return mask_split_actor(policy, n, spec, mask_ratios, name=policy.config.type)
@@ -246,7 +214,7 @@ def student_actor(policy: StudentPolicy, n: int, spec: InputSpec,
 Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
 
 
-def roll_out(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
+def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
              sensors: tuple[str, ...] | None = None) -> tuple[list[Episode], dict[str, float]]:
     """Phase 1-2: the round's student episodes with teacher labels, in memory (the shared
     rollout loop through :func:`collect.record.record_rollouts`; the student drives, the
@@ -297,7 +265,7 @@ def append_episodes(root: Path, episodes: list[Episode]) -> int:
 
 
 def check_tail(root: Path, before: int, expected: int, r: int, revision: str) -> bool:
-    """Did a killed run already commit this round's episodes? (see the module docstring)"""
+    """Did a killed run already commit this round's episodes? (:mod:`train.progress`)"""
     table = load_episode_table(root)
     if len(table) == before:
         return False
@@ -313,6 +281,14 @@ def check_tail(root: Path, before: int, expected: int, r: int, revision: str) ->
     return True
 
 
+def round_loop(cfg: CorrectConfig, policy: StudentPolicy, r: int) -> LoopConfig:
+    """Round ``r``'s retraining settings: the run's loop options with seed ``seed + r`` and
+    the stage-2 mask ratio (:func:`train.config.training_mask_ratio`; the student's config
+    keeps the ratio stage 1 trained it with)."""
+    ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio, stage=2)
+    return replace(cfg.loop_part(), seed=cfg.seed + r, mask_ratio=ratio)
+
+
 def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path,
             deadline: float | None = None) -> dict[str, float]:
     """Phase 4: :func:`train.loop.fit` on the aggregate, from the current weights."""
@@ -325,118 +301,33 @@ def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: 
         rounds = load_episode_table(root).set_index("episode_index")["provenance/round"]
         per_ep = cfg.recent_weight ** (r - rounds.loc[train_ds.episodes].to_numpy())
         weights = np.repeat(per_ep, train_ds.lengths)
-    loop = replace(cfg.loop_part(), seed=cfg.seed + r,
-                   mask_ratio=stage2_mask_ratio(cfg.mask_ratio, policy))
+    loop = round_loop(cfg, policy, r)
     res = fit(policy, train_ds, val_ds, loop, out / "train" / f"round_{r}", resume=True,
               weights=weights, desc=f"round {r} train", deadline=deadline)
     return {"windows": len(train_ds), "train_samples_per_s": res.samples_per_s,
             "train_loss": res.train.get("loss", float("nan")),
-            **{f"val_{k}": v for k, v in res.val.items()}}
+            **{f"val_{k}": v for k, v in res.val.items()}, "mask_ratio": loop.mask_ratio}
 
 
-# ----- progress and the round loop -------------------------------------------------------
-def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> dict[str, Any]:
-    path = out / PROGRESS
-    encoded = draccus.encode(cfg)
-    if not path.exists():  # a new run (check_output has refused a resume without it)
-        out.mkdir(parents=True, exist_ok=True)
-        prog = {"format": PROGRESS_FORMAT, "config": encoded, "dataset": str(root),
-                "rounds": {}}
-        atomic_json(path, prog)
-        return prog
-    if not cfg.resume:
-        raise FileExistsError(f"{path} exists; pass --resume=true to continue that run or "
-                              "choose another --output_dir")
-    prog = json.loads(path.read_text())
-    saved = dict(prog["config"])
-    if isinstance(saved.get("policy"), str):  # before --policy.path
-        saved["policy"] = {"path": saved["policy"]}
-    bad = [k for k in cfg.RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
-    if bad:
-        raise ValueError(f"--resume=true with different {bad} than {path}")
-    return prog
+def save_round(cfg: CorrectConfig, policy: StudentPolicy, r: int, out: Path) -> Path:
+    """``output_dir/round_<r>/``: the student (its config.json keeps its stage-1 mask ratio)
+    and ``training.json``, the settings this round retrained it with (mask ratio, steps, lr,
+    seed)."""
+    ckpt = policy.save_pretrained(out / f"round_{r}")
+    loop = {k: v for k, v in draccus.encode(round_loop(cfg, policy, r)).items()
+            if k not in ("max_minutes", "progress")}
+    atomic_json(ckpt / TRAINING_RECORD, {"stage": 2, "round": r, **loop})
+    return ckpt
 
 
-def check_output(cfg: CorrectConfig, out: Path) -> None:
-    """Before output_dir is created or locked: a new run needs it empty, a resume needs
-    its progress.json."""
-    if cfg.resume and not (out / PROGRESS).exists():
-        raise FileNotFoundError(f"--resume=true but {out / PROGRESS} does not exist (nothing "
-                                "to resume; drop --resume to start)")
-    if not cfg.resume and out.exists() and any(p.name != LOCK_NAME for p in out.iterdir()):
-        raise FileExistsError(f"{out} is not empty; pass --resume=true to continue that run or "
-                              "choose another --output_dir")
-
-
-def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
-    """(checkpoint directory, dataset root), both checked before output_dir is touched; a
-    hub dataset is appended to through a copy in output_dir (:func:`own_dataset`)."""
-    ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
-    PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
-    local = out / "dataset"
-    if local.is_dir():  # a hub dataset copied by an earlier run
-        return ckpt, local
-    return ckpt, locate_dataset(cfg.dataset, "--dataset")
-
-
-def own_dataset(cfg: CorrectConfig, out: Path, root: Path) -> Path:
-    """The local dataset root to append to: a dataset pulled from the hub is copied into
-    ``output_dir/dataset`` first (called with output_dir locked)."""
-    local = out / "dataset"
-    if root == local or Path(cfg.dataset).expanduser().is_dir():
-        return root
-    shutil.copytree(root, local)
-    return local
-
-
-def rollout_levels(cfg: CorrectConfig, root: Path, prog: dict[str, Any]) -> CorrectConfig:
-    """``cfg`` with the rollouts' ``max_init_level`` capped at the highest terrain level of the
-    dataset's teacher episodes (``--levels_from_dataset``); the cap is decided once and kept
-    in progress.json, so a resumed run rolls out where the first one did."""
-    if not cfg.levels_from_dataset:
-        return cfg
-    if "rollout_max_init_level" not in prog:
-        table = load_episode_table(root)
-        teacher = table[table["provenance/source"] != "student"]["provenance/terrain_level"]
-        level = cfg.env.terrain.max_init_level
-        if len(teacher) and int(teacher.max()) >= 0:
-            level = min(level, int(teacher.max()))
-        prog["rollout_max_init_level"] = level
-        atomic_json(Path(cfg.output_dir) / PROGRESS, prog)
-        if level < cfg.env.terrain.max_init_level:
-            print(f"stage-2 rollouts start at terrain levels 0-{level}, the levels of the "
-                  f"dataset's teacher episodes (--levels_from_dataset=false: 0-"
-                  f"{cfg.env.terrain.max_init_level})")
-    terrain = replace(cfg.env.terrain, max_init_level=int(prog["rollout_max_init_level"]))
-    return replace(cfg, env=replace(cfg.env, terrain=terrain))
-
-
-def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
-    """A warning when the labelling teacher (``--teacher``) is not the teacher that recorded
-    the dataset's teacher episodes (their ``provenance/policy_revision``): stage 2 would then
-    correct the student towards another policy than the one it imitated. None when they
-    agree or the dataset records no teacher revision."""
-    table = load_episode_table(root)
-    if "provenance/policy_revision" not in table:
-        return None
-    recorded = sorted({str(v) for v in table[table["provenance/source"] == "teacher"][
-        "provenance/policy_revision"] if v})
-    labeller = teacher_revision(cfg.teacher)
-    if not recorded or labeller in recorded:
-        return None
-    return (f"msta-correct: warning: the labels come from {labeller} (--teacher.type="
-            f"{cfg.teacher.type}), but the dataset's teacher episodes were recorded by "
-            f"{', '.join(recorded)}: the student will be corrected towards another policy than "
-            "the one it imitated (give the recording teacher with --teacher.type/--teacher.path)")
-
-
+# ----- the round loop -------------------------------------------------------------------
 PhaseHook = Callable[[str, int], None]
 Prepare = Callable[[StudentPolicy, Path], StudentPolicy]
 
 
 def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
-            prepare: Prepare | None = None) -> dict[str, Any]:
-    """Run (or resume) stage 2; returns the content of progress.json.
+            prepare: Prepare | None = None) -> Progress:
+    """Run (or resume) stage 2; returns its progress.json record.
 
     Args:
         cfg: the parsed configuration.
@@ -462,21 +353,22 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
 
 
 def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook: PhaseHook,
-                    prepare: Prepare | None, deadline: float | None) -> dict[str, Any]:
+                    prepare: Prepare | None, deadline: float | None) -> Progress:
     """:func:`correct` once output_dir is locked."""
     prog = load_progress(out, cfg, root)
     cfg = rollout_levels(cfg, root, prog)
     if (warning := check_labeller(cfg, root)) is not None:
         print(warning)
-    if cfg.push_to and "dataset_source" not in prog:  # before a hub tag can move
-        prog["dataset_source"] = dataset_source(cfg.dataset, root)
-    path = out / PROGRESS
+    if cfg.push_to and prog.dataset_source is None:  # before a hub tag can move
+        prog.dataset_source = dataset_source(cfg.dataset, root)
     if cfg.num_threads:
         torch.set_num_threads(cfg.num_threads)
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
-    prog.setdefault("teacher_revision", teacher_revision(cfg.teacher))
-    trained = [int(k) for k, v in prog["rounds"].items() if v.get("trained")]
+    revision = teacher_revision(cfg.teacher)
+    if prog.teacher_revision is None:
+        prog.teacher_revision = revision
+    trained = [r for r, rec in prog.rounds.items() if rec.trained]
     start = out / f"round_{max(trained)}" if trained else ckpt
     if not trained and prepare is not None and (out / "start" / "config.json").is_file():
         # prepared by an earlier call: its processor holds the statistics of that time
@@ -488,73 +380,85 @@ def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook:
         if not trained:
             ckpt = policy.save_pretrained(out / "start")
     evaluator = RoundEvaluator(cfg.eval, cfg.teacher, str(device)) if cfg.eval.enabled else None
-    if evaluator and not trained and not prog["rounds"].get("0", {}).get("evaluated"):
-        prog["rounds"]["0"] = {"evaluated": True, "checkpoint": str(ckpt),
-                               "episodes_after": int(load_info(root)["total_episodes"]),
-                               "policy_revision": policy_revision(policy),
-                               "eval": evaluator.student(ckpt),
-                               "eval_config": cfg.eval.resolved()}
-        prog["teacher_eval"] = evaluator.teacher()
-        atomic_json(path, prog)
-        print_table(prog)
+    if evaluator and not trained and not prog.round(0).evaluated:
+        evaluate_start(cfg, policy, ckpt, root, prog, evaluator)
     for r in range(1, cfg.rounds + 1):
-        rec = prog["rounds"].setdefault(str(r), {})
-        if not rec.get("evaluated"):
-            run_round(cfg, policy, root, out, r, rec, prog, hook, evaluator, deadline)
-        if cfg.push_to and rec.get("pushed", {}).get("repo") != cfg.push_to:
-            rec["pushed"] = push_round(cfg, prog, r)
-            atomic_json(path, prog)
+        rec = prog.round(r)
+        if not rec.evaluated:
+            run_round(cfg, policy, root, out, r, prog, hook, evaluator, deadline)
+        if cfg.push_to and (rec.pushed or {}).get("repo") != cfg.push_to:
+            rec.pushed = push_round(cfg, prog.to_json(), r)
+            prog.save()
     hook("done", cfg.rounds)
     return prog
 
 
-def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path,
-              r: int, rec: dict[str, Any], prog: dict[str, Any], hook: PhaseHook,
-              evaluator: RoundEvaluator | None, deadline: float | None = None) -> None:
+def evaluate_start(cfg: CorrectConfig, policy: StudentPolicy, ckpt: Path, root: Path,
+                   prog: Progress, evaluator: RoundEvaluator) -> None:
+    """Round 0: the starting checkpoint's evaluation, and the reference teacher's."""
+    prog.rounds[0] = RoundRecord(evaluated=True, checkpoint=str(ckpt),
+                                 episodes_after=int(load_info(root)["total_episodes"]),
+                                 policy_revision=policy_revision(policy),
+                                 eval=evaluator.student(ckpt),
+                                 eval_config=cfg.eval.resolved())
+    prog.teacher_eval = evaluator.teacher()
+    prog.save()
+    print_table(prog)
+
+
+def append_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int,
+                 rec: RoundRecord, prog: Progress, hook: PhaseHook) -> None:
+    """Phases 1-3, or the recovery of an append a killed run committed (:mod:`train.progress`)."""
+    revision = policy_revision(policy)
+    # how many the round appends (recorded before the append; older files: exactly
+    # episodes_per_round)
+    expected = (cfg.episodes_per_round if rec.episodes_rolled_out is None
+                else rec.episodes_rolled_out)
+    if rec.episodes_before is not None and check_tail(root, rec.episodes_before, expected, r,
+                                                      revision):
+        rec.appended, rec.recovered_after_commit = True, True
+        rec.episodes_after = rec.episodes_before + expected
+        return
+    info = load_info(root)
+    rec.episodes_before, rec.policy_revision = int(info["total_episodes"]), revision
+    prog.save()
+    recorded = tuple(sensor_column_to_name(info["features"]).values())
+    episodes, stats = drive_and_label(cfg, policy, r, revision, recorded)
+    rec.episodes_rolled_out = len(episodes)
+    prog.save()
+    hook("rolled_out", r)
+    total = append_episodes(root, episodes)
+    hook("committed", r)
+    rec.appended, rec.episodes_after, rec.rollout = True, total, stats
+    print(f"round {r}: appended {len(episodes)} student episodes ({stats['frames']:,} "
+          f"frames, {stats['env_steps_per_s']:,.0f} env steps/s) -> {root} ({total})")
+
+
+def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path, r: int,
+              prog: Progress, hook: PhaseHook, evaluator: RoundEvaluator | None,
+              deadline: float | None = None) -> None:
     """One round's phases, each skipped when progress.json marks it done; past
     ``deadline`` (``--max_minutes``) it stops after the phase that is running."""
-    path = out / PROGRESS
-    revision = policy_revision(policy)
-    if not rec.get("appended"):
-        # how many the round appends (recorded before the append; older files: exactly
-        # episodes_per_round)
-        expected = rec.get("episodes_rolled_out", cfg.episodes_per_round)
-        if "episodes_before" in rec and check_tail(root, rec["episodes_before"], expected, r,
-                                                   revision):
-            rec.update(appended=True, recovered_after_commit=True,
-                       episodes_after=rec["episodes_before"] + expected)
-        else:
-            info = load_info(root)
-            rec.update(episodes_before=int(info["total_episodes"]),
-                       policy_revision=revision)
-            atomic_json(path, prog)
-            recorded = tuple(sensor_column_to_name(info["features"]).values())
-            episodes, stats = roll_out(cfg, policy, r, revision, recorded)
-            rec["episodes_rolled_out"] = len(episodes)
-            atomic_json(path, prog)
-            hook("rolled_out", r)
-            total = append_episodes(root, episodes)
-            hook("committed", r)
-            rec.update(appended=True, episodes_after=total, rollout=stats)
-            print(f"round {r}: appended {len(episodes)} student episodes ({stats['frames']:,} "
-                  f"frames, {stats['env_steps_per_s']:,.0f} env steps/s) -> {root} ({total})")
-        atomic_json(path, prog)
+    rec = prog.round(r)
+    if not rec.appended:
+        append_round(cfg, policy, root, r, rec, prog, hook)
+        prog.save()
         check_deadline(deadline, f"round {r}: episodes appended")
-    if not rec.get("trained"):
-        rec["train"] = retrain(cfg, policy, root, r, out, deadline)
-        print(f"round {r}: trained {cfg.steps} steps on {rec['train']['windows']:,} windows "
-              f"({rec['train']['train_samples_per_s']:.0f} samples/s)")
-        policy.save_pretrained(out / f"round_{r}")
-        rec.update(trained=True, checkpoint=str(out / f"round_{r}"),
-                   trained_revision=policy_revision(policy))
-        atomic_json(path, prog)
+    if not rec.trained:
+        rec.train = retrain(cfg, policy, root, r, out, deadline)
+        print(f"round {r}: trained {cfg.steps} steps on {rec.train['windows']:,} windows "
+              f"({rec.train['train_samples_per_s']:.0f} samples/s)")
+        rec.checkpoint = str(save_round(cfg, policy, r, out))
+        rec.trained, rec.trained_revision = True, policy_revision(policy)
+        prog.save()
         hook("trained", r)
         check_deadline(deadline, f"round {r}: trained")
     if evaluator is not None:
-        rec.update(eval=evaluator.student(out / f"round_{r}"), eval_config=cfg.eval.resolved())
-        prog["teacher_eval"] = evaluator.teacher()
-    rec["evaluated"] = True
-    atomic_json(path, prog)
+        rec.eval = evaluator.student(out / f"round_{r}")
+        rec.eval_config = cfg.eval.resolved()
+        prog.teacher_eval = evaluator.teacher()
+    rec.evaluated = True
+    prog.save()
     hook("evaluated", r)
     print_table(prog)
     if r < cfg.rounds:
@@ -571,7 +475,7 @@ def parse_args(argv: Sequence[str] | None = None, cls: type[CorrectConfig] = Cor
 
 
 def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
-            run: Callable[[Any], dict[str, Any]], prog: str) -> None:
+            run: Callable[[Any], Progress], prog: str) -> None:
     """Parse, ``run`` the rounds, one-line errors; prints where progress and the last
     checkpoint are (msta-correct, msta-finetune)."""
     cfg = parse_args(argv, cls, prog)
@@ -582,7 +486,7 @@ def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
     except TimeLimitReached as e:
         stop(prog, e, "the same command with --resume=true")
     print(f"progress: {Path(cfg.output_dir) / PROGRESS}; last checkpoint: "
-          f"{done['rounds'][str(cfg.rounds)].get('checkpoint')}")
+          f"{done.round(cfg.rounds).checkpoint}")
 
 
 def main(argv: Sequence[str] | None = None) -> None:

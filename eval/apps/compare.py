@@ -329,7 +329,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
             trained with masking, else 0); given, the student is taken for a token-masking
             one and rolls out at ``cfg.stage2_rollout_masks``.
     """
-    from train.online import CorrectConfig, EvalConfig, correct
+    from train.online import CorrectConfig, RoundEvalConfig, correct
 
     out = run / "stage2"
     last = out / f"round_{cfg.stage2_rounds}"
@@ -353,7 +353,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed, optimizer=cfg.optimizer,
         rollout_mask_ratios=cfg.stage2_rollout_masks if masked else (),
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
-        eval=EvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
+        eval=RoundEvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
         progress=cfg.progress, max_minutes=prog.minutes_left()))
     prog.done(f"{name} stage 2", t)
     return last

@@ -157,7 +157,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     import json
 
     from policies.checkpoint import PolicyPath
-    from train.evaluation import EvalConfig
+    from train.evaluation import RoundEvalConfig
     from train.online import CorrectConfig, correct
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
@@ -171,7 +171,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask, teacher=teacher, rollout_mask_ratios=rollout_masks,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
-                        eval=EvalConfig(enabled=select_trials > 0, trials=max(select_trials, 1),
+                        eval=RoundEvalConfig(enabled=select_trials > 0, trials=max(select_trials, 1),
                                         levels="0,1,2",
                                         episode_length_s=select_s, seed=SELECT_SEED, num_threads=threads),
                         progress=False)

@@ -114,7 +114,7 @@ def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
 def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps: int,
            batch: int, seconds: float) -> tuple[Path, dict[str, Any]]:
     from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
-    from train.online import CorrectConfig, EvalConfig, PolicyPath, correct
+    from train.online import CorrectConfig, PolicyPath, RoundEvalConfig, correct
 
     copy = out.parent / "stage2_dataset"
     shutil.copytree(root, copy)
@@ -124,7 +124,7 @@ def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps:
         steps=steps, batch_size=batch, lr=1e-3, beta=0.0, mask_ratio=0.5,
         teacher=TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO)), rollout_mask_ratios=(0.0, 0.5),
         warmup_steps=min(20, max(steps // 5, 1)), eval_every=steps, save_every=steps,
-        eval=EvalConfig(enabled=False), device=device, progress=False))
+        eval=RoundEvalConfig(enabled=False), device=device, progress=False))
     rounds = json.loads((out / "progress.json").read_text())["rounds"]
     rec = rounds.get("1", rounds.get(1, {}))
     return out / "round_1", {k: rec[k] for k in ("rollout", "train") if k in rec}

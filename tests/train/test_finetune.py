@@ -28,7 +28,7 @@ from policies.export import MINIMIZED_SENSORS
 from policies.factory import load_policy, make_policy
 from policies.msta import MSTAConfig
 from policies.teacher.config import TeacherConfig
-from train.evaluation import EvalConfig
+from train.evaluation import RoundEvalConfig
 from train.finetune import (
     RECORD,
     FinetuneConfig,
@@ -71,7 +71,7 @@ def make_cfg(base, out: Path, **kw) -> FinetuneConfig:
                 "num_envs": 4, "episode_length_s": EPISODE_S, "env": small_env(),
                 "teacher": TeacherConfig(type="gait"), "steps": 4, "batch_size": 8,
                 "warmup_steps": 1, "lr": 3e-2, "progress": False, "device": "cpu",
-                "eval": EvalConfig(enabled=False)}
+                "eval": RoundEvalConfig(enabled=False)}
     return FinetuneConfig(**{**defaults, **kw})
 
 
@@ -83,7 +83,7 @@ def one_round(base, tmp_path_factory) -> tuple[FinetuneConfig, dict]:
     tmp = tmp_path_factory.mktemp("one_round")
     shutil.copytree(base[0], tmp / "ds")
     cfg = make_cfg(base, tmp / "out", dataset=str(tmp / "ds"),
-                   eval=EvalConfig(trials=4, episode_length_s=1.0, terrains="flat", levels="0",
+                   eval=RoundEvalConfig(trials=4, episode_length_s=1.0, terrains="flat", levels="0",
                                    mask_ratios=(0.0,)))
     return cfg, finetune(cfg)
 
@@ -151,7 +151,7 @@ def test_checkpoint_records_its_observation_and_acts_on_it(base, one_round):
     assert record["trainable"] == "embeddings" and record["source"] == str(base[1])
     assert 0 < record["trained_numel"] < record["total_numel"]
     assert json.loads((out / "start" / RECORD).read_text()) == record
-    assert prog["config"]["sensors"] == cfg.sensors and prog["config"]["history"] == 7
+    assert prog.config["sensors"] == cfg.sensors and prog.config["history"] == 7
     # the student drove on the kept inputs; the appended episodes hold every column
     eps = load_episode_table(Path(cfg.dataset))
     assert (eps["provenance/source"] == "student").sum() == E
@@ -169,9 +169,9 @@ def test_checkpoint_records_its_observation_and_acts_on_it(base, one_round):
     with pytest.raises(ValueError, match="'joint_vel' is not an input"):
         policy.act({"joint_vel": torch.zeros(1, 7, 12)})
     # msta-correct's per-round evaluation ran start (round 0) and round 1 on that observation
-    for r in ("0", "1"):
-        assert prog["rounds"][r]["eval"]["0"]["status"] == "ok"
-    assert prog["rounds"]["0"]["checkpoint"] == str(out / "start")
+    for r in (0, 1):
+        assert prog.rounds[r].eval["0"]["status"] == "ok"
+    assert prog.rounds[0].checkpoint == str(out / "start")
 
 
 def test_bad_inputs_are_one_line_errors(base, one_round, tmp_path, capsys):
@@ -240,7 +240,7 @@ def test_resume_keeps_the_prepared_student_and_checks_its_options(base, tmp_path
         finetune(make_cfg(base, out, dataset=cfg.dataset, resume=True, history=5))
     round1 = tensor_hashes(out / "round_1")
     prog = finetune(make_cfg(base, out, dataset=cfg.dataset, resume=True, rounds=2))
-    assert prog["rounds"]["2"]["trained"] and len(load_episode_table(Path(cfg.dataset))) == 4 + 2 * E
+    assert prog.rounds[2].trained and len(load_episode_table(Path(cfg.dataset))) == 4 + 2 * E
     round2 = tensor_hashes(out / "round_2")
     record = json.loads((out / "round_2" / RECORD).read_text())
     frozen = set(round2) - set(record["trained_parameters"])

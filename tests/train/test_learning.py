@@ -29,7 +29,7 @@ from policies.factory import load_policy
 from policies.msta import MSTAConfig
 from policies.teacher.config import TeacherConfig
 from train.offline import TrainConfig, train
-from train.online import CorrectConfig, EvalConfig, append_episodes, correct, roll_out
+from train.online import CorrectConfig, RoundEvalConfig, append_episodes, correct, drive_and_label
 
 pytestmark = pytest.mark.slow
 
@@ -89,7 +89,7 @@ def test_a_stage2_round_fits_the_teacher_on_the_students_own_states(
     cfg = CorrectConfig(policy=str(ckpt), dataset=str(data), output_dir=str(tmp_path / "s2"),
                         rounds=1, episodes_per_round=24, num_envs=24, episode_length_s=6.0,
                         steps=400, warmup_steps=20, eval_every=0, save_every=0,
-                        eval=EvalConfig(enabled=False), progress=False,
+                        eval=RoundEvalConfig(enabled=False), progress=False,
                         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)),
                         teacher=TeacherConfig(type="gait"))  # the teacher of teacher_data
     correct(cfg)
@@ -101,8 +101,8 @@ def test_a_stage2_round_fits_the_teacher_on_the_students_own_states(
     from msta_data.windows import load_episode_table
 
     n_teacher = len(load_episode_table(held))
-    episodes, _ = roll_out(replace(cfg, episodes_per_round=12, num_envs=12), before, r=7,
-                           revision="held-out")
+    episodes, _ = drive_and_label(replace(cfg, episodes_per_round=12, num_envs=12), before,
+                                  r=7, revision="held-out")
     total = append_episodes(held, episodes)
     own = list(range(n_teacher, total))  # only the held-out student episodes
     loss_before = student_state_loss(before, held, own)

@@ -22,7 +22,8 @@ from policies.checkpoint import PolicyPath
 from policies.factory import make_policy
 from policies.msta import MSTAConfig, MSTAPolicy
 from policies.teacher.config import TeacherConfig, build_teacher
-from train.online import CorrectConfig, EvalConfig, correct, main, policy_revision
+from train.online import CorrectConfig, RoundEvalConfig, correct, main, policy_revision
+from train.progress import Progress
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)
@@ -31,7 +32,7 @@ EPISODE_S = 0.3
 
 
 #: the per-round evaluation of the two-round run: 4 trials of 1 s on two terrains
-EVAL = EvalConfig(trials=4, episode_length_s=1.0, terrains="flat,stairs_up", levels="0",
+EVAL = RoundEvalConfig(trials=4, episode_length_s=1.0, terrains="flat,stairs_up", levels="0",
                   mask_ratios=(0.0, 0.5))
 
 
@@ -60,7 +61,7 @@ def make_cfg(base, tmp_path: Path, **kw) -> CorrectConfig:
                 "num_envs": 4, "episode_length_s": EPISODE_S, "env": small_env(),
                 "teacher": TeacherConfig(type="gait"), "steps": 3, "batch_size": 8,
                 "warmup_steps": 1, "progress": False, "device": "cpu",
-                "eval": EvalConfig(enabled=False), "keep_unfinished": False}
+                "eval": RoundEvalConfig(enabled=False), "keep_unfinished": False}
     return CorrectConfig(**{**defaults, **kw})
 
 
@@ -70,7 +71,7 @@ def file_hashes(root: Path) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def two_rounds(base, tmp_path_factory) -> tuple[CorrectConfig, dict, dict[str, str]]:
+def two_rounds(base, tmp_path_factory) -> tuple[CorrectConfig, Progress, dict[str, str]]:
     """An uninterrupted two-round run: (config, progress, teacher data file hashes)."""
     tmp = tmp_path_factory.mktemp("two_rounds")
     cfg = make_cfg(base, tmp, eval=EVAL)
@@ -96,21 +97,30 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
         assert (tail["provenance/policy"] == "msta").all()
         assert (tail["provenance/policy_revision"] == rev).all()
         assert set(tail["provenance/terrain"]) <= set(TERRAIN.types)
-        assert prog["rounds"][str(r)]["policy_revision"] == rev
+        assert prog.rounds[r].policy_revision == rev
     assert (eps.iloc[:4]["provenance/source"] == "teacher").all()
     MSTAPolicy.from_pretrained(out / "round_2")
+    # the round checkpoints keep the student's stage-1 mask ratio; training.json (and the
+    # round record) say which ratio the round retrained at: 0.5, the stage-2 default
+    start_ratio = MSTAPolicy.from_pretrained(base[1]).config.mask_ratio
+    assert start_ratio > 0.5
+    for r in (1, 2):
+        assert MSTAPolicy.from_pretrained(out / f"round_{r}").config.mask_ratio == start_ratio
+        record = json.loads((out / f"round_{r}" / "training.json").read_text())
+        assert record["stage"] == 2 and record["round"] == r and record["mask_ratio"] == 0.5
+        assert record["seed"] == cfg.seed + r and prog.rounds[r].train["mask_ratio"] == 0.5
     # per-round evaluation against the teacher on the same trials, both test masks
-    assert set(prog["rounds"]) == {"0", "1", "2"}
-    assert set(prog["rounds"]["2"]["eval"]) == {"0", "0.5"}
-    assert prog["teacher_eval"]["per_terrain"]["average"]["lin_tracking"] > 0
-    assert prog["teacher_eval"]["per_terrain"]["average"]["trials"] == 4
-    for r in ("0", "1", "2"):
-        run = prog["rounds"][r]["eval"]["0.5"]
+    assert set(prog.rounds) == {0, 1, 2}
+    assert set(prog.rounds[2].eval) == {"0", "0.5"}
+    assert prog.teacher_eval["per_terrain"]["average"]["lin_tracking"] > 0
+    assert prog.teacher_eval["per_terrain"]["average"]["trials"] == 4
+    for r in (0, 1, 2):
+        run = prog.rounds[r].eval["0.5"]
         assert run["status"] == "ok" and run["spec"]["mask_ratio"] == 0.5
         assert run["normalized"]["per_terrain"]["average"]["trials"] == 4
-        assert prog["rounds"][r]["eval_config"]["episode_length_s"] == 1.0
-    assert prog["rounds"]["1"]["rollout"]["env_steps_per_s"] > 0
-    assert prog["rounds"]["1"]["train"]["train_samples_per_s"] > 0
+        assert prog.rounds[r].eval_config["episode_length_s"] == 1.0
+    assert prog.rounds[1].rollout["env_steps_per_s"] > 0
+    assert prog.rounds[1].train["train_samples_per_s"] > 0
     # labels: the teacher's action on the recorded (privileged) observation, replayed
     teacher = build_teacher(TeacherConfig(type="gait"))
     teacher.follow_robot = True  # msta-correct's default labelling (--teacher_follows_robot)
@@ -139,17 +149,18 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
     ckpt = Path(cfg.output_dir) / "round_2"
     msta_eval(["--policies", f"teacher,{ckpt}", "--scenarios", "token_removal", "--trials", "4",
                "--episode_length_s", "1", "--terrains", "flat,stairs_up", "--levels", "0", "--seed",
-               "0", "--progress", "false", "--output_dir", str(tmp_path / "eval")])
+               "0", "--progress", "false", "--output_dir", str(tmp_path / "eval"),
+               "--teacher.type", "gait"])  # msta-correct's labeller, its reference here
     metrics = json.loads((tmp_path / "eval" / "metrics.json").read_text())
     runs = {r["condition"]: r for r in metrics["runs"] if r["policy"] == "round_2"}
-    card, _ = round_eval(prog, 2)
+    card, _ = round_eval(prog.to_json(), 2)
     print_table(prog)
     table = capsys.readouterr().out.split("| 2 |", 1)[1]  # both rows of round 2
     report = (tmp_path / "eval" / "report.md").read_text()
     assert {k: metrics["reference"][k] for k in ("per_terrain", "per_level")} == \
-        {k: prog["teacher_eval"][k] for k in ("per_terrain", "per_level")}
+        {k: prog.teacher_eval[k] for k in ("per_terrain", "per_level")}
     for mask, label in (("0", "mask 0%"), ("0.5", "mask 50%")):
-        ours, theirs = prog["rounds"]["2"]["eval"][mask], runs[label]
+        ours, theirs = prog.rounds[2].eval[mask], runs[label]
         assert ours["raw"] == theirs["raw"] and ours["normalized"] == theirs["normalized"]
         norm = theirs["normalized"]["per_terrain"]["average"]
         raw = theirs["raw"]["per_terrain"]["average"]
@@ -218,15 +229,15 @@ def test_resume_after_a_kill_between_rollout_and_retrain(base, two_rounds, tmp_p
     eps = load_episode_table(root)
     assert len(eps) == 4 + 2 * E  # nothing lost, nothing duplicated
     assert list(eps["provenance/round"]) == [0] * 4 + [1] * E + [2] * E
-    assert prog["rounds"]["2"]["trained"] and prog["rounds"]["2"]["appended"]
+    assert prog.rounds[2].trained and prog.rounds[2].appended
     # the run ends where the uninterrupted one did
     ref_cfg = two_rounds[0]
     ref_eps = load_episode_table(Path(ref_cfg.dataset))
     cols = ["length", "provenance/round", "provenance/terrain"]
     assert ref_eps[cols].equals(eps[cols])
     # committed episodes were recognised (not rolled out again); otherwise redone
-    assert prog["rounds"]["2"].get("recovered_after_commit", False) == (phase == "committed")
-    assert prog["rounds"]["2"]["episodes_after"] == 4 + 2 * E
+    assert prog.rounds[2].recovered_after_commit == (phase == "committed")
+    assert prog.rounds[2].episodes_after == 4 + 2 * E
     # MSTA inference on CPU is reproducible to ~1e-8 only, so compare with a tolerance
     a = WindowDataset(root, ["joint_pos"], T=1, extra_columns=("executed_action",))
     b = WindowDataset(Path(ref_cfg.dataset), ["joint_pos"], T=1,
@@ -250,7 +261,7 @@ def test_max_minutes_stops_at_each_safe_point_and_the_calls_finish_the_run(
     assert stops == ["round 1: episodes appended", *steps[:2], "round 1: trained",
                      "round 1: done", "round 2: episodes appended", *steps[2:],
                      "round 2: trained"]
-    assert prog["rounds"]["2"]["trained"] and prog["rounds"]["2"]["evaluated"]
+    assert prog.rounds[2].trained and prog.rounds[2].evaluated
     cols = ["length", "provenance/round", "provenance/terrain"]
     ref = load_episode_table(Path(two_rounds[0].dataset))[cols]
     assert ref.equals(load_episode_table(Path(cfg.dataset))[cols])  # nothing lost or redone
@@ -267,11 +278,11 @@ def test_resume_after_a_kill_during_evaluation_only_evaluates(base, tmp_path):
     before = json.loads((Path(cfg.output_dir) / "progress.json").read_text())
     assert before["rounds"]["0"]["evaluated"] and "eval" not in before["rounds"]["1"]
     prog = correct(replace(cfg, resume=True))
-    rec = prog["rounds"]["1"]
-    assert rec["evaluated"] and rec["eval"]["0"]["status"] == "ok"
-    assert rec["rollout"] == before["rounds"]["1"]["rollout"]     # not rolled out again
-    assert prog["rounds"]["0"] == before["rounds"]["0"]
-    assert prog["teacher_eval"] == before["teacher_eval"]         # same trials, same teacher
+    rec = prog.rounds[1]
+    assert rec.evaluated and rec.eval["0"]["status"] == "ok"
+    assert rec.rollout == before["rounds"]["1"]["rollout"]     # not rolled out again
+    assert prog.rounds[0].to_json() == before["rounds"]["0"]
+    assert prog.teacher_eval == before["teacher_eval"]         # same trials, same teacher
     assert len(load_episode_table(Path(cfg.dataset))) == 4 + E
 
 
@@ -301,7 +312,7 @@ def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys
                                  root=str(tmp_path / "ds"), episode_length_s=EPISODE_S,
                                  progress=False, env=replace(small_env(), terrain=flat)))
     prog = correct(make_cfg(base, tmp_path, rounds=1, episodes_per_round=8))
-    assert prog["rollout_max_init_level"] == 0
+    assert prog.rollout_max_init_level == 0
     eps = load_episode_table(root)
     assert (eps["provenance/source"] == "student").sum() == 8
     assert (eps["provenance/terrain_level"] == 0).all()
@@ -311,7 +322,7 @@ def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys
 def test_a_labeller_other_than_the_recording_teacher_is_named(base, tmp_path):
     """The dataset was recorded by the gait teacher: labels from the gait teacher pass
     silently, labels from the RMA teacher are named in a warning (with both revisions)."""
-    from train.online import check_labeller
+    from train.progress import check_labeller
 
     same = make_cfg(base, tmp_path)
     assert check_labeller(same, Path(same.dataset)) is None
@@ -333,13 +344,13 @@ def test_keep_unfinished_appends_every_simulated_frame_and_resumes(base, tmp_pat
     with pytest.raises(Kill):
         correct(cfg, on_phase=kill)
     prog = correct(replace(cfg, resume=True))
-    rec = prog["rounds"]["1"]
-    assert rec["recovered_after_commit"]
+    rec = prog.rounds[1]
+    assert rec.recovered_after_commit
     eps = load_episode_table(Path(cfg.dataset)).iloc[4:]
     max_steps = replace(small_env(), episode_length_s=EPISODE_S).max_episode_steps
     assert int(eps["length"].sum()) == 4 * max_steps       # every simulated frame
-    assert len(eps) == rec["episodes_rolled_out"] >= E       # falls start new episodes
-    assert rec["episodes_after"] == 4 + len(eps)
+    assert len(eps) == rec.episodes_rolled_out >= E       # falls start new episodes
+    assert rec.episodes_after == 4 + len(eps)
 
 
 def test_rollout_mask_ratios_split_the_envs_and_are_part_of_the_run(base, tmp_path):
@@ -350,7 +361,7 @@ def test_rollout_mask_ratios_split_the_envs_and_are_part_of_the_run(base, tmp_pa
 
     cfg = make_cfg(base, tmp_path, rounds=1, rollout_mask_ratios=(0.0, 0.5))
     prog = correct(cfg)
-    assert prog["config"]["rollout_mask_ratios"] == [0.0, 0.5]
+    assert prog.config["rollout_mask_ratios"] == [0.0, 0.5]
     assert (load_episode_table(Path(cfg.dataset))["provenance/round"] == 1).sum() == E
     with pytest.raises(ValueError, match="rollout_mask_ratios"):
         correct(replace(cfg, resume=True, rounds=2, rollout_mask_ratios=()))

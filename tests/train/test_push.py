@@ -23,7 +23,7 @@ from policies.msta import MSTAPolicy
 from policies.teacher.config import TeacherConfig
 from train.cli import parse_cli
 from train.offline import TrainConfig, main, train
-from train.online import PROGRESS, CorrectConfig, EvalConfig, correct
+from train.online import PROGRESS, CorrectConfig, RoundEvalConfig, correct
 from train.push import PushError, dataset_source
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-0002"
@@ -58,7 +58,7 @@ def correct_cfg(tmp_path: Path, **kw) -> CorrectConfig:
         output_dir=str(tmp_path / "stage2"), rounds=1, episodes_per_round=2, num_envs=2,
         episode_length_s=0.3, env=small_env(), teacher=TeacherConfig(type="gait"), steps=3,
         batch_size=8, warmup_steps=1, progress=False, device="cpu", push_to="alice/msta",
-        eval=EvalConfig(trials=2, episode_length_s=0.3, terrains="flat,stairs_up", levels="0",
+        eval=RoundEvalConfig(trials=2, episode_length_s=0.3, terrains="flat,stairs_up", levels="0",
                         mask_ratios=(0.0, 0.5)),
         **kw)
 
@@ -93,9 +93,9 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert (out / "round_1" / "model.safetensors").is_file()
     monkeypatch.setenv("HF_TOKEN", ALICE)
     prog = correct(correct_cfg(tmp_path, resume=True))
-    rec = prog["rounds"]["1"]
-    assert rec["pushed"]["tag"] == "stage2-r1" and rec["episodes_after"] == 12 + 2
-    assert prog["dataset_source"] == {"repo": "alice/ds", "revision": ds_sha, "path": None}
+    rec = prog.rounds[1]
+    assert rec.pushed["tag"] == "stage2-r1" and rec.episodes_after == 12 + 2
+    assert prog.dataset_source == {"repo": "alice/ds", "revision": ds_sha, "path": None}
 
     msta = card_at("alice/msta", "stage2-r1")["msta"]
     assert (msta["stage"], msta["round"]) == (2, 1)

@@ -27,7 +27,7 @@ from policies.checkpoint import PolicyPath
 from policies.factory import load_policy, make_policy
 from policies.msta import MSTAConfig
 from policies.teacher.config import TeacherConfig
-from train.evaluation import EvalConfig
+from train.evaluation import RoundEvalConfig
 from train.loop import load_windows
 from train.online import CorrectConfig, correct
 from train.optim import make_optimizer
@@ -88,7 +88,7 @@ def test_a_registry_added_sensor_flows_through_every_stage(tmp_path, monkeypatch
                         num_envs=4, episode_length_s=0.3, env=small_env(),
                         teacher=TeacherConfig(type="gait"), steps=2, batch_size=8,
                         warmup_steps=1, progress=False, device="cpu",
-                        eval=EvalConfig(enabled=False))
+                        eval=RoundEvalConfig(enabled=False))
     correct(cfg)
     eps = load_episode_table(tmp_path / "ds2")
     assert (eps["provenance/source"] == "student").sum() == 4
