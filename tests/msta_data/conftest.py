@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -61,18 +59,3 @@ def synth():
         provenance = staticmethod(make_provenance)
 
     return _Synth
-
-
-def _register_hub_security_helpers() -> None:
-    """Make ``hub_security_helpers.py`` importable as ``msta_hub_security_helpers`` by the
-    hub security test modules (with --import-mode=importlib this directory is not on
-    sys.path); conftest.py runs before those modules are collected."""
-    name = "msta_hub_security_helpers"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(
-            name, Path(__file__).with_name("hub_security_helpers.py"))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-
-
-_register_hub_security_helpers()

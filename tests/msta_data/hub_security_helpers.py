@@ -1,6 +1,6 @@
 """Raw-HTTP helpers shared by the hub security tests (a real server on 127.0.0.1, no mocks).
 
-Holds no tests. ``conftest.py`` registers it as ``msta_hub_security_helpers`` (with
+Holds no tests. ``tests/conftest.py`` registers it as ``msta_hub_security_helpers`` (with
 ``--import-mode=importlib`` a test directory is not on ``sys.path``, and a ``tests`` package
 installed in site-packages shadows this tree's ``tests`` directory).
 """

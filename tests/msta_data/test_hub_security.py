@@ -13,7 +13,7 @@ import os
 import time
 from pathlib import Path
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 import pytest
 from huggingface_hub import HfApi
 

@@ -20,7 +20,7 @@ import sys
 import time
 from urllib.parse import urlsplit
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 import pytest
 
 ALICE = H.ALICE

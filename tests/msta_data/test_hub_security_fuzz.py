@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from urllib.parse import quote
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from urllib.parse import urlencode, urlsplit
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError

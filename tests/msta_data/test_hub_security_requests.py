@@ -13,7 +13,7 @@ import socket
 import time
 from urllib.parse import urlsplit
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError

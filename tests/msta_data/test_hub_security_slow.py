@@ -15,7 +15,7 @@ import socket
 import threading
 import time
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 from huggingface_hub import hf_hub_url
 from huggingface_hub.file_download import http_get
 

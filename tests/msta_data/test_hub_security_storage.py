@@ -8,7 +8,7 @@ import json
 import random
 from pathlib import Path
 
-import msta_hub_security_helpers as H  # registered by tests/msta_data/conftest.py
+import msta_hub_security_helpers as H  # registered by tests/conftest.py
 from huggingface_hub import HfApi
 
 ALICE = H.ALICE
