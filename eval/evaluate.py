@@ -238,8 +238,9 @@ def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
 
 
 def spec_dict(spec: InputSpec) -> dict[str, Any]:
-    """JSON-ready InputSpec."""
-    out = {"T": spec.T, "drop_sensors": list(spec.drop_sensors),
+    """JSON-ready InputSpec (metrics.json's ``spec``; files written before the window was
+    named ``history`` have the key ``T``, :func:`eval.report.spec_history` reads both)."""
+    out = {"history": spec.history, "drop_sensors": list(spec.drop_sensors),
            "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
            "seed": spec.seed}
     if spec.dummy_tokens:  # only when set: older metrics.json records stay identical
@@ -248,7 +249,7 @@ def spec_dict(spec: InputSpec) -> dict[str, Any]:
 
 
 def _is_null(spec: InputSpec) -> bool:
-    return spec.T is None and not spec.drop_sensors and not spec.dead_joints \
+    return spec.history is None and not spec.drop_sensors and not spec.dead_joints \
         and spec.mask_ratio == 0 and spec.dummy_tokens == 0
 
 
@@ -394,7 +395,7 @@ class Evaluator:
     def _student_key(self, entry: PolicyEntry, spec: InputSpec) -> tuple:
         actor = StudentActor(entry.obj, 1, spec)
         channels = tuple(sorted((k, tuple(v)) for k, v in actor.channels.items()))
-        key = (entry.name, entry.revision, actor.T, actor.sensors, channels, spec.mask_ratio)
+        key = (entry.name, entry.revision, actor.history, actor.sensors, channels, spec.mask_ratio)
         # appended only when set, so the inputs digests of the other conditions do not change
         return key + ((("dummy_tokens", spec.dummy_tokens),) if spec.dummy_tokens else ())
 

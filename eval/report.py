@@ -239,12 +239,18 @@ def scenario_table(metrics: dict, scenario: str, metric: str = "total") -> str:
     return "\n".join(lines)
 
 
+def spec_history(spec: dict) -> int | None:
+    """The window of a run's ``spec`` (``history``; ``T`` in metrics.json files written
+    before it was named so)."""
+    return spec["history"] if "history" in spec else spec["T"]
+
+
 def _baseline_runs(metrics: dict) -> dict[str, dict]:
     """Each policy's first successful run with no input change (spec all defaults)."""
     out: dict[str, dict] = {}
     for r in metrics["runs"]:
         s = r["spec"]
-        plain = s["T"] is None and not s["drop_sensors"] and not s["dead_joints"] \
+        plain = spec_history(s) is None and not s["drop_sensors"] and not s["dead_joints"] \
             and s["mask_ratio"] == 0 and not s.get("dummy_tokens")
         if plain and r["status"] == "ok":
             out.setdefault(r["policy"], r)

@@ -11,7 +11,8 @@ Scenarios (registry :data:`SCENARIOS`):
 2. ``sensor_removal``: one sensor removed entirely, for each sensor of the student.
 3. ``dead_joints``: q and q̇ of k = 0..6 random joints removed (fixed seeds; the k-joint
    set is a prefix of one seeded permutation, so k + 1 adds a joint to the k set).
-4. ``history``: history window T without masking (T = 20 is longer than trained).
+4. ``history``: the window length (``InputSpec.history``, labelled T = n as in the paper)
+   without masking (T = 20 is longer than trained).
 5. ``mask_matrix``: the token-removal conditions of checkpoints trained with different
    stage-1 x stage-2 mask ratios, shown as heatmaps (needs ``--matrix`` or ratios recorded
    in the checkpoints).
@@ -156,7 +157,7 @@ def _dummy_tokens(ctx: ScenarioContext) -> list[Condition]:
 
 
 def _history(ctx: ScenarioContext) -> list[Condition]:
-    return [Condition("history", f"T={t}", int(t), InputSpec(T=int(t), seed=ctx.seed))
+    return [Condition("history", f"T={t}", int(t), InputSpec(history=int(t), seed=ctx.seed))
             for t in ctx.values]
 
 

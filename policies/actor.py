@@ -1,10 +1,11 @@
 """Run a student policy in the batched simulator.
 
-``StudentActor`` keeps, for every environment, the last T steps of the sensors the student
-reads, marks the steps before the episode start as padding (filled with the episode's
+``StudentActor`` keeps, for every environment, the last ``history`` steps of the sensors the
+student reads, marks the steps before the episode start as padding (filled with the episode's
 first frame, exactly like ``msta_data.windows.WindowDataset``), applies the test-time
 input changes of the paper's experiments (sensors removed, dead joint encoders, random
-token removal, another window length, random dummy tokens appended) and calls the policy on the whole batch at once.
+token removal, another window length, random dummy tokens appended) and calls the policy on
+the whole batch at once.
 It has the same ``act(obs)`` / ``reset(ids)`` interface as a teacher.
 """
 
@@ -29,7 +30,7 @@ class InputSpec:
     """What the student sees at test time.
 
     Args:
-        T: history window (steps); None = the policy's training window.
+        history: window length (steps); None = the policy's own (``config.history``).
         drop_sensors: registry sensors removed entirely.
         dead_joints: joint indices (0..11) whose q and qdot channels are removed.
         mask_ratio: fraction of tokens removed at random every step (MSTA's test masks).
@@ -39,7 +40,7 @@ class InputSpec:
         seed: seeds the random token removal and the dummy tokens.
     """
 
-    T: int | None = None
+    history: int | None = None
     drop_sensors: tuple[str, ...] = ()
     dead_joints: tuple[int, ...] = ()
     mask_ratio: float = 0.0
@@ -54,8 +55,8 @@ class InputSpec:
         bad = [j for j in self.dead_joints if not 0 <= j < NUM_JOINTS]
         if bad:
             raise ValueError(f"dead joint index {bad[0]} out of range [0, {NUM_JOINTS})")
-        if self.T is not None and self.T < 1:
-            raise ValueError(f"T={self.T} must be >= 1")
+        if self.history is not None and self.history < 1:
+            raise ValueError(f"history={self.history} must be >= 1")
         check_fraction(mask_ratio=self.mask_ratio)
         if self.dummy_tokens < 0:
             raise ValueError(f"dummy_tokens={self.dummy_tokens} must be >= 0")
@@ -80,16 +81,17 @@ class StudentActor:
         self.num_envs = num_envs
         if spec.dummy_tokens:
             policy.check_dummy_tokens(spec.dummy_tokens)
-        self.T = int(spec.T or policy.config.history)
+        self.history = int(spec.history or policy.config.history)
         self.sensors = tuple(s for s in policy.required_sensors if s not in spec.drop_sensors)
         if not self.sensors:
             raise ValueError("every input sensor was dropped; nothing left to act on")
         keep = [j for j in range(NUM_JOINTS) if j not in spec.dead_joints]
         self.channels = {s: keep for s in JOINT_ENCODER_SENSORS
                          if s in self.sensors and spec.dead_joints}
-        self.hist = {s: np.zeros((num_envs, self.T, len(self.channels.get(s, range(get(s).dim)))),
-                                 dtype=np.float32) for s in self.sensors}
-        self.pad = np.ones((num_envs, self.T), dtype=bool)
+        self.hist = {s: np.zeros((num_envs, self.history,
+                                  len(self.channels.get(s, range(get(s).dim)))), dtype=np.float32)
+                     for s in self.sensors}
+        self.pad = np.ones((num_envs, self.history), dtype=bool)
         self.fresh = np.ones(num_envs, dtype=bool)
         self.generator = torch.Generator().manual_seed(spec.seed)
 

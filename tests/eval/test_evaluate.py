@@ -83,7 +83,7 @@ def test_removed_sensors_and_joints_remove_tokens(tiny_ckpt, tmp_path):
     assert _token_counts(ev, entry, InputSpec(drop_sensors=("joint_vel",))) == 37 * T + 1
     assert _token_counts(ev, entry, InputSpec(drop_sensors=("command",))) == 46 * T + 1
     assert _token_counts(ev, entry, InputSpec(dead_joints=(0, 4, 7))) == 43 * T + 1
-    assert _token_counts(ev, entry, InputSpec(T=3)) == 49 * 3 + 1
+    assert _token_counts(ev, entry, InputSpec(history=3)) == 49 * 3 + 1
     assert _token_counts(ev, entry, InputSpec(mask_ratio=0.5)) == 49 * T - round(49 * T / 2) + 1
 
 

@@ -3,8 +3,13 @@
 from __future__ import annotations
 
 import copy
+import json
+from pathlib import Path
 
-from eval.report import fmt_ci, identical_groups, identical_warnings
+from eval.report import fmt_ci, identical_groups, identical_warnings, markdown, raw_table
+
+#: a metrics.json written before the window was named ``history`` (its runs' spec has "T")
+OLD_METRICS = Path(__file__).resolve().parents[2] / "docs" / "reference" / "msta" / "metrics.json"
 
 
 def _run(condition: str, inputs: str, lin: float, policy: str = "s") -> dict:
@@ -41,3 +46,15 @@ def test_interval_formatting():
     assert fmt_ci(0.8, [0.49, 0.94]) == "0.80 (0.49–0.94)"
     assert fmt_ci(0.85, None) == "0.85"
     assert fmt_ci(None, [0.1, 0.2]) == "n/a"
+
+
+def test_a_metrics_json_from_before_history_was_named_renders_the_same():
+    old = json.loads(OLD_METRICS.read_text())
+    assert all("T" in r["spec"] and "history" not in r["spec"] for r in old["runs"])
+    new = copy.deepcopy(old)
+    for r in new["runs"]:
+        r["spec"] = {("history" if k == "T" else k): v for k, v in r["spec"].items()}
+    table = raw_table(old)
+    assert table == raw_table(new) and markdown(old) == markdown(new)
+    # every policy's baseline row (the run with no input change) is found in the old file
+    assert all(f"\n| {p['name']} |" in table for p in old["policies"])

@@ -39,7 +39,7 @@ def test_paper_suite_conditions():
     assert [c.spec.drop_sensors for c in by["sensor_removal"]] == \
         [()] + [(s,) for s in STUDENT_SENSORS]
     assert [len(c.spec.dead_joints) for c in by["dead_joints"]] == list(range(7))
-    assert [c.spec.T for c in by["history"]] == [3, 5, 7, 10, 15, 20]
+    assert [c.spec.history for c in by["history"]] == [3, 5, 7, 10, 15, 20]
     assert all(c.spec.seed == 3 for c in conds)
 
 

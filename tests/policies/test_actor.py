@@ -56,7 +56,7 @@ def test_history_padding_and_reset():
 
 def test_dropped_sensor_dead_joints_window_and_mask():
     pol = Recorder()
-    spec = InputSpec(T=6, drop_sensors=("command",), dead_joints=(1, 5), mask_ratio=0.5)
+    spec = InputSpec(history=6, drop_sensors=("command",), dead_joints=(1, 5), mask_ratio=0.5)
     actor = StudentActor(pol, 3, spec)
     actor.act(obs_at(0))
     batch, channels, ratio = pol.calls[-1]
@@ -64,7 +64,7 @@ def test_dropped_sensor_dead_joints_window_and_mask():
     assert batch["joint_pos"].shape == (3, 6, 10) and batch["joint_vel"].shape == (3, 6, 10)
     keep = [j for j in range(12) if j not in (1, 5)]
     assert channels == {"joint_pos": keep, "joint_vel": keep}
-    assert ratio == 0.5
+    assert ratio == 0.5 and actor.history == 6
 
 
 def test_bad_specs_error():
@@ -72,6 +72,8 @@ def test_bad_specs_error():
         InputSpec(drop_sensors=("sonar",))
     with pytest.raises(ValueError, match="dead joint index 12"):
         InputSpec(dead_joints=(12,))
+    with pytest.raises(ValueError, match="history=0 must be >= 1"):
+        InputSpec(history=0)
     with pytest.raises(ValueError, match="nothing left"):
         StudentActor(Recorder(), 2, InputSpec(drop_sensors=("joint_pos", "joint_vel", "command")))
 

@@ -159,7 +159,7 @@ def test_checkpoint_records_its_observation_and_acts_on_it(base, one_round):
     # loads with only the kept sensors at T = 7 and acts in the simulator's batch layout
     policy = load_policy(ckpt)
     actor = StudentActor(policy, 3, InputSpec())
-    assert actor.sensors == KEPT and actor.T == 7
+    assert actor.sensors == KEPT and actor.history == 7
     rng = np.random.default_rng(0)
     obs = {s: rng.standard_normal((3, sensors.get(s).dim)).astype(np.float32)
            for s in sensors.STUDENT_SENSORS}
