@@ -103,8 +103,8 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
     assert msta["config"]["policy"] == {"path": "alice/msta@stage1"} and msta["config"]["rounds"] == 1
     # the card shows msta-correct's figures, which are msta-eval's on the same trials
     for m in ("0", "0.5"):
-        norm = rec["eval"][m]["normalized"]["per_terrain"]
-        raw = rec["eval"][m]["raw"]["per_terrain"]
+        norm = rec.eval[m]["normalized"]["per_terrain"]
+        raw = rec.eval[m]["raw"]["per_terrain"]
         assert msta["metrics"][f"lin_tracking_vs_teacher@mask{m}"] == \
             pytest.approx(norm["average"]["lin_tracking"])
         assert msta["metrics"][f"total_vs_teacher@mask{m}"] == pytest.approx(norm["average"]["total"])
@@ -122,7 +122,7 @@ def test_train_and_correct_push_tagged_checkpoints_with_cards(synthetic_dataset,
 
     # versions: both tags with their metrics; the tagged commits are the pushed ones
     v = versions("alice/msta")
-    assert set(v.tags) == {"stage1", "stage2-r1"} and v.tags["stage2-r1"] == rec["pushed"]["commit"]
+    assert set(v.tags) == {"stage1", "stage2-r1"} and v.tags["stage2-r1"] == rec.pushed["commit"]
     by_tag = {t: c for c in v.commits for t in c.tags}
     assert by_tag["stage1"].metrics["train_loss"] > 0
     assert by_tag["stage2-r1"].metrics["total_vs_teacher@mask0"] == \

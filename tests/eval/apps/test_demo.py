@@ -65,9 +65,12 @@ def test_demo_runs_every_stage_at_tiny_size(tmp_path, capsys, teacher, select):
     assert (out / "pulled" / tag / "model.safetensors").is_file()
     assert last.endswith(f"(checkpoint {tag})")
     # stage 1 trained at 0.75, stage 2 retrained at the demo's --correct_mask_ratio (the
-    # paper's 0.5), and each checkpoint says which
+    # paper's 0.5), and each checkpoint says which: config.json keeps the stage-1 ratio, the
+    # round's training.json the one it retrained at
     assert json.loads((out / "stage1" / "final" / "config.json").read_text())["mask_ratio"] == 0.75
     assert json.loads((out / "stage2" / "round_1" / "config.json").read_text())[
+        "mask_ratio"] == 0.75
+    assert json.loads((out / "stage2" / "round_1" / "training.json").read_text())[
         "mask_ratio"] == 0.5
     assert "DAgger beta 0" in text
     # by default half of the stage-2 robots drive with half of the tokens removed
