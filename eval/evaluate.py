@@ -12,9 +12,9 @@ again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input
 Writes into ``--output_dir``: ``metrics.json`` (every number with its trial count and 95 %
 interval per cell, the configuration, each policy's source and revision), ``report.md``
 (Table I layout and one table per scenario, trials per cell, intervals, a warning for a
-student whose figures do not change with its inputs), PNG
-plots for scenarios 2-5, ``timing.json``, and optionally a video (``--video``). See
-docs/eval.md for the metric definitions.
+student whose figures do not change with its inputs), PNG plots for scenarios 2-5,
+``timing.json``, and optionally a video (``--video``). See docs/eval.md for the metric
+definitions; the runs themselves are :class:`eval.evaluator.Evaluator`'s.
 """
 
 from __future__ import annotations
@@ -23,31 +23,26 @@ import json
 import os
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from collect.rollout import film
-from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
 from eval import report
-from eval.metrics import (
-    NotApplicable,
-    TrialResults,
-    aggregate,
-    normalize,
-    run_trials,
-    start_trials,
+from eval.evaluator import (
+    METRICS_VERSION,
+    RUNS,
+    Evaluator,
+    PolicyEntry,
+    make_env,
+    student_entry,
+    torch_eval_settings,
 )
+from eval.metrics import start_trials
 from eval.scenarios import (
     Condition,
     TrialConfig,
@@ -56,19 +51,16 @@ from eval.scenarios import (
     get_suite,
     split_csv,
 )
-from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
+from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import parse_config
 from msta_data.errors import DirectoryLockedError
 from msta_data.locate import locate, reads_as_hub_id
 from msta_data.locking import hold_directory
-from msta_data.revision import content_revision, file_parts
 from msta_data.sensors import STUDENT_SENSORS
-from policies.actor import InputSpec, StudentActor
-from policies.factory import load_policy, select_device
+from policies.actor import StudentActor
+from policies.factory import select_device
 from policies.teacher.base import TEACHERS
 from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
-
-METRICS_VERSION = 2  # 2: trials and 95 % intervals per cell, per-level averages, run inputs
 
 
 @dataclass
@@ -142,43 +134,6 @@ def _parse_matrix(text: str, policies: list[str]) -> dict[str, tuple[float, floa
         out[key] = (a1, a2)
     return out
 
-
-@dataclass
-class PolicyEntry:
-    """One row of the outputs.
-
-    Args:
-        name: row label.
-        source: the --policies entry as written.
-        kind: "teacher" (fixed inputs, no input changes) or "student".
-        path: local checkpoint directory ("" for teachers).
-        revision: content hash (checkpoint files) or the teacher's revision.
-        obj: the loaded teacher or student.
-        train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
-    """
-
-    name: str
-    source: str
-    kind: str
-    path: str
-    revision: str
-    obj: Any = None
-    train_masks: tuple[float, float] | None = None
-
-    def describe(self) -> dict[str, Any]:
-        d = {k: getattr(self, k) for k in ("name", "source", "kind", "path", "revision")}
-        d["train_masks"] = list(self.train_masks) if self.train_masks else None
-        if self.kind == "student":
-            d["type"] = self.obj.config.type
-            d["input_sensors"] = list(self.obj.required_sensors)
-        return d
-
-
-def dir_revision(path: Path) -> str:
-    """Short sha256 over a checkpoint directory's file names and bytes."""
-    return content_revision(file_parts(path))
-
-
 def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     """Resolve one --policies entry (teacher, teacher:<type>, directory or hub id)."""
     if source == "teacher":
@@ -197,23 +152,6 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
                          device=str(cfg.torch_device))
 
-
-def student_entry(path: Path, name: str, source: str,
-                  train_masks: tuple[float, float] | None = None,
-                  device: str = "cpu") -> PolicyEntry:
-    """A student checkpoint directory as a row.
-
-    Args:
-        path: the local checkpoint directory.
-        name: row label.
-        source: how the user named it (directory or hub id).
-        train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
-        device: where the student runs (msta-eval's ``--device``, resolved).
-    """
-    return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
-                       load_policy(path, device=device), train_masks)
-
-
 def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
     """Every --policies entry, names made unique."""
     entries, seen = [], {}
@@ -224,225 +162,6 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
             e.name = f"{e.name}#{seen[e.name]}"
         entries.append(e)
     return entries
-
-
-def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
-    """The evaluation simulator: tiles pinned (curriculum off), only the evaluated terrain
-    columns built; :func:`eval.metrics.start_trials` gives every trial its random stream."""
-    return QuadrupedEnv(EnvConfig(
-        num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
-        terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
-        commands=CommandConfig(use_heading=cfg.heading_commands),
-        noise=NoiseConfig(enabled=cfg.noise),
-        randomization=RandomizationConfig(enabled=cfg.randomization)))
-
-
-def spec_dict(spec: InputSpec) -> dict[str, Any]:
-    """JSON-ready InputSpec (metrics.json's ``spec``; files written before the window was
-    named ``history`` have the key ``T``, :func:`eval.report.spec_history` reads both)."""
-    out = {"history": spec.history, "drop_sensors": list(spec.drop_sensors),
-           "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
-           "seed": spec.seed}
-    if spec.dummy_tokens:  # only when set: older metrics.json records stay identical
-        out["dummy_tokens"] = spec.dummy_tokens
-    return out
-
-
-def _is_null(spec: InputSpec) -> bool:
-    return spec.history is None and not spec.drop_sensors and not spec.dead_joints \
-        and spec.mask_ratio == 0 and spec.dummy_tokens == 0
-
-
-@contextmanager
-def torch_eval_settings(threads: int, cuda: bool = False) -> Iterator[None]:
-    """torch as an evaluation needs it (``threads`` threads, deterministic algorithms), and
-    afterwards as it was, global RNG state included (evaluation seeds it per run).
-
-    ``cuda``: students run on CUDA. TF32 is off (full fp32 matrix products and convolutions)
-    and deterministic algorithms only warn where an op has none: cuBLAS is deterministic
-    only with ``CUBLAS_WORKSPACE_CONFIG`` set before its first use (msta-eval sets it at
-    start; a process that trained on the GPU first, msta-correct or msta-repro, has passed
-    that point)."""
-    tf32 = (torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
-    before = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
-              torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_rng_state())
-    torch.set_num_threads(threads)
-    torch.use_deterministic_algorithms(True, warn_only=cuda)
-    if cuda:
-        torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before[0])
-        torch.use_deterministic_algorithms(before[1], warn_only=before[2])
-        torch.set_rng_state(before[3])
-        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = tf32
-
-
-def _digest(key: tuple) -> str:
-    return content_revision([repr(key)])
-
-
-#: ``output_dir/eval_runs/``: one finished run (or round of trials) per file (``--resume``).
-RUNS = "eval_runs"
-#: what TrialConfig.resolved() holds besides its fields (the effective values)
-_RESOLVED = ("trials", "terrains", "levels", "episode_length_s", "num_envs")
-
-
-def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
-    """What every stored run of an evaluation shares besides its own key (the policy's
-    name, checkpoint revision and inputs): the metrics version, the trials (every
-    TrialConfig setting that changes a figure) and the reference teacher's revision."""
-    names = {f.name for f in fields(TrialConfig)} | set(_RESOLVED)
-    trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
-    return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
-
-
-def save_trials(res: TrialResults, path: Path, **extra: np.ndarray) -> None:
-    """Write per-trial sums (and ``extra`` arrays) atomically: a kill leaves no half file."""
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    np.savez(tmp, max_steps=np.int64(res.max_steps), **extra,
-             **{f.name: getattr(res, f.name) for f in fields(res) if f.name != "max_steps"})
-    tmp.replace(path)
-
-
-def load_trials(path: Path) -> TrialResults:
-    with np.load(path) as z:
-        return TrialResults(**{f.name: z[f.name] for f in fields(TrialResults)
-                               if f.name != "max_steps"}, max_steps=int(z["max_steps"]))
-
-
-def _round_path(path: Path, r: int) -> Path:
-    return path.with_name(f"{path.stem}.round{r}.npz")
-
-
-class Evaluator:
-    """Runs conditions on one shared evaluation env and caches identical student inputs.
-
-    msta-eval and msta-correct's per-round evaluation both use it: the same checkpoint
-    and :class:`TrialConfig` give the same figures in both.
-
-    Args:
-        cfg: which trials to run.
-        teacher: the reference teacher every return is normalized by.
-        progress: show progress bars.
-    """
-
-    def __init__(self, cfg: TrialConfig, teacher: TeacherConfig, progress: bool = True,
-                 store: Path | None = None, deadline: float | None = None) -> None:
-        self.cfg, self.teacher, self.progress = cfg, teacher, progress
-        self.store, self.deadline = store, deadline
-        self._ran = False  # a run was made in this process (the deadline stops the next)
-        # what the stored runs must share besides their key: the trials and the reference
-        self._fingerprint = trial_fingerprint(cfg, teacher) if store is not None else ""
-        self.layout = cfg.layout()
-        self.env = make_env(cfg, len(self.layout.rounds(cfg.envs)[0]))
-        self.reference: dict[str, Any] | None = None
-        self.reference_trials: TrialResults | None = None
-        self.timing: dict[str, float] = {}
-        self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
-
-    def _run(self, label: str, make_actor, key: tuple = (), device: str = "cpu") -> TrialResults:
-        """One run over every trial. With a store (``key``: what the actor sees) the run is
-        ``store/<digest>.npz`` once finished, and each finished round of trials
-        ``<digest>.round<r>.npz`` (its sums and the torch RNG state after it) until then: an
-        interrupted run continues at its next round, with the same figures. ``device``: the
-        device type the actor computes on; a CUDA run is stored apart from a CPU one (float
-        rounding differs), and CPU runs keep the digest they had before CUDA was possible."""
-        stored = (self._fingerprint, key) if device == "cpu" else (self._fingerprint, key, device)
-        path = self.store / f"{_digest(stored)}.npz" \
-            if self.store is not None and key else None
-        if path is not None and path.is_file():
-            return load_trials(path)
-        if self._ran:
-            check_deadline(self.deadline, f"before {label}")
-        # a policy drawing from the global torch RNG (none of msta's: StudentActor passes
-        # its own generator) gets the same draws on every run
-        torch.manual_seed(self.cfg.seed)
-        done: list[TrialResults] = []
-        while path is not None and _round_path(path, len(done)).is_file():
-            rp = _round_path(path, len(done))
-            done.append(load_trials(rp))
-            with np.load(rp) as z:
-                torch.set_rng_state(torch.from_numpy(z["torch_rng"].copy()))
-
-        def on_round(r: int, rounds: int, res: TrialResults) -> None:
-            self._ran = True
-            if path is not None:
-                save_trials(res, _round_path(path, r),
-                            torch_rng=torch.get_rng_state().numpy())
-            if r + 1 < rounds:
-                check_deadline(self.deadline, f"{label}: after round {r + 1} of {rounds}")
-
-        t0 = time.perf_counter()
-        res = run_trials(self.env, make_actor, self.layout, desc=label,
-                         progress=self.progress, done=done, on_round=on_round)
-        self.timing[label] = round(time.perf_counter() - t0, 3)
-        if path is not None:
-            save_trials(res, path)
-            for f in path.parent.glob(f"{path.stem}.round*.npz"):
-                f.unlink()
-        return res
-
-    def run_reference(self) -> dict[str, Any]:
-        """Roll the reference teacher over every trial."""
-        teacher = build_teacher(self.teacher)
-        self.reference_trials = self._run("reference teacher", lambda r, n: teacher,
-                                          ("reference",))
-        self.reference = aggregate(self.reference_trials, self.layout)
-        return self.reference
-
-    def _student_key(self, entry: PolicyEntry, spec: InputSpec) -> tuple:
-        actor = StudentActor(entry.obj, 1, spec)
-        channels = tuple(sorted((k, tuple(v)) for k, v in actor.channels.items()))
-        key = (entry.name, entry.revision, actor.history, actor.sensors, channels, spec.mask_ratio)
-        # appended only when set, so the inputs digests of the other conditions do not change
-        return key + ((("dummy_tokens", spec.dummy_tokens),) if spec.dummy_tokens else ())
-
-    def condition(self, entry: PolicyEntry, cond: Condition) -> dict[str, Any]:
-        """Metrics of one policy under one condition (or n/a with the reason).
-
-        Returns:
-            the run record of metrics.json: policy, scenario, condition, value, spec,
-            ``inputs`` (a digest of what the policy really sees: equal digests mean equal
-            inputs), status, and ``raw`` and ``normalized`` (eval.metrics) or ``reason``.
-        """
-        if self.reference_trials is None:
-            raise RuntimeError("run_reference() first: every figure is normalized by it")
-        rec: dict[str, Any] = {"policy": entry.name, "scenario": cond.scenario,
-                               "condition": cond.label, "value": cond.value,
-                               "spec": spec_dict(cond.spec)}
-        label = f"{entry.name} | {cond.key}"
-        try:
-            if entry.kind == "teacher":
-                if not _is_null(cond.spec):
-                    raise NotApplicable("the teacher is the privileged reference; test-time "
-                                        "sensor changes apply to students only")
-                key: tuple = (entry.name, entry.revision)
-                make = (lambda r, n: entry.obj)
-            else:
-                try:
-                    key = self._student_key(entry, cond.spec)
-                except (ValueError, KeyError, NotImplementedError) as e:
-                    raise NotApplicable(f"{type(e).__name__}: {e}") from e
-                make = self._student_factory(entry, cond.spec)
-            if key not in self._cache:
-                res = self._run(label, make, key,
-                                entry.obj.device.type if entry.kind == "student" else "cpu")
-                self._cache[key] = (res, aggregate(res, self.layout))
-        except NotApplicable as e:
-            return {**rec, "status": "n/a", "reason": str(e)}
-        res, raw = self._cache[key]
-        return {**rec, "inputs": _digest(key[2:]), "status": "ok", "raw": raw,
-                "normalized": normalize(res, self.reference_trials, self.layout)}
-
-    @staticmethod
-    def _student_factory(entry: PolicyEntry, spec: InputSpec):
-        def make(r: int, n: int) -> StudentActor:  # a new mask stream per round
-            return StudentActor(entry.obj, n, replace(spec, seed=spec.seed * 1_000_003 + r),
-                                name=entry.name)
-        return make
-
 
 def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
     """Every (policy, condition) pair, policies in --policies order."""
