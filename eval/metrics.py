@@ -31,7 +31,7 @@ trials and a 95 % confidence interval per figure (:mod:`eval.intervals`: Student
 trials, the delta method on paired trials for ratios, Wilson for survival).
 
 ``msta-eval`` (:mod:`eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
-through :class:`eval.evaluate.Evaluator`, so the same checkpoint on the same trials (and
+through :class:`eval.evaluator.Evaluator`, so the same checkpoint on the same trials (and
 device type) gets the same figures in both; msta-correct's round table and the stage-2 model card pick theirs
 from the run record with :func:`headline`. The teacher report summarizes its tiles with
 :func:`summarize` (one trial per finished episode).
@@ -387,7 +387,7 @@ def normalize(student: TrialResults, teacher: TrialResults, layout: TrialLayout
 
 
 def headline(run: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The :data:`HEADLINE_FIGURES` of one run record (``eval.evaluate.Evaluator.condition``
+    """The :data:`HEADLINE_FIGURES` of one run record (``eval.evaluator.Evaluator.condition``
     with status ok) per terrain and ``average``, as cells keyed by figure name:
     ``{terrain: {name: value, ..., "trials": n, "ci": {name: [low, high] or None}}}``
     (``eval.report.fmt_cell`` formats them). msta-correct's round table and the stage-2 model

@@ -1,7 +1,7 @@
 """``msta-correct``'s per-round evaluation: msta-eval's figures for each round's checkpoint.
 
 A round's checkpoint runs msta-eval's ``token_removal`` conditions at ``--eval.mask_ratios``
-through :class:`eval.evaluate.Evaluator` on the trials of ``--eval.*``
+through :class:`eval.evaluator.Evaluator` on the trials of ``--eval.*``
 (:class:`eval.scenarios.TrialConfig`, msta-eval's own options), against the reference
 teacher on the same trials. The records stored in progress.json are msta-eval's run
 records (``raw``, ``normalized``, trials and 95 % intervals per cell), so msta-correct's
@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from eval.evaluate import Evaluator, student_entry, torch_eval_settings
+from eval.evaluator import Evaluator, student_entry, torch_eval_settings
 from eval.metrics import HEADLINE_FIGURES, headline
 from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
 from eval.scenarios import ScenarioContext, TrialConfig, get_scenario
@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 @dataclass
 class RoundEvalConfig(TrialConfig):
     """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
-    on msta-eval's trials (``eval.evaluate.Evaluator``: the same trial layout, per-trial
+    on msta-eval's trials (``eval.evaluator.Evaluator``: the same trial layout, per-trial
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
     figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
     --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
@@ -55,7 +55,7 @@ class RoundEvalConfig(TrialConfig):
 
 
 class RoundEvaluator:
-    """Phase 5 of msta-correct through msta-eval's :class:`~eval.evaluate.Evaluator` on
+    """Phase 5 of msta-correct through msta-eval's :class:`~eval.evaluator.Evaluator` on
     ``cfg``'s trials. The reference teacher runs once per process, on first use; a
     checkpoint is evaluated from its directory, loaded as msta-eval loads it.
 

@@ -20,7 +20,7 @@ Each round r = 1..R:
    recent rounds), with :func:`train.loop.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
-   (:mod:`train.evaluation`: ``eval.evaluate.Evaluator`` on the trials of ``--eval.*``, the
+   (:mod:`train.evaluation`: ``eval.evaluator.Evaluator`` on the trials of ``--eval.*``, the
    ``token_removal`` conditions at ``--eval.mask_ratios``): linear-velocity tracking and
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>

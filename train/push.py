@@ -165,7 +165,7 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
 def round_eval(prog: dict[str, Any], r: int) -> tuple[dict[str, float], dict | None]:
     """(metrics, per-terrain table) of round ``r`` from msta-correct's progress.json content.
 
-    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluate.Evaluator``;
+    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluator.Evaluator``;
     :func:`eval.metrics.headline` picks them, as for msta-correct's round table):
     per test mask m, ``lin_tracking_vs_teacher@mask<m>`` and ``total_vs_teacher@mask<m>``
     (per-step returns over the teacher's on the same trials), ``survival@mask<m>`` (share

@@ -200,7 +200,7 @@ def test_eval_settings_are_restored_and_cuda_only_warns():
     failing (cuBLAS), and the caller's settings come back afterwards."""
     import torch
 
-    from eval.evaluate import torch_eval_settings
+    from eval.evaluator import torch_eval_settings
 
     def state():
         return (torch.are_deterministic_algorithms_enabled(),
