@@ -52,8 +52,7 @@ class TeacherCurveConfig:
         episode_length_s: episode length (s); 20 is the length of docs/teacher_quality.md.
         nthread: MuJoCo rollout threads and torch threads.
         every: evaluate one snapshot per this many iterations (the first at or after each
-            multiple) and the newest one; 0: every snapshot. A snapshot costs ~1.5 min on 2
-            idle cores at the defaults.
+            multiple) and the newest one; 0: every snapshot.
         image: the PNG to write ('' skips it).
         progress: a progress bar over checkpoints.
     """

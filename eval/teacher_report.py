@@ -227,7 +227,7 @@ def render_markdown(stats: Stats, cfg: TeacherReportConfig, command: str,
         surv = np.mean([r["survival"] for r in low]) if low else float("nan")
         err = np.mean([r["lin_err"] for r in low]) if low else float("nan")
         lines.append(f"| {t} | {highest_level(stats, t, cfg.level_list)} | {surv:.1%} | {err:.3f} |")
-    lines += ["", "## Minimums (issue 3)", ""] + _minimums(stats, cfg) + [""]
+    lines += ["", "## Minimums", ""] + _minimums(stats, cfg) + [""]
     for t in cfg.terrain_list:
         lines += [f"## {t}", "", "| level | episodes | survival | lin track | ang track | "
                   "abs(v err) m/s | abs(w err) rad/s |", "|---|---|---|---|---|---|---|"]
