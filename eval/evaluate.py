@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+import policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
 from collect.rollout import film
 from eval import report
 from eval.evaluator import (
