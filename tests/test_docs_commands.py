@@ -19,13 +19,13 @@ import pytest
 
 from collect.record import parse_config as collect_args
 from collect.simulate import SimRunConfig
+from eval.apps.compare import CompareConfig
+from eval.apps.demo import DemoConfig
 from eval.bench.data import BenchDataConfig
 from eval.bench.deploy import BenchDeployConfig
 from eval.bench.learn import BenchLearnConfig
 from eval.bench.sim import BenchSimConfig
 from eval.bench.train import BenchTrainConfig
-from eval.apps.compare import CompareConfig
-from eval.apps.demo import DemoConfig
 from eval.evaluate import EvalConfig
 from eval.label_check import LabelCheckConfig
 from eval.report import EvalReportConfig

@@ -9,13 +9,13 @@ import pytest
 
 from collect.record import main as collect_main
 from collect.simulate import main as sim_main
+from eval.apps.compare import main as compare_main
+from eval.apps.demo import main as demo_main
 from eval.bench.data import main as bench_data_main
 from eval.bench.deploy import main as bench_deploy_main
 from eval.bench.learn import main as bench_learn_main
 from eval.bench.sim import main as bench_sim_main
 from eval.bench.train import main as bench_train_main
-from eval.apps.compare import main as compare_main
-from eval.apps.demo import main as demo_main
 from eval.evaluate import main as eval_main
 from eval.label_check import main as label_check_main
 from eval.report import main as report_main

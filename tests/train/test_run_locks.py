@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from eval.apps.compare import main as compare_main
-from eval.evaluate import main as eval_main
 from eval.apps.repro import main as repro_main
+from eval.evaluate import main as eval_main
 from msta_data.layout import LOCK_NAME
 from msta_data.stats import load_stats
 from msta_data.windows import load_episode_table
