@@ -31,12 +31,12 @@ class ZeroTeacher:
 PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
 #: The RMA teacher shipped with msta (``--teacher.type=rma`` without ``--teacher.path``): the
 #: gait controller imitated by ``msta-train-teacher --ppo.iterations=0`` (10 DART iterations;
-#: ``produced_by.json`` in the folder; docs/teacher_quality_rma.md).
+#: ``produced_by.json`` in the folder; docs/results/2026-12-04-teacher-quality-rma.md).
 SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
 #: The PPO-trained RMA teacher shipped with msta, the default teacher of every command (no
 #: ``--teacher.*`` option): rsl_rl's PPO from ``SHIPPED_RMA``; survives stairs and discrete
 #: obstacles better than the gait controller, whose labels contradict a student-driven robot
-#: (docs/teacher_quality_rma.md, ``produced_by.json`` in the folder).
+#: (docs/teacher_quality.md, ``produced_by.json`` in the folder).
 SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
 
 

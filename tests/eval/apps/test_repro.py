@@ -115,9 +115,14 @@ def test_masked_students_roll_out_masked_in_stage_2_and_the_others_do_not(study)
 def test_heatmap_cells_are_distinct_students_on_the_shared_stage1(study) -> None:
     out, _ = study
     s = SCALES["tiny"]
-    cfgs = {m2: json.loads((out / "heatmap" / "checkpoints" / f"s1_{s.heatmap_stage1[0]:g}_s2_"
-                            f"{m2:g}" / "config.json").read_text()) for m2 in s.heatmap_stage2}
-    assert {m2: c["mask_ratio"] for m2, c in cfgs.items()} == {m: m for m in s.heatmap_stage2}
+    cells = {m2: out / "heatmap" / "checkpoints" / f"s1_{s.heatmap_stage1[0]:g}_s2_{m2:g}"
+             for m2 in s.heatmap_stage2}
+    # each cell retrained at its own stage-2 ratio (training.json) and its config keeps
+    # the stage-1 ratio it was trained with first
+    assert {m2: json.loads((c / "training.json").read_text())["mask_ratio"]
+            for m2, c in cells.items()} == {m: m for m in s.heatmap_stage2}
+    assert {json.loads((c / "config.json").read_text())["mask_ratio"]
+            for c in cells.values()} == {s.heatmap_stage1[0]}
     # stage 1 at the study's own MSTA mask is the study's MSTA stage 1, not trained again
     assert not (out / "heatmap" / f"s1_{s.heatmap_stage1[0]:g}").exists()
 
