@@ -5,11 +5,15 @@ folder is not on sys.path.
 - :func:`random_batch`: seeded sensor readings for a student, ``{sensor: (B, steps, dim)}``.
 - :func:`random_episode`: one episode's frames with random but finite values in every input
   column of a dataset.
+- :func:`overfit`: a student's loss on one batch before and after 150 AdamW steps on it.
+- :func:`running_hub`: a real msta hub server on 127.0.0.1 for the duration of a fixture.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -50,3 +54,32 @@ def random_episode(length: int, rng: np.random.Generator, recorded: Sequence[str
             out[col] = (rng.standard_normal((length, ft["shape"][0])) * scale + offset).astype(
                 np.float32)
     return out
+
+
+def overfit(policy: torch.nn.Module, batch: dict[str, torch.Tensor], steps: int = 150,
+            **loss_kw) -> tuple[float, float]:
+    """(the loss at the first step, the eval-mode loss after ``steps`` AdamW steps at lr 1e-2
+    on ``batch``); ``loss_kw`` go to the training ``policy.loss``."""
+    opt = torch.optim.AdamW(policy.parameters(), lr=1e-2, weight_decay=0.0)
+    first = None
+    for _ in range(steps):
+        loss, _ = policy.loss(batch, **loss_kw)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        first = first if first is not None else loss.item()
+    final, _ = policy.eval().loss(batch)
+    return first, final.item()
+
+
+@contextmanager
+def running_hub(root: Path, *tokens: str) -> Iterator[object]:
+    """A started ``HubServer`` on 127.0.0.1 storing under ``root`` with the ``user:secret``
+    ``tokens``; stopped on exit."""
+    from msta_data.hub_server import HubServer, ServerConfig
+
+    srv = HubServer(ServerConfig(root=root, tokens=list(tokens))).start()
+    try:
+        yield srv
+    finally:
+        srv.stop()

@@ -329,6 +329,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
             trained with masking, else 0); given, the student is taken for a token-masking
             one and rolls out at ``cfg.stage2_rollout_masks``.
     """
+    from train.config import training_mask_ratio
     from train.online import CorrectConfig, RoundEvalConfig, correct
 
     out = run / "stage2"
@@ -339,8 +340,9 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     resume = (out / "progress.json").exists()
     masked = True  # an explicit mask: a token-masking student (msta-repro's heatmap)
     if mask is None:
-        masked = policy_config(name, cfg.preset).mask_ratio > 0
-        mask = cfg.stage2_mask_ratio if masked else 0.0
+        stage1 = policy_config(name, cfg.preset).mask_ratio
+        masked = stage1 > 0
+        mask = training_mask_ratio(cfg.stage2_mask_ratio if masked else None, stage1, stage=2)
     envs = cfg.stage2_num_envs or min(cfg.episodes_per_round, 32)
     t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"

@@ -20,6 +20,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from msta_test_helpers import running_hub  # registered by tests/conftest.py
 
 from msta_data.errors import DatasetFormatError
 from msta_data.integrity import Manifest
@@ -130,12 +131,8 @@ def checkpoint(template, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def hub_server(tmp_path_factory):
-    from msta_data.hub_server import HubServer, ServerConfig
-
-    srv = HubServer(ServerConfig(root=tmp_path_factory.mktemp("hub"),
-                                 tokens=[f"alice:{SECRET}"])).start()
-    yield srv
-    srv.stop()
+    with running_hub(tmp_path_factory.mktemp("hub"), f"alice:{SECRET}") as srv:
+        yield srv
 
 
 # ----- the matrix ----------------------------------------------------------------------------

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from msta_test_helpers import running_hub  # registered by tests/conftest.py
 
 from msta_data.layout import QUARANTINE_DIR
 from msta_data.windows import WindowDataset, load_episode_table
@@ -63,12 +64,8 @@ def test_resume_after_an_older_meta_pair_keeps_the_newer_episodes(tmp_path, writ
 
 @pytest.fixture(scope="module")
 def hub_server(tmp_path_factory):
-    from msta_data.hub_server import HubServer, ServerConfig
-
-    srv = HubServer(ServerConfig(root=tmp_path_factory.mktemp("hub"),
-                                 tokens=[f"alice:{SECRET}"])).start()
-    yield srv
-    srv.stop()
+    with running_hub(tmp_path_factory.mktemp("hub"), f"alice:{SECRET}") as srv:
+        yield srv
 
 
 def test_resume_moves_unknown_files_aside_and_pushes_none_of_them(

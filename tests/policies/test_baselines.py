@@ -11,7 +11,7 @@ from pathlib import Path
 import draccus
 import pytest
 import torch
-from msta_test_helpers import random_batch  # registered by tests/conftest.py
+from msta_test_helpers import overfit, random_batch  # registered by tests/conftest.py
 
 from msta_data import sensors
 from policies.base import PolicyConfig
@@ -177,16 +177,8 @@ def test_overfits_a_tiny_dataset(name: str, overrides: dict) -> None:
     g = torch.Generator().manual_seed(5)
     batch = make_batch(B=16, seed=5)
     batch["action"] = torch.tanh(batch["joint_pos"][:, -1] @ torch.randn(12, 12, generator=g) / 3)
-    opt = torch.optim.AdamW(policy.parameters(), lr=1e-2, weight_decay=0.0)
-    first = None
-    for _ in range(150):
-        loss, _ = policy.loss(batch)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        first = first if first is not None else loss.item()
-    final, _ = policy.eval().loss(batch)
-    assert final.item() < first / 10, (first, final.item())
+    first, final = overfit(policy, batch)
+    assert final < first / 10, (first, final)
 
 
 # --- flexible inputs ------------------------------------------------------------------
