@@ -12,9 +12,8 @@ For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered p
    (``shutil.copytree`` before the first round), ``--stage2_rounds`` rounds of
    ``--episodes_per_round`` student episodes and ``--stage2_steps`` steps: every policy
    appends its own correction episodes, and the shared dataset is never written;
-3. the final checkpoint is copied to ``output_dir/checkpoints/<policy>`` (the row name in the
-   table). A policy whose final checkpoint exists is skipped when the command is rerun;
-   a killed stage resumes (``--resume=true`` of msta-train / msta-correct).
+3. the final checkpoint is copied to ``output_dir/checkpoints/<policy>`` (the table's row
+   name); rerun, a policy with a final checkpoint is skipped and a killed stage resumes.
 
 Then one ``msta-eval`` run (``eval.evaluate``) over the teacher and all final checkpoints on
 the same trials writes ``output_dir/eval/`` and the table is printed and saved as
@@ -56,10 +55,10 @@ PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {
     "msta_mask": (0.30, 0.80, 0.82), "rma_tcn": (0.98, None, None),
     "tert_concat": (1.01, None, None), "tert_separate": (1.00, None, None)}
 #: Fields that must match output_dir/compare_config.json when a run is continued.
-RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collect_num_envs", "preset",
-              "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
-              "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs", "stage2_mask_ratio",
-              "stage2_rollout_masks", "optimizer", "batch_size", "seed")
+RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collect_num_envs",
+              "preset", "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
+              "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs",
+              "stage2_mask_ratio", "stage2_rollout_mask_ratios", "optimizer", "batch_size", "seed")
 
 
 @dataclass
@@ -85,7 +84,7 @@ class CompareConfig:
             at most 32).
         stage2_mask_ratio: training mask ratio in stage 2 for policies trained with masking
             (config ``mask_ratio`` > 0; the paper: 0.5); the others keep 0.
-        stage2_rollout_masks: test-time token-removal ratios the stage-2 rollouts of policies
+        stage2_rollout_mask_ratios: test-time token-removal ratios the stage-2 rollouts of policies
             trained with masking drive at, spread over each round's robots (msta-correct's
             ``rollout_mask_ratios``; the demo's 0, 0.5: the rounds then label the states a
             masked student reaches); empty, and for the others: unmasked.
@@ -120,7 +119,7 @@ class CompareConfig:
     stage2_episode_length_s: float = 10.0
     stage2_num_envs: int = 0
     stage2_mask_ratio: float = 0.5
-    stage2_rollout_masks: tuple[float, ...] = ()
+    stage2_rollout_mask_ratios: tuple[float, ...] = ()
     optimizer: str = "adamw"
     batch_size: int = 64
     output_dir: str = "outputs/compare"
@@ -150,10 +149,10 @@ class CompareConfig:
                        "stage2_num_envs", "trials", "num_threads", "max_minutes")
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
-        self.stage2_rollout_masks = tuple(float(r) for r in self.stage2_rollout_masks)
-        bad = [r for r in self.stage2_rollout_masks if not 0.0 <= r < 1.0]
+        self.stage2_rollout_mask_ratios = tuple(float(r) for r in self.stage2_rollout_mask_ratios)
+        bad = [r for r in self.stage2_rollout_mask_ratios if not 0.0 <= r < 1.0]
         if bad:
-            raise ValueError(f"stage2_rollout_masks: {bad[0]} must be in [0, 1)")
+            raise ValueError(f"stage2_rollout_mask_ratios: {bad[0]} must be in [0, 1)")
         check_optimizer(self.optimizer)
         if not self.dataset and not self.collect_episodes:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
@@ -242,6 +241,7 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
     path = out / "compare_config.json"
     if path.exists():
         saved = json.loads(path.read_text())
+        saved.setdefault("stage2_rollout_mask_ratios", saved.pop("stage2_rollout_masks", None))
         bad = [k for k in RUN_FIELDS if saved.get(k) != encoded.get(k)]
         if bad:
             raise ValueError(f"{out} holds a comparison with different {bad} "
@@ -327,7 +327,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     Args:
         mask: the retraining mask ratio (default: ``cfg.stage2_mask_ratio`` for a policy
             trained with masking, else 0); given, the student is taken for a token-masking
-            one and rolls out at ``cfg.stage2_rollout_masks``.
+            one and rolls out at ``cfg.stage2_rollout_mask_ratios``.
     """
     from train.config import training_mask_ratio
     from train.online import CorrectConfig, RoundEvalConfig, correct
@@ -353,7 +353,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         episodes_per_round=cfg.episodes_per_round, num_envs=envs,
         episode_length_s=cfg.stage2_episode_length_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed, optimizer=cfg.optimizer,
-        rollout_mask_ratios=cfg.stage2_rollout_masks if masked else (),
+        rollout_mask_ratios=cfg.stage2_rollout_mask_ratios if masked else (),
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
         eval=RoundEvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,
         progress=cfg.progress, max_minutes=prog.minutes_left()))

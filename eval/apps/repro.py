@@ -191,7 +191,7 @@ def compare_config(cfg: ReproConfig, root: Path) -> CompareConfig:
         stage2_steps=s.stage2_steps, episodes_per_round=s.episodes_per_round,
         stage2_episode_length_s=s.stage2_episode_length_s,
         stage2_num_envs=min(s.episodes_per_round, 32), batch_size=s.batch_size,
-        stage2_rollout_masks=ROLLOUT_MASKS, optimizer=cfg.optimizer,
+        stage2_rollout_mask_ratios=ROLLOUT_MASKS, optimizer=cfg.optimizer,
         output_dir=str(Path(cfg.output_dir) / "compare"), seed=cfg.seed,
         num_threads=cfg.num_threads, progress=cfg.progress)
 

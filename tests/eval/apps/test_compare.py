@@ -133,3 +133,22 @@ def test_a_policys_copy_leaves_the_quarantine_and_the_lock_behind(tmp_path) -> N
     copied = sorted(p.relative_to(own).as_posix() for p in own.rglob("*") if p.is_file())
     assert copied == ["data/chunk-000/file-000.parquet", "meta/info.json"]
     assert (own / "data/chunk-000/file-000.parquet").read_bytes() == b"episodes"
+
+
+def test_a_run_saved_under_the_rollout_masks_old_name_continues(tmp_path) -> None:
+    """compare_config.json written when the option was ``stage2_rollout_masks`` still matches
+    the same budgets under ``stage2_rollout_mask_ratios``; another value is still refused."""
+    from eval.apps.compare import check_run_config
+
+    cfg = CompareConfig(dataset=str(tmp_path / "ds"), policies="msta",
+                        stage2_rollout_mask_ratios=(0.0, 0.5))
+    check_run_config(cfg, tmp_path)
+    path = tmp_path / "compare_config.json"
+    saved = json.loads(path.read_text())
+    saved["stage2_rollout_masks"] = saved.pop("stage2_rollout_mask_ratios")
+    path.write_text(json.dumps(saved))
+    check_run_config(cfg, tmp_path)  # the old name: the same run
+    other = CompareConfig(dataset=str(tmp_path / "ds"), policies="msta",
+                          stage2_rollout_mask_ratios=(0.0,))
+    with pytest.raises(ValueError, match="stage2_rollout_mask_ratios"):
+        check_run_config(other, tmp_path)
