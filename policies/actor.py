@@ -5,7 +5,8 @@ student reads, marks the steps before the episode start as padding (filled with 
 first frame, exactly like ``msta_data.windows.WindowDataset``), applies the test-time
 input changes of the paper's experiments (sensors removed, dead joint encoders, random
 token removal, another window length, random dummy tokens appended) and calls the policy on
-the whole batch at once.
+the whole batch at once; ``act(obs, absent)`` also removes channels per environment (the
+channels a fault guard flags).
 It has the same ``act(obs)`` / ``reset(ids)`` interface as a teacher.
 """
 
@@ -122,8 +123,17 @@ class StudentActor:
         batch["pad"] = self.pad
         return batch
 
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """(N, 12) actions for this step's observations."""
+    def act(self, obs: dict[str, np.ndarray],
+            absent: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """(N, 12) actions for this step's observations.
+
+        Args:
+            obs: sensor -> (N, dim) readings of this step.
+            absent: sensor -> (N, dim) bool over the sensor's full channels: True removes
+                that environment's channel from the whole window the student sees now
+                (e.g. the channels a fault guard flags; ``policy.act``'s ``absent``). Dropped
+                sensors and dead joints stay removed; None or all False: as without it.
+        """
         batch = self.window(obs)
         # The generator is passed even without test-time masking: padded steps are removed
         # like masked tokens, and their order must not depend on the global torch RNG.
@@ -134,8 +144,25 @@ class StudentActor:
             kwargs["mask_ratio"] = self.spec.mask_ratio
         if self.spec.dummy_tokens:
             kwargs["dummy_tokens"] = self.spec.dummy_tokens
+        gone = self._absent(absent)
+        if gone is not None:
+            kwargs["absent"] = gone
         out = self.policy.act(batch, **kwargs)
         return out.detach().cpu().numpy().astype(np.float32)
+
+    def _absent(self, absent: dict[str, np.ndarray] | None) -> dict[str, torch.Tensor] | None:
+        """The removals of the sensors the student reads, as tensors; None when none."""
+        if absent is None:
+            return None
+        out = {}
+        for s, mask in absent.items():
+            mask = np.asarray(mask)
+            if mask.shape != (self.num_envs, get(s).dim) or mask.dtype != np.bool_:
+                raise ValueError(f"absent[{s!r}] must be a bool array of shape "
+                                 f"{(self.num_envs, get(s).dim)}, got {mask.dtype} {mask.shape}")
+            if s in self.sensors and mask.any():  # a dropped sensor is removed already
+                out[s] = torch.from_numpy(mask.copy())
+        return out or None
 
 
 class SplitActor:
@@ -155,11 +182,14 @@ class SplitActor:
         self.groups = [(np.asarray(i, dtype=np.int64), a) for i, a in groups]
         self.num_envs = len(ids)
 
-    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """(N, 12) actions: each group's actor on its own environments' observations."""
+    def act(self, obs: dict[str, np.ndarray],
+            absent: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """(N, 12) actions: each group's actor on its own environments' observations (and
+        removed channels ``absent``: sensor -> (N, dim) bool, as :meth:`StudentActor.act`)."""
         out = np.empty((self.num_envs, NUM_JOINTS), dtype=np.float32)
         for ids, actor in self.groups:
-            out[ids] = actor.act({k: v[ids] for k, v in obs.items()})
+            part = {"absent": {k: v[ids] for k, v in absent.items()}} if absent is not None else {}
+            out[ids] = actor.act({k: v[ids] for k, v in obs.items()}, **part)
         return out
 
     def reset(self, ids: np.ndarray) -> None:

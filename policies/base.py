@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from safetensors.torch import save_file
 from torch import Tensor, nn
 
+from msta_data.sensors import get as get_sensor
 from policies.checkpoint import (
     CONFIG_NAME,
     PROCESSOR_NAME,
@@ -43,8 +44,12 @@ from policies.checkpoint import (
 from policies.config import PolicyConfig, check_fraction
 from policies.processor import Batch, Channels, StudentProcessor
 
+#: Per-sample channel removal: sensor name -> (B, dim) bool over the sensor's full channels
+#: (tensor or numpy), True = removed at every step of that sample's window.
+Absent = Mapping[str, Any]
+
 __all__ = [
-    "CONFIG_NAME", "PROCESSOR_NAME", "WEIGHTS_NAME", "Batch", "Channels", "CheckpointError",
+    "CONFIG_NAME", "PROCESSOR_NAME", "WEIGHTS_NAME", "Absent", "Batch", "Channels", "CheckpointError",
     "Policy", "PolicyConfig", "Processor", "StudentPolicy", "StudentProcessor", "load_weights",
     "resolve_pretrained", "uniform",
 ]
@@ -108,6 +113,9 @@ class StudentPolicy(nn.Module):
     #: whether ``forward`` takes ``dummy_tokens`` (token students: MSTA); msta-eval's
     #: dummy_tokens scenario is not applicable to the others
     supports_dummy_tokens: ClassVar[bool] = False
+    #: whether ``act`` / ``forward`` / ``loss`` take ``absent`` (per-sample channel removal,
+    #: :meth:`absent_masks`); the others raise ``NotImplementedError`` when it is given
+    supports_absent: ClassVar[bool] = False
 
     def check_dummy_tokens(self, n: int) -> None:
         """Raise ``NotImplementedError`` when ``n`` > 0 dummy tokens are asked of a student
@@ -115,6 +123,37 @@ class StudentPolicy(nn.Module):
         if n and not self.supports_dummy_tokens:
             raise NotImplementedError(f"{type(self).__name__} has no token input to append "
                                       "dummy tokens to (MSTA students only)")
+
+    def check_absent(self) -> None:
+        """Raise ``NotImplementedError`` for a student that cannot remove channels per
+        sample (``supports_absent`` False)."""
+        if not self.supports_absent:
+            raise NotImplementedError(f"{type(self).__name__} cannot remove channels per sample")
+
+    def absent_masks(self, absent: Absent | None, batch_size: int) -> dict[str, Tensor] | None:
+        """Checked per-sample channel removal: sensor -> (B, dim) bool on the policy's device,
+        True = that sample's channel is removed at every step of its window. ``dim`` counts
+        the sensor's full channels (registry order), whatever ``channels`` the batch has.
+        None when nothing is removed (``absent`` None or all False): the student then acts
+        exactly as without it.
+
+        Raises:
+            NotImplementedError: the student cannot remove channels per sample.
+            ValueError: an unknown / non-input sensor, or a mask of the wrong shape or dtype.
+        """
+        if absent is None:
+            return None
+        self.check_absent()
+        out = {}
+        for name, mask in absent.items():
+            self.processor._check_input_sensor(name)
+            mask = torch.as_tensor(mask).to(self.device)
+            shape = (batch_size, get_sensor(name).dim)
+            if mask.dtype != torch.bool or tuple(mask.shape) != shape:
+                raise ValueError(f"absent[{name!r}] must be a bool array of shape {shape}, got "
+                                 f"{mask.dtype} {tuple(mask.shape)}")
+            out[name] = mask
+        return out if any(bool(m.any()) for m in out.values()) else None
 
     def __init__(self, config: PolicyConfig, processor: StudentProcessor) -> None:
         super().__init__()
@@ -158,6 +197,7 @@ class StudentPolicy(nn.Module):
         mask_ratio: float = 0.0,
         generator: torch.Generator | None = None,
         dummy_tokens: int = 0,
+        absent: Absent | None = None,
     ) -> Tensor:
         """Desired joint positions (B, 12) in raw units.
 
@@ -171,12 +211,28 @@ class StudentPolicy(nn.Module):
             generator: RNG for the test-time mask (and the dummy tokens).
             dummy_tokens: random tokens appended to every sample (the paper's stress test);
                 only students with ``supports_dummy_tokens`` take them.
+            absent: sensor -> (B, dim) bool over the sensor's full channels: True removes
+                that sample's channel at every step of its window, as ``channels`` would
+                remove it for the whole batch (:meth:`absent_masks`; students with
+                ``supports_absent`` only). ``mask_ratio`` then removes its fraction of each
+                sample's remaining inputs.
         """
-        if not dummy_tokens:
-            return self.processor.unnormalize_action(self(batch, channels, mask_ratio, generator))
-        self.check_dummy_tokens(dummy_tokens)
-        out = self(batch, channels, mask_ratio, generator, dummy_tokens=dummy_tokens)
-        return self.processor.unnormalize_action(out)
+        return self.processor.unnormalize_action(
+            self._predict(batch, channels, mask_ratio, generator, dummy_tokens, absent))
+
+    def _predict(self, batch: Batch, channels: Channels | None, mask_ratio: float | None,
+                 generator: torch.Generator | None, dummy_tokens: int,
+                 absent: Absent | None) -> Tensor:
+        """``forward`` with only the optional inputs that are used (a student without
+        dummy tokens or per-sample removal never sees those arguments)."""
+        kwargs: dict[str, Any] = {}
+        if dummy_tokens:
+            self.check_dummy_tokens(dummy_tokens)
+            kwargs["dummy_tokens"] = dummy_tokens
+        if absent is not None:
+            self.check_absent()
+            kwargs["absent"] = absent
+        return self(batch, channels, mask_ratio, generator, **kwargs)
 
     def loss(
         self,
@@ -185,6 +241,7 @@ class StudentPolicy(nn.Module):
         mask_ratio: float | None = None,
         generator: torch.Generator | None = None,
         dummy_tokens: int = 0,
+        absent: Absent | None = None,
     ) -> tuple[Tensor, dict[str, float]]:
         """MSE between predicted and target actions in the processor's target space.
 
@@ -193,17 +250,14 @@ class StudentPolicy(nn.Module):
             channels, mask_ratio, generator: as the subclass's ``forward``.
             dummy_tokens: random tokens appended to every sample (training with the
                 stress test's distractors; students with ``supports_dummy_tokens`` only).
+            absent: per-sample channel removal, as :meth:`act`.
         """
         key = self.config.action_key
         if key not in batch:
             raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
         batch = self.as_tensors(batch)
         target = self.processor.normalize_target(batch[key])  # (B, A)
-        if dummy_tokens:
-            self.check_dummy_tokens(dummy_tokens)
-            pred = self(batch, channels, mask_ratio, generator, dummy_tokens=dummy_tokens)
-        else:
-            pred = self(batch, channels, mask_ratio, generator)  # (B, A)
+        pred = self._predict(batch, channels, mask_ratio, generator, dummy_tokens, absent)
         loss = F.mse_loss(pred, target)
         with torch.no_grad():
             raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())

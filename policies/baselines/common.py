@@ -12,6 +12,8 @@ scalar that is not available is replaced by its channel's placeholder before the
 it: a sensor absent from the batch, channels absent from ``channels`` (dead joint encoders),
 and the scalars hidden by random masking (``mask_ratio``: exactly round(ratio * T * C_present)
 per sample, in training when the config's ``mask_ratio`` > 0 and at test time when asked).
+Per-sample removal (``absent``: a flagged faulty channel) replaces that sample's channels by
+their placeholders at every step, exactly as ``channels`` does for the whole batch.
 Placeholders only learn if training masks inputs (``mask_ratio`` > 0, e.g. ``tert_mask``);
 otherwise they stay at 0.
 
@@ -29,7 +31,7 @@ import torch
 from torch import Tensor, nn
 
 from msta_data import sensors
-from policies.base import Batch, Channels, PolicyConfig, StudentPolicy, uniform
+from policies.base import Absent, Batch, Channels, PolicyConfig, StudentPolicy, uniform
 from policies.processor import StudentProcessor
 
 FORMAT = "timestep-processor/1"
@@ -175,6 +177,22 @@ def random_input_mask(
     return out
 
 
+def per_sample_input_mask(hidden: Tensor, T: int, ratio: float,
+                          generator: torch.Generator | None) -> Tensor:
+    """(B, T, C) bool: exactly round(ratio * T * C_b) of sample b's scalars, where C_b
+    channels are not ``hidden`` (B, C) for it (the per-sample form of
+    :func:`random_input_mask`, used with per-sample channel removal)."""
+    B, C = hidden.shape
+    n = T * (~hidden).sum(1, dtype=torch.float64)  # (B,) scalars present per sample
+    k = torch.round(ratio * n).long()  # (B,) half to even, as round()
+    scores = uniform(B, T * C, generator, hidden.device).view(B, T, C)
+    scores = scores.masked_fill(hidden[:, None], 2.0).flatten(1)  # hidden: never drawn
+    order = scores.argsort(dim=1)  # (B, T*C) smallest first
+    ranks = torch.arange(T * C, device=hidden.device).expand(B, -1)
+    drop = torch.zeros_like(scores, dtype=torch.bool).scatter(1, order, ranks < k[:, None])
+    return drop.view(B, T, C)
+
+
 class TimestepPolicy(StudentPolicy):
     """Base of the baselines: processor -> placeholders -> ``encode`` -> action.
 
@@ -187,6 +205,7 @@ class TimestepPolicy(StudentPolicy):
     """
 
     processor_class = TimestepProcessor
+    supports_absent = True
 
     def __init__(self, config: TimestepConfig, processor: TimestepProcessor) -> None:
         super().__init__(config, processor)
@@ -203,15 +222,27 @@ class TimestepPolicy(StudentPolicy):
         channels: Channels | None = None,
         mask_ratio: float | None = None,
         generator: torch.Generator | None = None,
+        absent: Absent | None = None,
     ) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
-        training mode and 0 in eval mode."""
+        training mode and 0 in eval mode. ``absent`` (sensor -> (B, dim) bool over the full
+        channels) replaces a sample's channels by their placeholders at every step, as
+        ``channels`` does for the whole batch; ``mask_ratio`` then hides its fraction of
+        each sample's remaining scalars."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.normalize(self.as_tensors(batch), channels)
         B, T, _ = inputs.x.shape
         x = fill_padding(inputs.x, inputs.pad)  # (B, T, C)
         hide = inputs.missing  # (C,), broadcast over (B, T)
-        if mask_ratio > 0:
+        gone = self.absent_masks(absent, B)
+        if gone is not None:  # per sample: (B, C), then (B, T, C)
+            zeros = torch.zeros(B, 1, dtype=torch.bool, device=x.device)
+            hide = hide | torch.cat([gone.get(n, zeros.expand(-1, sensors.get(n).dim))
+                                     for n in self.processor.input_sensors], dim=1)
+            hide = hide[:, None]  # (B, 1, C)
+            if mask_ratio > 0:
+                hide = hide | per_sample_input_mask(hide[:, 0], T, mask_ratio, generator)
+        elif mask_ratio > 0:
             hide = random_input_mask(inputs.missing, B, T, mask_ratio, generator) | hide
         x = torch.where(hide, self.placeholder, x)  # (B, T, C)
         return self.encode(x, inputs.pad)

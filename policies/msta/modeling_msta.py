@@ -19,7 +19,8 @@ reads the 12 joint targets from <S>. Identity comes from the embeddings only, so
 may be supplied in any order, any subset of sensors / channels and any T work unchanged.
 
 Padded steps (before the episode start) are removed first; if some remain because other
-samples of the batch have fewer, they are hidden from attention with a key mask.
+samples of the batch have fewer, they are hidden from attention with a key mask. Channels
+removed per sample (``absent``) are removed the same way (:mod:`policies.msta.removal`).
 
 Dummy tokens (the paper's test-time stress test, ``dummy_tokens`` = D): after masking, D
 random tokens are appended to every sample before the readout tokens; they attend and are
@@ -55,10 +56,11 @@ import torch
 from torch import Tensor, nn
 
 from msta_data.sensors import get
-from policies.base import Batch, Channels, StudentPolicy, uniform
+from policies.base import Absent, Batch, Channels, StudentPolicy, uniform
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
+from policies.msta.removal import absent_tokens, keep_per_sample
 from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d, sincos_2d
 
 __all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
@@ -234,11 +236,16 @@ class MSTATransformer(nn.Module):
                                             device=static.device) for n in encoded])
             miss = miss[None].expand(B, -1)  # (B, N)
             pad = miss if pad is None else pad | miss
+        gone = absent_tokens(inputs, B, T)  # (B, N) True = absent for that sample, or None
         # no masking skips round(): a traced N is a tensor (TorchScript / ONNX export)
         n_drop = N - num_kept(N, mask_ratio) if mask_ratio > 0 else 0
-        if self.mask_token is not None:
+        if self.mask_token is not None:  # absent tokens are replaced like missing ones
+            pad = pad if gone is None else gone if pad is None else pad | gone
             x = self._replace_masked(tokens, static, pad, n_drop, generator)  # (B, N, d)
             key_pad = None
+        elif gone is not None:  # per sample: (B, K, d), K the most any sample keeps
+            keep, key_pad = keep_per_sample(gone, pad, mask_ratio, generator)
+            x = self._gather(tokens, static, keep)
         else:
             x, key_pad = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
@@ -341,7 +348,7 @@ class MSTATransformer(nn.Module):
                 absent[ch] = False
             bins[name], channels[name] = full, torch.arange(dim)
             missing[name] = absent  # (dim,) per channel, repeated over time by the caller
-        return MSTAInputs(bins, channels, inputs.pad, inputs.encoded), missing
+        return MSTAInputs(bins, channels, inputs.pad, inputs.encoded, inputs.absent), missing
 
     def _drop_scores(self, B: int, N: int, pad: Tensor | None,
                      generator: torch.Generator | None) -> Tensor:
@@ -359,11 +366,15 @@ class MSTATransformer(nn.Module):
             return self._value(tokens) + static, pad  # (B, N, d)
         scores = self._drop_scores(B, N, pad, generator)  # (B, N)
         keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
+        return self._gather(tokens, static, keep), (
+            torch.gather(pad, 1, keep) if pad is not None else None)
+
+    def _gather(self, tokens: Tensor, static: Tensor, keep: Tensor) -> Tensor:
+        """The ``keep`` (B, K) tokens' values plus their position and sensor type: (B, K, d)."""
         # index_select, not static[keep]: advanced indexing's backward (an accumulating
         # index_put) sums rows in a thread-dependent order on CPU; index_select's does not
-        x = self._value(tokens, keep) + static.index_select(0, keep.reshape(-1)).view(
-            B, keep.shape[1], -1)  # (B, K, d)
-        return x, (torch.gather(pad, 1, keep) if pad is not None else None)
+        return self._value(tokens, keep) + static.index_select(0, keep.reshape(-1)).view(
+            *keep.shape, -1)  # (B, K, d)
 
     def _replace_masked(self, tokens: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
                         generator: torch.Generator | None) -> Tensor:
@@ -401,6 +412,7 @@ class MSTAPolicy(StudentPolicy):
     config_class = MSTAConfig
     processor_class = MSTAProcessor
     supports_dummy_tokens = True
+    supports_absent = True
 
     def __init__(self, config: MSTAConfig, processor: MSTAProcessor) -> None:
         super().__init__(config, processor)
@@ -408,13 +420,17 @@ class MSTAPolicy(StudentPolicy):
 
     def forward(self, batch: Batch, channels: Channels | None = None,
                 mask_ratio: float | None = None, generator: torch.Generator | None = None,
-                dummy_tokens: int | Tensor = 0) -> Tensor:
+                dummy_tokens: int | Tensor = 0, absent: Absent | None = None) -> Tensor:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
         every sample (the stress test, see the module docstring; a (B, D, 4) tensor of
-        uniforms fixes their draws)."""
+        uniforms fixes their draws); ``absent`` (sensor -> (B, dim) bool over the full
+        channels) removes a sample's channels (:mod:`policies.msta.removal`)."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
+        if absent is not None:
+            first = next(iter((*inputs.bins.values(), *inputs.encoded.values())))
+            inputs.absent = self.absent_masks(absent, first.shape[0])
         return self.model(inputs, mask_ratio, generator, dummy_tokens)
 
     def with_inputs(self, sensors: Sequence[str], history: int,

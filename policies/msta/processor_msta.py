@@ -35,12 +35,15 @@ class MSTAInputs:
         pad: (B, T) bool, True where the step lies before the episode start; or None.
         encoded: sensor name -> clipped z-scores (B, T, dim) of the sensors an MLP encodes
             into tokens (``SensorSpec.encoder_tokens`` > 0), all channels; not in ``bins``.
+        absent: sensor name -> (B, dim) bool over the sensor's full channels, True = removed
+            for that sample at every step (:mod:`policies.msta.removal`); or None.
     """
 
     bins: dict[str, Tensor]
     channels: dict[str, Tensor]
     pad: Tensor | None
     encoded: dict[str, Tensor] = field(default_factory=dict)
+    absent: dict[str, Tensor] | None = None
 
 
 class MSTAProcessor(StudentProcessor):

@@ -1,0 +1,83 @@
+"""Per-sample channel removal for MSTA (``absent``: e.g. the channels a fault guard flags).
+
+A sample's absent channels lose their tokens at every step of its window, as if
+``channels`` had left them out for that sample alone: the same tokens are removed as for
+padding or missing inputs (dropped, or with ``learnable_mask`` replaced by the mask token),
+per sample. Test-time random removal (``mask_ratio`` = α) then removes round(α·N_b) of
+sample b's tokens, N_b counting only its present channels' tokens (padded steps first, as
+:meth:`MSTATransformer._remove_masked` does), so every sample sees exactly what it would
+see alone with those channels removed by ``channels``. Samples keep different numbers of
+tokens; the batch keeps the most any sample needs and hides the rest with the key mask.
+
+An encoded sensor (``SensorSpec.encoder_tokens``: an MLP reads all of a step's channels)
+loses all its tokens for a sample when any of its channels is absent.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from msta_data.sensors import get
+from policies.base import uniform
+from policies.msta.processor_msta import MSTAInputs
+
+__all__ = ["absent_tokens", "keep_per_sample"]
+
+
+def absent_tokens(inputs: MSTAInputs, B: int, T: int) -> Tensor | None:
+    """(B, N) bool, True = the token's channel is absent for that sample, in the token layout
+    (scalar sensors in ``inputs.bins`` order, time-major, then the encoded sensors); None
+    when ``inputs.absent`` removes no token (e.g. only channels ``channels`` left out)."""
+    if inputs.absent is None:
+        return None
+    parts = []
+    for name in inputs.bins:
+        ch = inputs.channels[name]
+        gone = inputs.absent.get(name)
+        if gone is None:
+            parts.append(torch.zeros(B, T * len(ch), dtype=torch.bool, device=ch.device))
+        else:  # (B, dim) -> the present channels (B, c) -> every step (B, T * c)
+            parts.append(gone[:, ch.to(gone.device)].repeat(1, T))
+    for name in inputs.encoded:
+        k = get(name).encoder_tokens
+        gone = inputs.absent.get(name)
+        any_gone = (gone.any(1, keepdim=True) if gone is not None
+                    else torch.zeros(B, 1, dtype=torch.bool))
+        parts.append(any_gone.expand(B, T * k))
+    device = parts[0].device
+    out = torch.cat([p.to(device) for p in parts], dim=1)  # (B, N)
+    return out if bool(out.any()) else None
+
+
+def keep_per_sample(gone: Tensor, pad: Tensor | None, mask_ratio: float,
+                    generator: torch.Generator | None) -> tuple[Tensor, Tensor]:
+    """Which tokens each sample keeps when ``gone`` (B, N) are absent for it.
+
+    Sample b keeps r_b of its present tokens: N_b - max(N_b - num_kept(N_b, α), padded_b)
+    (:func:`policies.msta.modeling_msta.num_kept`), chosen at random (``generator``) when
+    α > 0, all of them in layout order when α = 0 (no random draw).
+
+    Returns:
+        keep: (B, K) token indices, K = max(1, max_b r_b), each sample's r_b kept tokens
+            first.
+        key_pad: (B, K) bool, True for the slots beyond r_b (hidden from attention).
+    """
+    B, N = gone.shape
+    dev = gone.device
+    n = (~gone).sum(1)  # (B,) tokens of the sample's present channels
+    padded = (pad & ~gone).sum(1) if pad is not None else torch.zeros_like(n)
+    if mask_ratio > 0:
+        kept = (n - torch.round(mask_ratio * n.double()).long()).clamp(min=1)  # num_kept
+        scores = uniform(B, N, generator, dev)  # (B, N) random keep scores in [0, 1)
+    else:
+        kept = n
+        scores = torch.zeros(B, N, device=dev)
+    r = (n - torch.maximum(n - kept, padded)).clamp(min=0)  # (B,) real tokens kept
+    if pad is not None:
+        scores = scores.masked_fill(pad, -1.0)  # padded before present, absent last
+    scores = scores.masked_fill(gone, -2.0)
+    K = max(1, int(r.max()))
+    keep = torch.sort(scores, dim=1, descending=True, stable=True).indices[:, :K]  # (B, K)
+    key_pad = torch.arange(K, device=dev)[None] >= r[:, None]  # (B, K)
+    return keep, key_pad
