@@ -1,0 +1,262 @@
+"""The guard: an online detector that flags faulty sensor channels from the observation
+stream alone (issue 43, docs/faults.md "The guard"). Numpy only at run time.
+
+Every step it computes a vector of non-negative statistics, each tied to the channels it
+accuses; a statistic above its threshold flags those channels, and flags latch until
+:meth:`SensorGuard.reset`. The statistics:
+
+* ``z``: each physical channel predicted by ridge regression from every *other* channel
+  (its joint encoder's partner excluded) at t, t-1, t-2; the residual's z-score at this
+  step (spikes, large jumps), its mean over ``window`` steps (bias, drift, stuck) and its
+  mean square (noise).
+* ``enc``: a joint encoder's own physics, ``q_t - q_{t-1}`` against
+  ``dt (qdot_t + qdot_{t-1}) / 2``; now and averaged over ``window`` steps.
+* ``repeat``: steps a (non-binary) channel has repeated its last reading exactly.
+* ``gnorm``: the gravity vector's distance from unit norm.
+* ``imu``: the gyro against the gravity vector's change over ``imu_window`` steps
+  (``dg/dt = -w x g`` in the base frame); it accuses the whole IMU (ang_vel and gravity).
+* ``binary``: a contact reading's distance from 0 or 1.
+
+Thresholds are the largest value each statistic takes on fault-free calibration episodes
+times ``margin`` (``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint
+encoder's q and q-dot are flagged together.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from msta_data import sensors as registry
+
+GUARD_JSON = "guard.json"
+GUARD_ARRAYS = "guard.safetensors"
+FORMAT = 1
+#: Sensors that can fail (command and last_action are software and never do).
+PHYSICAL_SENSORS: tuple[str, ...] = ("joint_pos", "joint_vel", "ang_vel", "gravity",
+                                     "foot_contact")
+#: What the guard reads: the physical sensors, then the software inputs its predictors use.
+INPUT_SENSORS: tuple[str, ...] = PHYSICAL_SENSORS + ("command", "last_action")
+NJ = registry.NUM_JOINTS
+P = registry.total_dim(PHYSICAL_SENSORS)  # 34 physical channels
+D = registry.total_dim(INPUT_SENSORS)  # 49 inputs
+OFFSET = {s: registry.total_dim(INPUT_SENSORS[:i]) for i, s in enumerate(INPUT_SENSORS)}
+#: Fitted arrays a guard holds (names in guard.safetensors).
+ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "threshold")
+
+
+@dataclass
+class GuardConfig:
+    """How the guard decides.
+
+    Args:
+        window: steps averaged by the windowed statistics (bias, noise, encoder drift).
+        imu_window: steps over which the gyro is checked against the gravity vector.
+        ridge: ridge penalty of the per-channel predictors (on standardized features).
+        margin: threshold = margin x the largest fault-free value of each statistic.
+        min_repeat: a channel repeating its reading exactly for more steps than this (or
+            than the calibration data ever showed, whichever is larger) is stuck.
+        binary_tolerance: smallest threshold of a contact reading's distance from 0/1.
+    """
+
+    window: int = 8
+    imu_window: int = 10
+    ridge: float = 1.0
+    margin: float = 1.25
+    min_repeat: int = 2
+    binary_tolerance: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name in ("window", "imu_window", "min_repeat"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"guard {name} must be >= 1, got {getattr(self, name)}")
+        for name in ("ridge", "margin", "binary_tolerance"):
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"guard {name} must be > 0, got {getattr(self, name)}")
+
+
+def encoder_partner(c: np.ndarray) -> np.ndarray:
+    """Physical channel -> its joint-encoder partner (q <-> q-dot); itself otherwise."""
+    return np.where(c < NJ, c + NJ, np.where(c < 2 * NJ, c - NJ, c))
+
+
+def nonbinary_channels() -> np.ndarray:
+    binary = [c for s in PHYSICAL_SENSORS if registry.get(s).binary
+              for c in range(OFFSET[s], OFFSET[s] + registry.get(s).dim)]
+    return np.array([c for c in range(P) if c not in binary])
+
+
+def statistic_layout() -> tuple[list[str], np.ndarray]:
+    """Names of the statistics (one per entry of the vector) and which physical channels
+    each one accuses: ``(names, accuse (S, P) bool)``."""
+    eye = np.eye(P, dtype=bool)
+    enc = eye | eye[encoder_partner(np.arange(P))]  # a channel and its encoder partner
+    names, rows = [], []
+    for kind in ("z", "z_mean", "z_sq"):
+        names += [f"{kind}:{c}" for c in range(P)]
+        rows.append(enc)
+    for kind in ("enc", "enc_mean"):
+        names += [f"{kind}:{j}" for j in range(NJ)]
+        rows.append(enc[:NJ])
+    nb = nonbinary_channels()
+    names += [f"repeat:{c}" for c in nb]
+    rows.append(enc[nb])
+    imu = np.zeros((2, P), bool)
+    imu[0, OFFSET["gravity"]:OFFSET["gravity"] + 3] = True
+    imu[1, OFFSET["ang_vel"]:OFFSET["ang_vel"] + 3] = True
+    imu[1, OFFSET["gravity"]:OFFSET["gravity"] + 3] = True
+    names += ["gnorm", "imu"]
+    rows.append(imu)
+    fc = np.arange(OFFSET["foot_contact"], OFFSET["foot_contact"] + 4)
+    names += [f"binary:{c}" for c in fc]
+    rows.append(eye[fc])
+    return names, np.concatenate(rows)
+
+
+class SensorGuard:
+    """Online fault detector for ``num_envs`` robots.
+
+    Args:
+        cfg: the decision settings.
+        stats: the fitted arrays (``ARRAY_NAMES``): feature mean/std (3 D,), ridge weight
+            (3 D, P) and bias (P,), residual std ``z_std`` (P,), encoder residual std
+            ``enc_std`` (12,) and one threshold per statistic (S,).
+        sensors: the physical sensors whose flags it reports (others are never flagged).
+        num_envs: robots stepped together.
+        dt: control period (s).
+    """
+
+    def __init__(self, cfg: GuardConfig, stats: dict[str, np.ndarray],
+                 sensors: tuple[str, ...] = PHYSICAL_SENSORS, num_envs: int = 1,
+                 dt: float = 0.02) -> None:
+        missing = [k for k in ARRAY_NAMES if k not in stats]
+        if missing:
+            raise KeyError(f"guard arrays missing: {missing}")
+        bad = [s for s in sensors if s not in PHYSICAL_SENSORS]
+        if bad or not sensors:
+            raise ValueError(f"guard sensors must be a non-empty subset of {PHYSICAL_SENSORS}, "
+                             f"got {list(sensors)}")
+        if num_envs < 1 or not dt > 0:
+            raise ValueError(f"guard needs num_envs >= 1 and dt > 0, got {num_envs}, {dt}")
+        self.cfg, self.sensors, self.num_envs, self.dt = cfg, tuple(sensors), num_envs, dt
+        self.stats = {k: np.asarray(stats[k], np.float64) for k in ARRAY_NAMES}
+        self.names, accuse = statistic_layout()
+        if self.stats["threshold"].shape != (len(self.names),):
+            raise ValueError(f"guard threshold has shape {self.stats['threshold'].shape}, "
+                             f"expected ({len(self.names)},)")
+        keep = np.zeros(P, bool)
+        for s in self.sensors:
+            keep[OFFSET[s]:OFFSET[s] + registry.get(s).dim] = True
+        self.accuse = (accuse & keep).astype(np.float64)  # (S, P)
+        self._nb = nonbinary_channels()
+        self.flags = np.zeros((num_envs, P), bool)
+        self.age = np.zeros(num_envs, np.int64)
+        n, k = cfg.window, cfg.imu_window
+        self._lag = np.zeros((num_envs, 2, D))  # x_{t-1}, x_{t-2}
+        self._zbuf = np.zeros((num_envs, n, P))
+        self._ebuf = np.zeros((num_envs, n, NJ))
+        self._cbuf = np.zeros((num_envs, k + 1, 3))  # w x g
+        self._gbuf = np.zeros((num_envs, k + 1, 3))
+        self._rep = np.zeros((num_envs, len(self._nb)))
+        self._t = 0  # ring position, shared by all envs
+
+    def reset(self, ids: np.ndarray | list[int] | None = None) -> None:
+        """New episodes for ``ids`` (None: all): flags cleared, history forgotten."""
+        ids = np.arange(self.num_envs) if ids is None else np.asarray(ids, np.int64)
+        self.flags[ids] = False
+        self.age[ids] = 0
+        self._rep[ids] = 0.0
+
+    def _concat(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        parts = []
+        for s in INPUT_SENSORS:
+            if s not in obs:
+                raise KeyError(f"the guard reads {s!r}, which the observation lacks")
+            parts.append(np.asarray(obs[s], np.float64).reshape(self.num_envs, -1))
+        return np.concatenate(parts, axis=1)  # (N, D)
+
+    def statistics(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """Advance one step and return the statistics ``(N, S)`` (0 where an env's history
+        is too short for one)."""
+        x = self._concat(obs)
+        first = self.age == 0
+        self._lag[first] = x[first, None]
+        lag1, lag2 = self._lag[:, 0], self._lag[:, 1]
+        s = self.stats
+        feats = (np.concatenate([x, lag1, lag2], axis=1) - s["feat_mean"]) / s["feat_std"]
+        z = (x[:, :P] - feats @ s["weight"] - s["bias"]) / s["z_std"]  # (N, P)
+        q, qd = slice(0, NJ), slice(NJ, 2 * NJ)
+        e = (x[:, q] - lag1[:, q] - self.dt * (x[:, qd] + lag1[:, qd]) / 2) / s["enc_std"]
+        n, k, i = self.cfg.window, self.cfg.imu_window, self._t
+        self._zbuf[:, i % n], self._ebuf[:, i % n] = z, e
+        g = x[:, OFFSET["gravity"]:OFFSET["gravity"] + 3]
+        w = x[:, OFFSET["ang_vel"]:OFFSET["ang_vel"] + 3]
+        self._cbuf[:, i % (k + 1)] = np.cross(w, g)
+        self._gbuf[:, i % (k + 1)] = g
+        old = self._gbuf[:, (i + 1) % (k + 1)]  # g_{t-k}
+        c = self._cbuf
+        integral = self.dt * (c.sum(1) - (c[:, (i + 1) % (k + 1)] + c[:, i % (k + 1)]) / 2)
+        imu = np.linalg.norm(g - old + integral, axis=1, keepdims=True)
+        gnorm = np.abs(np.linalg.norm(g, axis=1, keepdims=True) - 1.0)
+        same = x[:, self._nb] == lag1[:, self._nb]
+        self._rep = np.where(same & ~first[:, None], self._rep + 1, 0.0)
+        fc = x[:, OFFSET["foot_contact"]:OFFSET["foot_contact"] + 4]
+        binary = np.minimum(np.abs(fc), np.abs(fc - 1.0))
+        inst = (self.age >= 2)[:, None]
+        win = (self.age >= n + 1)[:, None]
+        stat = np.concatenate([
+            np.abs(z) * inst, np.abs(self._zbuf.mean(1)) * win, (self._zbuf ** 2).mean(1) * win,
+            np.abs(e) * inst, np.abs(self._ebuf.mean(1)) * win, self._rep, gnorm,
+            imu * (self.age >= k + 1)[:, None], binary], axis=1)
+        self._lag[:, 1], self._lag[:, 0] = lag1, x
+        self.age += 1
+        self._t += 1
+        return stat
+
+    def update(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """One control step: ``obs[s]`` is ``(N, dim_s)`` for every sensor in
+        ``INPUT_SENSORS``. Returns the latched flags ``{sensor: (N, dim) bool}`` for the
+        guarded sensors (True = faulty, remove it)."""
+        over = self.statistics(obs) > self.stats["threshold"]  # (N, S)
+        self.flags |= (over @ self.accuse) > 0
+        return self.flagged()
+
+    def flagged(self) -> dict[str, np.ndarray]:
+        return {s: self.flags[:, OFFSET[s]:OFFSET[s] + registry.get(s).dim].copy()
+                for s in self.sensors}
+
+    def save(self, directory: str | Path) -> Path:
+        """Write ``guard.json`` and ``guard.safetensors`` into ``directory`` (a checkpoint
+        folder); returns the json's path."""
+        from safetensors.numpy import save_file
+
+        out = Path(directory)
+        out.mkdir(parents=True, exist_ok=True)
+        save_file({k: np.ascontiguousarray(v) for k, v in self.stats.items()},
+                  str(out / GUARD_ARRAYS))
+        meta = {"format": FORMAT, "config": asdict(self.cfg), "sensors": list(self.sensors),
+                "dt": self.dt, "statistics": self.names}
+        (out / GUARD_JSON).write_text(json.dumps(meta, indent=1) + "\n")
+        return out / GUARD_JSON
+
+
+def load_guard(directory: str | Path, num_envs: int = 1) -> SensorGuard | None:
+    """The guard saved in a checkpoint folder, or None when the folder has none."""
+    from safetensors.numpy import load_file
+
+    path = Path(directory) / GUARD_JSON
+    if not path.is_file():
+        return None
+    meta = json.loads(path.read_text())
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path}: guard format {meta.get('format')!r}, expected {FORMAT}")
+    known = {f.name for f in fields(GuardConfig)}
+    unknown = sorted(set(meta["config"]) - known)
+    if unknown:
+        raise ValueError(f"{path}: unknown guard config keys {unknown}")
+    arrays = load_file(str(Path(directory) / GUARD_ARRAYS))
+    return SensorGuard(GuardConfig(**meta["config"]), arrays, tuple(meta["sensors"]),
+                       num_envs, float(meta["dt"]))

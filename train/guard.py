@@ -1,0 +1,228 @@
+"""msta-guard: fit the sensor guard (policies/guard.py) on fault-free episodes of a dataset,
+calibrate its thresholds, save it next to a student, and measure it offline with injected
+faults (docs/faults.md, "The guard").
+
+Fitting is training (it reads a dataset and writes arrays into a checkpoint), hence here
+and not in policies/, which holds only the run-time detector.
+
+    msta-guard fit --dataset=DATA --output_dir=CHECKPOINT
+    msta-guard evaluate --dataset=DATA --output_dir=CHECKPOINT   # the docs' table
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from msta_data.windows import WindowDataset, episode_split, load_episode_table
+from policies.guard import (
+    INPUT_SENSORS,
+    NJ,
+    GuardConfig,
+    P,
+    SensorGuard,
+    encoder_partner,
+    statistic_layout,
+)
+
+Episodes = dict[str, np.ndarray]  # {sensor: (E, T, dim)}, plus "length" (E,)
+
+
+def load_episodes(root: str | Path, episodes: list[int] | None = None) -> Episodes:
+    """The guard's inputs of ``episodes`` (None: all) as ``{sensor: (E, Tmax, dim)}``
+    float64, each episode padded by repeating its last frame, plus ``length`` (E,) and
+    ``terrain`` (E,) (the dataset's ``provenance/terrain``; "" when not recorded)."""
+    ds = WindowDataset(root, INPUT_SENSORS, T=1, extra_columns=(), episodes=episodes,
+                       verify="sizes")
+    batch = ds.get_batch(np.arange(len(ds)))
+    lengths = ds.lengths
+    tmax = int(lengths.max())
+    rows = np.minimum(np.arange(tmax)[None], lengths[:, None] - 1) + ds.starts[:, None]
+    out = {s: batch[s][:, 0].astype(np.float64)[rows] for s in INPUT_SENSORS}
+    table = load_episode_table(root).set_index("episode_index").loc[ds.episodes]
+    col = "provenance/terrain"
+    out["terrain"] = (table[col].astype(str).to_numpy() if col in table
+                      else np.full(len(lengths), "", dtype=object))
+    out["length"] = lengths
+    return out
+
+
+def _rows(data: Episodes) -> np.ndarray:
+    """Stacked inputs ``x_t, x_{t-1}, x_{t-2}`` of every valid step: (rows, 3 D); the
+    lags repeat the first frame at an episode's start (as the guard does after reset)."""
+    x = np.concatenate([data[s] for s in INPUT_SENSORS], axis=2)  # (E, T, D)
+    lag1 = np.concatenate([x[:, :1], x[:, :-1]], axis=1)
+    lag2 = np.concatenate([lag1[:, :1], lag1[:, :-1]], axis=1)
+    valid = np.arange(x.shape[1])[None] < data["length"][:, None]
+    return np.concatenate([x, lag1, lag2], axis=2)[valid]
+
+
+def fit_predictors(data: Episodes, ridge: float, dt: float = 0.02) -> dict[str, np.ndarray]:
+    """Ridge predictor of each physical channel from the other channels (its own joint
+    encoder left out) and the residual scales: every array but ``threshold``."""
+    feats = _rows(data)
+    d = feats.shape[1] // 3
+    mean, std = feats.mean(0), feats.std(0) + 1e-6
+    f = (feats - mean) / std
+    gram, cross = f.T @ f, f.T @ feats[:, :P]
+    own = np.zeros((P, d), bool)
+    own[np.arange(P), np.arange(P)] = True
+    own[np.arange(P), encoder_partner(np.arange(P))] = True
+    weight = np.zeros((3 * d, P))
+    for c in range(P):
+        keep = np.flatnonzero(~np.tile(own[c], 3))
+        a = gram[np.ix_(keep, keep)] + ridge * np.eye(len(keep))
+        weight[keep, c] = np.linalg.solve(a, cross[keep, c])
+    bias = feats[:, :P].mean(0)  # features are centred
+    resid = feats[:, :P] - f @ weight - bias
+    q, qd = feats[:, :NJ], feats[:, NJ:2 * NJ]
+    q1, qd1 = feats[:, d:d + NJ], feats[:, d + NJ:d + 2 * NJ]
+    enc = q - q1 - dt * (qd + qd1) / 2
+    return {"feat_mean": mean, "feat_std": std, "weight": weight, "bias": bias,
+            "z_std": resid.std(0) + 1e-9, "enc_std": enc.std(0) + 1e-9}
+
+
+def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.ndarray]:
+    """Run ``guard`` (num_envs = episodes) over ``data`` step by step, faults from
+    ``injector`` (a ``collect.faults.FaultInjector`` or None). Returns ``max_stat`` (S,)
+    over valid steps, ``flags`` (E, T, P) bool latched flags and ``active`` (E, T) bool."""
+    e, tmax = data["length"].shape[0], int(data["length"].max())
+    guard.reset()
+    if injector is not None:
+        injector.reset(np.arange(e))
+    max_stat = np.zeros(len(guard.names))
+    flags = np.zeros((e, tmax, P), bool)
+    active = np.zeros((e, tmax), bool)
+    for t in range(tmax):
+        obs = {s: data[s][:, t] for s in INPUT_SENSORS}
+        if injector is not None:
+            obs = injector.apply(obs)
+            active[:, t] = injector.active
+        stat = guard.statistics(obs)
+        alive = t < data["length"]
+        max_stat = np.maximum(max_stat, stat[alive].max(0, initial=0.0))
+        guard.flags |= (stat > guard.stats["threshold"]) @ guard.accuse > 0
+        flags[:, t] = guard.flags
+    return {"max_stat": max_stat, "flags": flags, "active": active}
+
+
+def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
+              dt: float = 0.02) -> np.ndarray:
+    """Thresholds: margin x each statistic's largest value on ``data`` (fault-free), no
+    lower than ``min_repeat`` steps for repeats and ``binary_tolerance`` for contacts."""
+    probe = SensorGuard(cfg, {**arrays, "threshold": np.full(len(statistic_layout()[0]), np.inf)},
+                        num_envs=len(data["length"]), dt=dt)
+    peak = stream(probe, data)["max_stat"]
+    thr = cfg.margin * peak
+    kind = np.array([n.split(":")[0] for n in probe.names])
+    thr[kind == "repeat"] = np.maximum(peak[kind == "repeat"] + 1, cfg.min_repeat)
+    thr[kind == "binary"] = np.maximum(thr[kind == "binary"], cfg.binary_tolerance)
+    return thr
+
+
+def fit_guard(dataset_root: str | Path, episodes: list[int] | None = None,
+              cfg: GuardConfig | None = None, calibration_fraction: float = 0.3,
+              seed: int = 0, dt: float = 0.02) -> SensorGuard:
+    """A guard fitted on fault-free ``episodes`` of a dataset (None: all).
+
+    Args:
+        dataset_root: a dataset written by msta-collect / msta-correct.
+        episodes: the episodes to use (hold out the ones you evaluate on).
+        cfg: decision settings (default GuardConfig()).
+        calibration_fraction: share of ``episodes`` kept apart from the predictors' fit to
+            set the thresholds (a predictor's residuals are smaller on its own data).
+        seed: seed of that split.
+        dt: control period (s).
+    """
+    cfg = cfg or GuardConfig()
+    if not 0.0 < calibration_fraction < 1.0:
+        raise ValueError(f"calibration_fraction must be in (0, 1), got {calibration_fraction}")
+    if episodes is None:
+        episodes = load_episode_table(dataset_root)["episode_index"].tolist()
+    perm = np.random.default_rng(seed).permutation(sorted(episodes))
+    n_cal = max(1, round(calibration_fraction * len(perm)))
+    if len(perm) - n_cal < 1:
+        raise ValueError(f"fit_guard needs at least 2 episodes, got {len(perm)}")
+    arrays = fit_predictors(load_episodes(dataset_root, sorted(perm[n_cal:].tolist())),
+                            cfg.ridge, dt)
+    cal = load_episodes(dataset_root, sorted(perm[:n_cal].tolist()))
+    arrays["threshold"] = calibrate(cfg, arrays, cal, dt)
+    return SensorGuard(cfg, arrays, dt=dt)
+
+
+@dataclass
+class GuardCommand:
+    """msta-guard: fit the sensor guard on a dataset's fault-free episodes and save it into
+    a checkpoint folder (fit), or measure it with injected faults (evaluate).
+
+    Args:
+        command: ``fit`` (writes guard.json and guard.safetensors into output_dir) or
+            ``evaluate`` (fits on all but the held-out episodes, prints the detection and
+            false-alarm table; writes guard_eval.json into output_dir).
+        dataset: dataset root whose fault-free episodes fit and calibrate the guard.
+        output_dir: checkpoint folder the guard is saved into (usually the student's).
+        val_fraction: share of episodes held out for ``evaluate`` (``fit`` uses them all).
+        seed: seed of the held-out split, the calibration split and the injected faults.
+        window: steps averaged by the windowed statistics.
+        imu_window: steps over which the gyro is checked against the gravity vector.
+        ridge: ridge penalty of the per-channel predictors.
+        margin: threshold = margin x the largest fault-free value of each statistic.
+        min_repeat: exact repeats of a reading beyond this many steps mean stuck.
+        min_length: ``evaluate`` injects faults only into held-out episodes this long (steps).
+    """
+
+    command: str = "fit"
+    dataset: str = ""
+    output_dir: str = ""
+    val_fraction: float = 0.2
+    seed: int = 0
+    window: int = 8
+    imu_window: int = 10
+    ridge: float = 1.0
+    margin: float = 1.25
+    min_repeat: int = 2
+    min_length: int = 300
+
+    def guard_config(self) -> GuardConfig:
+        return GuardConfig(window=self.window, imu_window=self.imu_window, ridge=self.ridge,
+                           margin=self.margin, min_repeat=self.min_repeat)
+
+
+def run(cmd: GuardCommand) -> dict:
+    if cmd.command not in ("fit", "evaluate"):
+        raise ValueError(f"command must be fit or evaluate, got {cmd.command!r}")
+    if not cmd.dataset or not cmd.output_dir:
+        raise ValueError("--dataset and --output_dir are required")
+    cfg = cmd.guard_config()
+    if cmd.command == "fit":
+        guard = fit_guard(cmd.dataset, cfg=cfg, seed=cmd.seed)
+        path = guard.save(cmd.output_dir)
+        print(f"msta-guard: saved {path}")
+        return {"path": str(path)}
+    from train.guard_eval import evaluate_guard, format_table
+
+    train_eps, held = episode_split(cmd.dataset, cmd.val_fraction, cmd.seed)
+    guard = fit_guard(cmd.dataset, train_eps, cfg=cfg, seed=cmd.seed)
+    report = evaluate_guard(guard, cmd.dataset, held, seed=cmd.seed, min_length=cmd.min_length)
+    guard.save(cmd.output_dir)
+    (Path(cmd.output_dir) / "guard_eval.json").write_text(json.dumps(report, indent=1) + "\n")
+    print(format_table(report))
+    return report
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point (``msta-guard``)."""
+    from msta_data.cli import parse_config
+
+    cmd = parse_config(GuardCommand, argv, "msta-guard", positionals=("command",))
+    try:
+        run(cmd)
+    except (KeyError, ValueError, FileNotFoundError) as e:
+        msg = e.args[0] if isinstance(e, KeyError) and e.args else e
+        print(f"msta-guard: error: {msg}", file=sys.stderr)
+        raise SystemExit(2) from None
+
