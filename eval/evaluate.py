@@ -3,6 +3,7 @@
     msta-eval --policies teacher,CKPT_A,user/ckpt_b@v1 --suite quick --output_dir outputs/eval
     msta-eval --policies teacher,CKPT --suite paper --trials 500 --terrains stairs_up,discrete
     msta-eval --policies teacher,A,B,C,D --scenarios mask_matrix --matrix A=0.75:0.5,B=0.5:0.5,...
+    msta-eval --policies teacher,CKPT --scenarios sensor_faults --faults stuck:0:encoder:2
 
 ``--policies`` entries: ``teacher`` (the reference teacher of ``--teacher.type``, rolled out
 again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input row, e.g.
@@ -31,6 +32,7 @@ import numpy as np
 from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
+from collect.faults import FaultSpec, split_faults
 from collect.rollout import film
 from eval import report
 from eval.evaluator import (
@@ -51,6 +53,7 @@ from eval.scenarios import (
     get_suite,
     split_csv,
 )
+from eval.sensor_faults import is_fault_run, load_guard
 from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import parse_config
 from msta_data.errors import DirectoryLockedError
@@ -77,6 +80,10 @@ class EvalConfig(TrialConfig):
     matrix: str = ""
     """checkpoint -> train mask ratios for the heatmaps: ``CKPT=a1:a2,...`` (CKPT as
     written in --policies)."""
+    faults: str = ""
+    """the sensor_faults scenario's faults, comma-separated one-string forms
+    ``TYPE:VALUE:TARGET[/rate=R][/onset=A-B]`` (e.g. ``stuck:0:encoder:2,bias:3:ang_vel``);
+    empty = the default sweep (docs/faults.md)."""
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     """the reference teacher (``--teacher.type=gait``)."""
     video: str = ""
@@ -107,6 +114,9 @@ class EvalConfig(TrialConfig):
         for s in self.scenario_list:
             get_scenario(s)
         self.matrix_map = _parse_matrix(self.matrix, self.policy_list)
+        self.fault_list = [str(FaultSpec.parse(f)) for f in split_faults(self.faults)]
+        if self.fault_list and "sensor_faults" not in self.scenario_list:
+            raise ValueError("--faults needs --scenarios to include sensor_faults")
         # resolved once (a bad or unavailable device fails here, in one line)
         self.torch_device = select_device(self.device)
 
@@ -116,6 +126,10 @@ class EvalConfig(TrialConfig):
         d.update(device=self.torch_device.type,  # what ran, not "auto"
                  scenarios=self.scenario_list, policies=self.policy_list,
                  matrix={k: list(v) for k, v in self.matrix_map.items()})
+        if self.fault_list:  # only when set: other metrics.json files stay as they were
+            d["faults"] = self.fault_list
+        else:
+            d.pop("faults")
         return d
 
 
@@ -166,10 +180,15 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
 def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
     """Every (policy, condition) pair, policies in --policies order."""
     suite = get_suite(cfg.suite)
+    values = {"sensor_faults": tuple(cfg.fault_list)} if cfg.fault_list else None
     out = []
     for e in entries:
         sensors = e.obj.required_sensors if e.kind == "student" else STUDENT_SENSORS
-        out += [(e, c) for c in build_conditions(cfg.scenario_list, suite, sensors, cfg.seed)]
+        guarded = e.kind == "student" and load_guard(e.path, 1) is not None
+        out += [(e, c) for c in build_conditions(cfg.scenario_list, suite, sensors, cfg.seed,
+                                                 values)
+                if (c.removal != "guard" or guarded)  # no guard saved: no guard rows
+                and (e.kind == "student" or not is_fault_run(c))]  # the teacher: fault-free
     return out
 
 

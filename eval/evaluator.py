@@ -29,6 +29,13 @@ from collect.sim.randomization import RandomizationConfig
 from collect.sim.terrain import TerrainConfig
 from eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
 from eval.scenarios import Condition, TrialConfig
+from eval.sensor_faults import (
+    detection_summary,
+    fault_key,
+    fault_record,
+    faulty_factory,
+    is_fault_run,
+)
 from msta_data.budget import check_deadline
 from msta_data.revision import content_revision, file_parts
 from policies.actor import InputSpec, StudentActor
@@ -279,21 +286,18 @@ class Evaluator:
             raise RuntimeError("run_reference() first: every figure is normalized by it")
         rec: dict[str, Any] = {"policy": entry.name, "scenario": cond.scenario,
                                "condition": cond.label, "value": cond.value,
-                               "spec": spec_dict(cond.spec)}
+                               "spec": spec_dict(cond.spec), **fault_record(cond, self.cfg.seed)}
         label = f"{entry.name} | {cond.key}"
+        actors: list = []  # a fault run's actors (detection figures)
         try:
             if entry.kind == "teacher":
-                if not _is_null(cond.spec):
+                if not _is_null(cond.spec) or is_fault_run(cond):
                     raise NotApplicable("the teacher is the privileged reference; test-time "
                                         "sensor changes apply to students only")
                 key: tuple = (entry.name, entry.revision)
                 make = (lambda r, n: entry.obj)
             else:
-                try:
-                    key = self._student_key(entry, cond.spec)
-                except (ValueError, KeyError, NotImplementedError) as e:
-                    raise NotApplicable(f"{type(e).__name__}: {e}") from e
-                make = self._student_factory(entry, cond.spec)
+                key, make = self._student_run(entry, cond, actors)
             if key not in self._cache:
                 res = self._run(label, make, key,
                                 entry.obj.device.type if entry.kind == "student" else "cpu")
@@ -301,8 +305,21 @@ class Evaluator:
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}
         res, raw = self._cache[key]
+        if cond.removal in ("oracle", "guard"):
+            rec["detection"] = detection_summary(actors, res.steps, self.env.dt)
         return {**rec, "inputs": _digest(key[2:]), "status": "ok", "raw": raw,
                 "normalized": normalize(res, self.reference_trials, self.layout)}
+
+    def _student_run(self, entry: PolicyEntry, cond: Condition, actors: list) -> tuple:
+        """(inputs key, actor factory) of a student under ``cond``; a fault run's actors
+        are appended to ``actors``."""
+        try:
+            key = self._student_key(entry, cond.spec) + fault_key(cond, self.cfg.seed)
+        except (ValueError, KeyError, NotImplementedError) as e:
+            raise NotApplicable(f"{type(e).__name__}: {e}") from e
+        if is_fault_run(cond):
+            return key, faulty_factory(entry, cond, self.cfg.seed, self.env.dt, actors)
+        return key, self._student_factory(entry, cond.spec)
 
     @staticmethod
     def _student_factory(entry: PolicyEntry, spec: InputSpec):

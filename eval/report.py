@@ -150,8 +150,8 @@ def identical_warnings(metrics: dict) -> list[str]:
     that change its inputs (e.g. test masks 0/25/50 %, or removing different sensors)."""
     kinds = {p["name"]: p["kind"] for p in metrics["policies"]}
     groups: dict[tuple[str, str], list[dict]] = {}
-    for r in metrics["runs"]:
-        if kinds.get(r["policy"]) == "student":
+    for r in metrics["runs"]:  # oracle runs on one target are identical by design
+        if kinds.get(r["policy"]) == "student" and r.get("removal") != "oracle":
             groups.setdefault((r["policy"], r["scenario"]), []).append(r)
     return [identical_line(policy, f"{scenario} conditions", labels)
             for (policy, scenario), runs in groups.items()
@@ -251,7 +251,8 @@ def _baseline_runs(metrics: dict) -> dict[str, dict]:
     for r in metrics["runs"]:
         s = r["spec"]
         plain = spec_history(s) is None and not s["drop_sensors"] and not s["dead_joints"] \
-            and s["mask_ratio"] == 0 and not s.get("dummy_tokens")
+            and s["mask_ratio"] == 0 and not s.get("dummy_tokens") and not r.get("fault") \
+            and r.get("removal") in (None, "unguarded")
         if plain and r["status"] == "ok":
             out.setdefault(r["policy"], r)
     return out
@@ -325,6 +326,9 @@ def markdown(metrics: dict) -> str:
         for m in RETURNS:
             parts += [f"{METRIC_TITLES[m]} (normalized, mean over terrains):", "",
                       scenario_table(metrics, name, m), ""]
+    if _runs(metrics, "sensor_faults"):
+        from eval.fault_report import section  # (it formats with this module's cells)
+        parts += [section(metrics)]
     if "mask_matrix" in cfg["scenarios"]:
         parts += ["## Train mask ratios (stage 1 x stage 2)", ""]
         if any(p.get("train_masks") for p in metrics["policies"]):

@@ -18,6 +18,12 @@ Scenarios (registry :data:`SCENARIOS`):
    in the checkpoints).
 6. ``dummy_tokens``: N random "dummy" tokens appended to every sample of a token student
    (MSTA), 0 / 256 (quick) or 0 / 64 / 256 (paper); other students are not applicable.
+7. ``sensor_faults``: a sensor that lies (``collect.faults``: stuck, bias, drift, noise,
+   spikes, dropout, scale) from a random onset on, each fault run three ways: the student
+   unguarded, with the oracle removing exactly the faulty channels, and with the guard saved
+   with the checkpoint (when it has one); plus the fault-free student. Not part of a
+   suite's default scenarios (``--scenarios=sensor_faults``); the sweep is
+   :data:`DEFAULT_FAULTS` unless msta-eval's ``--faults`` names others (docs/faults.md).
 
 A *suite* (registry :data:`SUITES`) fixes trials, terrains, levels, episode length and the
 values each scenario sweeps. :class:`TrialConfig` picks a suite and overrides its budget;
@@ -33,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from collect.faults import FaultSpec
 from collect.sim.env_config import check_sizes
 from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from eval.metrics import TrialLayout
@@ -54,12 +61,18 @@ class Condition:
         label: short human label, e.g. ``"mask 25%"``.
         value: x-axis value in plots (ratio, sensor name, k, T).
         spec: what the student sees.
+        fault: a sensor fault on the student's observation (sensor_faults), or None.
+        removal: how faulty channels are removed (sensor_faults): "unguarded" (not at
+            all), "oracle" (exactly the fault's, where active) or "guard" (what the
+            checkpoint's guard flags); "" for the other scenarios.
     """
 
     scenario: str
     label: str
     value: float | int | str
     spec: InputSpec
+    fault: FaultSpec | None = None
+    removal: str = ""
 
     @property
     def key(self) -> str:
@@ -161,6 +174,35 @@ def _history(ctx: ScenarioContext) -> list[Condition]:
             for t in ctx.values]
 
 
+#: The joint whose encoder (or q channel) the default fault sweep breaks: FL calf (the knee).
+FAULT_JOINT = 2
+#: sensor_faults' default sweep (one-string form, collect.faults): every type at the
+#: severity the issue's minimums name, on one joint encoder, one channel and a whole sensor.
+DEFAULT_FAULTS: tuple[str, ...] = tuple(
+    f"{kind}:{target}" for target in (f"encoder:{FAULT_JOINT}", f"joint_pos:{FAULT_JOINT}",
+                                      "ang_vel")
+    for kind in ("stuck:0", "bias:3", "noise:3", "spikes:5", "dropout:0.2", "drift:0.5",
+                 "scale:1.5"))
+#: How sensor_faults removes faulty channels, in table order.
+REMOVALS: tuple[str, ...] = ("unguarded", "oracle", "guard")
+
+
+def _sensor_faults(ctx: ScenarioContext) -> list[Condition]:
+    """The fault-free student (unguarded and guarded), then every fault the student reads
+    (values: one-string faults) x :data:`REMOVALS`; the evaluation drops the guard rows of
+    a checkpoint without a guard."""
+    spec = InputSpec(seed=ctx.seed)
+    out = [Condition("sensor_faults", f"none | {r}", "none", spec, None, r)
+           for r in ("unguarded", "guard")]
+    for text in ctx.values or DEFAULT_FAULTS:
+        fault = text if isinstance(text, FaultSpec) else FaultSpec.parse(text)
+        if not set(fault.channels) & set(ctx.sensors):
+            continue  # the student reads none of the fault's sensors
+        out += [Condition("sensor_faults", f"{fault} | {r}", str(fault), spec, fault, r)
+                for r in REMOVALS]
+    return out
+
+
 register_scenario(Scenario("token_removal", "Random token removal at test time",
                            "test mask ratio", _token_removal, plot=False))
 register_scenario(Scenario("sensor_removal", "One sensor removed entirely", "removed sensor",
@@ -173,6 +215,8 @@ register_scenario(Scenario("dummy_tokens", "Random dummy tokens appended at test
                            "dummy tokens", _dummy_tokens))
 register_scenario(Scenario("mask_matrix", "Train mask ratios (stage 1 x stage 2)",
                            "stage-2 mask ratio", _token_removal))
+register_scenario(Scenario("sensor_faults", "Sensor faults: unguarded, oracle and guard",
+                           "fault", _sensor_faults, plot=False))
 
 
 @dataclass(frozen=True)
@@ -228,20 +272,24 @@ def get_suite(name: str) -> Suite:
 
 
 def build_conditions(scenarios: Sequence[str], suite: Suite, sensors: Sequence[str],
-                     seed: int) -> list[Condition]:
+                     seed: int, values: dict[str, tuple] | None = None) -> list[Condition]:
     """Every condition of ``scenarios`` for a student reading ``sensors``.
 
     Args:
         scenarios: registry names, in output order.
-        suite: supplies the sweep values.
+        suite: supplies the sweep values (else the paper suite's; else the scenario's own
+            default, e.g. sensor_faults').
         sensors: the student's input sensors.
         seed: the evaluation seed.
+        values: scenario name -> sweep values that replace the suite's (msta-eval's
+            ``--faults``).
     """
     out: dict[str, Condition] = {}
     for name in scenarios:
         scenario = get_scenario(name)
-        values = suite.values.get(name, SUITES["paper"].values[name])
-        for cond in scenario.build(ScenarioContext(tuple(sensors), tuple(values), seed)):
+        sweep = (values or {}).get(name) or suite.values.get(
+            name, SUITES["paper"].values.get(name, ()))
+        for cond in scenario.build(ScenarioContext(tuple(sensors), tuple(sweep), seed)):
             out.setdefault(cond.key, cond)  # mask_matrix reuses the token_removal conditions
     return list(out.values())
 
