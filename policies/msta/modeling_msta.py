@@ -60,7 +60,7 @@ from policies.base import Absent, Batch, Channels, StudentPolicy, uniform
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
-from policies.msta.removal import absent_tokens, keep_per_sample
+from policies.msta.removal import absent_tokens, encoded_keys, keep_per_sample
 from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d, sincos_2d
 
 __all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
@@ -242,7 +242,7 @@ class MSTATransformer(nn.Module):
         if self.mask_token is not None:  # absent tokens are replaced like missing ones
             pad = pad if gone is None else gone if pad is None else pad | gone
             x = self._replace_masked(tokens, static, pad, n_drop, generator)  # (B, N, d)
-            key_pad = None
+            key_pad = encoded_keys(gone, inputs, T)  # None unless an encoded sensor is absent
         elif gone is not None:  # per sample: (B, K, d), K the most any sample keeps
             keep, key_pad = keep_per_sample(gone, pad, mask_ratio, generator)
             x = self._gather(tokens, static, keep)

@@ -10,7 +10,8 @@ see alone with those channels removed by ``channels``. Samples keep different nu
 tokens; the batch keeps the most any sample needs and hides the rest with the key mask.
 
 An encoded sensor (``SensorSpec.encoder_tokens``: an MLP reads all of a step's channels)
-loses all its tokens for a sample when any of its channels is absent.
+loses all its tokens for a sample when any of its channels is absent (with
+``learnable_mask`` they are hidden from attention, as a sensor left out has no tokens).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from msta_data.sensors import get
 from policies.base import uniform
 from policies.msta.processor_msta import MSTAInputs
 
-__all__ = ["absent_tokens", "keep_per_sample"]
+__all__ = ["absent_tokens", "encoded_keys", "keep_per_sample"]
 
 
 def absent_tokens(inputs: MSTAInputs, B: int, T: int) -> Tensor | None:
@@ -31,23 +32,35 @@ def absent_tokens(inputs: MSTAInputs, B: int, T: int) -> Tensor | None:
     when ``inputs.absent`` removes no token (e.g. only channels ``channels`` left out)."""
     if inputs.absent is None:
         return None
+    device = next(iter((*inputs.bins.values(), *inputs.encoded.values()))).device
     parts = []
     for name in inputs.bins:
         ch = inputs.channels[name]
         gone = inputs.absent.get(name)
         if gone is None:
-            parts.append(torch.zeros(B, T * len(ch), dtype=torch.bool, device=ch.device))
+            parts.append(torch.zeros(B, T * len(ch), dtype=torch.bool, device=device))
         else:  # (B, dim) -> the present channels (B, c) -> every step (B, T * c)
-            parts.append(gone[:, ch.to(gone.device)].repeat(1, T))
+            parts.append(gone.to(device)[:, ch.to(device)].repeat(1, T))
     for name in inputs.encoded:
         k = get(name).encoder_tokens
         gone = inputs.absent.get(name)
-        any_gone = (gone.any(1, keepdim=True) if gone is not None
-                    else torch.zeros(B, 1, dtype=torch.bool))
+        any_gone = (gone.to(device).any(1, keepdim=True) if gone is not None
+                    else torch.zeros(B, 1, dtype=torch.bool, device=device))
         parts.append(any_gone.expand(B, T * k))
-    device = parts[0].device
-    out = torch.cat([p.to(device) for p in parts], dim=1)  # (B, N)
+    out = torch.cat(parts, dim=1)  # (B, N)
     return out if bool(out.any()) else None
+
+
+def encoded_keys(gone: Tensor | None, inputs: MSTAInputs, T: int) -> Tensor | None:
+    """Learnable-mask variant: absent tokens become mask tokens, but a sensor left out of the
+    input has no tokens at all, so an absent encoded sensor's are hidden from attention
+    instead: (B, N) bool, True for those (the layout's last tokens), or None when none."""
+    if gone is None or not inputs.encoded:
+        return None
+    n_enc = T * sum(get(n).encoder_tokens for n in inputs.encoded)
+    keys = torch.zeros_like(gone)
+    keys[:, -n_enc:] = gone[:, -n_enc:]
+    return keys if bool(keys.any()) else None
 
 
 def keep_per_sample(gone: Tensor, pad: Tensor | None, mask_ratio: float,

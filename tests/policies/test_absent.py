@@ -266,3 +266,25 @@ def test_split_actor_splits_absent_per_group():
     # envs 0 and 2 had nothing removed (batched with removals: MSTA's sums may round apart)
     np.testing.assert_allclose(got[[0, 2]], ref[[0, 2]], atol=1e-5, rtol=0)
     assert not np.allclose(got[[1, 3]], ref[[1, 3]], atol=1e-4)
+
+
+@pytest.mark.parametrize("learnable_mask", [False, True])
+def test_an_absent_channel_of_an_encoded_sensor_removes_the_whole_sensor(learnable_mask):
+    """height_map is read by an MLP as a whole: any absent channel removes all its tokens."""
+    from policies.msta import MSTAConfig, MSTAPolicy
+    from policies.msta.processor_msta import MSTAProcessor
+
+    names = (*NAMES, "height_map")
+    torch.manual_seed(0)
+    cfg = MSTAConfig.from_preset("tiny", input_sensors=names, history=T,
+                                 learnable_mask=learnable_mask)
+    stats = {sensors.get(n).column: {"mean": [0.0] * sensors.get(n).dim,
+                                     "std": [1.0] * sensors.get(n).dim} for n in names}
+    policy = MSTAPolicy(cfg, MSTAProcessor(names, {**stats, **stats_for(cfg)})).eval()
+    b = random_batch(B=2, steps=T, seed=5, names=names)
+    hm = torch.zeros(2, sensors.get("height_map").dim, dtype=torch.bool)
+    hm[0, 17] = True
+    got = policy.act(b, absent={"height_map": hm})
+    alone0 = policy.act({k: v[[0]] for k, v in b.items() if k != "height_map"})
+    alone1 = policy.act({k: v[[1]] for k, v in b.items()})
+    torch.testing.assert_close(got, torch.cat([alone0, alone1]), atol=1e-5, rtol=0)
