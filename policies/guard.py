@@ -65,7 +65,7 @@ class GuardConfig:
     window: int = 8
     imu_window: int = 10
     ridge: float = 1.0
-    margin: float = 1.25
+    margin: float = 1.6
     min_repeat: int = 2
     binary_tolerance: float = 0.01
 

@@ -70,10 +70,13 @@ def summarize(runs: list[dict]) -> dict:
     coll = np.concatenate([r["collateral"] for r in runs])
     ok = (delay >= 0) & (delay < WITHIN) & ~early
     found = delay[delay >= 0]
-    return {"faults": len(delay), "within_10": float(ok.mean()),
-            "detected": float((delay >= 0).mean()),
+
+    def share(x: np.ndarray) -> float | None:
+        return float(x.mean()) if len(x) else None
+
+    return {"faults": len(delay), "within_10": share(ok), "detected": share(delay >= 0),
             "median_delay": float(np.median(found)) if len(found) else None,
-            "early": float(early.mean()), "collateral": float(coll.mean())}
+            "early": share(early), "collateral": share(coll)}
 
 
 def false_alarms(guard_factory, data: dict) -> dict:
@@ -141,9 +144,10 @@ def format_table(report: dict) -> str:
              "early | collateral |", "|---|---|---:|---:|---:|---:|---:|---:|"]
     for key, r in report["detection"].items():
         kind, sev, tkind = key.split(":")
-        med = "-" if r["median_delay"] is None else f"{r['median_delay']:g}"
-        lines.append(f"| {kind} {sev} | {tkind} | {r['faults']} | {r['within_10']:.3f} | "
-                     f"{r['detected']:.3f} | {med} | {r['early']:.3f} | {r['collateral']:.3f} |")
+        cells = [_cell(r[k], ".3f") for k in ("within_10", "detected")]
+        cells += [_cell(r["median_delay"], "g")]
+        cells += [_cell(r[k], ".3f") for k in ("early", "collateral")]
+        lines.append(f"| {kind} {sev} | {tkind} | {r['faults']} | " + " | ".join(cells) + " |")
     fa = report["false_alarms"]
     lines += ["", "| fault-free | flagged channel-steps per 10,000 | channel-steps |",
               "|---|---:|---:|"]
@@ -153,3 +157,7 @@ def format_table(report: dict) -> str:
     lines.append(f"\n{fa['episodes_with_a_flag']} of {fa['episodes']} fault-free episodes "
                  "had a flag.")
     return "\n".join(lines)
+
+
+def _cell(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)

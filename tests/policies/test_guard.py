@@ -1,0 +1,143 @@
+"""The sensor guard (policies/guard.py) on episodes recorded in the real simulator: it
+flags a stuck encoder, a 3-std bias and 3-std noise within 10 steps, stays quiet on the
+fault-free stream it was calibrated on, latches until reset, flags q and q-dot together,
+and round-trips through a checkpoint folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import policies.teacher.gait  # noqa: F401  (registers "gait")
+from collect.record import CollectConfig, collect
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from msta_data.stats import load_stats
+from policies.guard import INPUT_SENSORS, OFFSET, GuardConfig, SensorGuard, load_guard
+from policies.teacher.config import TeacherConfig
+from train.guard import fit_guard, load_episodes
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+ONSET = 100
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> Path:
+    """Six 4-second gait-teacher episodes on flat ground."""
+    root = tmp_path_factory.mktemp("guard_data") / "dataset"
+    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=6, num_envs=6,
+                          root=str(root), episode_length_s=4.0, progress=False,
+                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
+    return root
+
+
+@pytest.fixture(scope="module")
+def fitted(recorded) -> tuple[SensorGuard, dict]:
+    return fit_guard(recorded), load_episodes(recorded)
+
+
+def std_of(root: Path, sensor: str) -> np.ndarray:
+    return np.asarray(load_stats(root)[f"observation.{sensor}"]["std"])
+
+
+def inject(data: dict, kind: str, sensor: str, ch: int, size: float, seed: int = 0) -> dict:
+    """A copy of the episodes with one channel faulty from ``ONSET`` on."""
+    out = {s: data[s].copy() for s in INPUT_SENSORS}
+    x = out[sensor][:, ONSET:, ch]
+    if kind == "stuck":
+        x[:] = x[:, :1]
+    elif kind == "bias":
+        x += size
+    else:  # noise
+        x += size * np.random.default_rng(seed).standard_normal(x.shape)
+    return out
+
+
+def run(guard: SensorGuard, data: dict, steps: int | None = None) -> np.ndarray:
+    """Latched flags (E, T, 34) of a fresh copy of ``guard`` streamed over ``data``."""
+    e, t = data["joint_pos"].shape[:2]
+    g = SensorGuard(guard.cfg, guard.stats, guard.sensors, e, guard.dt)
+    flags = []
+    for i in range(steps or t):
+        g.update({s: data[s][:, i] for s in INPUT_SENSORS})
+        flags.append(g.flags.copy())
+    return np.stack(flags, 1)
+
+
+def test_no_flag_on_the_fault_free_stream_it_was_calibrated_on(fitted):
+    guard, data = fitted
+    flags = run(guard, data)
+    valid = np.arange(flags.shape[1])[None] < data["length"][:, None]
+    assert flags[valid].sum() <= 1e-4 * valid.sum() * flags.shape[2]
+
+
+@pytest.mark.parametrize("kind,sensor,ch,std_mult", [
+    ("stuck", "encoder", 2, 0.0), ("bias", "joint_pos", 4, 3.0), ("bias", "joint_vel", 7, 3.0),
+    ("noise", "joint_pos", 1, 3.0), ("noise", "joint_vel", 10, 3.0)])
+def test_flags_the_fault_within_10_steps(fitted, recorded, kind, sensor, ch, std_mult):
+    guard, data = fitted
+    if sensor == "encoder":  # q and q-dot stuck together
+        faulty = inject(inject(data, kind, "joint_pos", ch, 0.0), kind, "joint_vel", ch, 0.0)
+        sensor = "joint_pos"
+    else:
+        faulty = inject(data, kind, sensor, ch, std_mult * std_of(recorded, sensor)[ch])
+    flags = run(guard, faulty, ONSET + 10)
+    col = OFFSET[sensor] + ch
+    assert not flags[:, ONSET - 1].any()  # nothing before the onset
+    assert flags[:, -1, col].all()  # every episode flagged by the 10th faulty step
+
+
+def test_flags_latch_until_reset_and_flag_q_with_q_dot(fitted, recorded):
+    guard, data = fitted
+    faulty = inject(data, "bias", "joint_vel", 3, 3 * std_of(recorded, "joint_vel")[3])
+    e = data["joint_pos"].shape[0]
+    g = SensorGuard(guard.cfg, guard.stats, guard.sensors, e, guard.dt)
+    for i in range(ONSET + 10):
+        out = g.update({s: faulty[s][:, i] for s in INPUT_SENSORS})
+    assert out["joint_vel"][:, 3].all() and out["joint_pos"][:, 3].all()  # the encoder
+    for i in range(ONSET + 10, ONSET + 30):  # the fault is gone: the flags stay
+        out = g.update({s: data[s][:, i] for s in INPUT_SENSORS})
+    assert out["joint_vel"][:, 3].all()
+    g.reset([0])
+    out = g.flagged()
+    assert not out["joint_vel"][0].any() and out["joint_vel"][1:, 3].all()
+
+
+def test_save_and_load_give_the_same_flags(fitted, recorded, tmp_path):
+    guard, data = fitted
+    assert load_guard(tmp_path) is None
+    guard.save(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["guard.json", "guard.safetensors"]
+    back = load_guard(tmp_path)
+    faulty = inject(data, "noise", "joint_pos", 5, 3 * std_of(recorded, "joint_pos")[5])
+    a, b = run(guard, faulty), run(back, faulty)
+    assert a[:, -1].any() and (a == b).all()
+
+
+def test_only_the_guarded_sensors_are_reported(fitted):
+    guard, data = fitted
+    g = SensorGuard(guard.cfg, guard.stats, ("joint_pos",), 6, guard.dt)
+    assert list(g.update({s: data[s][:, 0] for s in INPUT_SENSORS})) == ["joint_pos"]
+
+
+@pytest.mark.parametrize("make,match", [
+    (lambda s: GuardConfig(window=0), "guard window must be >= 1, got 0"),
+    (lambda s: GuardConfig(margin=-1.0), "guard margin must be > 0"),
+    (lambda s: SensorGuard(GuardConfig(), s, ("command",)), "guard sensors must be"),
+    (lambda s: SensorGuard(GuardConfig(), s, num_envs=0), "num_envs >= 1"),
+    (lambda s: SensorGuard(GuardConfig(), {**s, "threshold": s["threshold"][:3]}),
+     "guard threshold has shape"),
+])
+def test_bad_values_are_one_line_errors(fitted, make, match):
+    with pytest.raises(ValueError, match=match) as err:
+        make(fitted[0].stats)
+    assert "\n" not in str(err.value)
+
+
+def test_a_missing_input_is_named(fitted):
+    guard, data = fitted
+    obs = {s: data[s][:, 0] for s in INPUT_SENSORS if s != "gravity"}
+    with pytest.raises(KeyError, match="gravity"):
+        SensorGuard(guard.cfg, guard.stats, num_envs=6).update(obs)

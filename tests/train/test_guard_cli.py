@@ -1,0 +1,50 @@
+"""msta-guard (train/guard.py): fit saves a guard a checkpoint folder loads back, evaluate
+measures detection and false alarms with collect.faults injected, bad options are
+one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from policies.guard import load_guard
+from train.guard import main
+from train.guard_eval import evaluate_guard, format_table
+
+
+def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys):
+    main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--margin=2"])
+    assert "saved" in capsys.readouterr().out
+    guard = load_guard(tmp_path, num_envs=3)
+    meta = json.loads((tmp_path / "guard.json").read_text())
+    assert guard.cfg.margin == 2.0 and meta["config"]["margin"] == 2.0
+    assert len(meta["statistics"]) == len(guard.stats["threshold"])
+    assert np.isfinite(guard.stats["threshold"]).all() and guard.flags.shape == (3, 34)
+
+
+def test_evaluate_reports_detection_and_false_alarms(synthetic_dataset, tmp_path):
+    from train.guard import fit_guard
+
+    guard = fit_guard(synthetic_dataset, list(range(8)))
+    report = evaluate_guard(guard, synthetic_dataset, [8, 9, 10, 11], min_length=40,
+                            faults=(("bias", 3.0),))
+    fa = report["false_alarms"]
+    assert fa["all"]["channel_steps"] == 4 * 40 * 34
+    assert {"terrain:flat", "terrain:stairs_up"} <= set(fa)
+    row = report["detection"]["bias:3:encoder"]
+    assert row["faults"] == 0 and row["within_10"] is None  # onset 1-3 s: beyond 40 steps
+    table = format_table(report)
+    assert "| fault-free |" in table and "| bias 3 | encoder | 0 | - |" in table
+
+
+@pytest.mark.parametrize("argv,msg", [
+    (["nope", "--dataset=x", "--output_dir=y"], "command must be fit or evaluate"),
+    (["fit"], "--dataset and --output_dir are required"),
+])
+def test_bad_options_are_one_line_errors(argv, msg, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and msg in err and "\n" not in err
