@@ -1,5 +1,5 @@
 """The guard: an online detector that flags faulty sensor channels from the observation
-stream alone (issue 43, docs/faults.md "The guard"). Numpy only at run time.
+stream alone (docs/faults.md, "The guard"). Numpy only at run time.
 
 Every step it computes a vector of non-negative statistics, each tied to the channels it
 accuses; a statistic above its threshold flags those channels, and flags latch until

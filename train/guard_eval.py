@@ -24,7 +24,7 @@ from policies.guard import NJ, OFFSET, PHYSICAL_SENSORS, P, SensorGuard, encoder
 from train.guard import load_episodes, stream
 
 WITHIN = 10
-#: (type, severity) the issue's minimums cover, then the subtle ones (reported, no minimum).
+#: (type, severity) with a detection minimum (docs/faults.md), then the subtle ones (reported).
 MAIN_FAULTS = (("stuck", 0.0), ("bias", 3.0), ("noise", 3.0), ("spikes", 5.0))
 SUBTLE_FAULTS = (("bias", 1.0), ("drift", 0.5), ("dropout", 0.2))
 
