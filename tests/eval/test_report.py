@@ -41,6 +41,21 @@ def test_differing_figures_or_equal_inputs_are_not_flagged():
     assert identical_warnings(teacher) == []
 
 
+def test_removal_rows_equal_to_the_unguarded_one_are_not_flagged():
+    """A guard that removed nothing (a fault-free run) and an oracle give the unguarded
+    figures by design; two different faults with identical unguarded figures still warn."""
+    def fault(condition, inputs, removal, lin):
+        return {**_run(condition, inputs, lin), "scenario": "sensor_faults", "removal": removal}
+    metrics = {"policies": [{"name": "s", "kind": "student"}], "runs": [
+        fault("none | unguarded", "a", "unguarded", 0.5), fault("none | guard", "b", "guard", 0.5),
+        fault("stuck | oracle", "c", "oracle", 0.5)]}
+    assert identical_warnings(metrics) == []
+    metrics["runs"].append(fault("bias | unguarded", "d", "unguarded", 0.5))
+    assert identical_warnings(metrics) == [
+        "s: the student's figures are identical across sensor_faults conditions "
+        "none | unguarded, bias | unguarded: it may ignore its inputs"]
+
+
 def test_interval_formatting():
     assert fmt_ci(0.85, [0.75, 0.95]) == "0.85 ±0.10"
     assert fmt_ci(0.8, [0.49, 0.94]) == "0.80 (0.49–0.94)"
