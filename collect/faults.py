@@ -47,15 +47,12 @@ from typing import Any
 
 import numpy as np
 
-from msta_data.sensors import get
+from msta_data.sensors import JOINT_ENCODER_SENSORS, PHYSICAL_SENSORS, get
 
 FAULT_TYPES: tuple[str, ...] = ("stuck", "bias", "drift", "noise", "spikes", "dropout", "scale")
-#: Sensors that can fail; command and last_action are software and never fault.
-PHYSICAL_SENSORS: tuple[str, ...] = ("joint_pos", "joint_vel", "ang_vel", "gravity",
-                                     "foot_contact")
 #: The target that names one joint encoder: its q (joint_pos) and q-dot (joint_vel).
 ENCODER = "encoder"
-ENCODER_SENSORS: tuple[str, ...] = ("joint_pos", "joint_vel")
+ENCODER_SENSORS = JOINT_ENCODER_SENSORS
 #: The fault types a binary sensor (0/1) can take.
 BINARY_FAULTS: tuple[str, ...] = ("stuck", "spikes", "dropout")
 #: The fault types whose size is a multiple of the channel's std.

@@ -29,11 +29,9 @@ def fault_seed(seed: int, round_: int) -> list[int]:
 
 def load_guard(path: str, num_envs: int) -> Any:
     """The guard saved with the checkpoint at ``path`` for ``num_envs`` environments, or
-    None (no guard saved, or ``policies.guard`` not present)."""
-    try:
-        from policies.guard import load_guard as load
-    except ImportError:
-        return None
+    None (no guard saved there)."""
+    from policies.guard import load_guard as load
+
     return load(path, num_envs=num_envs) if path else None
 
 

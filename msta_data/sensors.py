@@ -137,6 +137,12 @@ STUDENT_SENSORS: tuple[str, ...] = tuple(
 EXTENSION_SENSORS: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if s.extension)
 #: What a dataset records unless asked for more: everything but the extensions.
 DEFAULT_RECORDED: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if not s.extension)
+#: The student inputs a physical sensor measures, which can fail (msta-eval's sensor faults,
+#: the guard); command and last_action are software.
+PHYSICAL_SENSORS: tuple[str, ...] = tuple(s for s in STUDENT_SENSORS
+                                          if SENSORS[s].group == "proprio")
+#: A joint encoder's channels: its angle (q) and velocity (q-dot), indexed by joint.
+JOINT_ENCODER_SENSORS: tuple[str, ...] = ("joint_pos", "joint_vel")
 PRIVILEGED_SENSORS: tuple[str, ...] = tuple(
     s.name for s in SENSORS.values() if s.group == "privileged")
 NUM_JOINTS = len(JOINT_NAMES)

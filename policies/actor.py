@@ -19,11 +19,10 @@ import numpy as np
 import torch
 
 from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import get
+from msta_data.sensors import JOINT_ENCODER_SENSORS, get
 from policies.config import check_fraction
 
 #: sensors whose channels are per joint (a dead joint encoder removes q_j and qdot_j)
-JOINT_ENCODER_SENSORS = ("joint_pos", "joint_vel")
 
 
 @dataclass

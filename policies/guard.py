@@ -31,13 +31,11 @@ from pathlib import Path
 import numpy as np
 
 from msta_data import sensors as registry
+from msta_data.sensors import PHYSICAL_SENSORS
 
 GUARD_JSON = "guard.json"
 GUARD_ARRAYS = "guard.safetensors"
 FORMAT = 1
-#: Sensors that can fail (command and last_action are software and never do).
-PHYSICAL_SENSORS: tuple[str, ...] = ("joint_pos", "joint_vel", "ang_vel", "gravity",
-                                     "foot_contact")
 #: What the guard reads: the physical sensors, then the software inputs its predictors use.
 INPUT_SENSORS: tuple[str, ...] = PHYSICAL_SENSORS + ("command", "last_action")
 NJ = registry.NUM_JOINTS
