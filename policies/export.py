@@ -25,6 +25,17 @@ statistics; the largest |action difference| is printed, stored in spec.json, and
 
 The Python checks of the eager path (NaN inputs, shapes) are not part of the graph: a
 robot program checks its readings itself (the runtime in :mod:`policies.onnx_runtime` does).
+
+A checkpoint with a sensor guard (``guard.json`` + ``guard.safetensors``, ``msta-guard fit``)
+exports with it: the two files are copied next to the student, spec.json's ``guard`` names
+them, and the graph takes one more input per guarded sensor it reads, ``absent_<sensor>``
+``(B, dim)`` bool over the sensor's channels (True = remove that channel from the window, as
+``policy.act(absent=...)`` does; all False = the plain student). The robot loop runs the
+guard (numpy, :mod:`policies.guard`) on each observation and feeds its flags there. The
+parity check then draws a random removal mask for every window (the first of each set
+removes nothing). ``--absent_inputs`` asks for these inputs without a guard (a comma list
+of sensors) or leaves them out (``none``); without a guard and the flag the export is as
+before.
 """
 
 from __future__ import annotations
@@ -45,11 +56,12 @@ from torch import Tensor, nn
 from msta_data import robot
 from msta_data import sensors as registry
 from policies.base import StudentPolicy
+from policies.export_removal import ABSENT_PREFIX, absent_inputs, absent_masks, copy_guard
 
 __all__ = [
-    "DEFAULT_TOLERANCE", "FORMAT", "MINIMIZED_HISTORY", "MINIMIZED_SENSORS", "DeployedStudent",
-    "ExportConfig", "ExportParityError", "export_student", "main", "random_windows",
-    "recorded_windows",
+    "ABSENT_PREFIX", "DEFAULT_TOLERANCE", "FORMAT", "MINIMIZED_HISTORY", "MINIMIZED_SENSORS", "DeployedStudent",
+    "ExportConfig", "ExportParityError", "absent_masks", "export_student", "main",
+    "random_windows", "recorded_windows",
 ]
 
 FORMAT = "msta-export/1"
@@ -74,17 +86,35 @@ class DeployedStudent(nn.Module):
         policy: any registered student (eval mode is set here).
         sensors: input sensors, in the order ``forward`` takes them (a subset of the
             policy's; the others are absent, as in the sensor-removal experiments).
+        absent: sensors (of ``sensors``) whose per-sample channel removal ``forward`` takes
+            after the windows: ``forward(*windows, *masks)``, each mask (B, dim) bool.
     """
 
-    def __init__(self, policy: StudentPolicy, sensors: Sequence[str]) -> None:
+    def __init__(self, policy: StudentPolicy, sensors: Sequence[str],
+                 absent: Sequence[str] = ()) -> None:
         super().__init__()
         self.policy = policy.eval()
         self.sensors = tuple(sensors)
+        self.absent = tuple(absent)
+        if self.absent:
+            policy.check_absent()
+        bad = [s for s in self.absent if s not in self.sensors]
+        if bad:
+            raise ValueError(f"absent inputs {bad} are not exported sensors {list(sensors)}")
 
-    def forward(self, *windows: Tensor) -> Tensor:
-        batch = dict(zip(self.sensors, windows, strict=True))
-        action = self.policy(batch, None, 0.0, None)  # (B, A), model space
+    def forward(self, *inputs: Tensor) -> Tensor:
+        n = len(self.sensors)
+        batch = dict(zip(self.sensors, inputs[:n], strict=True))
+        if self.absent:
+            absent = dict(zip(self.absent, inputs[n:], strict=True))
+            action = self.policy(batch, None, 0.0, None, absent=absent)  # (B, A), model space
+        else:
+            action = self.policy(batch, None, 0.0, None)  # (B, A), model space
         return self.policy.processor.unnormalize_action(action)  # (B, A), raw
+
+    @property
+    def input_names(self) -> list[str]:
+        return [*self.sensors, *(ABSENT_PREFIX + s for s in self.absent)]
 
 
 def resolve_sensors(policy: StudentPolicy, sensors: str | Sequence[str]) -> tuple[str, ...]:
@@ -146,6 +176,8 @@ def export_student(
     windows: Mapping[str, Mapping[str, np.ndarray]] | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
     source: Mapping[str, Any] | None = None,
+    absent: Sequence[str] = (),
+    guard_dir: str | Path | None = None,
 ) -> dict[str, Any]:
     """Write the exported files and spec.json; return the spec.
 
@@ -159,6 +191,10 @@ def export_student(
             (None: 64 random windows).
         tolerance: largest allowed |exported - eager| action difference.
         source: provenance stored in the spec (checkpoint path, dataset, ...).
+        absent: exported sensors that get an ``absent_<sensor>`` (B, dim) bool input (the
+            per-sample channel removal a guard's flags drive); () = none.
+        guard_dir: a folder with a saved guard (:func:`policies.guard.load_guard`) whose
+            files are copied into ``output_dir`` and named in the spec.
 
     Raises:
         ExportParityError: an exported file's actions differ by more than ``tolerance``
@@ -174,13 +210,25 @@ def export_student(
         raise ValueError(f"history must be >= 1, got {T}")
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    module = DeployedStudent(policy, names)
+    module = DeployedStudent(policy, names, [n for n in names if n in set(absent)])
+    if len(module.absent) != len(set(absent)):
+        raise ValueError(f"absent inputs {list(absent)} must be exported sensors {list(names)}")
     windows = dict(windows or {"random": random_windows(policy, names, T, 64)})
-    example = tuple(torch.from_numpy(w[:1]) for w in next(iter(windows.values())).values())
-    runners = _write_formats(module, example, names, formats, out)
-    parity = _parity(module, names, windows, runners)
+    first = next(iter(windows.values()))
+    example = tuple(torch.from_numpy(first[n][:1]) for n in names) + tuple(
+        # one removed channel per sensor: the traced graph keeps the removal path
+        torch.from_numpy(np.arange(registry.get(n).dim)[None] == 0) for n in module.absent)
+    runners = _write_formats(module, example, formats, out)
+    parity = _parity(module, windows, runners)
     worst = max((p["max_abs_diff"] for p in parity), default=0.0)
     spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
+    if module.absent:
+        spec["absent_inputs"] = [
+            {"name": ABSENT_PREFIX + n, "sensor": n, "shape": ["batch", registry.get(n).dim],
+             "dtype": "bool", "meaning": "True removes that channel from the window"}
+            for n in module.absent]
+    if guard_dir is not None:
+        spec["guard"] = copy_guard(Path(guard_dir), out)
     (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
     if not worst <= tolerance:
         raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "
@@ -190,9 +238,11 @@ def export_student(
 
 
 def _write_formats(module: DeployedStudent, example: tuple[torch.Tensor, ...],
-                   names: Sequence[str], formats: Sequence[str], out: Path) -> dict[str, Any]:
+                   formats: Sequence[str], out: Path) -> dict[str, Any]:
     """Trace ``module`` on ``example`` into each of ``formats`` under ``out``; returns a
-    runner of each written file (inputs in ``names`` order -> (n, A)) for the parity check."""
+    runner of each written file (inputs in ``module.input_names`` order -> (n, A)) for the
+    parity check."""
+    names = module.input_names
     runners = {}
     with warnings.catch_warnings(), torch.no_grad():
         # TracerWarnings name the eager path's Python checks, which the graph leaves out
@@ -232,13 +282,15 @@ def _onnx_runner(path: Path):
     return run
 
 
-def _parity(module: DeployedStudent, names: Sequence[str],
-            windows: Mapping[str, Mapping[str, np.ndarray]], runners: Mapping[str, Any]
-            ) -> list[dict[str, Any]]:
-    """Max |exported - eager| per (file, window set), batched and at batch 1 (first 8)."""
+def _parity(module: DeployedStudent, windows: Mapping[str, Mapping[str, np.ndarray]],
+            runners: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Max |exported - eager| per (file, window set), batched and at batch 1 (first 8); with
+    absent inputs, under random removal masks (:func:`absent_masks`)."""
     rows = []
-    for set_name, w in windows.items():
-        inputs = [np.ascontiguousarray(w[n], dtype=np.float32) for n in names]
+    for k, (set_name, w) in enumerate(windows.items()):
+        inputs = [np.ascontiguousarray(w[n], dtype=np.float32) for n in module.sensors]
+        n = len(inputs[0])
+        inputs += list(absent_masks(module.absent, n, seed=k).values())
         with torch.no_grad():
             ref = module(*(torch.from_numpy(x) for x in inputs)).numpy()  # (n, A)
         for fmt, run in runners.items():
@@ -246,7 +298,7 @@ def _parity(module: DeployedStudent, names: Sequence[str],
             for i in range(min(8, len(ref))):  # batch 1, as on the robot
                 diff = max(diff, float(np.abs(run([x[i:i + 1] for x in inputs]) - ref[i]).max()))
             rows.append({"format": fmt, "windows": set_name, "count": int(len(ref)),
-                         "max_abs_diff": diff})
+                         "max_abs_diff": diff} | ({"absent": "random"} if module.absent else {}))
     return rows
 
 
@@ -311,6 +363,9 @@ class ExportConfig:
         random_windows: random windows checked (drawn around the statistics).
         tolerance: largest allowed |exported - eager| action difference (fp32: 1e-5).
         seed: seed of the random windows.
+        absent_inputs: sensors that get an ``absent_<sensor>`` removal input: ``auto`` (the
+            guarded sensors when the checkpoint has a guard, which is copied along; none
+            otherwise), ``none``, or a comma list of exported sensors.
     """
 
     policy: str = ""
@@ -324,6 +379,7 @@ class ExportConfig:
     random_windows: int = 64
     tolerance: float = DEFAULT_TOLERANCE
     seed: int = 0
+    absent_inputs: str = "auto"
 
     def __post_init__(self) -> None:
         if not self.policy:
@@ -366,11 +422,14 @@ def run(cfg: ExportConfig) -> dict[str, Any]:
         windows["random"] = random_windows(policy, names, T, max(cfg.random_windows, 1), cfg.seed)
     formats = [f.strip() for f in cfg.formats.split(",") if f.strip()]
     source = {"checkpoint": str(cfg.policy), "revision": cfg.revision, "dataset": dataset}
+    absent, guard_dir = absent_inputs(cfg.absent_inputs, directory, names)
     print(f"msta-export: {policy.config.type} student, {len(names)} sensors "
-          f"({', '.join(names)}), T = {T} -> {cfg.output_dir}")
+          f"({', '.join(names)}), T = {T} -> {cfg.output_dir}"
+          + (f"; removal inputs for {', '.join(absent)}" if absent else "")
+          + ("; with its guard" if guard_dir else ""))
     try:
         spec = export_student(policy, cfg.output_dir, cfg.sensors, T, formats, windows,
-                              cfg.tolerance, source)
+                              cfg.tolerance, source, absent, guard_dir)
     finally:
         _print_parity(Path(cfg.output_dir) / SPEC_NAME)
     return spec
@@ -381,7 +440,8 @@ def _print_parity(spec_path: Path) -> None:
         return
     spec = json.loads(spec_path.read_text())
     for p in spec["parity"]:
-        print(f"  parity {p['format']:<11} on {p['count']:>4} {p['windows']} windows: "
+        removal = " (random removal masks)" if p.get("absent") else ""
+        print(f"  parity {p['format']:<11} on {p['count']:>4} {p['windows']} windows{removal}: "
               f"max |d action| = {p['max_abs_diff']:.2e}")
     verdict = "ok" if spec["parity_ok"] else "FAILED"
     print(f"parity {verdict}: max |d action| {spec['parity_max_abs_diff']:.2e} "

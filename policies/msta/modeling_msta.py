@@ -20,7 +20,9 @@ may be supplied in any order, any subset of sensors / channels and any T work un
 
 Padded steps (before the episode start) are removed first; if some remain because other
 samples of the batch have fewer, they are hidden from attention with a key mask. Channels
-removed per sample (``absent``) are removed the same way (:mod:`policies.msta.removal`).
+removed per sample (``absent``) are removed the same way (:mod:`policies.msta.removal`); a
+traced graph (msta-export) hides them from attention instead (a fixed token count, the same
+action up to rounding).
 
 Dummy tokens (the paper's test-time stress test, ``dummy_tokens`` = D): after masking, D
 random tokens are appended to every sample before the readout tokens; they attend and are
@@ -243,6 +245,8 @@ class MSTATransformer(nn.Module):
             pad = pad if gone is None else gone if pad is None else pad | gone
             x = self._replace_masked(tokens, static, pad, n_drop, generator)  # (B, N, d)
             key_pad = encoded_keys(gone, inputs, T)  # None unless an encoded sensor is absent
+        elif gone is not None and torch.jit.is_tracing() and not mask_ratio:
+            x, key_pad = self._value(tokens) + static, gone if pad is None else gone | pad
         elif gone is not None:  # per sample: (B, K, d), K the most any sample keeps
             keep, key_pad = keep_per_sample(gone, pad, mask_ratio, generator)
             x = self._gather(tokens, static, keep)
