@@ -11,6 +11,12 @@ and finiteness, and, when ``last_action`` is an input the caller does not pass, 
 the action it returned on the previous step (zeros after a reset, as the simulator starts).
 Joint targets are ``default_pose + action_scale * action`` (spec.json ``action_convention``).
 
+An export with a guard (spec.json ``guard``) also runs it, numpy only
+(:class:`policies.guard.SensorGuard`): every step the guard reads the newest readings of all
+its sensors (``guard.reads``: pass them all, even those the student does not read), and its
+latched flags of the sensors with an ``absent_<sensor>`` input remove those channels from
+the student's window (:attr:`OnnxStudent.flags` holds them; :meth:`reset` clears them).
+
 This module must not import torch: ``tests/policies/test_export.py`` runs it in a fresh
 interpreter and checks ``sys.modules``.
 """
@@ -55,6 +61,15 @@ class OnnxStudent:
         self.history = int(self.spec["history"])
         self.dims = {i["name"]: int(i["shape"][2]) for i in self.spec["inputs"]}
         self.action_dim = int(self.spec["output"]["shape"][1])
+        #: sensors whose channels the graph can remove per sample (absent_<sensor> inputs)
+        self.absent = {a["sensor"]: a["name"] for a in self.spec.get("absent_inputs", [])}
+        self.guard = None
+        if "guard" in self.spec:
+            from policies.guard import load_guard
+
+            self.guard = load_guard(d)
+        #: the guard's latched flags after the last step, ``{sensor: (dim,) bool}``
+        self.flags: dict[str, np.ndarray] = {}
         self._window: dict[str, np.ndarray] | None = None
         self._last_action = np.zeros(self.action_dim, np.float32)
 
@@ -67,27 +82,38 @@ class OnnxStudent:
         """Forget the window (call at every episode start)."""
         self._window = None
         self._last_action = np.zeros(self.action_dim, np.float32)
+        self.flags = {}
+        if self.guard is not None:
+            self.guard.reset()
 
-    def step(self, readings: Mapping[str, Any]) -> np.ndarray:
-        """One control step: the newest reading of every input sensor -> the action (12,).
+    def step(self, readings: Mapping[str, Any],
+             absent: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        """One control step: the newest reading of every input sensor (and, with a guard,
+        of every sensor it reads) -> the action (12,).
 
         Args:
             readings: sensor name -> (dim,) reading; ``last_action`` may be omitted (the
                 previous returned action is used).
+            absent: sensor -> (dim,) bool, channels to remove now (added to the guard's
+                flags); only sensors with an ``absent_<sensor>`` input.
         """
-        current = {}
-        for name, dim in self.dims.items():
-            if name not in readings and name == "last_action":
-                value = self._last_action
-            elif name not in readings:
-                raise KeyError(f"missing reading {name!r}; this student reads {self.sensors}")
-            else:
-                value = np.asarray(readings[name], dtype=np.float32).reshape(-1)
-            if value.shape != (dim,):
-                raise ValueError(f"reading {name!r} has shape {value.shape}, expected ({dim},)")
-            if not np.isfinite(value).all():
-                raise ValueError(f"reading {name!r} has a non-finite value: {value}")
-            current[name] = value
+        needed = dict(self.dims)
+        if self.guard is not None:
+            from msta_data.sensors import get
+            from policies.guard import INPUT_SENSORS
+
+            needed |= {s: get(s).dim for s in INPUT_SENSORS if s not in needed}
+        current = {name: self._reading(readings, name, dim) for name, dim in needed.items()}
+        removed = {s: np.zeros(self.dims[s], bool) for s in self.absent}
+        if self.guard is not None:
+            flags = self.guard.update({s: current[s][None] for s in INPUT_SENSORS})
+            self.flags = {s: f[0] for s, f in flags.items()}
+            removed |= {s: f[0] | removed[s] for s, f in flags.items() if s in removed}
+        for s, m in (absent or {}).items():
+            if s not in removed:
+                raise KeyError(f"{s!r} has no removal input; these do: {list(self.absent)}")
+            removed[s] = removed[s] | np.asarray(m, bool).reshape(-1)
+        current = {n: current[n] for n in self.dims}
         if self._window is None:  # episode start: the first reading fills the window
             self._window = {n: np.repeat(v[None], self.history, 0) for n, v in current.items()}
         else:
@@ -95,11 +121,35 @@ class OnnxStudent:
                 w = self._window[name]  # (T, dim), oldest first
                 w[:-1] = w[1:]
                 w[-1] = value
-        action = self({n: w[None] for n, w in self._window.items()})[0]
+        action = self({n: w[None] for n, w in self._window.items()},
+                      {s: m[None] for s, m in removed.items()})[0]
         self._last_action = action.copy()
         return action
 
-    def __call__(self, windows: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Batched windows ``{sensor: (B, T, dim)}`` -> actions (B, 12)."""
+    def _reading(self, readings: Mapping[str, Any], name: str, dim: int) -> np.ndarray:
+        """One sensor's checked (dim,) float32 reading (``last_action`` fed back if absent)."""
+        if name not in readings and name == "last_action":
+            value = self._last_action
+        elif name not in readings:
+            raise KeyError(f"missing reading {name!r}; this student reads {self.sensors}"
+                           + (" and its guard every physical sensor and the command"
+                              if self.guard is not None else ""))
+        else:
+            value = np.asarray(readings[name], dtype=np.float32).reshape(-1)
+        if value.shape != (dim,):
+            raise ValueError(f"reading {name!r} has shape {value.shape}, expected ({dim},)")
+        if not np.isfinite(value).all():
+            raise ValueError(f"reading {name!r} has a non-finite value: {value}")
+        return value
+
+    def __call__(self, windows: Mapping[str, np.ndarray],
+                 absent: Mapping[str, np.ndarray] | None = None) -> np.ndarray:
+        """Batched windows ``{sensor: (B, T, dim)}`` -> actions (B, 12); ``absent``
+        ``{sensor: (B, dim) bool}`` for the sensors with a removal input (missing: none)."""
         feed = {n: np.ascontiguousarray(windows[n], dtype=np.float32) for n in self.dims}
+        B = len(next(iter(feed.values())))
+        for s, name in self.absent.items():
+            m = absent.get(s) if absent is not None else None
+            feed[name] = (np.zeros((B, self.dims[s]), bool) if m is None
+                          else np.ascontiguousarray(m, dtype=bool))
         return self.session.run(["action"], feed)[0]

@@ -1,0 +1,225 @@
+"""msta-export with a sensor guard: the removal inputs (absent_<sensor>) of every student hold
+the parity check under random removal masks, a checkpoint's guard is copied and named in the
+spec, an export without a guard is as before, and the torch-free ONNX loop runs the guard and
+the student step for step as the Python guard and the eager student do on a recorded stream
+with a stuck joint encoder injected."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import policies.teacher.gait  # noqa: F401  (registers "gait")
+from collect.faults import FaultInjector, FaultSpec
+from collect.record import CollectConfig, collect
+from collect.sim.env import EnvConfig
+from collect.sim.terrain import TerrainConfig
+from msta_data.stats import load_stats
+from policies.export import (
+    absent_masks,
+    export_student,
+    main,
+    random_windows,
+    resolve_sensors,
+)
+from policies.factory import get_config_class, make_policy
+from policies.guard import INPUT_SENSORS, load_guard
+from policies.teacher.config import TeacherConfig
+from train.guard import fit_guard, load_episodes
+
+REPO = Path(__file__).resolve().parents[2]
+CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),
+         ("gru", {}), ("tert_mask", {}), ("rma_tcn", {}), ("mlp", {})]
+IDS = [n + "".join(f"-{k}" for k in o) for n, o in CASES]
+ONSET_S = 0.6
+T = 5
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> Path:
+    """Two 2-second gait-teacher episodes recorded in the real simulator."""
+    root = tmp_path_factory.mktemp("export_guard_data") / "dataset"
+    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=2, num_envs=2,
+                          root=str(root), episode_length_s=2.0, progress=False,
+                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
+    return root
+
+
+@pytest.fixture(scope="module")
+def checkpoint(recorded, tmp_path_factory) -> Path:
+    """A tiny MSTA student saved with a guard fitted on the recorded episodes."""
+    ckpt = student("msta", {}, recorded).save_pretrained(
+        tmp_path_factory.mktemp("ckpt") / "ckpt")
+    fit_guard(recorded).save(ckpt)
+    return Path(ckpt)
+
+
+def student(name: str, overrides: dict, root: Path):
+    """A tiny student with large random weights (seeded): its actions vary with its inputs."""
+    torch.manual_seed(0)
+    cfg = get_config_class(name).from_preset("tiny", **overrides)
+    policy = make_policy(cfg, load_stats(root))
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.add_(0.1 * torch.randn(p.shape, generator=gen))
+    return policy.eval()
+
+
+@pytest.mark.parametrize(("name", "overrides"), CASES, ids=IDS)
+def test_removal_inputs_hold_parity_under_random_masks(name, overrides, recorded, tmp_path):
+    policy = student(name, overrides, recorded)
+    Tn = policy.config.history
+    names = resolve_sensors(policy, "all")
+    absent = ("joint_pos", "joint_vel", "gravity")
+    spec = export_student(policy, tmp_path, "all", Tn, absent=absent,
+                          windows={"random": random_windows(policy, names, Tn, 16)})
+    assert spec["parity_ok"] and spec["parity_max_abs_diff"] <= 1e-5
+    assert all(p["absent"] == "random" for p in spec["parity"])
+    assert [a["name"] for a in spec["absent_inputs"]] == [f"absent_{s}" for s in absent]
+    # fresh windows and masks: both files answer as policy.act(absent=...) does, and the
+    # masks change the action (the removal path is in the graph, not traced away)
+    fresh = random_windows(policy, names, Tn, 6, seed=7)
+    masks = absent_masks(absent, 6, seed=5)
+    expect = policy.act({n: torch.from_numpy(fresh[n]) for n in names}, absent=masks).numpy()
+    plain = policy.act({n: torch.from_numpy(fresh[n]) for n in names}).numpy()
+    import onnxruntime as ort
+
+    sess = ort.InferenceSession(str(tmp_path / "student.onnx"),
+                                providers=["CPUExecutionProvider"])
+    feed = {n: fresh[n] for n in names} | {f"absent_{s}": masks[s] for s in absent}
+    got_onnx = sess.run(["action"], feed)[0]
+    loaded = torch.jit.load(str(tmp_path / "student.pt"))
+    got_ts = loaded(*(torch.from_numpy(fresh[n]) for n in names),
+                    *(torch.from_numpy(masks[s]) for s in absent)).detach().numpy()
+    assert np.abs(got_onnx - expect).max() <= 1e-5 and np.abs(got_ts - expect).max() <= 1e-5
+    assert np.abs(expect[0] - plain[0]).max() == 0  # the first sample removes nothing
+    assert np.abs(expect[1:] - plain[1:]).max() > 1e-3
+
+
+def test_export_without_a_guard_is_unchanged_and_all_false_masks_are_the_plain_student(
+        recorded, tmp_path):
+    policy = student("msta", {}, recorded)
+    names = resolve_sensors(policy, "all")
+    windows = {"random": random_windows(policy, names, T, 8)}
+    plain = export_student(policy, tmp_path / "plain", "all", T, windows=windows)
+    assert "absent_inputs" not in plain and "guard" not in plain
+    assert all("absent" not in p for p in plain["parity"])
+    assert sorted(p.name for p in (tmp_path / "plain").iterdir()) == [
+        "spec.json", "student.onnx", "student.pt"]
+    export_student(policy, tmp_path / "removal", "all", T, windows=windows,
+                   absent=("joint_pos",))
+    import onnxruntime as ort
+
+    fresh = random_windows(policy, names, T, 4, seed=9)
+    a = ort.InferenceSession(str(tmp_path / "plain" / "student.onnx")).run(["action"], fresh)[0]
+    none = {"absent_joint_pos": np.zeros((4, 12), bool)}
+    b = ort.InferenceSession(str(tmp_path / "removal" / "student.onnx")).run(
+        ["action"], fresh | none)[0]
+    assert [i.name for i in ort.InferenceSession(
+        str(tmp_path / "plain" / "student.onnx")).get_inputs()] == list(names)
+    assert np.abs(a - b).max() <= 1e-5
+
+
+def test_cli_copies_the_guard_and_rejects_bad_removal_inputs(checkpoint, recorded, tmp_path,
+                                                             capsys):
+    out = tmp_path / "export"
+    main([f"--policy={checkpoint}", f"--output_dir={out}", f"--dataset={recorded}",
+          f"--history={T}", "--parity_windows=16", "--random_windows=8"])
+    printed = capsys.readouterr().out
+    assert "with its guard" in printed and "random removal masks" in printed
+    spec = json.loads((out / "spec.json").read_text())
+    guard = load_guard(checkpoint)
+    assert spec["guard"]["files"] == ["guard.json", "guard.safetensors"]
+    assert spec["guard"]["reads"] == list(INPUT_SENSORS)
+    assert [a["sensor"] for a in spec["absent_inputs"]] == [
+        n for n in resolve_sensors(student("msta", {}, recorded), "all") if n in guard.sensors]
+    assert (out / "guard.json").read_bytes() == (checkpoint / "guard.json").read_bytes()
+    assert np.array_equal(load_guard(out).stats["threshold"], guard.stats["threshold"])
+    main([f"--policy={checkpoint}", f"--output_dir={tmp_path / 'bare'}", f"--history={T}",
+          "--absent_inputs=none", "--random_windows=4"])
+    assert "guard is left out" in capsys.readouterr().err
+    assert not (tmp_path / "bare" / "guard.json").exists()
+    with pytest.raises(SystemExit):
+        main([f"--policy={checkpoint}", f"--output_dir={tmp_path / 'x'}",
+              "--absent_inputs=height_map"])
+    assert "--absent_inputs" in capsys.readouterr().err
+
+
+def eager_loop(policy, guard, stream: dict[str, np.ndarray], names) -> tuple[np.ndarray, ...]:
+    """The Python guard and the eager student on ``stream`` ({sensor: (steps, dim)}): the
+    same windows the ONNX loop builds, the guard's flags as ``absent``."""
+    guard.reset()
+    steps = len(stream["joint_pos"])
+    actions, flags = [], []
+    for t in range(steps):
+        f = guard.update({s: stream[s][t][None] for s in INPUT_SENSORS})
+        flags.append(np.concatenate([f[s][0] for s in guard.sensors]))
+        window = {n: np.concatenate([np.repeat(stream[n][:1], T, 0), stream[n][:t + 1]])[-T:]
+                  for n in names}
+        absent = {s: f[s] for s in guard.sensors if s in names}
+        actions.append(policy.act({n: torch.from_numpy(w[None]) for n, w in window.items()},
+                                  absent=absent)[0].numpy())
+    return np.stack(actions), np.stack(flags)
+
+
+def test_the_onnx_loop_runs_the_guard_as_python_does_on_a_stuck_encoder(
+        checkpoint, recorded, tmp_path):
+    out = tmp_path / "export"
+    main([f"--policy={checkpoint}", f"--output_dir={out}", f"--history={T}",
+          "--random_windows=8", f"--dataset={recorded}", "--parity_windows=8"])
+    episode = load_episodes(recorded, [1])
+    steps = int(episode["length"][0])
+    clean = {s: episode[s][:, :steps].astype(np.float32) for s in INPUT_SENSORS}  # (1, t, d)
+    inj = FaultInjector(FaultSpec("stuck", 0.0, "encoder:3", onset_s=(ONSET_S, ONSET_S)), 1)
+    faulty = [inj.apply({s: clean[s][:, t] for s in INPUT_SENSORS}) for t in range(steps)]
+    stream = {s: np.concatenate([f[s] for f in faulty]).astype(np.float32)
+              for s in INPUT_SENSORS}  # (steps, dim)
+    policy = student("msta", {}, recorded)
+    guard = load_guard(checkpoint)
+    names = resolve_sensors(policy, "all")
+    expect, expect_flags = eager_loop(policy, guard, stream, names)
+    np.savez(tmp_path / "stream.npz", **stream)
+    script = f"""
+import sys
+import numpy as np
+sys.path.insert(0, {str(REPO)!r})
+from policies.onnx_runtime import OnnxStudent
+stream = np.load({str(tmp_path / 'stream.npz')!r})
+s = OnnxStudent({str(out)!r})
+s.reset()
+actions, flags = [], []
+for t in range(len(stream["joint_pos"])):
+    actions.append(s.step({{n: stream[n][t] for n in stream.files}}))
+    flags.append(np.concatenate([s.flags[n] for n in s.guard.sensors]))
+np.savez({str(tmp_path / 'got.npz')!r}, actions=np.stack(actions), flags=np.stack(flags))
+print("torch" in sys.modules)
+"""
+    printed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                             timeout=300, check=True).stdout.split()
+    assert printed[-1] == "False"  # the robot loop runs without torch
+    got = np.load(tmp_path / "got.npz")
+    assert np.array_equal(got["flags"], expect_flags)
+    assert np.abs(got["actions"] - expect).max() <= 1e-5
+    onset = round(ONSET_S / 0.02)
+    assert guard.sensors[:2] == ("joint_pos", "joint_vel")  # flags: q (12), q-dot (12), ...
+    assert not expect_flags[:onset].any()  # quiet on the stream it was calibrated on
+    assert expect_flags[-1, 3] and expect_flags[-1, 12 + 3]  # q and q-dot of joint 3
+    # the guard's removal changes the student's actions once it flags
+    assert np.abs(expect[-1] - plain_last_action(policy, stream, names)).max() > 1e-4
+
+
+def plain_last_action(policy, stream, names) -> np.ndarray:
+    """The eager student's last action on ``stream`` without any removal."""
+    t = len(stream["joint_pos"]) - 1
+    window = {n: np.concatenate([np.repeat(stream[n][:1], T, 0), stream[n][:t + 1]])[-T:]
+              for n in names}
+    return policy.act({n: torch.from_numpy(w[None]) for n, w in window.items()})[0].numpy()
