@@ -17,10 +17,19 @@ achieves, and the machine's fp32 matmul rate measured in the same run on one thr
 roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower precision).
 The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the
 best parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
+
+The sensor guard (issue 43; docs/faults.md, "Deployment") at the full observation, batch 1,
+one core: ``guard``, :meth:`policies.guard.SensorGuard.update` alone (numpy; synthetic
+arrays of the fitted shapes: its cost does not depend on their values), and ``guard +
+student``, one :meth:`policies.onnx_runtime.OnnxStudent.step` of an export with the guard
+and its removal inputs (the robot loop: readings checked, window shifted, guard, ONNX
+Runtime), each as a ratio to the plain ONNX Runtime student timed above in the same run.
+Bar: guard + student <= 20 ms a step.
 """
 
 from __future__ import annotations
 
+import itertools
 import json
 import statistics
 import tempfile
@@ -33,6 +42,8 @@ import numpy as np
 import torch
 
 from msta_data import sensors as registry
+from msta_data.sensors import NUM_JOINTS
+from policies import guard as guard_mod
 from policies.export import (
     MINIMIZED_HISTORY,
     MINIMIZED_SENSORS,
@@ -43,9 +54,64 @@ from policies.export import (
     resolve_sensors,
 )
 from policies.factory import make_policy
+from policies.guard import INPUT_SENSORS, D, GuardConfig, P, SensorGuard, statistic_layout
 from policies.msta import MSTAConfig
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
+#: issue 43: guard + student at the full observation, one core, batch 1
+GUARD_BAR_MS = 20.0
+
+
+def synthetic_guard(seed: int = 0) -> SensorGuard:
+    """A guard (default GuardConfig) with random arrays of the fitted shapes and thresholds
+    nothing exceeds."""
+    rng = np.random.default_rng(seed)
+    cfg = GuardConfig()
+    two_sided = bool(getattr(cfg, "two_sided", False))  # the z2 statistics' extra arrays
+    names, _ = statistic_layout(two_sided) if two_sided else statistic_layout()
+    need = guard_mod.ARRAY_NAMES + (guard_mod.TWO_SIDED_ARRAYS if two_sided else ())
+    shapes = {"feat_mean": (3 * D,), "feat_std": (3 * D,), "enc_std": (NUM_JOINTS,),
+              "threshold": (len(names),)}
+    stats = {}
+    for k in need:
+        shape = (3 * D, P) if k.startswith("weight") else shapes.get(k, (P,))
+        stats[k] = (0.05 * rng.standard_normal(shape) if k.startswith("weight")
+                    else np.zeros(shape) if k.startswith(("bias", "feat_mean"))
+                    else np.full(shape, np.inf) if k == "threshold" else np.ones(shape))
+    return SensorGuard(cfg, stats)
+
+
+def bench_guard(policy, T: int, out: Path, seconds: float, student_ms: float) -> dict:
+    """Guard alone and guard + student (OnnxStudent.step) per step at the full observation;
+    printed with their ratios to ``student_ms`` (the plain ONNX Runtime student)."""
+    from policies.onnx_runtime import OnnxStudent
+
+    guard = synthetic_guard()
+    guard.save(out / "guard")
+    names = resolve_sensors(policy, "all")
+    absent = [n for n in names if n in guard.sensors]
+    spec = export_student(policy, out / "export", names, T, absent=absent,
+                          guard_dir=out / "guard",
+                          windows={"random": random_windows(policy, names, T, 16)})
+    stream = random_windows(policy, INPUT_SENSORS, 64, 1, seed=1)  # (1, 64, dim) each
+    obs = [{s: stream[s][:, t] for s in INPUT_SENSORS} for t in range(64)]
+    robot = OnnxStudent(out / "export", num_threads=1)
+    robot.reset()
+    i = itertools.count()
+    g_med, g_p90, g_n = time_call(lambda: guard.update(obs[next(i) % 64]), seconds)
+    both = time_call(lambda: robot.step({s: v[0] for s, v in obs[next(i) % 64].items()}),
+                     seconds)
+    rows = {"guard": {"median_ms": g_med, "p90_ms": g_p90, "calls": g_n},
+            "guard + student": dict(zip(("median_ms", "p90_ms", "calls"), both, strict=True))}
+    for name, r in rows.items():
+        r["ratio_to_student"] = r["median_ms"] / student_ms
+        print(f"{'full':<11} {'':>6} {'':>6} {name:<16} {r['median_ms']:>7.3f} ms "
+              f"(p90 {r['p90_ms']:.3f}, {r['calls']} calls) = {r['ratio_to_student']:.3f} x "
+              f"the student alone ({student_ms:.2f} ms)")
+    ms = rows["guard + student"]["median_ms"]
+    return {"runtimes": rows, "student_ms": student_ms, "bar_ms": GUARD_BAR_MS,
+            "met": ms <= GUARD_BAR_MS, "parity_max_abs_diff": spec["parity_max_abs_diff"],
+            "absent_inputs": absent}
 
 
 def synthetic_stats(names) -> dict:
@@ -190,6 +256,9 @@ def main(argv: list[str] | None = None) -> None:
             best[obs] = min(ok, key=lambda rt: ok[rt]["median_ms"])
             results["observations"][obs] = {"tokens": tokens, "flops": flops, "parity": parity,
                                             "runtimes": rows, "best": best[obs]}
+        results["guard"] = bench_guard(policy, cfg.history, Path(tmp) / "guard", a.seconds,
+                                       results["observations"]["full"]["runtimes"]
+                                       ["onnxruntime"]["median_ms"])
     out = Path(a.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")
@@ -201,6 +270,12 @@ def main(argv: list[str] | None = None) -> None:
         print(f"{obs}: best {best[obs]} {ms:.2f} ms (goal <= {goal:g} ms: "
               f"{'met' if ms <= goal else 'not met'}); parity {r['parity']}; the matmul-rate "
               f"floor for its {r['flops'] / 1e9:.3f} GFLOP is {floor:.2f} ms")
+    g = results["guard"]
+    print(f"guard + student (full, 1 core, batch 1): "
+          f"{g['runtimes']['guard + student']['median_ms']:.2f} ms a step (bar <= "
+          f"{GUARD_BAR_MS:g} ms: {'met' if g['met'] else 'not met'}); the guard alone "
+          f"{g['runtimes']['guard']['median_ms'] * 1e3:.0f} us; export parity with random "
+          f"removal masks {g['parity_max_abs_diff']:.1e}")
     print(f"wrote {out / 'results.json'}")
     print(f"minimized latency (ms): {results['observations']['minimized']['runtimes'][best['minimized']]['median_ms']:.2f}")
     print(f"full latency (ms): {results['observations']['full']['runtimes'][best['full']]['median_ms']:.2f}")

@@ -62,7 +62,7 @@ from policies.base import Absent, Batch, Channels, StudentPolicy, uniform
 from policies.factory import register_policy
 from policies.msta.configuration_msta import MSTAConfig
 from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
-from policies.msta.removal import absent_tokens, encoded_keys, keep_per_sample
+from policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
 from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d, sincos_2d
 
 __all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
@@ -263,6 +263,8 @@ class MSTATransformer(nn.Module):
             always = D + self.cfg.state_tokens
             keep = torch.cat([~key_pad, key_pad.new_ones(B, always)], dim=1)
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
+            if torch.jit.is_tracing():  # exported: 0 / -inf added to the scores (cheaper)
+                attn_mask = additive_mask(attn_mask, x.dtype)
         return x, attn_mask
 
     def _encode(self, inputs: MSTAInputs, rows: Tensor | None, B: int, T: int) -> Tensor:

@@ -30,6 +30,16 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
         assert r["parity"]["parity_max_abs_diff"] <= 1e-5
         assert all(v["median_ms"] > 0 and v["calls"] >= 20 for v in r["runtimes"].values())
         assert r["best"] in r["runtimes"]
+    g = results["guard"]  # the guard and guard + student, against the plain student
+    student = results["observations"]["full"]["runtimes"]["onnxruntime"]["median_ms"]
+    assert g["student_ms"] == student and g["parity_max_abs_diff"] <= 1e-5
+    assert g["absent_inputs"] == ["joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact"]
+    for name in ("guard", "guard + student"):
+        r = g["runtimes"][name]
+        assert r["median_ms"] > 0 and r["calls"] >= 20
+        assert abs(r["ratio_to_student"] - r["median_ms"] / student) < 1e-12
+    assert g["runtimes"]["guard + student"]["median_ms"] > g["runtimes"]["guard"]["median_ms"]
+    assert any(line.startswith("guard + student (full, 1 core, batch 1): ") for line in lines)
 
 
 def test_flops_count_the_readout_only_last_block():
