@@ -9,6 +9,10 @@ accuses; a statistic above its threshold flags those channels, and flags latch u
   (its joint encoder's partner excluded) at t, t-1, t-2; the residual's z-score at this
   step (spikes, large jumps), its mean over ``window`` steps (bias, drift, stuck) and its
   mean square (noise).
+* ``z2`` (``two_sided``): each physical channel's reading one step back, ``x_{t-1}``,
+  predicted from every input at t, t-1, t-2 but itself at t-1 (so its own neighbours on
+  both sides); the residual's z-score (a one-step-late spike test) and its mean square
+  over ``window`` steps (noise).
 * ``enc``: a joint encoder's own physics, ``q_t - q_{t-1}`` against
   ``dt (qdot_t + qdot_{t-1}) / 2``; now and averaged over ``window`` steps.
 * ``repeat``: steps a (non-binary) channel has repeated its last reading exactly.
@@ -44,6 +48,10 @@ D = registry.total_dim(INPUT_SENSORS)  # 49 inputs
 OFFSET = {s: registry.total_dim(INPUT_SENSORS[:i]) for i, s in enumerate(INPUT_SENSORS)}
 #: Fitted arrays a guard holds (names in guard.safetensors).
 ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "threshold")
+#: Further arrays of a two-sided guard (``GuardConfig.two_sided``).
+TWO_SIDED_ARRAYS = ("weight2", "bias2", "z2_std")
+#: Config a guard saved before a setting existed gets for it (its behaviour then).
+LEGACY_CONFIG = {"two_sided": False}
 
 
 @dataclass
@@ -58,6 +66,8 @@ class GuardConfig:
         min_repeat: a channel repeating its reading exactly for more steps than this (or
             than the calibration data ever showed, whichever is larger) is stuck.
         binary_tolerance: smallest threshold of a contact reading's distance from 0/1.
+        two_sided: add the two-sided statistics ``z2`` (spikes and noise one step late).
+        margin2: the margin of the two-sided statistics (their fault-free tails are longer).
     """
 
     window: int = 8
@@ -66,12 +76,14 @@ class GuardConfig:
     margin: float = 1.6
     min_repeat: int = 2
     binary_tolerance: float = 0.01
+    two_sided: bool = True
+    margin2: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("window", "imu_window", "min_repeat"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"guard {name} must be >= 1, got {getattr(self, name)}")
-        for name in ("ridge", "margin", "binary_tolerance"):
+        for name in ("ridge", "margin", "binary_tolerance", "margin2"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"guard {name} must be > 0, got {getattr(self, name)}")
 
@@ -87,13 +99,13 @@ def nonbinary_channels() -> np.ndarray:
     return np.array([c for c in range(P) if c not in binary])
 
 
-def statistic_layout() -> tuple[list[str], np.ndarray]:
+def statistic_layout(two_sided: bool = False) -> tuple[list[str], np.ndarray]:
     """Names of the statistics (one per entry of the vector) and which physical channels
     each one accuses: ``(names, accuse (S, P) bool)``."""
     eye = np.eye(P, dtype=bool)
     enc = eye | eye[encoder_partner(np.arange(P))]  # a channel and its encoder partner
     names, rows = [], []
-    for kind in ("z", "z_mean", "z_sq"):
+    for kind in ("z", "z_mean", "z_sq") + (("z2", "z2_sq") if two_sided else ()):
         names += [f"{kind}:{c}" for c in range(P)]
         rows.append(enc)
     for kind in ("enc", "enc_mean"):
@@ -130,7 +142,8 @@ class SensorGuard:
     def __init__(self, cfg: GuardConfig, stats: dict[str, np.ndarray],
                  sensors: tuple[str, ...] = PHYSICAL_SENSORS, num_envs: int = 1,
                  dt: float = 0.02) -> None:
-        missing = [k for k in ARRAY_NAMES if k not in stats]
+        need = ARRAY_NAMES + (TWO_SIDED_ARRAYS if cfg.two_sided else ())
+        missing = [k for k in need if k not in stats]
         if missing:
             raise KeyError(f"guard arrays missing: {missing}")
         bad = [s for s in sensors if s not in PHYSICAL_SENSORS]
@@ -140,8 +153,8 @@ class SensorGuard:
         if num_envs < 1 or not dt > 0:
             raise ValueError(f"guard needs num_envs >= 1 and dt > 0, got {num_envs}, {dt}")
         self.cfg, self.sensors, self.num_envs, self.dt = cfg, tuple(sensors), num_envs, dt
-        self.stats = {k: np.asarray(stats[k], np.float64) for k in ARRAY_NAMES}
-        self.names, accuse = statistic_layout()
+        self.stats = {k: np.asarray(stats[k], np.float64) for k in need}
+        self.names, accuse = statistic_layout(cfg.two_sided)
         if self.stats["threshold"].shape != (len(self.names),):
             raise ValueError(f"guard threshold has shape {self.stats['threshold'].shape}, "
                              f"expected ({len(self.names)},)")
@@ -155,6 +168,7 @@ class SensorGuard:
         n, k = cfg.window, cfg.imu_window
         self._lag = np.zeros((num_envs, 2, D))  # x_{t-1}, x_{t-2}
         self._zbuf = np.zeros((num_envs, n, P))
+        self._z2buf = np.zeros((num_envs, n, P))
         self._ebuf = np.zeros((num_envs, n, NJ))
         self._cbuf = np.zeros((num_envs, k + 1, 3))  # w x g
         self._gbuf = np.zeros((num_envs, k + 1, 3))
@@ -182,14 +196,40 @@ class SensorGuard:
         x = self._concat(obs)
         first = self.age == 0
         self._lag[first] = x[first, None]
+        lag1 = self._lag[:, 0]
+        inst = (self.age >= 2)[:, None]
+        win = (self.age >= self.cfg.window + 1)[:, None]
+        stat = np.concatenate(self._predicted(x, inst, win) + self._physics(x, first, inst, win),
+                              axis=1)
+        self._lag[:, 1], self._lag[:, 0] = lag1, x
+        self.age += 1
+        self._t += 1
+        return stat
+
+    def _predicted(self, x: np.ndarray, inst: np.ndarray, win: np.ndarray) -> list[np.ndarray]:
+        """The predictor statistics: ``z``, ``z_mean``, ``z_sq`` (and ``z2``, ``z2_sq``)."""
         lag1, lag2 = self._lag[:, 0], self._lag[:, 1]
-        s = self.stats
+        s, n, i = self.stats, self.cfg.window, self._t
         feats = (np.concatenate([x, lag1, lag2], axis=1) - s["feat_mean"]) / s["feat_std"]
         z = (x[:, :P] - feats @ s["weight"] - s["bias"]) / s["z_std"]  # (N, P)
+        self._zbuf[:, i % n] = z
+        out = [np.abs(z) * inst, np.abs(self._zbuf.mean(1)) * win,
+               (self._zbuf ** 2).mean(1) * win]
+        if self.cfg.two_sided:
+            z2 = (lag1[:, :P] - feats @ s["weight2"] - s["bias2"]) / s["z2_std"]
+            self._z2buf[:, i % n] = z2
+            out += [np.abs(z2) * inst, (self._z2buf ** 2).mean(1) * win]
+        return out
+
+    def _physics(self, x: np.ndarray, first: np.ndarray, inst: np.ndarray,
+                 win: np.ndarray) -> list[np.ndarray]:
+        """The physics statistics: ``enc``, ``enc_mean``, ``repeat``, ``gnorm``, ``imu``,
+        ``binary``."""
+        lag1, s = self._lag[:, 0], self.stats
         q, qd = slice(0, NJ), slice(NJ, 2 * NJ)
         e = (x[:, q] - lag1[:, q] - self.dt * (x[:, qd] + lag1[:, qd]) / 2) / s["enc_std"]
         n, k, i = self.cfg.window, self.cfg.imu_window, self._t
-        self._zbuf[:, i % n], self._ebuf[:, i % n] = z, e
+        self._ebuf[:, i % n] = e
         g = x[:, OFFSET["gravity"]:OFFSET["gravity"] + 3]
         w = x[:, OFFSET["ang_vel"]:OFFSET["ang_vel"] + 3]
         self._cbuf[:, i % (k + 1)] = np.cross(w, g)
@@ -203,16 +243,8 @@ class SensorGuard:
         self._rep = np.where(same & ~first[:, None], self._rep + 1, 0.0)
         fc = x[:, OFFSET["foot_contact"]:OFFSET["foot_contact"] + 4]
         binary = np.minimum(np.abs(fc), np.abs(fc - 1.0))
-        inst = (self.age >= 2)[:, None]
-        win = (self.age >= n + 1)[:, None]
-        stat = np.concatenate([
-            np.abs(z) * inst, np.abs(self._zbuf.mean(1)) * win, (self._zbuf ** 2).mean(1) * win,
-            np.abs(e) * inst, np.abs(self._ebuf.mean(1)) * win, self._rep, gnorm,
-            imu * (self.age >= k + 1)[:, None], binary], axis=1)
-        self._lag[:, 1], self._lag[:, 0] = lag1, x
-        self.age += 1
-        self._t += 1
-        return stat
+        return [np.abs(e) * inst, np.abs(self._ebuf.mean(1)) * win, self._rep, gnorm,
+                imu * (self.age >= k + 1)[:, None], binary]
 
     def update(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One control step: ``obs[s]`` is ``(N, dim_s)`` for every sensor in
@@ -256,5 +288,5 @@ def load_guard(directory: str | Path, num_envs: int = 1) -> SensorGuard | None:
     if unknown:
         raise ValueError(f"{path}: unknown guard config keys {unknown}")
     arrays = load_file(str(Path(directory) / GUARD_ARRAYS))
-    return SensorGuard(GuardConfig(**meta["config"]), arrays, tuple(meta["sensors"]),
+    return SensorGuard(GuardConfig(**{**LEGACY_CONFIG, **meta["config"]}), arrays, tuple(meta["sensors"]),
                        num_envs, float(meta["dt"]))

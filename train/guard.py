@@ -61,29 +61,47 @@ def _rows(data: Episodes) -> np.ndarray:
     return np.concatenate([x, lag1, lag2], axis=2)[valid]
 
 
-def fit_predictors(data: Episodes, ridge: float, dt: float = 0.02) -> dict[str, np.ndarray]:
+def fit_predictors(data: Episodes, ridge: float, dt: float = 0.02,
+                   two_sided: bool = False) -> dict[str, np.ndarray]:
     """Ridge predictor of each physical channel from the other channels (its own joint
-    encoder left out) and the residual scales: every array but ``threshold``."""
+    encoder left out) and the residual scales: every array but ``threshold``. With
+    ``two_sided`` also the predictor of each channel's previous reading from every input
+    at t, t-1, t-2 but that reading (``weight2``, ``bias2``, ``z2_std``)."""
     feats = _rows(data)
     d = feats.shape[1] // 3
     mean, std = feats.mean(0), feats.std(0) + 1e-6
     f = (feats - mean) / std
-    gram, cross = f.T @ f, f.T @ feats[:, :P]
+    gram = f.T @ f
     own = np.zeros((P, d), bool)
     own[np.arange(P), np.arange(P)] = True
     own[np.arange(P), encoder_partner(np.arange(P))] = True
-    weight = np.zeros((3 * d, P))
-    for c in range(P):
-        keep = np.flatnonzero(~np.tile(own[c], 3))
-        a = gram[np.ix_(keep, keep)] + ridge * np.eye(len(keep))
-        weight[keep, c] = np.linalg.solve(a, cross[keep, c])
-    bias = feats[:, :P].mean(0)  # features are centred
-    resid = feats[:, :P] - f @ weight - bias
+    weight, bias, resid = _ridge(f, gram, feats[:, :P], np.tile(own, 3), ridge)
     q, qd = feats[:, :NJ], feats[:, NJ:2 * NJ]
     q1, qd1 = feats[:, d:d + NJ], feats[:, d + NJ:d + 2 * NJ]
     enc = q - q1 - dt * (qd + qd1) / 2
-    return {"feat_mean": mean, "feat_std": std, "weight": weight, "bias": bias,
-            "z_std": resid.std(0) + 1e-9, "enc_std": enc.std(0) + 1e-9}
+    out = {"feat_mean": mean, "feat_std": std, "weight": weight, "bias": bias,
+           "z_std": resid.std(0) + 1e-9, "enc_std": enc.std(0) + 1e-9}
+    if two_sided:
+        self_lag1 = np.zeros((P, 3 * d), bool)
+        self_lag1[np.arange(P), d + np.arange(P)] = True
+        out["weight2"], out["bias2"], resid2 = _ridge(f, gram, feats[:, d:d + P], self_lag1,
+                                                      ridge)
+        out["z2_std"] = resid2.std(0) + 1e-9
+    return out
+
+
+def _ridge(f: np.ndarray, gram: np.ndarray, target: np.ndarray, drop: np.ndarray,
+           ridge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Ridge fit of each target column from the standardized features ``f`` but those
+    ``drop[c]`` excludes: ``(weight (F, C), bias (C,), residuals (rows, C))``."""
+    cross = f.T @ target
+    weight = np.zeros((f.shape[1], target.shape[1]))
+    for c in range(target.shape[1]):
+        keep = np.flatnonzero(~drop[c])
+        a = gram[np.ix_(keep, keep)] + ridge * np.eye(len(keep))
+        weight[keep, c] = np.linalg.solve(a, cross[keep, c])
+    bias = target.mean(0)  # features are centred
+    return weight, bias, target - f @ weight - bias
 
 
 def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.ndarray]:
@@ -114,11 +132,11 @@ def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
               dt: float = 0.02) -> np.ndarray:
     """Thresholds: margin x each statistic's largest value on ``data`` (fault-free), no
     lower than ``min_repeat`` steps for repeats and ``binary_tolerance`` for contacts."""
-    probe = SensorGuard(cfg, {**arrays, "threshold": np.full(len(statistic_layout()[0]), np.inf)},
-                        num_envs=len(data["length"]), dt=dt)
+    inf = np.full(len(statistic_layout(cfg.two_sided)[0]), np.inf)
+    probe = SensorGuard(cfg, {**arrays, "threshold": inf}, num_envs=len(data["length"]), dt=dt)
     peak = stream(probe, data)["max_stat"]
-    thr = cfg.margin * peak
     kind = np.array([n.split(":")[0] for n in probe.names])
+    thr = np.where(np.char.startswith(kind.astype(str), "z2"), cfg.margin2, cfg.margin) * peak
     thr[kind == "repeat"] = np.maximum(peak[kind == "repeat"] + 1, cfg.min_repeat)
     thr[kind == "binary"] = np.maximum(thr[kind == "binary"], cfg.binary_tolerance)
     return thr
@@ -143,7 +161,7 @@ def fit_guard(dataset_root: str | Path, episodes: list[int] | None = None,
     if episodes is not None and not len(episodes):
         raise ValueError("fit_guard needs at least one episode")
     data = load_episodes(dataset_root, None if episodes is None else sorted(episodes))
-    arrays = fit_predictors(data, cfg.ridge, dt)
+    arrays = fit_predictors(data, cfg.ridge, dt, cfg.two_sided)
     arrays["threshold"] = calibrate(cfg, arrays, data, dt)
     return SensorGuard(cfg, arrays, dt=dt)
 
