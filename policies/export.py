@@ -56,7 +56,13 @@ from torch import Tensor, nn
 from msta_data import robot
 from msta_data import sensors as registry
 from policies.base import StudentPolicy
-from policies.export_removal import ABSENT_PREFIX, absent_inputs, absent_masks, copy_guard
+from policies.export_removal import (
+    ABSENT_PREFIX,
+    absent_inputs,
+    absent_masks,
+    removal_spec,
+    trace_masks,
+)
 
 __all__ = [
     "ABSENT_PREFIX", "DEFAULT_TOLERANCE", "FORMAT", "MINIMIZED_HISTORY", "MINIMIZED_SENSORS", "DeployedStudent",
@@ -99,7 +105,7 @@ class DeployedStudent(nn.Module):
         if self.absent:
             policy.check_absent()
         bad = [s for s in self.absent if s not in self.sensors]
-        if bad:
+        if bad or len(set(self.absent)) != len(self.absent):
             raise ValueError(f"absent inputs {bad} are not exported sensors {list(sensors)}")
 
     def forward(self, *inputs: Tensor) -> Tensor:
@@ -210,25 +216,17 @@ def export_student(
         raise ValueError(f"history must be >= 1, got {T}")
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    module = DeployedStudent(policy, names, [n for n in names if n in set(absent)])
-    if len(module.absent) != len(set(absent)):
-        raise ValueError(f"absent inputs {list(absent)} must be exported sensors {list(names)}")
+    module = DeployedStudent(policy, names, absent)  # ValueError: absent not exported
     windows = dict(windows or {"random": random_windows(policy, names, T, 64)})
     first = next(iter(windows.values()))
+    # one removed channel per absent input: the traced graph keeps the removal path
     example = tuple(torch.from_numpy(first[n][:1]) for n in names) + tuple(
-        # one removed channel per sensor: the traced graph keeps the removal path
-        torch.from_numpy(np.arange(registry.get(n).dim)[None] == 0) for n in module.absent)
+        torch.from_numpy(m) for m in trace_masks(module.absent).values())
     runners = _write_formats(module, example, formats, out)
     parity = _parity(module, windows, runners)
     worst = max((p["max_abs_diff"] for p in parity), default=0.0)
     spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
-    if module.absent:
-        spec["absent_inputs"] = [
-            {"name": ABSENT_PREFIX + n, "sensor": n, "shape": ["batch", registry.get(n).dim],
-             "dtype": "bool", "meaning": "True removes that channel from the window"}
-            for n in module.absent]
-    if guard_dir is not None:
-        spec["guard"] = copy_guard(Path(guard_dir), out)
+    spec |= removal_spec(module.absent, guard_dir, out)
     (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
     if not worst <= tolerance:
         raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "

@@ -30,6 +30,27 @@ def absent_masks(sensors: Sequence[str], n: int, seed: int = 0, p: float = 0.25
     return out
 
 
+def trace_masks(sensors: Sequence[str]) -> dict[str, np.ndarray]:
+    """Example masks to trace with, ``{sensor: (1, dim) bool}``: channel 0 removed (a mask
+    that removes nothing would trace the plain student's path)."""
+    return {s: np.arange(registry.get(s).dim)[None] == 0 for s in sensors}
+
+
+def removal_spec(absent: Sequence[str], guard_dir: str | Path | None, out: Path
+                 ) -> dict[str, Any]:
+    """spec.json's ``absent_inputs`` (when any) and ``guard`` (when ``guard_dir``, whose
+    files are copied into ``out``)."""
+    spec: dict[str, Any] = {}
+    if absent:
+        spec["absent_inputs"] = [
+            {"name": ABSENT_PREFIX + n, "sensor": n, "shape": ["batch", registry.get(n).dim],
+             "dtype": "bool", "meaning": "True removes that channel from the window"}
+            for n in absent]
+    if guard_dir is not None:
+        spec["guard"] = copy_guard(Path(guard_dir), out)
+    return spec
+
+
 def copy_guard(src: Path, out: Path) -> dict[str, Any]:
     """Copy a saved guard's files into the export folder; its spec.json entry."""
     from policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS
