@@ -51,7 +51,7 @@ ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "t
 #: Further arrays of a two-sided guard (``GuardConfig.two_sided``).
 TWO_SIDED_ARRAYS = ("weight2", "bias2", "z2_std")
 #: Config a guard saved before a setting existed gets for it (its behaviour then).
-LEGACY_CONFIG = {"two_sided": False}
+LEGACY_CONFIG = {"two_sided": False, "explain": False}
 
 
 @dataclass
@@ -68,6 +68,9 @@ class GuardConfig:
         binary_tolerance: smallest threshold of a contact reading's distance from 0/1.
         two_sided: add the two-sided statistics ``z2`` (spikes and noise one step late).
         margin2: the margin of the two-sided statistics (their fault-free tails are longer).
+        explain: a channel accused only by predictor statistics is flagged only if they
+            still exceed once the suspect channels' residuals are taken out of its
+            prediction (a fault on one channel distorts the others' predictions).
     """
 
     window: int = 8
@@ -78,6 +81,7 @@ class GuardConfig:
     binary_tolerance: float = 0.01
     two_sided: bool = True
     margin2: float = 2.0
+    explain: bool = True
 
     def __post_init__(self) -> None:
         for name in ("window", "imu_window", "min_repeat"):
@@ -169,6 +173,8 @@ class SensorGuard:
         self._lag = np.zeros((num_envs, 2, D))  # x_{t-1}, x_{t-2}
         self._zbuf = np.zeros((num_envs, n, P))
         self._z2buf = np.zeros((num_envs, n, P))
+        self._rbuf = np.zeros((num_envs, n + 2, P))  # z of the last n + 2 steps
+        self._influence = self._influences()
         self._ebuf = np.zeros((num_envs, n, NJ))
         self._cbuf = np.zeros((num_envs, k + 1, 3))  # w x g
         self._gbuf = np.zeros((num_envs, k + 1, 3))
@@ -201,6 +207,8 @@ class SensorGuard:
         win = (self.age >= self.cfg.window + 1)[:, None]
         stat = np.concatenate(self._predicted(x, inst, win) + self._physics(x, first, inst, win),
                               axis=1)
+        if self.cfg.explain:
+            stat = self._explained(stat, inst, win)
         self._lag[:, 1], self._lag[:, 0] = lag1, x
         self.age += 1
         self._t += 1
@@ -213,6 +221,7 @@ class SensorGuard:
         feats = (np.concatenate([x, lag1, lag2], axis=1) - s["feat_mean"]) / s["feat_std"]
         z = (x[:, :P] - feats @ s["weight"] - s["bias"]) / s["z_std"]  # (N, P)
         self._zbuf[:, i % n] = z
+        self._rbuf[:, i % (n + 2)] = z
         out = [np.abs(z) * inst, np.abs(self._zbuf.mean(1)) * win,
                (self._zbuf ** 2).mean(1) * win]
         if self.cfg.two_sided:
@@ -220,6 +229,47 @@ class SensorGuard:
             self._z2buf[:, i % n] = z2
             out += [np.abs(z2) * inst, (self._z2buf ** 2).mean(1) * win]
         return out
+
+    def _influences(self) -> np.ndarray:
+        """``A[m, l, k, d]``: how much channel k's residual at t-l (in its z units) moves
+        predictor m's z-score of channel d (m = 0: ``z``, 1: ``z2``); self and encoder
+        partner excluded."""
+        s, std = self.stats, self.stats["feat_std"]
+        kinds = [("weight", "z_std")] + ([("weight2", "z2_std")] if self.cfg.two_sided else [])
+        own = np.eye(P, dtype=bool) | np.eye(P, dtype=bool)[encoder_partner(np.arange(P))]
+        out = np.zeros((len(kinds), 3, P, P))
+        for m, (w, zs) in enumerate(kinds):
+            for lag in range(3):
+                rows = slice(lag * D, lag * D + P)
+                a = s[w][rows] / std[rows, None] * s["z_std"][:, None] / s[zs][None]
+                out[m, lag] = np.where(own, 0.0, a)
+        return out
+
+    def _explained(self, stat: np.ndarray, inst: np.ndarray, win: np.ndarray) -> np.ndarray:
+        """``stat`` with each predictor statistic the smaller of itself and its value once
+        the suspects' residuals (channels flagged or accused now) are taken out."""
+        suspect = self.flags | ((stat > self.stats["threshold"]) @ self.accuse > 0)
+        rows = suspect.any(1)
+        if not rows.any():
+            return stat
+        n, i, a = self.cfg.window, self._t, self._influence
+        order = (i - np.arange(n + 2)[::-1]) % (n + 2)  # oldest first
+        hist = self._rbuf[rows][:, order]  # (R, n + 2, P)
+        sus = hist * suspect[rows][:, None]
+
+        def taken_out(m: int) -> np.ndarray:  # (R, n, P): the correction over the window
+            return sum(sus[:, 2 - lag:n + 2 - lag] @ a[m, lag] for lag in range(3))
+
+        zc = hist[:, 2:] + taken_out(0)
+        inst, win = inst[rows], win[rows]
+        new = [np.abs(zc[:, -1]) * inst, np.abs(zc.mean(1)) * win, (zc ** 2).mean(1) * win]
+        if self.cfg.two_sided:
+            z2 = self._z2buf[rows][:, (i - np.arange(n)[::-1]) % n] + taken_out(1)
+            new += [np.abs(z2[:, -1]) * inst, (z2 ** 2).mean(1) * win]
+        new = np.concatenate(new, axis=1)
+        stat = stat.copy()
+        stat[rows, :new.shape[1]] = np.minimum(stat[rows, :new.shape[1]], new)
+        return stat
 
     def _physics(self, x: np.ndarray, first: np.ndarray, inst: np.ndarray,
                  win: np.ndarray) -> list[np.ndarray]:
@@ -250,9 +300,12 @@ class SensorGuard:
         """One control step: ``obs[s]`` is ``(N, dim_s)`` for every sensor in
         ``INPUT_SENSORS``. Returns the latched flags ``{sensor: (N, dim) bool}`` for the
         guarded sensors (True = faulty, remove it)."""
-        over = self.statistics(obs) > self.stats["threshold"]  # (N, S)
-        self.flags |= (over @ self.accuse) > 0
+        self.flags |= self.accused(self.statistics(obs))
         return self.flagged()
+
+    def accused(self, stat: np.ndarray) -> np.ndarray:
+        """Channels ``(N, P)`` the statistics ``stat`` (N, S) accuse this step."""
+        return ((stat > self.stats["threshold"]) @ self.accuse) > 0
 
     def flagged(self) -> dict[str, np.ndarray]:
         return {s: self.flags[:, OFFSET[s]:OFFSET[s] + registry.get(s).dim].copy()

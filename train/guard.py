@@ -123,7 +123,7 @@ def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.nd
         stat = guard.statistics(obs)
         alive = t < data["length"]
         max_stat = np.maximum(max_stat, stat[alive].max(0, initial=0.0))
-        guard.flags |= (stat > guard.stats["threshold"]) @ guard.accuse > 0
+        guard.flags |= guard.accused(stat)
         flags[:, t] = guard.flags
     return {"max_stat": max_stat, "flags": flags, "active": active}
 
