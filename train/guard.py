@@ -107,7 +107,8 @@ def _ridge(f: np.ndarray, gram: np.ndarray, target: np.ndarray, drop: np.ndarray
 def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.ndarray]:
     """Run ``guard`` (num_envs = episodes) over ``data`` step by step, faults from
     ``injector`` (a ``collect.faults.FaultInjector`` or None). Returns ``max_stat`` (S,)
-    over valid steps, ``flags`` (E, T, P) bool latched flags and ``active`` (E, T) bool."""
+    over valid steps, ``flags`` (E, T, P) bool latched flags, ``active`` (E, T) bool and
+    ``changed`` (E, T) bool: the fault changed a reading at that step."""
     e, tmax = data["length"].shape[0], int(data["length"].max())
     guard.reset()
     if injector is not None:
@@ -115,17 +116,19 @@ def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.nd
     max_stat = np.zeros(len(guard.names))
     flags = np.zeros((e, tmax, P), bool)
     active = np.zeros((e, tmax), bool)
+    changed = np.zeros((e, tmax), bool)
     for t in range(tmax):
         obs = {s: data[s][:, t] for s in INPUT_SENSORS}
         if injector is not None:
-            obs = injector.apply(obs)
+            clean, obs = obs, injector.apply(obs)
             active[:, t] = injector.active
+            changed[:, t] = np.any([(obs[s] != clean[s]).any(1) for s in injector.channels], 0)
         stat = guard.statistics(obs)
         alive = t < data["length"]
         max_stat = np.maximum(max_stat, stat[alive].max(0, initial=0.0))
         guard.flags |= guard.accused(stat)
         flags[:, t] = guard.flags
-    return {"max_stat": max_stat, "flags": flags, "active": active}
+    return {"max_stat": max_stat, "flags": flags, "active": active, "changed": changed}
 
 
 def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
@@ -136,7 +139,7 @@ def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
     probe = SensorGuard(cfg, {**arrays, "threshold": inf}, num_envs=len(data["length"]), dt=dt)
     peak = stream(probe, data)["max_stat"]
     kind = np.array([n.split(":")[0] for n in probe.names])
-    thr = np.where(np.char.startswith(kind.astype(str), "z2"), cfg.margin2, cfg.margin) * peak
+    thr = np.where(np.char.startswith(kind.astype(str), "z2_sq"), cfg.margin2, cfg.margin) * peak
     thr[kind == "repeat"] = np.maximum(peak[kind == "repeat"] + 1, cfg.min_repeat)
     thr[kind == "binary"] = np.maximum(thr[kind == "binary"], cfg.binary_tolerance)
     return thr

@@ -8,7 +8,10 @@ steps (delay <= 9). A flag on the fault's channels before the onset counts as an
 (false) flag and not as a detection. Collateral: another channel (not the fault's and not
 its encoder partner) flagged by onset + 10. False alarms: flagged channel-steps per 10,000
 physical channel-steps on the fault-free held-out episodes (flags latch, so one false
-trigger counts every step to the episode's end).
+trigger counts every step to the episode's end). "Within 10 of showing": flagged by the
+10th step from the first one at which the fault changed a reading (a stuck contact shows
+only when the foot changes state; spikes at rate 0.1 miss a channel's first 10 faulty
+steps 35 % of the time), over the faults that showed 10 steps before their episode ended.
 """
 
 from __future__ import annotations
@@ -61,7 +64,12 @@ def run_fault(guard_factory, data: dict, spec: FaultSpec, std: dict, seed: int) 
     by = np.minimum(onset + WITHIN - 1, tmax - 1)
     collateral = flags[np.arange(n), by][:, other].any(1)
     valid = onset + WITHIN <= data["length"]
-    return {"delay": delay[valid], "early": early[valid], "collateral": collateral[valid]}
+    shown = out["changed"] & (steps >= onset[:, None])
+    first = np.where(shown.any(1), shown.argmax(1), tmax)
+    by_shown = np.where(delay >= 0, onset + delay - first, tmax) < WITHIN
+    valid_shown = first + WITHIN <= data["length"]
+    return {"delay": delay[valid], "early": early[valid], "collateral": collateral[valid],
+            "shown_ok": (by_shown & ~early)[valid_shown]}
 
 
 def summarize(runs: list[dict]) -> dict:
@@ -74,7 +82,9 @@ def summarize(runs: list[dict]) -> dict:
     def share(x: np.ndarray) -> float | None:
         return float(x.mean()) if len(x) else None
 
+    shown = np.concatenate([r["shown_ok"] for r in runs])
     return {"faults": len(delay), "within_10": share(ok), "detected": share(delay >= 0),
+            "within_10_shown": share(shown), "shown": len(shown),
             "median_delay": float(np.median(found)) if len(found) else None,
             "early": share(early), "collateral": share(coll)}
 
@@ -140,11 +150,11 @@ def evaluate_guard(guard: SensorGuard, root: str | Path, episodes: list[int], se
 
 def format_table(report: dict) -> str:
     """Markdown tables: detection per condition, false alarms per terrain."""
-    lines = ["| fault | target | faults | within 10 steps | detected | median delay | "
-             "early | collateral |", "|---|---|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| fault | target | faults | within 10 steps | within 10 of showing | detected | "
+             "median delay | early | collateral |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for key, r in report["detection"].items():
         kind, sev, tkind = key.split(":")
-        cells = [_cell(r[k], ".3f") for k in ("within_10", "detected")]
+        cells = [_cell(r[k], ".3f") for k in ("within_10", "within_10_shown", "detected")]
         cells += [_cell(r["median_delay"], "g")]
         cells += [_cell(r[k], ".3f") for k in ("early", "collateral")]
         lines.append(f"| {kind} {sev} | {tkind} | {r['faults']} | " + " | ".join(cells) + " |")
