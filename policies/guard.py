@@ -13,6 +13,12 @@ accuses; a statistic above its threshold flags those channels, and flags latch u
   predicted from every input at t, t-1, t-2 but itself at t-1 (so its own neighbours on
   both sides); the residual's z-score (a one-step-late spike test) and its mean square
   over ``window`` steps (noise).
+
+With ``explain``, a channel accused only by predictor statistics must still be accused
+once the suspects' residuals (channels flagged, or accused by any statistic this step)
+are taken out of its prediction: the predictors are linear, so a suspect's residual times
+its weight is what it moved the prediction by. A fault then flags its own channels and
+not the healthy ones it distorts.
 * ``enc``: a joint encoder's own physics, ``q_t - q_{t-1}`` against
   ``dt (qdot_t + qdot_{t-1}) / 2``; now and averaged over ``window`` steps.
 * ``repeat``: steps a (non-binary) channel has repeated its last reading exactly.
@@ -22,7 +28,7 @@ accuses; a statistic above its threshold flags those channels, and flags latch u
 * ``binary``: a contact reading's distance from 0 or 1.
 
 Thresholds are the largest value each statistic takes on fault-free calibration episodes
-times ``margin`` (``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint
+times ``margin`` (``margin2`` for ``z2_sq``) (``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint
 encoder's q and q-dot are flagged together.
 """
 
@@ -67,7 +73,8 @@ class GuardConfig:
             than the calibration data ever showed, whichever is larger) is stuck.
         binary_tolerance: smallest threshold of a contact reading's distance from 0/1.
         two_sided: add the two-sided statistics ``z2`` (spikes and noise one step late).
-        margin2: the margin of the two-sided statistics (their fault-free tails are longer).
+        margin2: the margin of the two-sided windowed mean square ``z2_sq`` (its fault-free
+            tails are longer); every other statistic takes ``margin``.
         explain: a channel accused only by predictor statistics is flagged only if they
             still exceed once the suspect channels' residuals are taken out of its
             prediction (a fault on one channel distorts the others' predictions).

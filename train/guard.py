@@ -188,6 +188,11 @@ class GuardCommand:
         margin: threshold = margin x the largest fault-free value of each statistic.
         min_repeat: exact repeats of a reading beyond this many steps mean stuck.
         min_length: ``evaluate`` injects faults only into held-out episodes this long (steps).
+        two_sided: add the two-sided statistics (each reading one step late against its
+            neighbours on both sides: spikes, noise).
+        margin2: the margin of the two-sided windowed mean square.
+        explain: flag a channel accused only by predictions if it still is with the
+            suspect channels' residuals taken out (fewer collateral flags).
     """
 
     command: str = "fit"
@@ -201,10 +206,14 @@ class GuardCommand:
     margin: float = 1.6
     min_repeat: int = 2
     min_length: int = 300
+    two_sided: bool = True
+    margin2: float = 2.0
+    explain: bool = True
 
     def guard_config(self) -> GuardConfig:
         return GuardConfig(window=self.window, imu_window=self.imu_window, ridge=self.ridge,
-                           margin=self.margin, min_repeat=self.min_repeat)
+                           margin=self.margin, min_repeat=self.min_repeat,
+                           two_sided=self.two_sided, margin2=self.margin2, explain=self.explain)
 
 
 def run(cmd: GuardCommand) -> dict:

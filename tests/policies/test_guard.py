@@ -141,3 +141,51 @@ def test_a_missing_input_is_named(fitted):
     obs = {s: data[s][:, 0] for s in INPUT_SENSORS if s != "gravity"}
     with pytest.raises(KeyError, match="gravity"):
         SensorGuard(guard.cfg, guard.stats, num_envs=6).update(obs)
+
+
+def test_a_single_spike_trips_the_two_sided_statistic_one_step_late(fitted, recorded):
+    guard, data = fitted
+    ch = 5
+    faulty = {s: data[s].copy() for s in INPUT_SENSORS}
+    faulty["joint_vel"][:, ONSET, ch] += 5 * std_of(recorded, "joint_vel")[ch]  # one step
+    e = data["joint_pos"].shape[0]
+    g = SensorGuard(guard.cfg, guard.stats, guard.sensors, e, guard.dt)
+    for i in range(ONSET + 1):
+        g.update({s: faulty[s][:, i] for s in INPUT_SENSORS})
+    stat = g.statistics({s: faulty[s][:, ONSET + 1] for s in INPUT_SENSORS})
+    col = g.names.index(f"z2:{OFFSET['joint_vel'] + ch}")
+    assert (stat[:, col] > g.stats["threshold"][col]).all()
+
+
+def test_explaining_away_keeps_a_biased_channel_from_flagging_others(recorded):
+    # ridge 30: on these 1,200 steps a looser fit leans on single channels so hard that
+    # their normal residuals, taken out, leave others flagged (the demo's 200,000 steps
+    # fit fine at ridge 1)
+    data = load_episodes(recorded)
+    biased = inject(data, "bias", "joint_pos", 4, 3 * std_of(recorded, "joint_pos")[4])
+    others = np.ones(34, bool)
+    others[[OFFSET["joint_pos"] + 4, OFFSET["joint_vel"] + 4]] = False
+    collateral = {}
+    for explain in (False, True):
+        guard = fit_guard(recorded, cfg=GuardConfig(explain=explain, ridge=30.0))
+        flags = run(guard, biased, ONSET + 10)
+        assert not flags[:, ONSET - 1].any() and flags[:, -1, OFFSET["joint_pos"] + 4].all()
+        collateral[explain] = flags[:, -1, others].any(1).mean()
+    assert collateral[False] > 0.5 and collateral[True] == 0
+
+
+def test_a_guard_saved_before_the_two_sided_statistics_loads_as_it_was(recorded, tmp_path):
+    import json
+
+    old = fit_guard(recorded, cfg=GuardConfig(two_sided=False, explain=False))
+    old.save(tmp_path)
+    meta = json.loads((tmp_path / "guard.json").read_text())
+    for key in ("two_sided", "margin2", "explain"):
+        del meta["config"][key]
+    (tmp_path / "guard.json").write_text(json.dumps(meta))
+    back = load_guard(tmp_path)
+    assert not back.cfg.two_sided and not back.cfg.explain and back.names == old.names
+    faulty = inject(load_episodes(recorded), "bias", "joint_pos", 4,
+                    3 * std_of(recorded, "joint_pos")[4])
+    a, b = run(old, faulty), run(back, faulty)
+    assert a[:, -1].any() and (a == b).all()
