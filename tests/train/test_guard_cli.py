@@ -15,11 +15,14 @@ from train.guard_eval import evaluate_guard, format_table
 
 
 def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys):
-    main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--margin=2"])
+    main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--margin=2",
+          "--explain=false"])
     assert "saved" in capsys.readouterr().out
     guard = load_guard(tmp_path, num_envs=3)
     meta = json.loads((tmp_path / "guard.json").read_text())
     assert guard.cfg.margin == 2.0 and meta["config"]["margin"] == 2.0
+    assert meta["config"]["explain"] is False and meta["config"]["two_sided"] is True
+    assert "weight2" in guard.stats and any(n.startswith("z2:") for n in meta["statistics"])
     assert len(meta["statistics"]) == len(guard.stats["threshold"])
     assert np.isfinite(guard.stats["threshold"]).all() and guard.flags.shape == (3, 34)
 
@@ -36,7 +39,8 @@ def test_evaluate_reports_detection_and_false_alarms(synthetic_dataset, tmp_path
     row = report["detection"]["bias:3:encoder"]
     assert row["faults"] == 0 and row["within_10"] is None  # onset 1-3 s: beyond 40 steps
     table = format_table(report)
-    assert "| fault-free |" in table and "| bias 3 | encoder | 0 | - |" in table
+    assert "| fault-free |" in table and "| bias 3 | encoder | 0 | - | - |" in table
+    assert row["within_10_shown"] is None and "within 10 of showing" in table
 
 
 @pytest.mark.parametrize("argv,msg", [
@@ -48,3 +52,28 @@ def test_bad_options_are_one_line_errors(argv, msg, capsys):
         main(argv)
     err = capsys.readouterr().err.strip()
     assert e.value.code == 2 and msg in err and "\n" not in err
+
+
+def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_dataset):
+    from collect.faults import FaultSpec, std_from_stats
+    from msta_data.stats import load_stats
+    from policies.guard import PHYSICAL_SENSORS, SensorGuard
+    from train.guard import fit_guard, load_episodes
+    from train.guard_eval import run_fault, summarize
+
+    guard = fit_guard(synthetic_dataset, list(range(8)))
+    data = load_episodes(synthetic_dataset, [8, 9, 10, 11])
+    std = std_from_stats(load_stats(synthetic_dataset), PHYSICAL_SENSORS)
+
+    def factory(n):
+        return SensorGuard(guard.cfg, guard.stats, guard.sensors, n, guard.dt)
+
+    onset = (0.1, 0.3)  # steps 5-15 of 40
+    stuck = run_fault(factory, data, FaultSpec("stuck", 0, "joint_pos:0", onset), std, 0)
+    assert len(stuck["shown_ok"]) == 4  # a held q differs from the true one a step later
+    on_time = (stuck["delay"] >= 0) & (stuck["delay"] < 10)
+    assert (stuck["shown_ok"] >= on_time).all()
+    unseen = run_fault(factory, data, FaultSpec("scale", 1.0, "joint_pos:0", onset), std, 0)
+    assert len(unseen["shown_ok"]) == 0  # reading * 1 never changes a reading
+    row = summarize([unseen])
+    assert row["shown"] == 0 and row["within_10_shown"] is None and row["faults"] == 4
