@@ -208,11 +208,14 @@ class BenchDeployConfig:
     """Args:
         seconds: timing window per runtime and observation (s), after 10 warm-up calls.
         preset: MSTA preset to time (``paper``: the issue's figures; ``cpu``, ``tiny``).
+        history: the full observation's window T (0: the preset's; the demo's student is
+            the ``cpu`` preset at 4).
         output_dir: results.json goes here (the exported files go to a temporary folder).
     """
 
     seconds: float = 3.0
     preset: str = "paper"
+    history: int = 0
     output_dir: str = "outputs/bench_deploy"
 
     def __post_init__(self) -> None:
@@ -221,6 +224,8 @@ class BenchDeployConfig:
         if self.preset not in MSTAConfig.PRESETS:
             raise ValueError(f"preset must be one of {sorted(MSTAConfig.PRESETS)}, "
                              f"got {self.preset!r}")
+        if self.history < 0:
+            raise ValueError(f"history must be >= 0, got {self.history}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -229,11 +234,11 @@ def main(argv: list[str] | None = None) -> None:
     a = parse_config(BenchDeployConfig, argv, prog="python -m eval.bench.deploy")
     torch.set_num_threads(1)
     torch.manual_seed(0)
-    cfg = MSTAConfig.from_preset(a.preset)
+    cfg = MSTAConfig.from_preset(a.preset, **({"history": a.history} if a.history else {}))
     policy = make_policy(cfg, synthetic_stats(cfg.input_sensors)).eval()
     rate = matmul_gflops()
     print(f"MSTA {a.preset} preset (d = {cfg.dim}, {cfg.num_layers} layers x {cfg.num_heads} "
-          f"heads), batch 1, 1 thread; fp32 matmul rate on this core: {rate:.1f} GFLOP/s")
+          f"heads, T = {cfg.history}), batch 1, 1 thread; fp32 matmul rate on this core: {rate:.1f} GFLOP/s")
     observations = {"full": (tuple(cfg.input_sensors), cfg.history),
                     "minimized": (MINIMIZED_SENSORS, MINIMIZED_HISTORY)}
     header = (f"{'observation':<11} {'tokens':>6} {'GFLOP':>6} {'runtime':<12} {'median ms':>9} "

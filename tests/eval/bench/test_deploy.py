@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 
+import pytest
 import torch
 
 from eval.bench.deploy import main, model_flops
@@ -50,3 +51,19 @@ def test_flops_count_the_readout_only_last_block():
     head = 2 * d * cfg.head_hidden_dim + 2 * cfg.head_hidden_dim * 12
     assert model_flops(cfg, L) == 3 * full_layer + last_layer + head
     assert 1.45e9 < model_flops(cfg, L) < 1.47e9  # the figure docs/deploy.md quotes
+
+
+def test_history_sets_the_full_observations_window(tmp_path, capsys):
+    """--history=4 times the demo's window (the cpu preset's own is 15); bad values are
+    one-line errors."""
+    threads = torch.get_num_threads()
+    try:
+        main(["--preset=tiny", "--history=4", "--seconds=0.02", f"--output_dir={tmp_path}"])
+    finally:
+        torch.set_num_threads(threads)
+    assert "T = 4)" in capsys.readouterr().out
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["observations"]["full"]["tokens"] == 4 * 49 + 1
+    with pytest.raises(SystemExit):
+        main(["--history=-1"])
+    assert "history must be >= 0" in capsys.readouterr().err
