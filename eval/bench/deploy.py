@@ -18,7 +18,7 @@ roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower
 The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the
 best parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
 
-The sensor guard (issue 43; docs/faults.md, "Deployment") at the full observation, batch 1,
+The sensor guard (docs/faults.md, "Deployment") at the full observation, batch 1,
 one core: ``guard``, :meth:`policies.guard.SensorGuard.update` alone (numpy; synthetic
 arrays of the fitted shapes: its cost does not depend on their values), and ``guard +
 student``, one :meth:`policies.onnx_runtime.OnnxStudent.step` of an export with the guard
@@ -58,7 +58,7 @@ from policies.guard import INPUT_SENSORS, D, GuardConfig, P, SensorGuard, statis
 from policies.msta import MSTAConfig
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
-#: issue 43: guard + student at the full observation, one core, batch 1
+#: the bar for guard + student at the full observation, one core, batch 1
 GUARD_BAR_MS = 20.0
 
 
