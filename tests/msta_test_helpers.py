@@ -7,6 +7,7 @@ folder is not on sys.path.
   column of a dataset.
 - :func:`overfit`: a student's loss on one batch before and after 150 AdamW steps on it.
 - :func:`running_hub`: a real msta hub server on 127.0.0.1 for the duration of a fixture.
+- :func:`record_gait`: a few gait-controller episodes recorded in the real simulator.
 """
 
 from __future__ import annotations
@@ -83,3 +84,17 @@ def running_hub(root: Path, *tokens: str) -> Iterator[object]:
         yield srv
     finally:
         srv.stop()
+
+
+def record_gait(root: Path, episodes: int, seconds: float) -> Path:
+    """``episodes`` gait-teacher episodes of ``seconds`` recorded together in the real
+    simulator (terrain curriculum off) into the dataset ``root``."""
+    from collect.record import CollectConfig, collect
+    from collect.sim.env import EnvConfig
+    from collect.sim.terrain import TerrainConfig
+    from policies.teacher.config import TeacherConfig
+
+    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=episodes,
+                          num_envs=episodes, root=str(root), episode_length_s=seconds,
+                          progress=False, env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
+    return root

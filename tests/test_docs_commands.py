@@ -34,6 +34,7 @@ from msta_data.cli import parse_config
 from msta_data.hub_cli import parse_command
 from policies.export import ExportConfig
 from train.cli import parse_cli
+from train.guard import GuardCommand
 from train.offline import TrainConfig
 from train.online import parse_args as correct_args
 from train.teacher.cli import TrainTeacherConfig
@@ -64,6 +65,8 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "python -m eval.bench.data": _config(BenchDataConfig, "python -m eval.bench.data"),
     "python -m eval.bench.deploy": _config(BenchDeployConfig, "python -m eval.bench.deploy"),
     "msta-export": _config(ExportConfig, "msta-export"),
+    "msta-guard": lambda argv: parse_config(GuardCommand, argv, "msta-guard",
+                                            positionals=("command",)),
     "python -m eval.label_check": _config(LabelCheckConfig, "python -m eval.label_check"),
     "python -m eval.teacher_report": _config(TeacherReportConfig,
                                              "python -m eval.teacher_report"),

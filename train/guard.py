@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -182,17 +182,8 @@ class GuardCommand:
         output_dir: checkpoint folder the guard is saved into (usually the student's).
         val_fraction: share of episodes held out for ``evaluate`` (``fit`` uses them all).
         seed: seed of the held-out split and of the injected faults.
-        window: steps averaged by the windowed statistics.
-        imu_window: steps over which the gyro is checked against the gravity vector.
-        ridge: ridge penalty of the per-channel predictors.
-        margin: threshold = margin x the largest fault-free value of each statistic.
-        min_repeat: exact repeats of a reading beyond this many steps mean stuck.
         min_length: ``evaluate`` injects faults only into held-out episodes this long (steps).
-        two_sided: add the two-sided statistics (each reading one step late against its
-            neighbours on both sides: spikes, noise).
-        margin2: the margin of the two-sided windowed mean square.
-        explain: flag a channel accused only by predictions if it still is with the
-            suspect channels' residuals taken out (fewer collateral flags).
+        guard: the guard's decision settings (``--guard.margin``, ``--guard.window``, ...).
     """
 
     command: str = "fit"
@@ -200,20 +191,8 @@ class GuardCommand:
     output_dir: str = ""
     val_fraction: float = 0.2
     seed: int = 0
-    window: int = 8
-    imu_window: int = 10
-    ridge: float = 1.0
-    margin: float = 1.6
-    min_repeat: int = 2
     min_length: int = 300
-    two_sided: bool = True
-    margin2: float = 2.0
-    explain: bool = True
-
-    def guard_config(self) -> GuardConfig:
-        return GuardConfig(window=self.window, imu_window=self.imu_window, ridge=self.ridge,
-                           margin=self.margin, min_repeat=self.min_repeat,
-                           two_sided=self.two_sided, margin2=self.margin2, explain=self.explain)
+    guard: GuardConfig = field(default_factory=GuardConfig)
 
 
 def run(cmd: GuardCommand) -> dict:
@@ -221,7 +200,7 @@ def run(cmd: GuardCommand) -> dict:
         raise ValueError(f"command must be fit or evaluate, got {cmd.command!r}")
     if not cmd.dataset or not cmd.output_dir:
         raise ValueError("--dataset and --output_dir are required")
-    cfg = cmd.guard_config()
+    cfg = cmd.guard
     if cmd.command == "fit":
         guard = fit_guard(cmd.dataset, cfg=cfg)
         path = guard.save(cmd.output_dir)

@@ -11,11 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from msta_test_helpers import record_gait  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
 from msta_data.stats import load_stats
 from policies.baselines import BASELINES, REFERENCES
 from policies.export import (
@@ -28,7 +26,6 @@ from policies.export import (
     resolve_sensors,
 )
 from policies.factory import get_config_class, make_policy
-from policies.teacher.config import TeacherConfig
 
 REPO = Path(__file__).resolve().parents[2]
 #: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant) and every
@@ -44,11 +41,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Path:
     """Two short gait-teacher episodes recorded in the real simulator."""
-    root = tmp_path_factory.mktemp("export_data") / "dataset"
-    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=2, num_envs=2,
-                          root=str(root), episode_length_s=1.0, progress=False,
-                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
-    return root
+    return record_gait(tmp_path_factory.mktemp("export_data") / "dataset", 2, 1.0)
 
 
 

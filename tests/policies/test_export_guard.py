@@ -14,12 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from msta_test_helpers import record_gait  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
 from collect.faults import FaultInjector, FaultSpec
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
 from msta_data.stats import load_stats
 from policies.export import (
     absent_masks,
@@ -30,7 +28,6 @@ from policies.export import (
 )
 from policies.factory import get_config_class, make_policy
 from policies.guard import INPUT_SENSORS, load_guard
-from policies.teacher.config import TeacherConfig
 from train.guard import fit_guard, load_episodes
 
 REPO = Path(__file__).resolve().parents[2]
@@ -46,11 +43,7 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Path:
     """Two 2-second gait-teacher episodes recorded in the real simulator."""
-    root = tmp_path_factory.mktemp("export_guard_data") / "dataset"
-    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=2, num_envs=2,
-                          root=str(root), episode_length_s=2.0, progress=False,
-                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
-    return root
+    return record_gait(tmp_path_factory.mktemp("export_guard_data") / "dataset", 2, 2.0)
 
 
 @pytest.fixture(scope="module")

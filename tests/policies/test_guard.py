@@ -9,14 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from msta_test_helpers import record_gait  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
 from msta_data.stats import load_stats
 from policies.guard import INPUT_SENSORS, OFFSET, GuardConfig, SensorGuard, load_guard
-from policies.teacher.config import TeacherConfig
 from train.guard import fit_guard, load_episodes
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -26,11 +23,7 @@ ONSET = 100
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Path:
     """Six 4-second gait-teacher episodes on flat ground."""
-    root = tmp_path_factory.mktemp("guard_data") / "dataset"
-    collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=6, num_envs=6,
-                          root=str(root), episode_length_s=4.0, progress=False,
-                          env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
-    return root
+    return record_gait(tmp_path_factory.mktemp("guard_data") / "dataset", 6, 4.0)
 
 
 @pytest.fixture(scope="module")

@@ -15,8 +15,8 @@ from train.guard_eval import evaluate_guard, format_table
 
 
 def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys):
-    main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--margin=2",
-          "--explain=false"])
+    main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--guard.margin=2",
+          "--guard.explain=false"])
     assert "saved" in capsys.readouterr().out
     guard = load_guard(tmp_path, num_envs=3)
     meta = json.loads((tmp_path / "guard.json").read_text())
