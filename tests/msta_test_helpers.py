@@ -8,6 +8,7 @@ folder is not on sys.path.
 - :func:`overfit`: a student's loss on one batch before and after 150 AdamW steps on it.
 - :func:`running_hub`: a real msta hub server on 127.0.0.1 for the duration of a fixture.
 - :func:`record_gait`: a few gait-controller episodes recorded in the real simulator.
+- :func:`tiny_student`: a tiny student with large seeded random weights.
 """
 
 from __future__ import annotations
@@ -98,3 +99,19 @@ def record_gait(root: Path, episodes: int, seconds: float) -> Path:
                           num_envs=episodes, root=str(root), episode_length_s=seconds,
                           progress=False, env=EnvConfig(terrain=TerrainConfig(curriculum=False))))
     return root
+
+
+def tiny_student(name: str, overrides: dict, root: Path):
+    """A tiny ``name`` student (``overrides`` on its preset) with the dataset ``root``'s
+    statistics and large random weights (seeded): its actions vary with its inputs."""
+    from msta_data.stats import load_stats
+    from policies.factory import get_config_class, make_policy
+
+    torch.manual_seed(0)
+    cfg = get_config_class(name).from_preset("tiny", **overrides)
+    policy = make_policy(cfg, load_stats(root))
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for p in policy.parameters():
+            p.add_(0.1 * torch.randn(p.shape, generator=gen))
+    return policy.eval()

@@ -11,10 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from msta_test_helpers import record_gait  # registered by tests/conftest.py
+from msta_test_helpers import record_gait, tiny_student  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-from msta_data.stats import load_stats
 from policies.baselines import BASELINES, REFERENCES
 from policies.export import (
     MINIMIZED_SENSORS,
@@ -25,7 +24,6 @@ from policies.export import (
     recorded_windows,
     resolve_sensors,
 )
-from policies.factory import get_config_class, make_policy
 
 REPO = Path(__file__).resolve().parents[2]
 #: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant) and every
@@ -45,16 +43,7 @@ def recorded(tmp_path_factory) -> Path:
 
 
 
-def student(name: str, overrides: dict, root: Path):
-    """A tiny student with large random weights (seeded): its actions vary with its inputs."""
-    torch.manual_seed(0)
-    cfg = get_config_class(name).from_preset("tiny", **overrides)
-    policy = make_policy(cfg, load_stats(root))
-    gen = torch.Generator().manual_seed(0)
-    with torch.no_grad():
-        for p in policy.parameters():
-            p.add_(0.1 * torch.randn(p.shape, generator=gen))
-    return policy.eval()
+student = tiny_student
 
 
 @pytest.mark.parametrize("which", ["all", "minimized"])

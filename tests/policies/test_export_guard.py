@@ -14,11 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from msta_test_helpers import record_gait  # registered by tests/conftest.py
+from msta_test_helpers import record_gait, tiny_student  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
 from collect.faults import FaultInjector, FaultSpec
-from msta_data.stats import load_stats
 from policies.export import (
     absent_masks,
     export_student,
@@ -26,7 +25,6 @@ from policies.export import (
     random_windows,
     resolve_sensors,
 )
-from policies.factory import get_config_class, make_policy
 from policies.guard import INPUT_SENSORS, load_guard
 from train.guard import fit_guard, load_episodes
 
@@ -55,16 +53,7 @@ def checkpoint(recorded, tmp_path_factory) -> Path:
     return Path(ckpt)
 
 
-def student(name: str, overrides: dict, root: Path):
-    """A tiny student with large random weights (seeded): its actions vary with its inputs."""
-    torch.manual_seed(0)
-    cfg = get_config_class(name).from_preset("tiny", **overrides)
-    policy = make_policy(cfg, load_stats(root))
-    gen = torch.Generator().manual_seed(0)
-    with torch.no_grad():
-        for p in policy.parameters():
-            p.add_(0.1 * torch.randn(p.shape, generator=gen))
-    return policy.eval()
+student = tiny_student
 
 
 @pytest.mark.parametrize(("name", "overrides"), CASES, ids=IDS)
