@@ -339,6 +339,7 @@ class FaultyActor:
         self.detected = np.full(n, -1, dtype=np.int64)
         self.false_alarms = np.zeros(n, dtype=np.int64)
         self.channel_steps = np.zeros(n, dtype=np.int64)
+        self.false_by_step: list[np.ndarray] = []  # (N,) false removals of every step
 
     def reset(self, ids: np.ndarray) -> None:
         """Environments ``ids`` start new episodes (injector, guard, actor, records)."""
@@ -349,6 +350,8 @@ class FaultyActor:
         self.detected[ids] = -1
         self.false_alarms[ids] = 0
         self.channel_steps[ids] = 0
+        if len(ids) == self.num_envs:
+            self.false_by_step = []
 
     def act(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """(N, 12) actions of the student on this step's faulty observation."""
@@ -374,21 +377,28 @@ class FaultyActor:
         truth = inj.absent()
         step = inj.t - 1
         hit = np.zeros(self.num_envs, dtype=bool)
+        false = np.zeros(self.num_envs, dtype=np.int64)
         for s, m in removed.items():
             m = np.asarray(m, dtype=bool)
             t = truth.get(s, np.zeros_like(m))
             hit |= (m & t).any(axis=1)
-            self.false_alarms += (m & ~t).sum(axis=1)
+            false += (m & ~t).sum(axis=1)
             self.channel_steps += m.shape[1]
+        self.false_alarms += false
+        self.false_by_step.append(false)
         new = hit & (self.detected < 0)
         self.detected[new] = step[new]
 
     def detections(self) -> dict[str, np.ndarray]:
         """Per environment: ``onset`` and ``detected`` steps (-1: not detected), the delay
         in steps (``detected - onset``; -1 when not detected), ``false_alarms`` and
-        ``channel_steps``."""
+        ``channel_steps``; ``false_by_step`` (steps, N): the false removals of every step
+        since the last reset of all environments (to count a trial's live steps only)."""
         onset, det = self.injector.onset.copy(), self.detected.copy()
+        n = self.num_envs
         return {"onset": onset, "detected": det,
                 "delay": np.where(det >= 0, det - onset, -1),
                 "false_alarms": self.false_alarms.copy(),
-                "channel_steps": self.channel_steps.copy()}
+                "channel_steps": self.channel_steps.copy(),
+                "false_by_step": (np.stack(self.false_by_step) if self.false_by_step
+                                  else np.zeros((0, n), dtype=np.int64))}

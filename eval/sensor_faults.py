@@ -94,15 +94,36 @@ def detection_summary(actors: list[FaultyActor], steps_lived: np.ndarray, dt: fl
     that were not the active fault's per channel-step. None without actors."""
     if sum(a.num_envs for a in actors) < len(steps_lived):
         return None  # some rounds were read back from the store: no actors to ask
-    det = {k: np.concatenate([a.detections()[k] for a in actors])[:len(steps_lived)]
-           for k in ("onset", "detected", "delay", "false_alarms", "channel_steps")}
+    dets = [a.detections() for a in actors]
+    det = {k: np.concatenate([d[k] for d in dets])[:len(steps_lived)]
+           for k in ("onset", "detected", "delay")}
     began = det["onset"] < steps_lived
     found = began & (det["detected"] >= 0) & (det["detected"] < steps_lived)
     n = int(began.sum())
     delays = det["delay"][found] * dt
-    steps = int(det["channel_steps"].sum())
+    false, steps = live_false_removals(dets, steps_lived)
     return {"faults_began": n, "detected": float(found.sum() / n) if n else None,
             f"within_{bound_s:g}s": float((delays <= bound_s + 1e-9).sum() / n) if n else None,
             "mean_delay_s": float(delays.mean()) if len(delays) else None,
-            "false_alarms_per_channel_step": (float(det["false_alarms"].sum() / steps)
-                                              if steps else None)}
+            "false_alarms_per_channel_step": float(false / steps) if steps else None}
+
+
+def live_false_removals(dets: list[dict[str, np.ndarray]], steps_lived: np.ndarray
+                        ) -> tuple[int, int]:
+    """(removed channel-steps that were not the active fault's, channel-steps the guard
+    watched) over each trial's live steps only: after a trial's episode ended its robot
+    restarts elsewhere (a jump no sensor makes), and those steps count for nothing."""
+    false = steps = 0
+    start = 0
+    for d in dets:
+        n = len(d["onset"])
+        lived = steps_lived[start:start + n]
+        start += n
+        by_step = d["false_by_step"]
+        if not len(lived) or not len(by_step):
+            continue
+        live = np.arange(len(by_step))[:, None] < lived[None, :len(by_step[0])]
+        false += int((by_step[:, :len(lived)] * live).sum())
+        per_step = d["channel_steps"][:len(lived)] / max(len(by_step), 1)
+        steps += int(round(float((per_step * np.minimum(lived, len(by_step))).sum())))
+    return false, steps

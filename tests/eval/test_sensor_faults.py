@@ -128,3 +128,16 @@ def test_fault_options_are_one_line_errors(tiny_ckpt, tmp_path, capsys):
     assert cfg.fault_list == ["bias:3:joint_pos:3,7", "noise:3:ang_vel"]
     assert "faults" not in EvalConfig(policies=str(tiny_ckpt), **FAST).resolved()
     assert load_entries(cfg)[0].kind == "student"
+
+
+def test_false_removals_count_only_each_trials_live_steps():
+    """A trial whose episode ended after 2 steps counts its first 2 steps only: what a
+    guard flags after the robot restarted elsewhere is not a false alarm of that trial."""
+    from eval.sensor_faults import live_false_removals
+
+    by_step = np.array([[0, 1], [1, 1], [3, 1], [5, 1]])  # (steps, envs) false removals
+    det = {"onset": np.zeros(2, dtype=int), "false_by_step": by_step,
+           "channel_steps": np.array([4 * 34, 4 * 34])}  # 34 watched channels a step
+    false, steps = live_false_removals([det], np.array([2, 4]))
+    assert false == (0 + 1) + (1 + 1 + 1 + 1)
+    assert steps == 34 * (2 + 4)
