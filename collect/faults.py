@@ -48,24 +48,22 @@ from typing import Any
 import numpy as np
 
 from msta_data.sensors import JOINT_ENCODER_SENSORS, PHYSICAL_SENSORS, get
+from msta_data.stats import MIN_STD
 
 FAULT_TYPES: tuple[str, ...] = ("stuck", "bias", "drift", "noise", "spikes", "dropout", "scale")
 #: The target that names one joint encoder: its q (joint_pos) and q-dot (joint_vel).
 ENCODER = "encoder"
-ENCODER_SENSORS = JOINT_ENCODER_SENSORS
 #: The fault types a binary sensor (0/1) can take.
 BINARY_FAULTS: tuple[str, ...] = ("stuck", "spikes", "dropout")
 #: The fault types whose size is a multiple of the channel's std.
 STD_FAULTS: tuple[str, ...] = ("bias", "drift", "noise", "spikes")
-#: Below this a channel's std is taken as 1 (as ``policies.processor.effective_std``).
-MIN_STD = 1e-6
 _FORM = "TYPE:VALUE:TARGET[/rate=R][/onset=A-B], e.g. bias:3:encoder:2"
 
 
 def _channels(target: str) -> dict[str, tuple[int, ...]]:
     """``target`` -> {sensor: channel indices}; ValueError (one line) when malformed."""
     name, sep, rest = target.partition(":")
-    sensors = ENCODER_SENSORS if name == ENCODER else (name,)
+    sensors = JOINT_ENCODER_SENSORS if name == ENCODER else (name,)
     if name != ENCODER and name not in PHYSICAL_SENSORS:
         raise ValueError(f"fault target {target!r}: {name!r} is not a physical sensor "
                          f"({', '.join(PHYSICAL_SENSORS)}) or {ENCODER!r}")
@@ -189,8 +187,9 @@ def split_faults(text: str) -> list[str]:
 def std_from_stats(stats: Mapping[str, Mapping[str, Any]], sensors: Sequence[str]
                    ) -> dict[str, np.ndarray]:
     """{sensor: (dim,) std} from a student processor's statistics (``policy.processor.
-    stats``, keyed by dataset column), the std it z-scores with (below :data:`MIN_STD`: 1);
-    binary sensors and sensors without statistics are left out."""
+    stats``, keyed by dataset column), the std it z-scores with (1 below
+    :data:`msta_data.stats.MIN_STD`, as ``policies.processor.effective_std``); binary
+    sensors and sensors without statistics are left out."""
     out = {}
     for s in sensors:
         spec = get(s)

@@ -28,6 +28,11 @@ import numpy as np
 
 from msta_data import layout as L
 
+#: A channel whose std is below this never varied in the data (a constant channel, or
+#: statistics that say so): it is z-scored with std 1 (``policies.processor.effective_std``;
+#: the sensor faults size themselves by the same std).
+MIN_STD = 1e-6
+
 QUANTILES: tuple[float, ...] = (0.01, 0.10, 0.50, 0.90, 0.99)
 QUANTILE_KEYS: tuple[str, ...] = tuple(f"q{int(q * 100):02d}" for q in QUANTILES)
 STAT_KEYS: tuple[str, ...] = ("min", "max", "mean", "std", "count", *QUANTILE_KEYS)

@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from msta_data import sensors
+from msta_data.stats import MIN_STD  # the normalizer's floor (:func:`effective_std`)
 
 #: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
 #: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
@@ -29,9 +30,6 @@ Channels = Mapping[str, Sequence[int]]
 Batch = Mapping[str, Any]
 
 PAD_KEY = "pad"
-#: A channel whose std is below this never varied in the data (a constant channel, or
-#: statistics that say so): it is z-scored with std 1 (:func:`effective_std`).
-MIN_STD = 1e-6
 
 
 def effective_std(std: Tensor) -> Tensor:
