@@ -29,28 +29,14 @@ import numpy as np
 from eval.metrics import RETURNS
 from eval.scenarios import SCENARIOS
 from msta_data.cli import parse_config
+from msta_data.figures import fmt as _fmt  # noqa: F401  (other reports import it here)
+from msta_data.figures import fmt_ci
 
 METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":
                  "angular-velocity tracking", "total": "total reward"}
 SHORT_TERRAIN = {"smooth_slope": "smooth", "rough_slope": "rough", "stairs_up": "stairs up",
                  "stairs_down": "stairs down", "discrete": "discrete", "flat": "flat",
                  "average": "avg"}
-
-
-def _fmt(v: float | None, digits: int = 2) -> str:
-    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
-
-
-def fmt_ci(v: float | None, ci: list[float] | None, digits: int = 2) -> str:
-    """``0.85 ±0.10`` (symmetric 95 % interval), ``0.80 (0.49–0.94)`` (Wilson), ``0.85``
-    (one trial: no interval) or ``n/a``."""
-    text = _fmt(v, digits)
-    if v is None or not ci or text == "n/a":
-        return text
-    lo, hi = ci
-    if math.isclose(hi - v, v - lo, rel_tol=1e-6, abs_tol=1e-9):
-        return f"{text} ±{(hi - lo) / 2:.{digits}f}"
-    return f"{text} ({lo:.{digits}f}–{hi:.{digits}f})"
 
 
 def fmt_cell(cell: dict | None, metric: str, digits: int = 2) -> str:

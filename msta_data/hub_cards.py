@@ -24,6 +24,7 @@ from huggingface_hub import CardData, RepoCard
 from msta_data import features as F
 from msta_data import layout as L
 from msta_data import sensors as registry
+from msta_data.figures import fmt_ci
 
 
 @dataclass
@@ -39,7 +40,13 @@ class CardInfo:
         metrics: flat summary metrics {name: value}.
         eval_table: evaluation table {row: {column: value}}.
         title: heading of the card.
-        notes: free text appended to the card.
+        notes: free text appended to the card's Training section.
+        eval_note: how the figures were measured (the card's Evaluation section).
+        evaluation: the evaluation's provenance (front matter ``msta.evaluation``).
+
+    A figure ``X`` with bounds ``X_ci95_low`` / ``X_ci95_high`` (a metric ``X@m`` with
+    ``X_ci95_low@m``; a table column likewise) is shown as one cell, ``0.85 ±0.10`` or
+    ``0.80 (0.49–0.94)``; the front matter keeps every number.
     """
 
     dataset_repo: str | None = None
@@ -51,12 +58,14 @@ class CardInfo:
     eval_table: dict[str, dict[str, float]] | None = None
     title: str | None = None
     notes: str = ""
+    eval_note: str = ""
+    evaluation: dict[str, Any] | None = None
 
     def msta_metadata(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
         if self.dataset_repo:
             out["dataset"] = {"repo": portable(self.dataset_repo), "revision": self.dataset_revision}
-        for key in ("stage", "round", "metrics", "eval_table", "config"):
+        for key in ("stage", "round", "metrics", "eval_table", "evaluation", "config"):
             value = getattr(self, key)
             if value is not None:
                 out[key] = portable(value) if key == "config" else value
@@ -136,16 +145,42 @@ def _training(info: CardInfo) -> list[str]:
     return ["## Training", "", *lines, "", *([info.notes, ""] if info.notes else [])]
 
 
+def _bounds_key(key: str, end: str) -> str:
+    """``X`` -> ``X_ci95_<end>``; ``X@m`` -> ``X_ci95_<end>@m``."""
+    name, at, cond = key.partition("@")
+    return f"{name}_ci95_{end}{at}{cond}"
+
+
+def with_intervals(row: dict[str, Any]) -> dict[str, Any]:
+    """``row`` with each figure's ``_ci95_low`` / ``_ci95_high`` bounds folded into its cell
+    (:func:`msta_data.figures.fmt_ci`); figures without bounds as they are."""
+    out: dict[str, Any] = {}
+    for key, value in row.items():
+        if "_ci95_low" in key or "_ci95_high" in key:
+            continue
+        low, high = row.get(_bounds_key(key, "low")), row.get(_bounds_key(key, "high"))
+        if isinstance(value, (int, float)) and isinstance(low, (int, float)) \
+                and isinstance(high, (int, float)):
+            value = fmt_ci(value, (low, high))
+        out[key] = value
+    return out
+
+
 def _evaluation(info: CardInfo) -> list[str]:
     out = []
     if info.metrics:
-        out += ["## Metrics", "", _markdown_table({"value": info.metrics}), ""]
+        shown = with_intervals(info.metrics)
+        out += ["## Metrics", "", "| metric | value |", "|---|---|",
+                *(f"| {k} | {_cell(v)} |" for k, v in shown.items()), ""]
     if info.eval_table:
         trials = sorted({int(row["trials"]) for row in info.eval_table.values()
                          if isinstance(row.get("trials"), (int, float))})
         count = (f"{trials[0]} trials (episodes) per row" if len(trials) == 1 else
                  "trials per row in the `trials` column" if trials else "trial count not recorded")
-        out += ["## Evaluation", "", f"{count}.", "", _markdown_table(info.eval_table), ""]
+        table = {row: with_intervals(cols) for row, cols in info.eval_table.items()}
+        out += ["## Evaluation", "", f"{count}.", "", _markdown_table(table), ""]
+    if info.eval_note:
+        out += ([] if info.eval_table else ["## Evaluation", ""]) + [info.eval_note, ""]
     return out
 
 
@@ -278,9 +313,7 @@ def _dataset_body(info: CardInfo, dataset_info: dict[str, Any] | None, repo_id: 
     if dataset_info and dataset_info.get("features"):
         body += ["## Features", "", features_table(dataset_info["features"]), "",
                  f"Everything else LeRobot records is in [{L.INFO_PATH}]({L.INFO_PATH}).", ""]
-    if info.metrics:
-        body += ["## Metrics", "", _markdown_table({"value": info.metrics}), ""]
-    return [*body, info.notes]
+    return [*body, *_evaluation(info), info.notes]
 
 
 def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, repo_id: str = "",
@@ -358,7 +391,8 @@ def card_info(metadata: dict[str, Any]) -> CardInfo:
     dataset = msta.get("dataset") or {}
     return CardInfo(dataset_repo=dataset.get("repo"), dataset_revision=dataset.get("revision"),
                     config=msta.get("config"), stage=msta.get("stage"), round=msta.get("round"),
-                    metrics=msta.get("metrics"), eval_table=msta.get("eval_table"))
+                    metrics=msta.get("metrics"), eval_table=msta.get("eval_table"),
+                    evaluation=msta.get("evaluation"))
 
 
 def card_metrics(metadata: dict[str, Any]) -> dict[str, float]:

@@ -21,6 +21,7 @@ from huggingface_hub.errors import HfHubHTTPError
 from msta_data.cli import parse_config, usage_error
 from msta_data.errors import DirectoryLockedError
 from msta_data.hub_cards import CardInfo
+from msta_data.hub_eval import EvalFigures, EvalJsonError, read_eval_json
 from msta_data.hub_ids import HubError
 from msta_data.hub_pull import pull
 from msta_data.hub_push import push, push_dataset
@@ -141,7 +142,10 @@ class CardOptions(ClientConfig):
         stage: training stage (1 offline, 2 online correction).
         round: correction round.
         config_json: config to record; null: the checkpoint's config.json.
-        eval_json: metrics JSON, ``{metric: value}`` or ``{row: {metric: value}}``.
+        eval_json: figures for the card: msta-eval's metrics.json (push only: the student's
+            tracking vs teacher, survival and total vs teacher per scenario and condition,
+            with 95 % intervals and trial counts), ``{metric: number}`` or ``{row: {column:
+            number}}``; anything else is an error.
     """
 
     tag: str | None = None
@@ -162,12 +166,16 @@ class PushConfig(CardOptions):
         repo_id: ``user/name`` of the model repo (created when missing).
         move_tag: move --tag when it already points to another commit.
         branch: branch to commit to (created from main when missing).
+        eval_policy: the student of --eval_json (msta-eval's metrics.json) whose figures go
+            on the card; empty: the one evaluated from this directory's files (or the only
+            student in the file).
     """
 
     checkpoint_dir: Path | None = None
     repo_id: str = ""
     move_tag: bool = False
     branch: str = "main"
+    eval_policy: str = ""
 
     def __post_init__(self) -> None:
         _required(checkpoint_dir=self.checkpoint_dir, repo_id=self.repo_id)
@@ -239,33 +247,37 @@ def _serve(cfg: ServeConfig) -> int:
     return 0
 
 
-def _card(cfg: CardOptions, checkpoint: Path | None = None) -> CardInfo | None:
+def _card(cfg: CardOptions, checkpoint: Path | None = None, eval_policy: str = "",
+          ref: str = "") -> CardInfo | None:
     config = None
     if cfg.config_json is not None:
         config = json.loads(cfg.config_json.read_text())
     elif checkpoint is not None and (checkpoint / "config.json").is_file():
         config = json.loads((checkpoint / "config.json").read_text())
-    table, metrics = None, None
+    figures = EvalFigures()
     if cfg.eval_json is not None:
-        data = json.loads(cfg.eval_json.read_text())
-        if not isinstance(data, dict):
-            raise ValueError(f"{cfg.eval_json}: expected a JSON object of metrics or of table rows")
-        if all(isinstance(v, dict) for v in data.values()):
-            table = data
-        else:
-            metrics = {k: v for k, v in data.items() if isinstance(v, (int, float))}
-    fields = (cfg.dataset_repo, cfg.dataset_revision, cfg.stage, cfg.round, config, table, metrics)
+        figures = read_eval_json(cfg.eval_json, checkpoint, eval_policy, ref)
+        if figures.evaluation is not None and checkpoint is None:
+            raise EvalJsonError(f"--eval_json {cfg.eval_json}: msta-eval's metrics.json "
+                                "describes policies; give it to msta-hub push")
+        for line in figures.warnings:
+            print(f"msta-hub: warning: {line}", file=sys.stderr)
+    fields = (cfg.dataset_repo, cfg.dataset_revision, cfg.stage, cfg.round, config,
+              figures.table, figures.metrics)
     if all(f is None for f in fields):
         return None
     return CardInfo(dataset_repo=cfg.dataset_repo, dataset_revision=cfg.dataset_revision,
-                    config=config, stage=cfg.stage, round=cfg.round, eval_table=table,
-                    metrics=metrics)
+                    config=config, stage=cfg.stage, round=cfg.round, eval_table=figures.table,
+                    metrics=figures.metrics, eval_note=figures.note,
+                    evaluation=figures.evaluation)
 
 
 def _push(cfg: PushConfig) -> int:
     assert cfg.checkpoint_dir is not None
+    ref = f"{cfg.repo_id}@{cfg.tag}" if cfg.tag else cfg.repo_id
+    card = _card(cfg, cfg.checkpoint_dir, cfg.eval_policy, ref)
     print(push(cfg.checkpoint_dir, cfg.repo_id, tag=cfg.tag, private=cfg.private,
-               card=_card(cfg, cfg.checkpoint_dir), branch=cfg.branch, message=cfg.message,
+               card=card, branch=cfg.branch, message=cfg.message,
                move_tag=cfg.move_tag, endpoint=cfg.endpoint or None))
     return 0
 
