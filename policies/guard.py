@@ -24,7 +24,12 @@ not the healthy ones it distorts.
 * ``repeat``: steps a (non-binary) channel has repeated its last reading exactly.
 * ``gnorm``: the gravity vector's distance from unit norm.
 * ``imu``: the gyro against the gravity vector's change over ``imu_window`` steps
-  (``dg/dt = -w x g`` in the base frame); it accuses the whole IMU (ang_vel and gravity).
+  (``dg/dt = -w x g`` in the base frame). Without ``imu_attribution`` it accuses the whole
+  IMU (ang_vel and gravity). With it, it accuses one half: the half other statistics
+  accuse (or have flagged) when only one is; else, ``imu_delay`` steps after it first
+  fires, the shape of its residual decides (the window's residual is the sum of one-step
+  residuals: a gravity fault enters as a jump, one step carrying at least ``imu_jump`` of
+  it; a gyro fault builds up over the steps).
 * ``binary``: a contact reading's distance from 0 or 1.
 
 Thresholds are the largest value each statistic takes on fault-free calibration episodes
@@ -57,7 +62,9 @@ ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "t
 #: Further arrays of a two-sided guard (``GuardConfig.two_sided``).
 TWO_SIDED_ARRAYS = ("weight2", "bias2", "z2_std")
 #: Config a guard saved before a setting existed gets for it (its behaviour then).
-LEGACY_CONFIG = {"two_sided": False, "explain": False}
+LEGACY_CONFIG = {"two_sided": False, "explain": False, "imu_attribution": False}
+GYRO = np.arange(OFFSET["ang_vel"], OFFSET["ang_vel"] + 3)
+GRAVITY = np.arange(OFFSET["gravity"], OFFSET["gravity"] + 3)
 
 
 @dataclass
@@ -78,6 +85,13 @@ class GuardConfig:
         explain: a channel accused only by predictor statistics is flagged only if they
             still exceed once the suspect channels' residuals are taken out of its
             prediction (a fault on one channel distorts the others' predictions).
+        imu_attribution: the IMU check blames the gyro or the gravity vector, not both
+            (see the module's docstring); off, it removes the whole IMU.
+        imu_delay: steps after the IMU check first fires before its residual's shape
+            decides which half lies (other statistics may decide sooner).
+        imu_jump: share of the IMU residual one step must carry for the gravity vector to
+            be blamed (fault-free noise aside, a gravity fault puts ~1 in one step, a gyro
+            fault ~1 / steps since onset).
     """
 
     window: int = 8
@@ -89,12 +103,17 @@ class GuardConfig:
     two_sided: bool = True
     margin2: float = 2.0
     explain: bool = True
+    imu_attribution: bool = True
+    imu_delay: int = 2
+    imu_jump: float = 0.5
 
     def __post_init__(self) -> None:
+        if int(self.imu_delay) < 0:
+            raise ValueError(f"guard imu_delay must be >= 0, got {self.imu_delay}")
         for name in ("window", "imu_window", "min_repeat"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"guard {name} must be >= 1, got {getattr(self, name)}")
-        for name in ("ridge", "margin", "binary_tolerance", "margin2"):
+        for name in ("ridge", "margin", "binary_tolerance", "margin2", "imu_jump"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"guard {name} must be > 0, got {getattr(self, name)}")
 
@@ -186,6 +205,8 @@ class SensorGuard:
         self._cbuf = np.zeros((num_envs, k + 1, 3))  # w x g
         self._gbuf = np.zeros((num_envs, k + 1, 3))
         self._rep = np.zeros((num_envs, len(self._nb)))
+        self._imu_row = self.names.index("imu")
+        self._pending = np.full(num_envs, -1)  # steps since the IMU check fired, undecided
         self._t = 0  # ring position, shared by all envs
 
     def reset(self, ids: np.ndarray | list[int] | None = None) -> None:
@@ -194,6 +215,7 @@ class SensorGuard:
         self.flags[ids] = False
         self.age[ids] = 0
         self._rep[ids] = 0.0
+        self._pending[ids] = -1
 
     def _concat(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         parts = []
@@ -311,8 +333,44 @@ class SensorGuard:
         return self.flagged()
 
     def accused(self, stat: np.ndarray) -> np.ndarray:
-        """Channels ``(N, P)`` the statistics ``stat`` (N, S) accuse this step."""
-        return ((stat > self.stats["threshold"]) @ self.accuse) > 0
+        """Channels ``(N, P)`` the statistics ``stat`` (N, S) of the step just taken
+        accuse (call once per :meth:`statistics`: the IMU's attribution keeps state)."""
+        fire = stat > self.stats["threshold"]
+        if not self.cfg.imu_attribution:
+            return (fire @ self.accuse) > 0
+        imu = fire[:, self._imu_row].copy()
+        fire[:, self._imu_row] = False
+        out = (fire @ self.accuse) > 0
+        return out | self._imu_blame(imu, out)
+
+    def _imu_blame(self, fire: np.ndarray, others: np.ndarray) -> np.ndarray:
+        """The channels the IMU check blames (N, P): see ``imu_attribution``."""
+        row = self.accuse[self._imu_row] > 0
+        gyro, grav = GYRO[row[GYRO]], GRAVITY[row[GRAVITY]]
+        sus = others | self.flags
+        sus_gyro, sus_grav = sus[:, gyro].any(1), sus[:, grav].any(1)
+        self._pending[fire & (self._pending < 0)] = 0
+        active = self._pending >= 0
+        by_shape = active & ~sus_gyro & ~sus_grav & (self._pending >= self.cfg.imu_delay)
+        jump = self._jump_share() >= self.cfg.imu_jump
+        blame = np.zeros_like(others)
+        blame[np.ix_((active & sus_gyro & ~sus_grav) | (by_shape & ~jump), gyro)] = True
+        blame[np.ix_((active & sus_grav & ~sus_gyro) | (by_shape & jump), grav)] = True
+        decided = by_shape | (active & (sus_gyro | sus_grav))
+        self._pending[decided] = -1
+        self._pending[active & ~decided] += 1
+        return blame
+
+    def _jump_share(self) -> np.ndarray:
+        """(N,): the largest share of the IMU residual carried by one of its steps (the
+        window's residual is the sum of its one-step residuals)."""
+        k, t = self.cfg.imu_window, self._t - 1  # the step statistics() just took
+        order = (t - np.arange(k + 1)[::-1]) % (k + 1)  # oldest first
+        g, c = self._gbuf[:, order], self._cbuf[:, order]
+        e = g[:, 1:] - g[:, :-1] + self.dt * (c[:, 1:] + c[:, :-1]) / 2  # (N, k, 3)
+        r = e.sum(1)
+        norm = np.maximum(np.linalg.norm(r, axis=1), 1e-12)
+        return np.einsum("nkd,nd->nk", e, r).max(1) / norm ** 2
 
     def flagged(self) -> dict[str, np.ndarray]:
         return {s: self.flags[:, OFFSET[s]:OFFSET[s] + registry.get(s).dim].copy()

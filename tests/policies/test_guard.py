@@ -5,6 +5,7 @@ and round-trips through a checkpoint folder."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -173,12 +174,38 @@ def test_a_guard_saved_before_the_two_sided_statistics_loads_as_it_was(recorded,
     old = fit_guard(recorded, cfg=GuardConfig(two_sided=False, explain=False))
     old.save(tmp_path)
     meta = json.loads((tmp_path / "guard.json").read_text())
-    for key in ("two_sided", "margin2", "explain"):
+    for key in ("two_sided", "margin2", "explain", "imu_attribution", "imu_delay", "imu_jump"):
         del meta["config"][key]
     (tmp_path / "guard.json").write_text(json.dumps(meta))
     back = load_guard(tmp_path)
     assert not back.cfg.two_sided and not back.cfg.explain and back.names == old.names
+    assert not back.cfg.imu_attribution
     faulty = inject(load_episodes(recorded), "bias", "joint_pos", 4,
                     3 * std_of(recorded, "joint_pos")[4])
     a, b = run(old, faulty), run(back, faulty)
     assert a[:, -1].any() and (a == b).all()
+
+
+@pytest.fixture(scope="module")
+def fitted_loose(recorded) -> SensorGuard:
+    # ridge 30 (as in the explaining-away test): on these 1,200 steps a looser fit leaves
+    # single healthy channels flagged by a gyro bias through their predictors
+    return fit_guard(recorded, cfg=GuardConfig(ridge=30.0))
+
+
+@pytest.mark.parametrize("sensor,ch", [("ang_vel", 0), ("ang_vel", 1), ("gravity", 1)])
+def test_the_imu_check_blames_the_half_that_lies(fitted_loose, recorded, sensor, ch):
+    """A 3-std bias on the gyro or on the gravity vector: with attribution the faulty half
+    is flagged within 10 steps and the other half never; without it, both halves."""
+    guard, data = fitted_loose, load_episodes(recorded)
+    faulty = inject(data, "bias", sensor, ch, 3 * std_of(recorded, sensor)[ch])
+    halves = {s: slice(OFFSET[s], OFFSET[s] + 3) for s in ("ang_vel", "gravity")}
+    other = "gravity" if sensor == "ang_vel" else "ang_vel"
+    for attribution in (True, False):
+        g = SensorGuard(replace(guard.cfg, imu_attribution=attribution), guard.stats)
+        flags = run(g, faulty)
+        valid = np.arange(flags.shape[1])[None] < data["length"][:, None]
+        assert not flags[:, ONSET - 1].any()
+        assert flags[:, ONSET + 9, halves[sensor]].any(1).all()
+        blamed = (flags[:, :, halves[other]].any(2) & valid).any(1)
+        assert not blamed.any() if attribution else blamed.all()
