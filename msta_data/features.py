@@ -143,9 +143,13 @@ PROVENANCE_COLUMNS: dict[str, pa.DataType] = {
 }
 
 
+#: An episode's task text is this prefix and its terrain type.
+TASK_PREFIX = "a1 locomotion on "
+
+
 def task_string(provenance: Provenance) -> str:
     """The lerobot task text of an episode (groups episodes by terrain type)."""
-    return f"a1 locomotion on {provenance.terrain}"
+    return f"{TASK_PREFIX}{provenance.terrain}"
 
 
 def resolve_sensors(sensors: Sequence[str] | None) -> tuple[str, ...]:

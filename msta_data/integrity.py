@@ -355,9 +355,9 @@ def verify_dataset(root: str | Path, mode: VerifyMode = "full",
         if str(root) in _warned:
             return None
         _warned.add(str(root))
-        logger.warning("%s: no %s (written before msta recorded checksums): only structural "
-                       "checks apply; extending it with msta-collect --resume records them",
-                       root, L.MANIFEST_PATH)
+        logger.warning("%s: no %s (written before msta recorded checksums, or rewritten by "
+                       "LeRobot's tools): only structural checks apply; extending it with "
+                       "msta-collect --resume records them", root, L.MANIFEST_PATH)
         return None
     gen = current_generation(root, manifest)
     check_generation(root, manifest, gen, mode)
@@ -385,6 +385,7 @@ def check_structure(root: str | Path) -> None:
     import pyarrow as pa
 
     from msta_data import features as F
+    from msta_data.lerobot_edits import fixed_size
 
     info = F.load_info(root)
     table = F.read_episode_table(root, info).to_pandas()
@@ -396,8 +397,10 @@ def check_structure(root: str | Path) -> None:
         if data.num_rows != rows:
             raise DatasetFormatError(f"{path}: {data.num_rows} rows, meta/episodes says {rows} "
                                      "(truncated or rewritten?)")
-        for col in info["features"]:
+        for col, ft in info["features"].items():
             arr = data.column(col).combine_chunks()
+            if tuple(ft["shape"]) != (1,):  # LeRobot's merge writes variable-length lists
+                arr = fixed_size(arr, ft["shape"][0], f"{path}: column {col!r}")
             flat = arr.flatten() if pa.types.is_fixed_size_list(arr.type) else arr
             if arr.null_count or flat.null_count:
                 raise DatasetFormatError(f"{path}: column {col!r} contains nulls")

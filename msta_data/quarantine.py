@@ -21,6 +21,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import pyarrow as pa
+
+from msta_data import features as F
 from msta_data import integrity as I
 from msta_data import layout as L
 from msta_data.errors import DatasetIntegrityError
@@ -87,6 +90,24 @@ def set_aside(root: str | Path, rels: Sequence[str], why: str) -> Path | None:
         "meta/ (restored from an older copy?) or files of your own; nothing was deleted",
         root, len(moved), why, folder, shown)
     return folder
+
+
+def committed_files(table: pa.Table, chunks_size: int) -> tuple[set[str], int]:
+    """The data and episode files that the committed episodes' rows name (``data/*`` and
+    ``meta/episodes/*`` columns of the episode table), and the number after the highest: the
+    next file a writer may create without touching one of them (msta writes data file N
+    with episode file N; LeRobot's tools number the two series apart)."""
+    out: set[str] = set()
+    top = -1
+    for template, prefix in ((L.DATA_PATH, "data"), (L.EPISODES_PATH, L.EPISODES_DIR)):
+        if f"{prefix}/chunk_index" not in table.column_names:
+            continue
+        nums = {F.file_number(c, f, chunks_size) for c, f in zip(
+            table.column(f"{prefix}/chunk_index").to_pylist(),
+            table.column(f"{prefix}/file_index").to_pylist(), strict=True)}
+        out |= {F.numbered_path(template, n, chunks_size) for n in nums}
+        top = max([top, *nums])
+    return out, top + 1
 
 
 def set_aside_leftovers(root: Path, gen: I.Generation | None, committed: set[str],

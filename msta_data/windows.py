@@ -31,6 +31,7 @@ from msta_data import integrity as I
 from msta_data import layout as L
 from msta_data import sensors as registry
 from msta_data.errors import DatasetFormatError
+from msta_data.lerobot_edits import fixed_size
 
 _INDEX_COLUMNS = ("index", "episode_index", "frame_index", "timestamp")
 
@@ -66,6 +67,10 @@ def _column_to_numpy(table: pa.Table, col: str, ft: dict[str, Any], path: Path) 
     """Arrow column -> ``(N, dim)`` (vectors) or ``(N,)`` (scalars), type-checked."""
     want = F.arrow_type(ft)
     arr = table.column(col)
+    if pa.types.is_fixed_size_list(want) and arr.type in (pa.list_(want.value_type),
+                                                           pa.large_list(want.value_type)):
+        arr = pa.chunked_array([fixed_size(arr.combine_chunks(), want.list_size,
+                                           f"{path}: column {col!r}")])
     same = arr.type == want or (pa.types.is_fixed_size_list(arr.type)
                                 and pa.types.is_fixed_size_list(want)
                                 and arr.type.list_size == want.list_size

@@ -61,6 +61,7 @@ from msta_data import derived as D
 from msta_data import features as F
 from msta_data import integrity as I
 from msta_data import layout as L
+from msta_data import lerobot_edits as E
 from msta_data import quarantine as Q
 from msta_data import stats as S
 from msta_data.errors import DatasetFormatError, DatasetLockedError
@@ -214,10 +215,12 @@ class DatasetWriter:
         lock_fd = _take_lock(root)
         try:
             info = F.load_info(root)
-            msta_meta = _read_msta_meta(root, info)
+            rewritten = E.is_rewritten(root)  # by LeRobot's tools: msta's metadata re-derived
+            msta_meta = (E.derive_msta_meta(root, info) if rewritten
+                         else _read_msta_meta(root, info))
             manifest = I.Manifest.load(root)
             gen = None
-            if manifest is None:  # written before manifests: read every column once
+            if manifest is None:  # no manifest (older or LeRobot-written): read every column
                 I.check_structure(root)
             else:
                 gen = I.current_generation(root, manifest)
@@ -225,27 +228,30 @@ class DatasetWriter:
             I.check_counts(root, gen)
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
             self._committed = gen
+            if rewritten:
+                self._adopt()
             self._recover(manifest)
+            if rewritten:
+                self._write_card()
             return self
         except BaseException:
             os.close(lock_fd)
             raise
 
+    def _adopt(self) -> None:
+        """Re-derive msta's metadata of a dataset LeRobot's tools rewrote
+        (:mod:`msta_data.lerobot_edits`): ``meta/msta.json`` and the provenance columns."""
+        self._new_files.update(E.adopt(self.root, self.msta_meta, _atomic_write))
+
     def _recover(self, manifest: I.Manifest | None) -> None:
         table = F.read_episode_table(self.root, self.info, with_stats=True)
-        cs = self.info["chunks_size"]
         if len(table):
             last = table.slice(len(table) - 1).to_pylist()[0]
             if last["dataset_to_index"] != self.info["total_frames"]:
                 raise DatasetFormatError(
                     f"{self.root / L.INFO_PATH}: total_frames {self.info['total_frames']} but "
                     f"the last episode ends at {last['dataset_to_index']}")
-            nums = [F.file_number(c, f, cs) for c, f in zip(
-                table.column("data/chunk_index").to_pylist(),
-                table.column("data/file_index").to_pylist(), strict=True)]
-            self._next_file = max(nums) + 1
-        committed = {F.numbered_path(t, n, cs) for n in range(self._next_file)
-                     for t in (L.DATA_PATH, L.EPISODES_PATH)}
+        committed, self._next_file = Q.committed_files(table, self.info["chunks_size"])
         Q.set_aside_leftovers(self.root, self._committed, committed, self.info["total_episodes"])
         if (self.root / L.TASKS_PATH).exists():
             tasks = pd.read_parquet(self.root / L.TASKS_PATH)
@@ -343,6 +349,9 @@ class DatasetWriter:
         self._commit()
         self._buffer.clear()
         self._buffered_frames = 0
+        self._write_card()
+
+    def _write_card(self) -> None:
         try:  # the episodes are committed: a card that cannot be written only warns
             write_dataset_card(self.root)
         except (OSError, ValueError) as e:
