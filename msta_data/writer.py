@@ -30,7 +30,8 @@ manifest (and refuses, naming the file, when one is missing, truncated or change
 :func:`~msta_data.integrity.check_counts`), then moves every file of the chunk directories the
 commit does not list to ``.msta-quarantine/`` (it deletes nothing but its own partial ``.tmp``
 writes: :mod:`msta_data.quarantine`), and recomputes ``stats.json`` from the committed
-per-episode stats when it is not the committed one.
+per-episode stats when it is not the committed one. A dataset LeRobot's tools rewrote (no
+``meta/msta.json``, no manifest) gets msta's metadata re-derived: :mod:`msta_data.lerobot_edits`.
 
 The writer also fills ``observation.state`` and ``observation.environment_state`` from the
 sensor columns, with their statistics (:mod:`msta_data.derived`). A dataset written before
