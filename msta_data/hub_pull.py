@@ -109,9 +109,21 @@ def pull(spec: str, dest_dir: str | os.PathLike, *, repo_type: str | None = None
     return dest
 
 
+def hf_home() -> Path:
+    """huggingface_hub's ``HF_HOME``, read now by its rule: ``HF_HOME``, else
+    ``$XDG_CACHE_HOME/huggingface``, else ``~/.cache/huggingface`` (``~`` and ``$VARS``
+    expanded)."""
+    default = os.path.join(os.environ.get("XDG_CACHE_HOME")
+                           or os.path.join(os.path.expanduser("~"), ".cache"), "huggingface")
+    return Path(os.path.expandvars(os.path.expanduser(os.environ.get("HF_HOME") or default)))
+
+
 def default_cache_dir() -> Path:
-    """Where ``materialize`` keeps pulled revisions: MSTA_HUB_CACHE or ~/.cache/msta/hub."""
-    return Path(os.environ.get("MSTA_HUB_CACHE") or Path.home() / ".cache" / "msta" / "hub")
+    """Where ``materialize`` keeps pulled commits: ``MSTA_HUB_CACHE`` when set, else
+    ``<HF_HOME>/msta/hub`` beside LeRobot's ``<HF_HOME>/lerobot`` (:func:`hf_home`; read when
+    called, so setting HF_HOME moves every Hugging Face and msta cache at once)."""
+    own = os.environ.get("MSTA_HUB_CACHE")
+    return Path(os.path.expandvars(os.path.expanduser(own))) if own else hf_home() / "msta" / "hub"
 
 
 def materialize(path_or_spec: str | os.PathLike, *, repo_type: str | None = None,

@@ -2,7 +2,10 @@
 
 Every commit is the complete directory: files absent locally are deleted in the repo.
 Pickle-format files are refused unless allowed; a dataset is locked and verified against
-its checksum manifest before anything is uploaded.
+its checksum manifest before anything is uploaded. What belongs to this machine only (the
+``.msta.lock`` of a directory a process holds, MuJoCo's log, quarantined files, caches) is
+never pushed: :data:`PUSH_IGNORE_PATTERNS`, which also keeps them out of a plain
+``HfApi().upload_folder(..., ignore_patterns=PUSH_IGNORE_PATTERNS)``.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ import os
 from pathlib import Path
 
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
+from huggingface_hub.utils import DEFAULT_IGNORE_PATTERNS, filter_repo_objects
 
 from msta_data import layout as L
 from msta_data.errors import DatasetLockedError
@@ -24,18 +28,22 @@ from msta_data.locking import lock_directory
 logger = logging.getLogger(__name__)
 
 PICKLE_SUFFIXES = (".pt", ".pth", ".pkl", ".pickle", ".bin", ".ckpt", ".joblib")
-_SKIP_DIRS = (".git", ".cache/huggingface", L.QUARANTINE_DIR)  # never pushed
+#: Files that never leave the machine, as huggingface_hub ``ignore_patterns`` (fnmatch on the
+#: path in the repo; ``*`` spans folders): the lock and MuJoCo's log in any folder, the
+#: quarantine, and any ``.cache/`` folder (huggingface_hub's download metadata among them;
+#: ``.git`` is in huggingface_hub's own defaults). msta's push filters with them, and
+#: ``HfApi().upload_folder(folder_path=..., repo_id=..., ignore_patterns=PUSH_IGNORE_PATTERNS)``
+#: filters the same files.
+PUSH_IGNORE_PATTERNS: list[str] = [
+    *(p for name in sorted(L.LOCAL_ONLY_FILES) for p in (name, f"*/{name}")),
+    f"{L.QUARANTINE_DIR}/", ".cache/", "*/.cache/*"]
 
 
 def _local_files(root: Path) -> dict[str, Path]:
-    out = {}
-    for path in sorted(root.rglob("*")):
-        rel = path.relative_to(root).as_posix()
-        if path.name in L.LOCAL_ONLY_FILES:
-            continue
-        if path.is_file() and not any(rel == d or rel.startswith(d + "/") for d in _SKIP_DIRS):
-            out[rel] = path
-    return out
+    files = {p.relative_to(root).as_posix(): p for p in sorted(root.rglob("*")) if p.is_file()}
+    keep = filter_repo_objects(files, ignore_patterns=DEFAULT_IGNORE_PATTERNS
+                               + PUSH_IGNORE_PATTERNS)
+    return {rel: files[rel] for rel in keep}
 
 
 def _set_tag(api: HfApi, repo_id: str, repo_type: str, tag: str, sha: str, move: bool) -> None:
