@@ -14,13 +14,23 @@ when an env is made::
     envs = gym.make_vec("msta/A1-v0", num_envs=64,
                         vectorization_mode="vector_entry_point")    # MstaVectorEnv, batched
 
-Both take ``cfg`` (an ``EnvConfig``) and ``sensors`` as keyword arguments.
+Both take ``cfg`` (an ``EnvConfig``), ``sensors`` and ``actions`` as keyword arguments.
 
 Observations are a ``Dict`` space keyed by registry sensor name (``msta_data/sensors.py``),
-the names the simulator, the dataset columns and the policies use: one flat vector would
-hide which channels are privileged (``gymnasium.wrappers.FlattenObservation`` makes one).
-Actions are the simulator's: (12,) offsets from the default pose in units of
-``action_scale``, clipped to ``clip_actions``. The time limit is the simulator's own
+the names the simulator, the dataset columns and the policies use. By default they are the
+student's sensors (``STUDENT_SENSORS``: the paper's 49 scalars; ``FlattenObservation`` makes
+them one (49,) vector); ``sensors=`` names others too, e.g.
+``sensors=(*STUDENT_SENSORS, *PRIVILEGED_SENSORS)`` for a teacher's inputs or ``"height_map"``.
+Every ``Box`` states a finite range (the joint range from the robot model, the config's
+command and randomization ranges, measured ranges where the physics has none: ``spaces.py``)
+and readings are clipped to it.
+
+Actions (``actions=``): "normalized" (default), a (12,) vector in [-1, 1]: 0 is the default
+pose, +1 and -1 a joint's upper and lower stop, linear on each side; it is turned into the
+simulator action of the same joint target, so the physics is the simulator's.
+``last_action`` is then reported in the same normalized units. "simulator": the simulator's
+and the datasets' own action (offsets from the default pose in units of ``action_scale``,
+clipped to +-``clip_actions``), as msta's students output it. The time limit is the simulator's own
 (``EnvConfig.episode_length_s``, reported as ``truncated``), so the id adds no ``TimeLimit``.
 The simulator draws from the env's ``np_random`` (first ``cfg.seed``'s generator);
 ``reset(seed=s)`` reseeds it and redraws the terrain tiles, so a seeded reset does not depend
@@ -53,7 +63,9 @@ envs being reset by a NEXT_STEP step.
 
 ``render_mode="rgb_array"``: ``render()`` draws the robot with ``render.py``'s tracking
 camera (``MstaVectorEnv``: one frame per env). Until an ended episode is reset, it shows the
-state that ended it. Headless Linux renders through EGL (``collect/sim/__init__.py``).
+state that ended it. Headless Linux renders through EGL: ``import collect.sim`` sets
+``MUJOCO_GL=egl`` unless it is set (docs/simulator.md, "Rendering without a display", says
+which backends fail where and why).
 """
 
 from __future__ import annotations
@@ -70,9 +82,11 @@ from gymnasium.vector.utils import batch_space
 
 from collect.sim.env import REASONS, EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.render import make_renderer, render_state
+from collect.sim.robot import joint_limits
+from collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds
 from collect.sim.terrain import sample_initial
 from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import SENSORS, get
+from msta_data.sensors import STUDENT_SENSORS, get
 
 RESET_OPTIONS = ("type_idx", "level")
 INFO_KEYS = ("reason", "lin_vel_tracking", "ang_vel_tracking")
@@ -85,27 +99,39 @@ class _View:
     render_mode: str | None
 
     def _setup(self, cfg: EnvConfig, sensors: tuple[str, ...] | None, render_mode: str | None,
-               width: int, height: int) -> gym.spaces.Dict:
+               width: int, height: int, actions: str) -> gym.spaces.Dict:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r}; msta/A1-v0 renders 'rgb_array' only")
         if width < 1 or height < 1:
             raise ValueError(f"render size {width}x{height} must be positive")
-        self.sensors = tuple(sensors) if sensors else tuple(SENSORS)
+        if actions not in ACTION_MODES:
+            raise ValueError(f"actions={actions!r}; expected one of {list(ACTION_MODES)}")
+        self.sensors = tuple(sensors) if sensors else STUDENT_SENSORS
         for s in self.sensors:
             get(s)  # KeyError naming the unknown sensor
         self.sim = QuadrupedEnv(cfg)
+        self.actions = actions
+        self._map = ActionMap(joint_limits(self.sim.model), cfg.control.action_scale)
+        self._bounds = observation_bounds(self.sim, actions)
         self.render_mode, self._size = render_mode, (height, width)
         self._renderer: Any = None
         self._final_state = np.zeros_like(self.sim.state)   # see _keep_final
         self._ended = np.zeros(self.sim.num_envs, dtype=bool)
         self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.dt))}
         self._np_random, self._np_random_seed = self.sim.rng, cfg.seed
-        return gym.spaces.Dict({s: gym.spaces.Box(-np.inf, np.inf, (get(s).dim,), np.float32)
+        return gym.spaces.Dict({s: gym.spaces.Box(*self._bounds[s], dtype=np.float32)
                                 for s in self.sensors})
 
     def _action_box(self) -> gym.spaces.Box:
-        lim = self.sim.cfg.control.clip_actions
-        return gym.spaces.Box(-lim, lim, (NUM_JOINTS,), np.float32)
+        low, high = action_bounds(self.sim, self.actions)
+        return gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    def _to_sim(self, a: np.ndarray) -> np.ndarray:
+        """(..., 12) actions of this view -> the simulator's (a wrong shape passes through
+        to the simulator's own one-line error)."""
+        if self.actions == "simulator" or a.shape[-1:] != (NUM_JOINTS,):
+            return a
+        return self._map.to_sim(a)
 
     def _reset_sim(self, seed: int | None, options: dict[str, Any] | None,
                    rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -124,7 +150,15 @@ class _View:
         return sim.reset(options.get("type_idx"), options.get("level"))
 
     def _select(self, obs: dict[str, np.ndarray], rows: Any = slice(None)) -> dict[str, np.ndarray]:
-        return {s: np.array(obs[s][rows], dtype=np.float32) for s in self.sensors}
+        """This view's sensors of simulator observations: ``last_action`` in this view's
+        action units, every reading clipped to its space (``spaces.py``)."""
+        out = {}
+        for s in self.sensors:
+            x = obs[s][rows]
+            if s == "last_action" and self.actions == "normalized":
+                x = self._map.from_sim(x)
+            out[s] = np.clip(x, *self._bounds[s]).astype(np.float32)
+        return out
 
     def _keep_final(self, done: np.ndarray) -> None:
         """Mark the envs whose episode ended this step; until they reset, ``render()`` shows
@@ -184,17 +218,21 @@ class MstaEnv(_View, gym.Env):
 
     Args:
         cfg: simulator config; ``num_envs`` and ``nthread`` are set to 1.
-        sensors: registry sensors to expose (default: all, privileged included).
+        sensors: registry sensors to expose (default: the student's, ``STUDENT_SENSORS``;
+            name privileged ones or ``height_map`` to get them too).
         render_mode: None or "rgb_array" (``render()`` returns a (height, width, 3) uint8 frame).
         width, height: render size in pixels.
+        actions: "normalized" (default: [-1, 1] per joint, 0 the default pose, +-1 the joint
+            stops) or "simulator" (the simulator's and the datasets' action, +-clip_actions).
     """
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(self, cfg: EnvConfig | None = None, sensors: tuple[str, ...] | None = None,
-                 render_mode: str | None = None, width: int = 480, height: int = 360) -> None:
+                 render_mode: str | None = None, width: int = 480, height: int = 360,
+                 actions: str = "normalized") -> None:
         cfg = replace(cfg or EnvConfig(), num_envs=1, nthread=1)
-        self.observation_space = self._setup(cfg, sensors, render_mode, width, height)
+        self.observation_space = self._setup(cfg, sensors, render_mode, width, height, actions)
         self.action_space = self._action_box()
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
@@ -212,7 +250,7 @@ class MstaEnv(_View, gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (NUM_JOINTS,):
             raise ValueError(f"action has shape {a.shape}, expected ({NUM_JOINTS},)")
-        res = self.sim.step(a[None])
+        res = self.sim.step(self._to_sim(a[None]))
         self._keep_final(res.done)
         obs = self._select(self.sim.final_obs if res.done[0] else res.obs, 0)
         info = {k: v[0].item() for k, v in _infos(res, np.ones(1, dtype=bool)).items()
@@ -235,12 +273,13 @@ class MstaVectorEnv(_View, VectorEnv):
 
     Args:
         cfg: simulator config (``cfg.num_envs`` environments).
-        sensors: registry sensors to expose (default: all, privileged included).
+        sensors: registry sensors to expose (default: the student's, ``STUDENT_SENSORS``).
         num_envs: overrides ``cfg.num_envs`` (``gym.make_vec`` always passes it).
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``SAME_STEP`` (or their
             string values "NextStep", "SameStep").
         render_mode: None or "rgb_array" (``render()`` returns one frame per env).
         width, height: render size in pixels.
+        actions: "normalized" (default) or "simulator", as ``MstaEnv``'s.
     """
 
     metadata: ClassVar[dict] = {"autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -249,7 +288,8 @@ class MstaVectorEnv(_View, VectorEnv):
     def __init__(self, cfg: EnvConfig | None = None, sensors: tuple[str, ...] | None = None,
                  num_envs: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 render_mode: str | None = None, width: int = 480, height: int = 360) -> None:
+                 render_mode: str | None = None, width: int = 480, height: int = 360,
+                 actions: str = "normalized") -> None:
         modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
         mode = next((m for m in modes if autoreset_mode in (m, m.value)), None)
         if mode is None:
@@ -258,7 +298,8 @@ class MstaVectorEnv(_View, VectorEnv):
         cfg = cfg or EnvConfig()
         if num_envs is not None:
             cfg = replace(cfg, num_envs=num_envs)
-        self.single_observation_space = self._setup(cfg, sensors, render_mode, width, height)
+        self.single_observation_space = self._setup(cfg, sensors, render_mode, width, height,
+                                                    actions)
         self.metadata["autoreset_mode"] = self.autoreset_mode = mode
         self.num_envs = self.sim.num_envs
         self.single_action_space = self._action_box()
@@ -281,7 +322,7 @@ class MstaVectorEnv(_View, VectorEnv):
         if restart.any() and a.shape == (self.num_envs, NUM_JOINTS):
             a = np.where(restart[:, None], 0.0, a)  # ignored: these envs are being reset
         level = self.sim.level.copy()
-        res = self.sim.step(a)
+        res = self.sim.step(self._to_sim(a))
         obs = self._select(res.obs)
         reward = res.reward.astype(np.float32)
         term, trunc = res.terminated.copy(), res.truncated.copy()
@@ -315,8 +356,9 @@ class MstaVectorEnv(_View, VectorEnv):
         ids = np.flatnonzero(done)
         rows = np.searchsorted(self.sim.final_ids, ids)  # final_ids: sorted ids done this step
         out = {s: np.zeros((self.num_envs, get(s).dim), dtype=np.float32) for s in self.sensors}
+        last = self._select(self.sim.final_obs, rows)
         for s in self.sensors:
-            out[s][ids] = self.sim.final_obs[s][rows]
+            out[s][ids] = last[s]
         return out
 
     def _restart(self, ids: np.ndarray, res: StepResult, level: np.ndarray

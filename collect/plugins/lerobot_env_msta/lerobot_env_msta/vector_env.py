@@ -57,7 +57,7 @@ class A1VectorEnv(VectorEnv):
             raise ValueError(f"A1VectorEnv runs one terrain type, got {cfg.terrain.types}")
         self.levels = np.asarray(levels, dtype=np.int64)
         self.video = video
-        self.sim_env = MstaVectorEnv(cfg, sensors=STUDENT_SENSORS,
+        self.sim_env = MstaVectorEnv(cfg, sensors=STUDENT_SENSORS, actions="simulator",
                                      render_mode="rgb_array" if video else None,
                                      width=width, height=height)
         self.num_envs = self.sim_env.num_envs
@@ -69,9 +69,11 @@ class A1VectorEnv(VectorEnv):
         self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.dt))}
         columns = [get(s).column for s in STUDENT_SENSORS]
         self._columns = (*columns, *derived.COLUMNS)
-        dims = {k: int(sum(get(s).dim for s in self._sources(k))) for k in OBS_COLUMNS}
-        self.single_observation_space = gym.spaces.Dict(
-            {k: gym.spaces.Box(-np.inf, np.inf, (d,), np.float32) for k, d in dims.items()})
+        sensor_space = self.sim_env.single_observation_space  # finite ranges (spaces.py)
+        self.single_observation_space = gym.spaces.Dict({k: gym.spaces.Box(
+            np.concatenate([sensor_space[s].low for s in self._sources(k)]),
+            np.concatenate([sensor_space[s].high for s in self._sources(k)]), dtype=np.float32)
+            for k in OBS_COLUMNS})
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.single_action_space = self.sim_env.single_action_space
         self.action_space = self.sim_env.action_space
