@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from collect.ray_pool import RayOptions, check_ray_options
 from collect.rollout import Step, as_policy, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.env_config import check_sizes
@@ -225,7 +226,7 @@ class _Progress:
 
 
 @dataclass
-class CollectConfig:
+class CollectConfig(RayOptions):
     """Args:
         teacher: which teacher acts and labels (default: the shipped PPO teacher, rma_ppo;
             ``--teacher.type=gait``: the gait controller).
@@ -235,7 +236,8 @@ class CollectConfig:
         repo_id: dataset id recorded in the metadata (``user/name``).
         root: dataset directory.
         resume: append to an existing dataset at ``root`` until it holds ``episodes``.
-        seed: seeds the simulator (a resumed run shifts it by the episodes already present).
+        seed: seeds the simulator (a resumed run shifts it by the episodes already present;
+            with ``workers``: episode k's own streams are keyed by (seed, k)).
         episode_length_s: episode time limit (s).
         env: simulator options (terrain mix and levels, randomization, noise, ...).
         flush_every_frames: frames buffered before they are written (a killed run loses at
@@ -276,6 +278,7 @@ class CollectConfig:
                                  f"are always recorded); extension sensors: "
                                  f"{', '.join(EXTENSION_SENSORS)}")
         cli.check_number("action_noise", self.action_noise, 0)
+        check_ray_options(self.workers, self.ray_address)
         cli.check_at_least(self, 1, "episodes", "flush_every_frames")
         check_sizes(self.num_envs, self.episode_length_s)
         terrain = self.env.terrain
@@ -311,7 +314,7 @@ def collect(cfg: CollectConfig) -> Path:
             if writer is not None:
                 writer.close()  # its lock too: the caller may append or push in this process
             return root
-        seed = cfg.seed + have
+        seed = cfg.seed if cfg.workers else cfg.seed + have  # workers: seeds per episode
         env_cfg = cfg.env
         env_cfg.num_envs, env_cfg.seed, env_cfg.episode_length_s = (
             cfg.num_envs, seed, cfg.episode_length_s)
@@ -336,9 +339,15 @@ def collect(cfg: CollectConfig) -> Path:
                 "seed": seed})
 
         t0 = time.time()
-        driver = LabelledActor(teacher, noise=cfg.action_noise, seed=seed)
-        steps = record_rollouts(env, driver, todo, write, progress=cfg.progress,
-                                sensors=tuple(writer.msta_meta["sensors"]))
+        sensors = tuple(writer.msta_meta["sensors"])
+        if cfg.workers:  # Ray workers simulate, this process commits (docs/scale.md)
+            from collect.distributed import collect_on_workers
+
+            steps = collect_on_workers(cfg, write, have, sensors)
+        else:
+            driver = LabelledActor(teacher, noise=cfg.action_noise, seed=seed)
+            steps = record_rollouts(env, driver, todo, write, progress=cfg.progress,
+                                    sensors=sensors)
         print(f"recorded {todo} episodes ({steps:,} env steps simulated, "
               f"{steps / (time.time() - t0):,.0f}/s) -> {root} ({writer.num_episodes} episodes, "
               f"{writer.num_frames:,} frames)")
