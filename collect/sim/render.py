@@ -13,15 +13,25 @@ import numpy as np
 GL_HELP = (
     "MuJoCo offscreen rendering needs an OpenGL backend. Set MUJOCO_GL=egl (needs libEGL, "
     "Debian/Ubuntu package 'libegl1' with Mesa's 'libgl1-mesa-dri') or MUJOCO_GL=osmesa "
-    "(package 'libosmesa6'); on a desktop MUJOCO_GL=glfw works. Current MUJOCO_GL={!r}.")
+    "(package 'libosmesa6'); on a desktop MUJOCO_GL=glfw works. Current MUJOCO_GL={!r}.{}")
+
+
+def _no_display() -> str:
+    """Why GLFW failed, when the reason is that there is no display to open a window on."""
+    if os.environ.get("MUJOCO_GL", "glfw") != "glfw":
+        return ""
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return ""
+    return " GLFW opens a window and there is no display (DISPLAY is not set): use egl."
 
 
 def make_renderer(model: mujoco.MjModel, height: int = 360, width: int = 480) -> mujoco.Renderer:
-    """A renderer, or a RuntimeError that says which package provides a GL backend."""
+    """A renderer, or a RuntimeError that says which package provides a GL backend (see
+    docs/simulator.md, "Rendering without a display")."""
     try:
         return mujoco.Renderer(model, height=height, width=width)
     except Exception as exc:  # mujoco raises FatalError/RuntimeError/AttributeError by backend
-        raise RuntimeError(GL_HELP.format(os.environ.get("MUJOCO_GL"))) from exc
+        raise RuntimeError(GL_HELP.format(os.environ.get("MUJOCO_GL"), _no_display())) from exc
 
 
 def tracking_camera(distance: float = 1.6, azimuth: float = 135.0, elevation: float = -20.0

@@ -174,3 +174,21 @@ def test_headless_render_goes_through_egl_and_draws_the_robot():
     assert frame["shape"] == [72, 96, 3] and frame["dtype"] == "uint8", frame
     assert frame["std"] > 5 and frame["colours"] > 50, frame  # a scene, not a blank frame
     assert frame["moved"] > 1, frame  # the robot folded its legs: the picture changed
+
+
+def test_glfw_without_a_display_is_a_one_line_error():
+    """MUJOCO_GL=glfw (MuJoCo's default off Linux) needs a window: headless, the renderer
+    says so and names EGL."""
+    code = ("import mujoco\n"
+            "from collect.sim.render import make_renderer\n"
+            "try:\n"
+            "    make_renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 16, 16)\n"
+            "except RuntimeError as e:\n"
+            "    print(e)\n")
+    environ = {k: v for k, v in os.environ.items()
+               if k not in ("DISPLAY", "WAYLAND_DISPLAY", "PYOPENGL_PLATFORM")}
+    out = subprocess.run([sys.executable, "-c", code], env={**environ, "MUJOCO_GL": "glfw"},
+                         capture_output=True, text=True, timeout=120, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    message = out.stdout.strip().splitlines()
+    assert len(message) == 1 and "there is no display (DISPLAY is not set): use egl" in message[0]
