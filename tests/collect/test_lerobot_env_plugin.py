@@ -50,6 +50,7 @@ def test_env_type_is_registered_with_the_dataset_features():
     ({"levels": (0, 10)}, r"levels \[0, 10\] must be levels in \[0, 10\)"),
     ({"fps": 30}, "runs at 50 Hz"),
     ({"episode_length_s": 0.0}, "episode_length_s=0.0 must be > 0"),
+    ({"platform_size": 9.0}, r"platform_size=9.0 must be in \[0, 8.0\] m"),
 ])
 def test_bad_options_are_one_line_errors(option, message):
     with pytest.raises(ValueError, match=message):
@@ -90,6 +91,35 @@ def test_vector_env_gives_lerobot_what_the_datasets_hold():
     finally:
         for group in envs.values():
             group[0].close()
+
+
+def standing_figures(platform_size: float) -> dict[str, tuple[np.ndarray, float]]:
+    """Per paper terrain: each robot's initial height-scan spread (m) and the batch's summed
+    reward of 30 steps standing still (zero action), seeds 1000-1001 (levels 1 and 2)."""
+    cfg = MstaA1EnvConfig(platform_size=platform_size, episode_length_s=1.0, video=False)
+    out = {}
+    for terrain, group in cfg.create_envs(n_envs=2).items():
+        env = group[0]
+        try:
+            env.reset(seed=[1000, 1001])
+            spread = np.ptp(env.sim_env.sim.meas["height_scan"], axis=1)
+            total = sum(env.step(np.zeros((2, 12), np.float32))[1].sum() for _ in range(30))
+            out[terrain] = (spread, float(total))
+        finally:
+            env.close()
+    return out
+
+
+def test_each_terrains_robots_start_on_it_and_get_its_own_figures():
+    """A robot that stays where it starts: on legged_gym's 3 m spawn platform four of the five
+    paper terrains give it the same reward (only the rough slope's noise reaches the
+    platform); by default there is no platform, every robot starts on uneven ground and
+    each terrain's figure is its own."""
+    legacy = standing_figures(3.0)
+    assert len({round(total, 5) for _, total in legacy.values()}) == 2, legacy
+    now = standing_figures(MstaA1EnvConfig().platform_size)
+    assert all((spread > 0.02).all() for spread, _ in now.values()), now
+    assert len({round(total, 5) for _, total in now.values()}) == 5, now
 
 
 @pytest.fixture(scope="module")

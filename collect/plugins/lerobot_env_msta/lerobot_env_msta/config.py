@@ -65,6 +65,11 @@ class MstaA1EnvConfig(EnvConfig):
     known: flat, smooth_slope, rough_slope, stairs_up, stairs_down, discrete."""
     levels: tuple[int, ...] = (0, 1, 2)
     """terrain difficulty levels (0-9) the episodes cycle through."""
+    platform_size: float = 0.0
+    """side (m) of a flat square at each tile's centre, where robots start (within 1 m of
+    the centre). 0: no platform, each robot starts on its terrain (slope, steps, blocks), so
+    a robot that stays where it starts still meets it; 3.0: legged_gym's spawn platform,
+    where every terrain looks flat until a robot walks off it."""
     episode_length_s: float = 20.0
     """episode time limit (s); lerobot-eval runs at most this many seconds x fps steps."""
     noise: bool = True
@@ -106,6 +111,10 @@ class MstaA1EnvConfig(EnvConfig):
         num_levels = TerrainConfig().num_levels
         if not self.levels or not all(0 <= v < num_levels for v in self.levels):
             raise ValueError(f"levels {list(self.levels)} must be levels in [0, {num_levels})")
+        tile = TerrainConfig().tile_size
+        if not 0.0 <= self.platform_size <= tile:
+            raise ValueError(f"platform_size={self.platform_size} must be in [0, {tile}] m "
+                             "(a tile's side)")
         if not self.episode_length_s > 0:
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
         if self.video_width < 2 or self.video_height < 2:
@@ -123,7 +132,8 @@ class MstaA1EnvConfig(EnvConfig):
         """The simulator config of one task group.
 
         Args:
-            terrain: its terrain type (only that column of tiles is built, curriculum off).
+            terrain: its terrain type (only that column of tiles is built, curriculum off,
+                ``platform_size`` at each tile's centre).
             num_envs: robots simulated together (lerobot-eval's ``--eval.batch_size``).
         """
         from collect.sim.commands import CommandConfig
@@ -133,7 +143,8 @@ class MstaA1EnvConfig(EnvConfig):
 
         return SimConfig(
             num_envs=num_envs, episode_length_s=self.episode_length_s, nthread=self.nthread,
-            terrain=TerrainConfig(types=(terrain,), curriculum=False),
+            terrain=TerrainConfig(types=(terrain,), curriculum=False,
+                                  platform_size=self.platform_size),
             commands=CommandConfig(use_heading=self.heading_commands),
             noise=NoiseConfig(enabled=self.noise),
             randomization=RandomizationConfig(enabled=self.randomization))
