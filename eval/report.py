@@ -168,11 +168,6 @@ def _norm_cell(run: dict | None, terrain: str = "average") -> dict | None:
     return run["normalized"]["per_terrain"].get(terrain)  # absent: no trial on that terrain
 
 
-def _value(run: dict | None, metric: str, terrain: str = "average") -> float | None:
-    cell = _norm_cell(run, terrain)
-    return None if cell is None else cell.get(metric)
-
-
 def _trials_row(label: str, counts: list[int | None]) -> str:
     return f"| *{label}* | " + " | ".join("-" if n is None else str(n) for n in counts) + " |"
 
@@ -338,111 +333,13 @@ def write_report(metrics: dict, out: str | Path) -> list[Path]:
         metrics: metrics.json content.
         out: output directory.
     """
+    from eval.plots import write_plots  # (the plots read this module's lookups)
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "report.md"
     path.write_text(markdown(metrics))
     return [path] + write_plots(metrics, out)
-
-
-# ----------------------------------------------------------------------------- plots
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _sweep_plot(metrics: dict, scenario: str, path: Path, bars: bool) -> Path:
-    """One subplot per return; x = conditions, one line (or bar group) per policy."""
-    plt = _pyplot()
-    runs = _runs(metrics, scenario)
-    conds = _conditions(runs)
-    look = _lookup(runs)
-    names = _policy_names(metrics)
-    fig, axes = plt.subplots(1, len(RETURNS), figsize=(5 * len(RETURNS), 3.8), squeeze=False)
-    x = list(range(len(conds)))
-    width = 0.8 / max(len(names), 1)
-    for ax, metric in zip(axes[0], RETURNS):
-        for j, p in enumerate(names):
-            vals = [_value(look.get((p, c)), metric) for c, _ in conds]
-            ys = [math.nan if v is None else v for v in vals]
-            if bars:
-                xs = [i + (j - (len(names) - 1) / 2) * width for i in x]
-                ax.bar(xs, ys, width=width, label=p)
-            else:
-                xs = x
-                ax.plot(xs, ys, marker="o", label=p)
-            for xi, v in zip(xs, vals):
-                if v is None:
-                    ax.annotate("n/a", (xi, 0.02), ha="center", fontsize=7, color="gray",
-                                xycoords=("data", "axes fraction"), rotation=90)
-        ax.axhline(1.0, color="gray", lw=0.8, ls="--")
-        ax.set_ylim(bottom=0.0)
-        ax.set_xticks(x, [str(v) for _, v in conds], rotation=30 if bars else 0)
-        ax.set_xlabel(SCENARIOS[scenario].axis)
-        ax.set_ylabel("normalized to teacher")
-        ax.set_title(METRIC_TITLES[metric])
-    axes[0][-1].legend(fontsize=8)
-    fig.suptitle(SCENARIOS[scenario].title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _heatmap_plot(metrics: dict, path: Path) -> Path | None:
-    """Rows = returns, columns = test masks; cells = (stage-1, stage-2) train ratios."""
-    plt = _pyplot()
-    ratios = {p["name"]: tuple(p["train_masks"]) for p in metrics["policies"]
-              if p.get("train_masks")}
-    if not ratios:
-        return None
-    runs = _runs(metrics, "token_removal")
-    conds = _conditions(runs)
-    look = _lookup(runs)
-    a1s = sorted({a for a, _ in ratios.values()})
-    a2s = sorted({b for _, b in ratios.values()})
-    fig, axes = plt.subplots(len(RETURNS), len(conds), squeeze=False,
-                             figsize=(3.4 * len(conds), 3.0 * len(RETURNS)))
-    for i, metric in enumerate(RETURNS):
-        for j, (cond, _) in enumerate(conds):
-            grid = [[math.nan] * len(a2s) for _ in a1s]
-            for name, (a1, a2) in ratios.items():
-                v = _value(look.get((name, cond)), metric)
-                grid[a1s.index(a1)][a2s.index(a2)] = math.nan if v is None else v
-            ax = axes[i][j]
-            im = ax.imshow(grid, cmap="viridis", origin="lower", aspect="auto")
-            for r, row in enumerate(grid):
-                for c, v in enumerate(row):
-                    ax.text(c, r, "n/a" if math.isnan(v) else f"{v:.2f}", ha="center",
-                            va="center", color="w", fontsize=8)
-            ax.set_xticks(range(len(a2s)), [f"{a:g}" for a in a2s])
-            ax.set_yticks(range(len(a1s)), [f"{a:g}" for a in a1s])
-            ax.set_xlabel("stage-2 mask ratio")
-            ax.set_ylabel("stage-1 mask ratio")
-            ax.set_title(f"{METRIC_TITLES[metric]}, test {cond}", fontsize=9)
-            fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def write_plots(metrics: dict, out: Path) -> list[Path]:
-    """PNG plots of scenarios 2-5 that were run; returns the paths written."""
-    written = []
-    for name, bars in (("sensor_removal", True), ("dead_joints", False), ("history", False),
-                       ("dummy_tokens", False)):
-        if _runs(metrics, name):
-            written.append(_sweep_plot(metrics, name, out / f"{name}.png", bars))
-    if "mask_matrix" in metrics["config"]["scenarios"]:
-        p = _heatmap_plot(metrics, out / "mask_matrix.png")
-        if p is not None:
-            written.append(p)
-    return written
 
 
 @dataclass
