@@ -33,6 +33,7 @@ from tqdm import tqdm
 
 import policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
 from collect.faults import FaultSpec, split_faults
+from collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from collect.rollout import film
 from eval import report
 from eval.evaluator import (
@@ -67,7 +68,7 @@ from policies.teacher.config import TeacherConfig, build_teacher, teacher_revisi
 
 
 @dataclass
-class EvalConfig(TrialConfig):
+class EvalConfig(TrialConfig, RayOptions):
     """``msta-eval``: the paper's experiments on any checkpoints (docs/eval.md)."""
 
     policies: str = "teacher"
@@ -117,12 +118,18 @@ class EvalConfig(TrialConfig):
         self.fault_list = [str(FaultSpec.parse(f)) for f in split_faults(self.faults)]
         if self.fault_list and "sensor_faults" not in self.scenario_list:
             raise ValueError("--faults needs --scenarios to include sensor_faults")
+        check_ray_options(self.workers, self.ray_address)
+        if self.workers and self.device not in ("auto", "cpu"):
+            raise ValueError(f"--workers runs the students on the workers' CPUs; "
+                             f"--device={self.device} needs --workers=0")
         # resolved once (a bad or unavailable device fails here, in one line)
-        self.torch_device = select_device(self.device)
+        self.torch_device = select_device("cpu" if self.workers else self.device)
 
     def resolved(self) -> dict[str, Any]:
         """The effective configuration as stored in metrics.json (``out`` left out)."""
         d = super().resolved()
+        for k in ("workers", "ray_address"):  # where the trials ran changes no figure
+            d.pop(k)
         d.update(device=self.torch_device.type,  # what ran, not "auto"
                  scenarios=self.scenario_list, policies=self.policy_list,
                  matrix={k: list(v) for k, v in self.matrix_map.items()})
@@ -218,7 +225,8 @@ def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
         for f in store.glob("*.npz"):
             f.unlink()
     store.mkdir(parents=True, exist_ok=True)
-    ev = Evaluator(cfg, cfg.teacher, cfg.progress, store, deadline)
+    pool = shared_pool(cfg.workers, cfg.ray_address) if cfg.workers else None
+    ev = Evaluator(cfg, cfg.teacher, cfg.progress, store, deadline, pool)
     pairs = plan(cfg, entries)
     t0 = time.perf_counter()
     cuda = any(e.kind == "student" and e.obj.device.type == "cuda" for e in entries)

@@ -201,12 +201,16 @@ class Evaluator:
             None keeps nothing.
         deadline: ``time.monotonic()`` limit (``msta_data.budget``); checked between runs
             and rounds of trials, never inside one.
+        pool: Ray workers (``collect.ray_pool.RayPool``) that run the rounds of trials
+            (:mod:`eval.trials_pool`; the same figures); the fault runs with removal, whose
+            detection figures need their actors here, stay in this process. None: all here.
     """
 
     def __init__(self, cfg: TrialConfig, teacher: TeacherConfig, progress: bool = True,
-                 store: Path | None = None, deadline: float | None = None) -> None:
+                 store: Path | None = None, deadline: float | None = None,
+                 pool: Any = None) -> None:
         self.cfg, self.teacher, self.progress = cfg, teacher, progress
-        self.store, self.deadline = store, deadline
+        self.store, self.deadline, self.pool = store, deadline, pool
         self._ran = False  # a run was made in this process (the deadline stops the next)
         # what the stored runs must share besides their key: the trials and the reference
         self._fingerprint = trial_fingerprint(cfg, teacher) if store is not None else ""
@@ -217,13 +221,15 @@ class Evaluator:
         self.timing: dict[str, float] = {}
         self._cache: dict[tuple, tuple[TrialResults, dict[str, Any]]] = {}
 
-    def _run(self, label: str, make_actor, key: tuple = (), device: str = "cpu") -> TrialResults:
+    def _run(self, label: str, make_actor, key: tuple = (), device: str = "cpu",
+             here: bool = False) -> TrialResults:
         """One run over every trial. With a store (``key``: what the actor sees) the run is
         ``store/<digest>.npz`` once finished, and each finished round of trials
         ``<digest>.round<r>.npz`` (its sums and the torch RNG state after it) until then: an
         interrupted run continues at its next round, with the same figures. ``device``: the
         device type the actor computes on; a CUDA run is stored apart from a CPU one (float
-        rounding differs), and CPU runs keep the digest they had before CUDA was possible."""
+        rounding differs), and CPU runs keep the digest they had before CUDA was possible.
+        ``here``: run in this process even with a pool."""
         stored = (self._fingerprint, key) if device == "cpu" else (self._fingerprint, key, device)
         path = self.store / f"{_digest(stored)}.npz" \
             if self.store is not None and key else None
@@ -250,8 +256,14 @@ class Evaluator:
                 check_deadline(self.deadline, f"{label}: after round {r + 1} of {rounds}")
 
         t0 = time.perf_counter()
-        res = run_trials(self.env, make_actor, self.layout, desc=label,
-                         progress=self.progress, done=done, on_round=on_round)
+        if self.pool is not None and not here:
+            from eval.trials_pool import run_trials_on_workers
+
+            res = run_trials_on_workers(self.pool, self.cfg, make_actor, self.layout,
+                                        self.env.max_steps, done, on_round)
+        else:
+            res = run_trials(self.env, make_actor, self.layout, desc=label,
+                             progress=self.progress, done=done, on_round=on_round)
         self.timing[label] = round(time.perf_counter() - t0, 3)
         if path is not None:
             save_trials(res, path)
@@ -300,7 +312,8 @@ class Evaluator:
                 key, make = self._student_run(entry, cond, actors)
             if key not in self._cache:
                 res = self._run(label, make, key,
-                                entry.obj.device.type if entry.kind == "student" else "cpu")
+                                entry.obj.device.type if entry.kind == "student" else "cpu",
+                                here=cond.removal in ("oracle", "guard"))
                 self._cache[key] = (res, aggregate(res, self.layout))
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}

@@ -1,0 +1,103 @@
+"""msta-eval's trials on Ray workers (``--workers``): one round of trials per block.
+
+A round of trials (``eval.metrics.TrialLayout.rounds``) is already independent of every other:
+a fresh actor, every trial on its own tile with its own random stream. A worker runs a round
+exactly as :func:`eval.metrics.run_trials` does in one process (same simulator, same torch
+settings, :func:`eval.evaluator.torch_eval_settings`), and this process puts the rounds
+together in order, storing each finished round as the single-process run does, so the figures
+are those of ``--workers=0`` for any worker count, and ``--resume`` reuses rounds across them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from collect.ray_pool import RayPool
+from collect.rollout import as_policy
+from collect.sim.env import QuadrupedEnv
+from eval.metrics import (
+    ActorFactory,
+    NotApplicable,
+    TrialLayout,
+    TrialResults,
+    _FirstStepGuard,
+    _round,
+    start_trials,
+)
+from eval.scenarios import TrialConfig
+
+
+def trial_config(cfg: TrialConfig) -> TrialConfig:
+    """The plain :class:`TrialConfig` part of ``cfg`` (msta-eval's or msta-correct's config
+    holds policies and paths the workers do not need)."""
+    return TrialConfig(**{f.name: getattr(cfg, f.name) for f in fields(TrialConfig)})
+
+
+@dataclass
+class TrialsJob:
+    """A pool job (:class:`collect.ray_pool.Job`): rounds of one run's trials.
+
+    Args:
+        cfg: the trials (:func:`eval.evaluator.make_env` builds the simulator from it).
+        make_actor: (round, num_envs) -> a fresh actor, as for ``run_trials``.
+        layout: the trials and their tiles.
+    """
+
+    cfg: TrialConfig
+    make_actor: ActorFactory
+    layout: TrialLayout
+
+    def setup(self) -> QuadrupedEnv:
+        from eval.evaluator import make_env
+
+        # one MuJoCo thread: a worker is one CPU (the thread count changes no figure)
+        return make_env(replace(self.cfg, nthread=1), len(self.layout.rounds(self.cfg.envs)[0]))
+
+    def run(self, env: QuadrupedEnv, r: int) -> TrialResults:
+        """The sums of round ``r``'s trials."""
+        from eval.evaluator import torch_eval_settings
+
+        n, layout = env.num_envs, self.layout
+        ids = layout.rounds(n)[r]
+        types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
+        out = TrialResults.zeros(int(ids[-1]) + 1, env.max_steps)
+        with torch_eval_settings(self.cfg.num_threads):
+            torch.manual_seed(self.cfg.seed)
+            start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
+            if r == 0:  # as run_trials: a failure on construction or first step is n/a
+                try:
+                    actor = _FirstStepGuard(*as_policy(self.make_actor(0, n)))
+                except (ValueError, KeyError, NotImplementedError) as e:
+                    raise NotApplicable(f"{type(e).__name__}: {e}") from e
+            else:
+                actor = self.make_actor(r, n)
+            _round(env, actor, out, ids, tqdm(disable=True))
+        return out.take(ids)
+
+
+def run_trials_on_workers(pool: RayPool, cfg: TrialConfig, make_actor: ActorFactory,
+                          layout: TrialLayout, max_steps: int,
+                          done: Sequence[TrialResults] = (),
+                          on_round: Callable[[int, int, TrialResults], None] | None = None
+                          ) -> TrialResults:
+    """:func:`eval.metrics.run_trials` with the rounds on ``pool``'s workers: the same
+    arguments (``max_steps``: the simulator's episode length in control steps) and the same
+    results; ``on_round`` is called here, in round order."""
+    rounds = layout.rounds(cfg.envs)
+    out = TrialResults.zeros(len(rounds) * len(rounds[0]), max_steps)
+    for r, part in enumerate(done):
+        out.put(rounds[r], part)
+    todo = list(range(len(done), len(rounds)))
+
+    def commit(i: int, part: TrialResults) -> None:
+        out.put(rounds[todo[i]], part)
+        if on_round is not None:
+            on_round(todo[i], len(rounds), part)
+
+    pool.map(TrialsJob(trial_config(cfg), make_actor, layout), todo, commit)
+    return out.take(np.arange(layout.trials))
