@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -16,8 +17,9 @@ import torch
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 from lerobot_policy_msta import MSTAConfig  # installed by the Makefile's venv step
-from lerobot_policy_msta.configuration_msta import state_layout
+from lerobot_policy_msta.configuration_msta import PRESET_FIELDS, state_layout
 from lerobot_policy_msta.convert import checkpoint_format, lerobot_to_msta, main, msta_to_lerobot
+from lerobot_policy_msta.history import STATE_PAD
 from lerobot_policy_msta.modeling_msta import MSTAPolicy
 from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
 
@@ -26,6 +28,7 @@ from msta_data.sensors import SENSORS, STUDENT_SENSORS
 from msta_data.stats import load_stats
 from msta_data.windows import WindowDataset
 from policies.factory import load_policy, make_config, make_policy
+from policies.msta import PRESETS
 from policies.msta import MSTAConfig as NativeMSTAConfig
 from policies.msta import MSTAPolicy as NativeMSTAPolicy
 from train.optim import WarmupCosine, make_optimizer
@@ -53,10 +56,15 @@ def run(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
 def test_config_is_msta_config_plus_lerobot():
     cfg = MSTAConfig(device="cpu")
     native = {f.name: f.default for f in dataclasses.fields(NativeMSTAConfig)}
-    assert {f.name: f.default for f in dataclasses.fields(MSTAConfig)
-            if f.name in native} == native  # every msta field, same defaults
+    ours = {f.name: f.default for f in dataclasses.fields(MSTAConfig) if f.name in native}
+    assert set(ours) == set(native)  # every msta field
+    # the preset's fields are None (filled from --policy.preset), the others msta's defaults
+    assert sorted(k for k, v in ours.items() if v is None) == sorted(
+        {k for p in PRESETS.values() for k in p}) == list(PRESET_FIELDS)
+    assert {k: v for k, v in ours.items() if v is not None} == {
+        k: v for k, v in native.items() if k not in PRESET_FIELDS}
     assert cfg.type == "msta" and get_policy_class("msta") is MSTAPolicy
-    assert cfg.observation_delta_indices == list(range(-14, 1))  # msta's T = 15 window
+    assert cfg.observation_delta_indices is None  # one frame a sample; history.py windows
     assert cfg.to_native() == NativeMSTAConfig()
     assert state_layout(STATE_NAMES) == STUDENT_SENSORS
     with pytest.raises(ValueError, match=r"sensor 'command' at channel 0: expected"):
@@ -89,6 +97,64 @@ def test_processors_refuse_missing_statistics(synthetic_dataset):
     del stats["action"]
     with pytest.raises(KeyError, match="no column 'action' .needed for the action target"):
         make_msta_pre_post_processors(cfg, stats)
+
+
+def test_preset_fills_the_fields_not_given():
+    cpu = MSTAConfig(device="cpu", preset="cpu")
+    assert cpu.to_native() == NativeMSTAConfig.from_preset("cpu")
+    assert MSTAConfig(device="cpu", preset="cpu", dim=128).to_native() == \
+        NativeMSTAConfig.from_preset("cpu", dim=128)  # a field given wins over the preset
+    with pytest.raises(ValueError, match=r"unknown msta preset 'gpu'; known presets: \['cpu'"):
+        MSTAConfig(device="cpu", preset="gpu")
+
+
+# ----- windows from msta's reader ---------------------------------------------------------
+def collate(ds, idx: list[int]) -> dict:
+    return torch.utils.data.default_collate([ds[i] for i in idx])
+
+
+def test_history_step_gives_lerobots_own_windows(synthetic_dataset):
+    """lerobot-train loads one frame per sample; the preprocessor's windows are those LeRobot's
+    delta_timestamps would load, bit for bit (episode starts padded alike), also for a subset
+    of episodes (absolute indices)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+    from lerobot.policies.factory import make_policy as lerobot_make_policy
+
+    meta = LeRobotDatasetMetadata("local/train_test", root=synthetic_dataset)
+    cfg = MSTAConfig(device="cpu", **TINY)
+    lerobot_make_policy(cfg, ds_meta=meta)  # attaches the dataset, as in lerobot-train
+    pre, _ = make_pre_post_processors(cfg, dataset_stats=meta.stats)
+    deltas = {derived.STATE_COLUMN: [i / meta.fps for i in range(1 - cfg.history, 1)]}
+    for episodes, idx in ((None, [0, 1, 2, 3, 5, 39, 40, 41, 200, 479]), ([3, 7], [0, 2, 41])):
+        plain = LeRobotDataset("local/train_test", root=synthetic_dataset, episodes=episodes)
+        windowed = LeRobotDataset("local/train_test", root=synthetic_dataset,
+                                  episodes=episodes, delta_timestamps=deltas)
+        got, want = pre(collate(plain, idx)), pre(collate(windowed, idx))
+        assert got[derived.STATE_COLUMN].shape == (len(idx), cfg.history, 49)
+        assert torch.equal(got[derived.STATE_COLUMN], want[derived.STATE_COLUMN])
+        assert torch.equal(got[STATE_PAD], want[STATE_PAD]) and got[STATE_PAD].any()
+
+
+def test_history_step_refuses_what_it_cannot_window(synthetic_dataset, monkeypatch):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+    from lerobot_policy_msta import history
+
+    meta = LeRobotDatasetMetadata("local/train_test", root=synthetic_dataset)
+    cfg = MSTAConfig(device="cpu", **TINY)
+    policy = MSTAPolicy(cfg, dataset_meta=meta)
+    pre, _ = make_pre_post_processors(cfg, dataset_stats=meta.stats)
+    batch = collate(LeRobotDataset("local/train_test", root=synthetic_dataset), [0, 7])
+    wrong = {**batch, derived.STATE_COLUMN: batch[derived.STATE_COLUMN] + 1.0}
+    with pytest.raises(ValueError, match="is not the frames its 'index' names in the dataset"):
+        pre(wrong)
+    with pytest.raises(ValueError, match=r"msta trains on T-step windows .B, T, D.; run the"):
+        policy.forward({derived.STATE_COLUMN: batch[derived.STATE_COLUMN],
+                        "action": batch["action"]})  # not preprocessed: no windows
+    monkeypatch.setattr(history, "_ATTACHED", [])
+    with pytest.raises(ValueError, match="no dataset is attached for T = 4: build MSTAPolicy"):
+        pre(batch)
+    state = batch[derived.STATE_COLUMN]  # an environment's observation has no index
+    assert pre({derived.STATE_COLUMN: state})[derived.STATE_COLUMN].shape == state.shape
 
 
 # ----- conversion --------------------------------------------------------------------------
@@ -192,16 +258,21 @@ def lerobot_trained(synthetic_dataset, tmp_path_factory) -> Path:
     """A few lerobot-train steps of the tiny MSTA student on an msta dataset."""
     tmp = tmp_path_factory.mktemp("lerobot_train")
     out = tmp / "out"
-    run([str(BIN / "lerobot-train"), "--policy.type=msta", "--dataset.repo_id=local/train_test",
-         f"--dataset.root={synthetic_dataset}", "--policy.device=cpu", "--steps=3",
-         "--batch_size=4", "--num_workers=0", "--save_freq=3", "--log_freq=1",
-         f"--output_dir={out}", *[f"--policy.{k}={v}" for k, v in TINY.items()]], tmp)
+    proc = run([str(BIN / "lerobot-train"), "--policy.type=msta",
+                "--dataset.repo_id=local/train_test", f"--dataset.root={synthetic_dataset}",
+                "--policy.device=cpu", "--steps=3", "--batch_size=4", "--num_workers=0",
+                "--save_freq=3", "--log_freq=1", f"--output_dir={out}", "--policy.preset=tiny",
+                "--policy.history=4", "--policy.num_threads=1"], tmp)
+    (out / "train.log").write_text(proc.stdout + proc.stderr)
     return out / "checkpoints" / "last" / "pretrained_model"
 
 
 def test_lerobot_train_trains_msta(lerobot_trained, synthetic_dataset, tmp_path):
     config = json.loads((lerobot_trained / "config.json").read_text())
-    assert config["type"] == "msta" and config["history"] == 4
+    assert config["type"] == "msta" and config["history"] == 4 and config["preset"] == "tiny"
+    assert {k: config[k] for k in PRESETS["tiny"]} == PRESETS["tiny"]  # from --policy.preset
+    log = (lerobot_trained.parents[2] / "train.log").read_text()
+    assert len(re.findall(r"step:\d+ .*loss:\d", log)) == 3  # --log_freq=1: a loss line a step
     assert config["state_sensors"] == list(STUDENT_SENSORS)  # read from the feature names
     assert set(config["input_features"]) == {derived.STATE_COLUMN}
     train_cfg = json.loads((lerobot_trained / "train_config.json").read_text())
@@ -227,7 +298,6 @@ def test_lerobot_eval_runs_the_trained_student(lerobot_trained, tmp_path):
 def test_documented_plugin_commands_parse():
     """Every ``python -m lerobot_policy_msta.*`` line of README.md and docs/ parses (the docs
     check of tests/test_docs_commands.py covers msta's own commands)."""
-    import re
     import shlex
 
     from lerobot_policy_msta.compare_trainers import CompareTrainersConfig

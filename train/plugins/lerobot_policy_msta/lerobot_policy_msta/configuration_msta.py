@@ -2,12 +2,14 @@
 
 :class:`MSTAConfig` is LeRobot's ``PreTrainedConfig`` *and* msta's own
 :class:`policies.msta.MSTAConfig` (it inherits every msta field, default and check), plus
-what LeRobot's trainer needs: the T-step history as ``observation_delta_indices`` (so
-lerobot-train feeds the windows msta-train feeds), the layout of ``observation.state``
-(``state_sensors``, read from the dataset's feature names) and msta-train's training recipe
-as the optimizer and scheduler presets (AdamW with msta-train's decay groups, linear
-warm-up then cosine: :class:`WarmupCosineSchedulerConfig`). :meth:`MSTAConfig.to_native`
-gives the plain msta config (what msta's checkpoints store).
+what LeRobot's trainer needs: msta's presets (``--policy.preset=cpu``), the layout of
+``observation.state`` (``state_sensors``, read from the dataset's feature names), msta-train's
+training recipe as the optimizer and scheduler presets (AdamW with msta-train's decay groups,
+linear warm-up then cosine: :class:`WarmupCosineSchedulerConfig`) and the CPU threads the
+policy computes with. It asks LeRobot's dataset for one frame per sample
+(``observation_delta_indices`` is None): the T-step windows come from msta's in-memory
+reader (:mod:`lerobot_policy_msta.history`). :meth:`MSTAConfig.to_native` gives the plain
+msta config (what msta's checkpoints store).
 """
 
 from __future__ import annotations
@@ -22,12 +24,17 @@ from torch.optim import Optimizer
 from torch.optim.lr_scheduler import LambdaLR
 
 from msta_data import sensors
+from policies.msta import PRESETS
 from policies.msta import MSTAConfig as NativeMSTAConfig
 from train.config import LoopConfig
 from train.optim import WarmupCosine
 
 #: msta-train's defaults (``train.config.LoopConfig``), the presets below.
 _LOOP = LoopConfig()
+#: The fields msta's presets set (``policies.msta.PRESETS``): declared ``None`` here, which
+#: means "the preset's value, else msta's default" (a value given on the command line wins).
+PRESET_FIELDS: tuple[str, ...] = tuple(sorted({k for p in PRESETS.values() for k in p}))
+_NATIVE_DEFAULTS = {f.name: f.default for f in fields(NativeMSTAConfig)}
 
 
 @LRSchedulerConfig.register_subclass("msta_warmup_cosine")
@@ -78,13 +85,33 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     """The MSTA student for LeRobot (--policy.type=msta). It has every field of msta's own
     MSTAConfig (--policy.dim, --policy.mask_ratio, --policy.history, ...) with its default
     and checks; their descriptions are in `msta-train --help` (the same --policy.* options)
-    and docs/msta_model.md. msta's cpu preset is --policy.dim=64 --policy.num_layers=2
-    --policy.head_hidden_dim=64; the defaults are the paper preset.
+    and docs/msta_model.md. --policy.preset=cpu starts from msta's cpu preset (d 64, 2
+    layers, 4 heads, a 256-wide head, 8 state tokens, sin-cos base 10); the defaults are the
+    paper preset.
     """
 
+    preset: str = ""
+    """msta's preset the model fields start from: cpu, paper or tiny (empty: msta's defaults,
+    which are the paper preset); a field given as well (--policy.dim=...) wins."""
+    dim: int | None = None
+    """token width d (paper 128, cpu 64)."""
+    num_layers: int | None = None
+    """transformer blocks (paper 4, cpu 2)."""
+    num_heads: int | None = None
+    """attention heads; dim must be divisible by it (paper 4, cpu 4)."""
+    head_hidden_dim: int | None = None
+    """hidden width of the action head, 0: linear (paper 128, cpu 256)."""
+    state_tokens: int | None = None
+    """learnable readout tokens the head reads (paper 1, cpu 8)."""
+    pos_base: float | None = None
+    """base of the sin-cos frequencies (paper 10000, cpu 10)."""
     state_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
     """sensors concatenated in observation.state, in order; lerobot-train reads them from the
     dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
+    num_threads: int = 0
+    """torch CPU threads, set when the policy is built (0: leave torch's setting, one per
+    core). On a 2-core machine shared with other work, 1 thread is several times faster per
+    step than 2 for the cpu preset."""
     optimizer_lr: float = _LOOP.lr
     """peak learning rate (AdamW), msta-train's --lr."""
     optimizer_weight_decay: float = _LOOP.weight_decay
@@ -101,7 +128,10 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
 
     def __post_init__(self) -> None:
         PreTrainedConfig.__post_init__(self)  # device, amp
+        self.apply_preset()
         NativeMSTAConfig.__post_init__(self)  # msta's checks
+        if self.num_threads < 0:
+            raise ValueError(f"num_threads must be >= 0, got {self.num_threads}")
         self.state_sensors = tuple(self.state_sensors)
         for name in self.state_sensors:
             sensors.get(name)  # KeyError listing the known sensors
@@ -110,11 +140,25 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
             raise ValueError(f"input sensors {missing} are not in observation.state "
                              f"(state_sensors: {list(self.state_sensors)})")
 
+    def apply_preset(self) -> None:
+        """Fill the model fields left unset (None) from ``preset``, else msta's defaults."""
+        if self.preset and self.preset not in PRESETS:
+            raise ValueError(f"unknown msta preset {self.preset!r}; known presets: "
+                             f"{sorted(PRESETS)}")
+        values = PRESETS.get(self.preset, {})
+        for name in PRESET_FIELDS:
+            if getattr(self, name) is None:
+                setattr(self, name, values.get(name, _NATIVE_DEFAULTS[name]))
+
     # --- what LeRobot's trainer asks ---------------------------------------------------
     @property
-    def observation_delta_indices(self) -> list[int]:
-        """The T-step window ending at the current frame: [-(T-1), ..., 0]."""
-        return list(range(1 - self.history, 1))
+    def observation_delta_indices(self) -> None:
+        """None: one frame per sample from LeRobot's dataset. LeRobot would window every
+        ``observation.*`` column (it has no per-column setting), ~40 ms a sample on an msta
+        dataset; the preprocessor's ``msta_history_processor`` step gathers the T-step window
+        of ``observation.state`` from msta's in-memory reader instead
+        (:mod:`lerobot_policy_msta.history`)."""
+        return None
 
     @property
     def action_delta_indices(self) -> None:

@@ -5,10 +5,11 @@
 same name, so both write the same ``model.*`` tensors to ``model.safetensors`` (the
 converters in :mod:`lerobot_policy_msta.convert` only move files' statistics around).
 
-Data path: LeRobot's preprocessor z-scores ``observation.state`` (``processor_msta``);
-lerobot-train's dataset gives T-step windows ``(B, T, D)`` with ``observation.state_is_pad``
-(the ``observation_delta_indices`` of the config; steps before the episode start repeat its
-first frame, as msta's ``WindowDataset`` does). The policy cuts the state into its sensors
+Data path: LeRobot's preprocessor turns each sample of a dataset batch into its T-step
+window ``(B, T, D)`` with ``observation.state_is_pad`` (steps before the episode start repeat
+its first frame, as msta's ``WindowDataset`` does: :mod:`lerobot_policy_msta.history`, from
+the dataset lerobot-train builds the policy for) and z-scores ``observation.state``
+(``processor_msta``). The policy cuts the state into its sensors
 and turns the z-scores into bin indices with msta's own binning
 (``policies.msta.MSTAProcessor`` on statistics mean 0, std 1, i.e. on values already
 z-scored), then runs the transformer with msta's token removal (``mask_ratio``) in training.
@@ -28,12 +29,10 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from torch import Tensor
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
+from lerobot_policy_msta.history import STATE_PAD, attach
 from msta_data import sensors
 from policies.msta import MSTAInputs, MSTAProcessor, MSTATransformer
 from train.optim import parameter_groups
-
-#: lerobot's pad flags of a windowed feature (``LeRobotDataset`` with delta timestamps).
-STATE_PAD = f"{OBS_STATE}_is_pad"
 
 
 def identity_binner(config: MSTAConfig) -> MSTAProcessor:
@@ -52,7 +51,8 @@ class MSTAPolicy(PreTrainedPolicy):
     Args:
         config: an :class:`MSTAConfig` whose features hold ``observation.state``.
         dataset_stats: unused (normalization is the processors'); lerobot passes it.
-        dataset_meta: unused; lerobot passes it.
+        dataset_meta: the dataset lerobot-train trains on (its ``make_policy`` passes it): its
+            windows are registered for the preprocessor (:func:`~.history.attach`).
     """
 
     config_class = MSTAConfig
@@ -63,6 +63,10 @@ class MSTAPolicy(PreTrainedPolicy):
                  dataset_meta: Any = None) -> None:
         super().__init__(config)
         config.validate_features()
+        if config.num_threads:
+            torch.set_num_threads(config.num_threads)
+        if dataset_meta is not None:
+            attach(dataset_meta.root, config.state_sensors, config.history)
         self.model = MSTATransformer(config.to_native())
         self.binner = identity_binner(config)
         offsets, start = {}, 0
@@ -115,6 +119,13 @@ class MSTAPolicy(PreTrainedPolicy):
         """
         if ACTION not in batch:
             raise KeyError(f"batch has no target {ACTION!r}; keys: {sorted(batch)}")
+        if batch[OBS_STATE].dim() != 3 and self.config.history > 1:
+            raise ValueError(
+                f"{OBS_STATE} has shape {tuple(batch[OBS_STATE].shape)}: msta trains on "
+                f"T-step windows (B, T, D); run the batch through the policy's preprocessor "
+                "(its msta_history_processor step makes them; a checkpoint saved before that "
+                "step existed lacks it: convert it to msta's format and back with "
+                "python -m lerobot_policy_msta.convert)")
         pred = self.predict(batch[OBS_STATE], batch.get(STATE_PAD))  # (B, A)
         err = F.mse_loss(pred, batch[ACTION].float(), reduction="none").mean(-1)  # (B,)
         if reduction == "none":

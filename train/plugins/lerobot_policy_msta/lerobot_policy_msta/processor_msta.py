@@ -2,8 +2,9 @@
 as LeRobot's own steps (saved next to the weights as ``policy_preprocessor*.json`` /
 ``policy_postprocessor*.json`` + ``.safetensors``, as for every LeRobot policy).
 
-Pre: rename (none) -> add batch dim -> device -> ``NormalizerProcessorStep`` (z-scores of
-``observation.state`` and of the action target). Post: ``UnnormalizerProcessorStep`` (the
+Pre: rename (none) -> add batch dim -> device -> ``msta_history_processor`` (a dataset
+batch's T-step windows, :mod:`lerobot_policy_msta.history`) -> ``NormalizerProcessorStep``
+(z-scores of ``observation.state`` and of the action target). Post: ``UnnormalizerProcessorStep`` (the
 action back to raw units) -> cpu. The statistics are msta's processor's, bit for bit
 (:func:`msta_stats`): std through ``policies.processor.effective_std``, ``eps=0`` (msta divides
 by the std itself), and the binary channels (foot contacts) pass through unchanged (mean 0,
@@ -31,6 +32,7 @@ from lerobot.processor.factory import make_policy_processor_pipelines
 from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
+from lerobot_policy_msta.history import HistoryProcessorStep
 from msta_data import sensors
 from policies.processor import effective_std, read_stats
 
@@ -92,6 +94,7 @@ def make_msta_pre_post_processors(
             RenameObservationsProcessorStep(rename_map={}),
             AddBatchDimensionProcessorStep(),
             DeviceProcessorStep(device=config.device),
+            HistoryProcessorStep(history=config.history),
             NormalizerProcessorStep(features={OBS_STATE: state, ACTION: action},
                                     norm_map=norm_map, stats=stats, eps=0.0),
         ],
