@@ -186,6 +186,8 @@ class RayPool:
                 i, a = running.pop(ready[0])
                 try:
                     done[i] = ray.get(ready[0])
+                except ray.exceptions.RayTaskError as e:  # the block raised: the caller's error
+                    raise (e.cause if isinstance(e.cause, Exception) else e) from e
                 except _lost_errors() as e:
                     tries[i] += 1
                     if tries[i] >= MAX_TRIES:
