@@ -4,6 +4,7 @@ lerobot-eval relies on, and lerobot-eval itself on a stock ACT policy in a subpr
 from __future__ import annotations
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from lerobot.envs.utils import (
     preprocess_observation,
 )
 from lerobot_env_msta import MstaA1EnvConfig  # installed by the Makefile's venv step
+from lerobot_env_msta.vector_env import VIDEO_OFF_WARNING, A1VectorEnv
 
 from msta_data import derived
 from msta_data.sensors import SENSORS, STUDENT_SENSORS
@@ -57,7 +59,7 @@ def test_bad_options_are_one_line_errors(option, message):
         MstaA1EnvConfig(**option)
 
 
-def test_vector_env_gives_lerobot_what_the_datasets_hold():
+def test_vector_env_gives_lerobot_what_the_datasets_hold(caplog):
     cfg = MstaA1EnvConfig(terrains=("flat", "stairs_up"), levels=(0, 3), episode_length_s=0.1,
                           video=False, randomization=False)
     envs = cfg.create_envs(n_envs=3)
@@ -71,6 +73,10 @@ def test_vector_env_gives_lerobot_what_the_datasets_hold():
         np.testing.assert_array_equal(obs["environment_state"], raw["command"])
         assert env.sim_env.sim.level.tolist() == [3, 0, 3]  # levels[seed % 2]
         assert env.observation_space.contains(obs)
+        for box in env.single_observation_space.values():  # finite ranges (spaces.py)
+            assert np.isfinite(box.low).all() and np.isfinite(box.high).all()
+        # the datasets' action: the simulator's, not the Gymnasium view's normalized one
+        assert env.single_action_space.high.tolist() == [100.0] * 12
         again, _ = env.reset(seed=[7, 8, 9])
         np.testing.assert_array_equal(again["agent_pos"], obs["agent_pos"])
 
@@ -87,7 +93,13 @@ def test_vector_env_gives_lerobot_what_the_datasets_hold():
             assert reward.shape == (3,)
             assert info["is_success"].tolist() == [step == 4] * 3  # standing at the time limit
         assert trunc.all() and not term.any()
-        assert [f.shape for f in env.call("render")] == [(16, 16, 3)] * 3  # video off
+        A1VectorEnv._warned_video_off = False
+        with caplog.at_level(logging.WARNING, logger="lerobot_env_msta.vector_env"):
+            assert [f.shape for f in env.call("render")] == [(16, 16, 3)] * 3  # video off
+            env.call("render")
+        # said once: lerobot-eval will still write (blank) video files, and how to avoid them
+        assert [r.getMessage() for r in caplog.records] == [VIDEO_OFF_WARNING]
+        assert "--eval.recording=true" in VIDEO_OFF_WARNING
     finally:
         for group in envs.values():
             group[0].close()
@@ -145,20 +157,56 @@ def act_checkpoint(tmp_path_factory) -> Path:
     return out
 
 
-def test_lerobot_eval_runs_a_stock_policy_in_the_simulator(act_checkpoint, tmp_path):
-    """lerobot-eval finds the plugin by itself, films the robot (video on) and writes its
-    usual summary."""
-    out = tmp_path / "eval"
-    args = [str(LEROBOT_EVAL), "--env.type=msta_a1", f"--policy.path={act_checkpoint}",
-            "--eval.n_episodes=2", "--eval.batch_size=2", "--env.terrains=[flat]",
-            "--env.episode_length_s=0.1", "--env.video_width=64", "--env.video_height=48",
-            "--policy.device=cpu", f"--output_dir={out}"]
-    proc = subprocess.run(args, env=offline_env(tmp_path), capture_output=True, text=True,
+def lerobot_eval(checkpoint: Path, out: Path, *options: str) -> dict:
+    """Run lerobot-eval (2 episodes per terrain, offline, caches under out) and return its
+    eval_info.json."""
+    args = [str(LEROBOT_EVAL), "--env.type=msta_a1", f"--policy.path={checkpoint}",
+            "--eval.n_episodes=2", "--eval.batch_size=2", "--policy.device=cpu",
+            f"--output_dir={out / 'eval'}", *options]
+    proc = subprocess.run(args, env=offline_env(out), capture_output=True, text=True,
                           timeout=300, check=False)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "Overall Aggregated Metrics" in proc.stdout + proc.stderr
-    info = json.loads((out / "eval_info.json").read_text())
+    return json.loads((out / "eval" / "eval_info.json").read_text())
+
+
+def video_frames(path: str) -> np.ndarray:
+    """(T, H, W, 3) uint8 frames of an MP4."""
+    import av
+
+    with av.open(path) as container:
+        return np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+
+
+def test_lerobot_eval_runs_a_stock_policy_in_the_simulator(act_checkpoint, tmp_path):
+    """lerobot-eval finds the plugin by itself, films the robots (video on: real pictures)
+    and writes its usual summary."""
+    info = lerobot_eval(act_checkpoint, tmp_path, "--env.terrains=[flat]",
+                        "--env.episode_length_s=0.1", "--env.video_width=64",
+                        "--env.video_height=48")
     assert info["overall"]["n_episodes"] == 2
     assert set(info["per_group"]) == {"flat"}
     assert 0.0 <= info["overall"]["pc_success"] <= 100.0
-    assert [Path(p).is_file() for p in info["overall"]["video_paths"]] == [True, True]
+    paths = info["overall"]["video_paths"]
+    assert len(paths) == 2 and all(Path(p).is_file() for p in paths)
+    for path in paths:
+        frames = video_frames(path)
+        assert frames.shape == (5, 48, 64, 3)  # one a step, 5 steps of 0.02 s
+        assert frames[0].std() > 5  # a picture of the robot on its terrain, not a blank frame
+
+
+def test_lerobot_eval_reports_each_terrain_and_writes_no_video_when_asked(act_checkpoint,
+                                                                         tmp_path):
+    """Two terrains, the same seeds: each terrain's figures are its own (robots start on it;
+    0.6 s, since the first 0.1 s after a spawn is a drop onto the ground that no terrain
+    changes). --env.video=false renders nothing; with --eval.recording=true (what the
+    plugin's warning advises) lerobot-eval films nothing either: no MP4 anywhere."""
+    info = lerobot_eval(act_checkpoint, tmp_path, "--env.terrains=[flat,stairs_up]",
+                        "--env.episode_length_s=0.6", "--env.video=false",
+                        "--eval.recording=true")
+    groups = info["per_group"]
+    assert set(groups) == {"flat", "stairs_up"} and info["overall"]["n_episodes"] == 4
+    assert groups["flat"]["avg_sum_reward"] != groups["stairs_up"]["avg_sum_reward"]
+    assert info["overall"].get("video_paths", []) == []
+    assert sorted(p.name for p in tmp_path.rglob("*.mp4")) == []
+    assert (tmp_path / "eval" / "recordings").is_dir()

@@ -79,9 +79,11 @@ class MstaA1EnvConfig(EnvConfig):
     heading_commands: bool = True
     """the yaw-rate command steers to a sampled heading (paper); false samples it directly."""
     video: bool = True
-    """film the robot for lerobot-eval's videos (it films up to 10 episodes per terrain, one
-    frame per control step; with software OpenGL that is ~0.1-0.3 s per frame); false
-    returns small gray frames, so an evaluation costs only simulation and the policy."""
+    """film the robots for lerobot-eval's videos (it films up to 10 episodes per terrain, one
+    frame per control step; software OpenGL takes 0.3-1.3 s a frame). false: nothing is
+    rendered, an evaluation costs only simulation and the policy; lerobot-eval (0.6.1) still
+    writes its video files, of blank 16x16 frames, unless it records instead
+    (--eval.recording=true), and a warning says so."""
     video_width: int = 320
     """video frame width (pixels)."""
     video_height: int = 240

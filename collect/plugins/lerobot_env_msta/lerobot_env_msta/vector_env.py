@@ -16,6 +16,7 @@ robots of a batch, NEXT_STEP autoreset) and changes only what LeRobot reads:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from typing import Any, ClassVar
 
@@ -34,6 +35,13 @@ OBS_COLUMNS: dict[str, str] = {"agent_pos": derived.STATE_COLUMN,
                                "environment_state": derived.ENV_STATE_COLUMN}
 #: Side of the gray frames ``render()`` returns when filming is off.
 BLANK_SIZE = 16
+#: What lerobot-eval does with ``--env.video=false`` (said once, when it first asks for a frame).
+VIDEO_OFF_WARNING = (
+    "msta_a1 --env.video=false: nothing is rendered, but lerobot-eval films every evaluation "
+    "that does not record, so it writes up to 10 MP4s per terrain of blank 16x16 frames and "
+    "lists them in eval_info.json; add --eval.recording=true for no video files (it then "
+    "records the rollouts as LeRobot datasets under <output_dir>/recordings)")
+logger = logging.getLogger(__name__)
 
 
 class A1VectorEnv(VectorEnv):
@@ -50,6 +58,7 @@ class A1VectorEnv(VectorEnv):
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 50,
                                 "autoreset_mode": AutoresetMode.NEXT_STEP}
+    _warned_video_off: ClassVar[bool] = False  # VIDEO_OFF_WARNING is said once a process
 
     def __init__(self, cfg: SimConfig, task: str, levels: Sequence[int], video: bool = True,
                  width: int = 320, height: int = 240) -> None:
@@ -125,8 +134,12 @@ class A1VectorEnv(VectorEnv):
         return self._observe(obs), reward, term, trunc, infos
 
     def render(self) -> tuple[np.ndarray, ...]:
-        """One (height, width, 3) uint8 frame per robot (gray squares when ``video`` is off)."""
+        """One (height, width, 3) uint8 frame per robot (gray squares when ``video`` is off,
+        with ``VIDEO_OFF_WARNING`` the first time)."""
         if not self.video:
+            if not A1VectorEnv._warned_video_off:
+                A1VectorEnv._warned_video_off = True
+                logger.warning(VIDEO_OFF_WARNING)
             return tuple(np.full((BLANK_SIZE, BLANK_SIZE, 3), 128, np.uint8)
                          for _ in range(self.num_envs))
         return self.sim_env.render()
