@@ -6,6 +6,11 @@ built on PyTorch's ``meta`` device and its parameter count compared with
 :func:`param_limit`, and the safetensors header (tensor names, shapes, offsets, file size)
 must match that model (:func:`check_safetensors`). Every failure is a one-line
 :class:`CheckpointError` naming the file.
+
+A LeRobot checkpoint of ``--policy.type=msta`` (lerobot-train's ``pretrained_model/``, or
+``python -m lerobot_policy_msta.convert``'s output) loads wherever an msta checkpoint does:
+its ``config.json`` reads as the msta config it holds (:func:`read_json_file`), and
+:func:`resolve_pretrained` gives an msta checkpoint made from it (:mod:`policies.lerobot_checkpoint`).
 """
 
 from __future__ import annotations
@@ -50,12 +55,14 @@ class CheckpointError(ValueError):
     """A checkpoint file is missing, unreadable, malformed or too large (file named)."""
 
 
-def read_json_file(path: Path, limit: int | None = None) -> Any:
+def read_json_file(path: Path, limit: int | None = None, raw: bool = False) -> Any:
     """Parse a checkpoint JSON file with a size limit; errors name the file.
 
     Args:
         path: the file.
         limit: largest accepted size in bytes (default: ``MAX_JSON_BYTES`` by file name).
+        raw: the file as it is; otherwise the ``config.json`` of a LeRobot checkpoint reads
+            as the msta config it holds (:func:`policies.lerobot_checkpoint.msta_config_dict`).
     """
     limit = limit or MAX_JSON_BYTES.get(path.name, 1 << 20)
     if not path.is_file():
@@ -64,9 +71,15 @@ def read_json_file(path: Path, limit: int | None = None) -> Any:
     if size > limit:
         raise CheckpointError(f"{path}: {size:,} bytes, more than the {limit:,} accepted")
     try:
-        return json.loads(path.read_bytes())
+        data = json.loads(path.read_bytes())
     except (ValueError, UnicodeDecodeError) as e:
         raise CheckpointError(f"{path}: not valid JSON ({e})") from None
+    if not raw and path.name == CONFIG_NAME and isinstance(data, dict):
+        from policies.lerobot_checkpoint import is_lerobot_checkpoint, msta_config_dict
+
+        if is_lerobot_checkpoint(path.parent):
+            return msta_config_dict(data, path)
+    return data
 
 
 def param_limit() -> int:
@@ -146,9 +159,15 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None)
             ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
 
+    Returns:
+        the directory; for a LeRobot msta checkpoint, an msta checkpoint made from it
+        (:func:`policies.lerobot_checkpoint.as_msta_checkpoint`).
+
     Raises:
         FileNotFoundError: no such directory, or a file (path named).
+        CheckpointError: a LeRobot checkpoint of another policy type, or a malformed one.
     """
     from msta_data.locate import locate_checkpoint  # the hub client loads only when used
+    from policies.lerobot_checkpoint import as_msta_checkpoint
 
-    return locate_checkpoint(str(path_or_repo_id), "checkpoint", revision)
+    return as_msta_checkpoint(locate_checkpoint(str(path_or_repo_id), "checkpoint", revision))

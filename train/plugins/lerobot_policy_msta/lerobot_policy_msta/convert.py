@@ -11,12 +11,14 @@ so a conversion copies the weights and moves the statistics:
   (action mean / std).
 
 Actions are bit-identical across a conversion (msta computes in float32, LeRobot stores
-float32; ``tests/train/test_lerobot_policy_plugin.py`` round-trips both ways)::
+float32; ``tests/train/test_lerobot_policy_plugin.py`` round-trips both ways). msta's own
+loaders read a LeRobot MSTA checkpoint directly (:mod:`policies.lerobot_checkpoint`, which
+the LeRobot -> msta direction calls), so this command only writes that conversion down::
 
     python -m lerobot_policy_msta.convert --policy.path=outputs/stage1/final --output_dir=outputs/lerobot/msta_stage1
     python -m lerobot_policy_msta.convert --policy.path=outputs/lerobot/msta/checkpoints/last/pretrained_model --output_dir=outputs/msta_from_lerobot
 
-The direction follows the input: a directory with ``processor.json`` (or an msta hub id) is
+The direction follows the input (a directory or a hub id): one with ``processor.json`` is
 msta's, one with ``policy_preprocessor.json`` is LeRobot's.
 """
 
@@ -28,32 +30,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import torch
-from lerobot.configs import PreTrainedConfig
-from lerobot.processor import (
-    NormalizerProcessorStep,
-    PolicyProcessorPipeline,
-    UnnormalizerProcessorStep,
-)
-from lerobot.utils.constants import (
-    ACTION,
-    OBS_STATE,
-    POLICY_POSTPROCESSOR_DEFAULT_NAME,
-    POLICY_PREPROCESSOR_DEFAULT_NAME,
-)
+from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from lerobot_policy_msta.modeling_msta import MSTAPolicy
 from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
 from msta_data import sensors
 from msta_data.cli import parse_config
-from policies.checkpoint import PROCESSOR_NAME, CheckpointError, PolicyPath, resolve_pretrained
+from msta_data.locate import locate_checkpoint
+from policies.checkpoint import PROCESSOR_NAME, PolicyPath
 from policies.factory import load_policy
+from policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, is_lerobot_checkpoint
 from policies.msta import MSTAPolicy as NativeMSTAPolicy
-from policies.msta import MSTAProcessor
 
-PREPROCESSOR_FILE = f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json"
-POSTPROCESSOR_FILE = f"{POLICY_POSTPROCESSOR_DEFAULT_NAME}.json"
+PREPROCESSOR_FILE = LEROBOT_PREPROCESSOR  # lerobot's POLICY_PREPROCESSOR_DEFAULT_NAME + .json
 
 
 def checkpoint_format(path: str | Path) -> str:
@@ -62,9 +52,7 @@ def checkpoint_format(path: str | Path) -> str:
     Raises:
         FileNotFoundError: no such directory, or neither kind of processor file in it.
     """
-    directory = Path(path)
-    if not directory.is_dir():
-        directory = resolve_pretrained(str(path))  # an msta hub id (or the path's error)
+    directory = locate_checkpoint(str(path), "--policy.path")  # a directory or a hub id
     if (directory / PROCESSOR_NAME).is_file():
         return "msta"
     if (directory / PREPROCESSOR_FILE).is_file():
@@ -121,44 +109,21 @@ def lerobot_stats(native: NativeMSTAPolicy, cfg: MSTAConfig) -> dict[str, dict[s
 
 
 # ----- LeRobot -> msta -------------------------------------------------------------------
-def _stats_of(pipeline: PolicyProcessorPipeline, step_type: type, key: str, path: Path
-              ) -> dict[str, list[float]]:
-    step = next((s for s in pipeline.steps if isinstance(s, step_type)), None)
-    if step is None or key not in step.stats:
-        raise CheckpointError(f"{path}: no {step_type.__name__} with statistics of {key!r}")
-    if step.eps != 0.0:
-        raise CheckpointError(f"{path}: {step_type.__name__} has eps={step.eps}; msta's "
-                              "processor divides by the std alone (eps=0), so the conversion "
-                              "would not be exact")
-    return {k: torch.as_tensor(step.stats[key][k]).flatten().tolist() for k in ("mean", "std")}
-
-
 def lerobot_to_msta(src: str | Path, dst: str | Path) -> Path:
     """Write LeRobot MSTA checkpoint ``src`` (e.g. lerobot-train's ``pretrained_model/``) as an
-    msta checkpoint in ``dst`` (msta-eval's and msta-correct's ``--policy.path``).
+    msta checkpoint in ``dst``. msta's loaders read such a checkpoint directly
+    (:mod:`policies.lerobot_checkpoint`, which this calls), so msta's commands need no
+    conversion; this writes the result down.
 
     Args:
-        src: a LeRobot checkpoint directory of ``--policy.type=msta``.
+        src: a LeRobot checkpoint directory (or hub id) of ``--policy.type=msta``.
         dst: new or empty directory.
     """
-    src = Path(src)
-    cfg = PreTrainedConfig.from_pretrained(src)
-    if not isinstance(cfg, MSTAConfig):
-        raise TypeError(f"{src} holds a LeRobot {cfg.type!r} policy; only msta converts")
-    cfg.device = "cpu"
-    policy = MSTAPolicy.from_pretrained(src, config=cfg)
-    pre = PolicyProcessorPipeline.from_pretrained(src, config_filename=PREPROCESSOR_FILE)
-    state = _stats_of(pre, NormalizerProcessorStep, OBS_STATE, src / PREPROCESSOR_FILE)
-    stats: dict[str, dict[str, list[float]]] = {}
-    for name, (a, b) in policy.slices.items():  # input sensor -> its channels in the state
-        stats[sensors.get(name).column] = {k: v[a:b] for k, v in state.items()}
-    if cfg.normalize_action:
-        post = PolicyProcessorPipeline.from_pretrained(src, config_filename=POSTPROCESSOR_FILE)
-        stats[cfg.action_key] = _stats_of(post, UnnormalizerProcessorStep, ACTION,
-                                          src / POSTPROCESSOR_FILE)
-    native_cfg = cfg.to_native()
-    native = NativeMSTAPolicy(native_cfg, MSTAProcessor.from_stats(native_cfg, stats))
-    native.model.load_state_dict(policy.model.state_dict())
+    directory = locate_checkpoint(str(src), "--policy.path")
+    if not is_lerobot_checkpoint(directory):
+        raise FileNotFoundError(f"{directory} is not a LeRobot checkpoint (no "
+                                f"{PREPROCESSOR_FILE})")
+    native = load_policy(directory)
     return native.save_pretrained(_new_dir(dst))
 
 

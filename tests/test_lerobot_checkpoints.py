@@ -1,0 +1,128 @@
+"""msta's commands take a LeRobot checkpoint of ``--policy.type=msta`` (lerobot-train's
+``pretrained_model/``) wherever they take an msta one (``policies/lerobot_checkpoint.py``),
+with the same actions; other LeRobot checkpoints fail in one line."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from lerobot.utils.constants import POLICY_PREPROCESSOR_DEFAULT_NAME
+from lerobot_policy_msta.convert import msta_to_lerobot
+from msta_test_helpers import record_gait, tiny_student
+
+from eval.evaluate import EvalConfig, evaluate
+from eval.evaluate import main as eval_main
+from msta_data.sensors import STUDENT_SENSORS
+from msta_data.windows import WindowDataset
+from policies.base import PolicyConfig
+from policies.checkpoint import CheckpointError
+from policies.export import main as export_main
+from policies.factory import get_policy_class, load_policy
+from policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, as_msta_checkpoint
+from policies.teacher.config import TeacherConfig
+from train.guard import main as guard_main
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory) -> Path:
+    """Two 2-second gait-teacher episodes recorded in the real simulator."""
+    return record_gait(tmp_path_factory.mktemp("lerobot_ckpt_data") / "dataset", 2, 2.0)
+
+
+@pytest.fixture(scope="module")
+def ckpts(recorded, tmp_path_factory) -> tuple[Path, Path]:
+    """(an msta checkpoint, the same student as a LeRobot checkpoint with a guard fitted
+    into it by msta-guard)."""
+    tmp = tmp_path_factory.mktemp("lerobot_ckpts")
+    native = tiny_student("msta", {}, recorded).save_pretrained(tmp / "ckpt")
+    lerobot = msta_to_lerobot(native, tmp / "lerobot")
+    guard_main(["fit", f"--dataset={recorded}", f"--output_dir={lerobot}"])
+    return native, lerobot
+
+
+def test_msta_loaders_read_a_lerobot_checkpoint(ckpts, recorded):
+    native, lerobot = ckpts
+    assert LEROBOT_PREPROCESSOR == f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json"
+    assert PolicyConfig.load(lerobot) == PolicyConfig.load(native)  # msta's fields only
+    batch = WindowDataset(recorded, STUDENT_SENSORS, T=4).get_batch(np.arange(0, 200, 3))
+    torch.manual_seed(0)
+    want = load_policy(native).act(batch)
+    for policy in (load_policy(lerobot), get_policy_class("msta").from_pretrained(lerobot)):
+        torch.manual_seed(0)
+        assert torch.equal(policy.act(batch), want)
+    made = as_msta_checkpoint(lerobot)
+    assert as_msta_checkpoint(lerobot) == made and made != lerobot  # made once per process
+    assert (made / "model.safetensors").resolve() == (lerobot / "model.safetensors").resolve()
+    assert (made / "guard.json").is_file() and (made / "processor.json").is_file()
+
+
+def test_msta_eval_export_and_finetune_take_a_lerobot_checkpoint(ckpts, recorded, tmp_path,
+                                                                 capsys):
+    from policies.checkpoint import PolicyPath
+    from train.finetune import FinetuneConfig, check_source
+
+    native, lerobot = ckpts
+    export_main([f"--policy={lerobot}", f"--output_dir={tmp_path / 'export'}",
+                 f"--dataset={recorded}", "--history=4", "--parity_windows=8",
+                 "--random_windows=4"])
+    assert "with its guard" in capsys.readouterr().out  # msta-guard wrote into it
+    assert (tmp_path / "export" / "guard.json").is_file()
+    metrics = evaluate(EvalConfig(
+        policies=f"{native},{lerobot}", scenarios="token_removal", trials=2, suite="quick",
+        terrains="flat", levels="0", episode_length_s=0.5, progress=False,
+        output_dir=str(tmp_path / "eval"), teacher=TeacherConfig(type="gait")))
+    runs = {}
+    for r in metrics["runs"]:
+        runs.setdefault(r["condition"], []).append(r["raw"])
+    assert len(runs) > 1 and all(a == b for a, b in runs.values())  # the same student
+    ckpt, kept = check_source(FinetuneConfig(policy=PolicyPath(str(lerobot)),
+                                             dataset=str(recorded), sensors="all"))
+    assert ckpt == lerobot and kept == tuple(PolicyConfig.load(native).input_sensors)
+
+
+def broken(lerobot: Path, dst: Path, edit) -> Path:
+    out = shutil.copytree(lerobot, dst)
+    edit(out)
+    return out
+
+
+def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
+    _, lerobot = ckpts
+
+    def act(d: Path) -> None:
+        cfg = json.loads((d / "config.json").read_text())
+        (d / "config.json").write_text(json.dumps({**cfg, "type": "act"}))
+
+    def eps(d: Path) -> None:
+        spec = json.loads((d / LEROBOT_PREPROCESSOR).read_text())
+        next(s for s in spec["steps"] if s["registry_name"] == "normalizer_processor")[
+            "config"]["eps"] = 1e-8
+        (d / LEROBOT_PREPROCESSOR).write_text(json.dumps(spec))
+
+    def no_stats(d: Path) -> None:
+        for f in d.glob("policy_preprocessor_*normalizer_processor.safetensors"):
+            f.unlink()
+
+    run = tmp_path / "run" / "checkpoints" / "last"
+    run.parent.mkdir(parents=True)
+    shutil.copytree(lerobot, run / "pretrained_model")
+    cases = [(broken(lerobot, tmp_path / "act", act), "is a LeRobot 'act' policy checkpoint; "
+              "msta's tools load msta students"),
+             (broken(lerobot, tmp_path / "eps", eps), "normalizer_processor has eps=1e-08"),
+             (broken(lerobot, tmp_path / "nostats", no_stats), "missing or larger than"),
+             (tmp_path / "run", "is a lerobot-train run directory; its last checkpoint is "
+              f"{run / 'pretrained_model'}")]
+    for path, message in cases:
+        with pytest.raises(CheckpointError, match=message):
+            load_policy(path)
+        with pytest.raises(SystemExit):
+            eval_main(["--policies", str(path), "--output_dir", str(tmp_path / "e")])
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("msta-eval: error: ") and "\n" not in err and message in err
+    with pytest.raises(CheckpointError, match="LeRobot 'act' policy"):
+        PolicyConfig.load(tmp_path / "act")  # msta-correct / msta-finetune read it first
