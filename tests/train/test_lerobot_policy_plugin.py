@@ -52,6 +52,14 @@ def run(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
     return proc
 
 
+@pytest.fixture(autouse=True)
+def keep_threads():
+    """A policy built for a dataset sets torch's threads; the other tests keep theirs."""
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
 # ----- config ----------------------------------------------------------------------------
 def test_config_is_msta_config_plus_lerobot():
     cfg = MSTAConfig(device="cpu")
@@ -106,6 +114,22 @@ def test_preset_fills_the_fields_not_given():
         NativeMSTAConfig.from_preset("cpu", dim=128)  # a field given wins over the preset
     with pytest.raises(ValueError, match=r"unknown msta preset 'gpu'; known presets: \['cpu'"):
         MSTAConfig(device="cpu", preset="gpu")
+
+
+def test_threads_default_to_half_the_cores_when_training(synthetic_dataset):
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    cores = len(os.sched_getaffinity(0))
+    assert MSTAConfig(device="cpu").cpu_threads() == max(1, cores // 2)
+    assert MSTAConfig(device="cpu", num_threads=3).cpu_threads() == 3
+    with pytest.raises(ValueError, match="num_threads must be >= 0"):
+        MSTAConfig(device="cpu", num_threads=-1)
+    torch.set_num_threads(cores)
+    MSTAPolicy(MSTAConfig(device="cpu", **TINY))  # not for training: torch's setting stays
+    assert torch.get_num_threads() == cores
+    meta = LeRobotDatasetMetadata("local/train_test", root=synthetic_dataset)
+    MSTAPolicy(MSTAConfig(device="cpu", **TINY), dataset_meta=meta)
+    assert torch.get_num_threads() == max(1, cores // 2)
 
 
 # ----- windows from msta's reader ---------------------------------------------------------

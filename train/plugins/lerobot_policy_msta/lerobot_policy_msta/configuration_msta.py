@@ -14,6 +14,7 @@ msta config (what msta's checkpoints store).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -109,9 +110,10 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     """sensors concatenated in observation.state, in order; lerobot-train reads them from the
     dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
     num_threads: int = 0
-    """torch CPU threads, set when the policy is built (0: leave torch's setting, one per
-    core). On a 2-core machine shared with other work, 1 thread is several times faster per
-    step than 2 for the cpu preset."""
+    """torch CPU threads, set when the policy is built; 0: when lerobot-train builds it, half
+    the CPU cores, at least 1 (1 on a 2-core machine, where two threads waiting on each
+    other made a cpu-preset update several times slower), leaving the rest to data loading
+    and other work; elsewhere torch's setting is kept."""
     optimizer_lr: float = _LOOP.lr
     """peak learning rate (AdamW), msta-train's --lr."""
     optimizer_weight_decay: float = _LOOP.weight_decay
@@ -149,6 +151,15 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
         for name in PRESET_FIELDS:
             if getattr(self, name) is None:
                 setattr(self, name, values.get(name, _NATIVE_DEFAULTS[name]))
+
+    def cpu_threads(self) -> int:
+        """The torch CPU threads to train with: ``num_threads``, or half the cores this
+        process may use (at least 1) when it is 0."""
+        if self.num_threads:
+            return self.num_threads
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+        return max(1, cores // 2)
 
     # --- what LeRobot's trainer asks ---------------------------------------------------
     @property
