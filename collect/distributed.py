@@ -24,7 +24,14 @@ from typing import Any
 
 import numpy as np
 
-from collect.ray_pool import RayPool, block_seed, exit_if_asked, plan_blocks, shared_pool
+from collect.ray_pool import (
+    RayPool,
+    block_seed,
+    cached,
+    exit_if_asked,
+    plan_blocks,
+    shared_pool,
+)
 from collect.record import EpisodeRecorder, LabelledActor
 from collect.rollout import Step, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv
@@ -122,18 +129,17 @@ class RecordJob:
         return replace(self.env, num_envs=n, nthread=1,
                        terrain=replace(self.env.terrain, curriculum=False))
 
-    def setup(self) -> dict[int, QuadrupedEnv]:
-        return {}  # simulators by block size, built when first needed
+    def setup(self) -> None:
+        return None  # the simulators are cached per worker process, by settings
 
-    def run(self, state: dict[int, QuadrupedEnv], block: tuple[int, np.ndarray]
-            ) -> tuple[list[Episode], int, float]:
+    def run(self, state: None, block: tuple[int, np.ndarray]) -> tuple[list[Episode], int, float]:
         """(episodes, env steps, seconds) of block ``(index, slot keys)``."""
         b, keys = block
         t0 = time.perf_counter()
-        if len(keys) not in state:
-            state[len(keys)] = QuadrupedEnv(self.sim_config(len(keys)))
-        actor = self.make_actor(b, len(keys))
-        eps, steps = record_block(state[len(keys)], actor, b, keys, self.sensors, self.horizon)
+        sim = self.sim_config(len(keys))
+        env = cached(repr(sim), lambda: QuadrupedEnv(sim))
+        eps, steps = record_block(env, self.make_actor(b, len(keys)), b, keys, self.sensors,
+                                  self.horizon)
         return eps, steps, time.perf_counter() - t0
 
 

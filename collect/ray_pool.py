@@ -108,6 +108,21 @@ def exit_if_asked(block: int) -> None:
     os._exit(17)
 
 
+#: This worker process's simulators by settings (:func:`cached`), the latest last.
+_CACHE: dict[str, Any] = {}
+
+
+def cached(key: str, build: Callable[[], Any], keep: int = 2) -> Any:
+    """The object ``build()`` made for ``key`` in this process, made once: a worker reuses a
+    simulator across jobs with the same settings (a stage-2 round, an evaluation run), as one
+    process reuses its own; the ``keep`` most recently used stay."""
+    obj = _CACHE.pop(key) if key in _CACHE else build()
+    _CACHE[key] = obj
+    while len(_CACHE) > keep:
+        _CACHE.pop(next(iter(_CACHE)))
+    return obj
+
+
 class _Worker:
     """The Ray actor: caches one job's deserialized object and state across its blocks."""
 

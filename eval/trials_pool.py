@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from collect.ray_pool import RayPool
+from collect.ray_pool import RayPool, cached
 from collect.rollout import as_policy
 from collect.sim.env import QuadrupedEnv
 from eval.metrics import (
@@ -55,8 +55,10 @@ class TrialsJob:
     def setup(self) -> QuadrupedEnv:
         from eval.evaluator import make_env
 
-        # one MuJoCo thread: a worker is one CPU (the thread count changes no figure)
-        return make_env(replace(self.cfg, nthread=1), len(self.layout.rounds(self.cfg.envs)[0]))
+        # one MuJoCo thread: a worker is one CPU (the thread count changes no figure); one
+        # simulator per worker for every run on the same trials, as Evaluator keeps one
+        cfg, n = replace(self.cfg, nthread=1), len(self.layout.rounds(self.cfg.envs)[0])
+        return cached(repr((cfg, n)), lambda: make_env(cfg, n))
 
     def run(self, env: QuadrupedEnv, r: int) -> TrialResults:
         """The sums of round ``r``'s trials."""

@@ -64,6 +64,7 @@ from train.cli import USER_ERRORS, parse_cli
 from train.config import LoopConfig, training_mask_ratio
 from train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
 from train.loop import fit, load_windows
+from train.online_workers import RayOptions, check_ray_options, drive_and_label_on_workers
 from train.optim import seed_everything, select_device
 from train.progress import (
     PROGRESS,
@@ -85,7 +86,7 @@ TRAINING_RECORD = "training.json"
 
 
 @dataclass
-class CorrectConfig(LoopConfig):
+class CorrectConfig(LoopConfig, RayOptions):
     """Args:
         steps: optimizer steps of each round's retraining.
         lr: peak learning rate of each round's retraining.
@@ -180,6 +181,7 @@ class CorrectConfig(LoopConfig):
         if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
             self.policy = PolicyPath(str(self.policy))
         check_push_to(self.push_to)
+        check_ray_options(self.workers, self.ray_address)
         check_at_least(self, 1, "rounds", "episodes_per_round")
         check_sizes(self.num_envs, self.episode_length_s)
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
@@ -220,6 +222,8 @@ def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision:
     rollout loop through :func:`collect.record.record_rollouts`; the student drives, the
     teacher labels every step and executes with probability beta: ``LabelledActor``).
     ``sensors``: the ones to record (the dataset's; None: the default recorded set)."""
+    if cfg.workers:  # on Ray workers, seeded per slot (train.online_workers)
+        return drive_and_label_on_workers(cfg, policy, r, revision, sensors)
     teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
     if hasattr(teacher, "follow_robot"):
         teacher.follow_robot = cfg.teacher_follows_robot
@@ -230,8 +234,7 @@ def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision:
     beta = cfg.beta * cfg.beta_decay ** (r - 1)
     spec = replace(cfg.rollout, seed=cfg.rollout.seed + r)
     mixed = LabelledActor(student_actor(policy, cfg.num_envs, spec, cfg.rollout_mask_ratios),
-                          teacher, beta=beta,
-                          seed=cfg.seed + r)
+                          teacher, beta=beta, seed=cfg.seed + r)
     types = env.cfg.terrain.types
     episodes: list[Episode] = []
 
