@@ -50,6 +50,7 @@ from tqdm import tqdm
 from collect.rollout import STEP_QUANTITIES, Step, as_policy, fell, rollout, step_quantities
 from collect.sim.env import QuadrupedEnv
 from eval.intervals import Interval, mean_interval, proportion_interval, ratio_interval
+from msta_data.hub_eval import HEADLINE_FIGURES
 
 #: Returns normalized by the teacher's (the paper's three metrics).
 RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
@@ -57,12 +58,6 @@ RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
 METRICS: tuple[str, ...] = RETURNS + ("survival", "vel_err", "yaw_err", "length")
 
 
-#: The headline figures of an msta-eval run record, as msta-correct's round table and the
-#: stage-2 model card show them: (name, figure, metric); the returns normalized by the
-#: teacher's on the same trials, survival raw.
-HEADLINE_FIGURES: tuple[tuple[str, str, str], ...] = (
-    ("lin_tracking_vs_teacher", "normalized", "lin_tracking"), ("survival", "raw", "survival"),
-    ("total_vs_teacher", "normalized", "total"))
 
 
 class NotApplicable(Exception):

@@ -4,7 +4,7 @@ FILE is one of:
 
 - msta-eval's ``metrics.json`` (``"msta_eval_version": 2``): the card shows the headline
   figures of one evaluated student, the same three msta-correct's round table and stage-2
-  cards show (``eval.metrics.HEADLINE_FIGURES``): linear-velocity tracking and total reward
+  cards show (:data:`HEADLINE_FIGURES`): linear-velocity tracking and total reward
   normalized by the teacher's on the same trials, and survival, each with its 95 % interval
   and trial count, one table row per scenario and condition (terrain average). The test
   masks of ``token_removal`` (else the first condition run) also become flat metrics
@@ -31,8 +31,10 @@ from msta_data.revision import content_revision, file_parts
 
 #: metrics.json formats this module reads (msta-eval's ``msta_eval_version``).
 READABLE_VERSIONS = (2,)
-#: The headline figures (name, figure, metric): ``eval.metrics.HEADLINE_FIGURES``, which a
-#: test keeps equal (msta_data may not import eval).
+#: The headline figures of an msta-eval run record, as msta-correct's round table, the
+#: stage-2 model card and eval cards show them: (name, figure, metric); the returns
+#: normalized by the teacher's on the same trials, survival raw. Defined here (msta_data
+#: may not import eval); ``eval.metrics`` uses this one.
 HEADLINE_FIGURES: tuple[tuple[str, str, str], ...] = (
     ("lin_tracking_vs_teacher", "normalized", "lin_tracking"), ("survival", "raw", "survival"),
     ("total_vs_teacher", "normalized", "total"))

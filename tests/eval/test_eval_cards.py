@@ -19,7 +19,6 @@ from msta_data.cli import parse_config
 from msta_data.figures import fmt_ci
 from msta_data.hub_cards import card_metadata
 from msta_data.hub_cli import main as hub
-from msta_data.hub_eval import HEADLINE_FIGURES as CARD_FIGURES
 from msta_data.hub_ids import hub_api
 
 SECRET = "alice-secret-0001"
@@ -51,7 +50,6 @@ def _card(repo: str, rev: str) -> tuple[dict, str]:
 
 def test_the_card_shows_msta_evals_headline_figures(evaluated, tiny_ckpt, hub_env, capsys):
     path, metrics = evaluated
-    assert CARD_FIGURES == HEADLINE_FIGURES  # the card's figures are msta-correct's
     assert hub(["push", str(tiny_ckpt), "alice/m", "--tag", "v1", "--eval_json", str(path)]) == 0
     assert "warning" not in capsys.readouterr().err  # the student was found by its files
     meta, text = _card("alice/m", "v1")
