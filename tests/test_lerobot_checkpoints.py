@@ -40,7 +40,9 @@ def ckpts(recorded, tmp_path_factory) -> tuple[Path, Path]:
     into it by msta-guard)."""
     tmp = tmp_path_factory.mktemp("lerobot_ckpts")
     native = tiny_student("msta", {}, recorded).save_pretrained(tmp / "ckpt")
-    lerobot = msta_to_lerobot(native, tmp / "lerobot")
+    threads = torch.get_num_threads()
+    lerobot = msta_to_lerobot(native, tmp / "lerobot")  # builds LeRobot's policy: threads
+    torch.set_num_threads(threads)
     guard_main(["fit", f"--dataset={recorded}", f"--output_dir={lerobot}"])
     return native, lerobot
 

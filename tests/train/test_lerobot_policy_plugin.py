@@ -116,20 +116,16 @@ def test_preset_fills_the_fields_not_given():
         MSTAConfig(device="cpu", preset="gpu")
 
 
-def test_threads_default_to_half_the_cores_when_training(synthetic_dataset):
-    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
-
+def test_threads_default_to_half_the_cores():
     cores = len(os.sched_getaffinity(0))
     assert MSTAConfig(device="cpu").cpu_threads() == max(1, cores // 2)
-    assert MSTAConfig(device="cpu", num_threads=3).cpu_threads() == 3
     with pytest.raises(ValueError, match="num_threads must be >= 0"):
         MSTAConfig(device="cpu", num_threads=-1)
     torch.set_num_threads(cores)
-    MSTAPolicy(MSTAConfig(device="cpu", **TINY))  # not for training: torch's setting stays
-    assert torch.get_num_threads() == cores
-    meta = LeRobotDatasetMetadata("local/train_test", root=synthetic_dataset)
-    MSTAPolicy(MSTAConfig(device="cpu", **TINY), dataset_meta=meta)
+    MSTAPolicy(MSTAConfig(device="cpu", **TINY))
     assert torch.get_num_threads() == max(1, cores // 2)
+    MSTAPolicy(MSTAConfig(device="cpu", num_threads=3, **TINY))
+    assert torch.get_num_threads() == 3
 
 
 # ----- windows from msta's reader ---------------------------------------------------------
@@ -317,6 +313,24 @@ def test_lerobot_eval_runs_the_trained_student(lerobot_trained, tmp_path):
     assert "Overall Aggregated Metrics" in proc.stdout + proc.stderr
     info = json.loads((out / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2 and np.isfinite(info["overall"]["avg_sum_reward"])
+
+
+def test_compare_trainers_times_both_trainers_alike():
+    from lerobot_policy_msta.compare_trainers import (
+        CompareTrainersConfig,
+        lerobot_steps_per_s,
+        speed_line,
+    )
+
+    log = "\n".join(f"INFO x step:{n} smpl:{16 * n} loss:0.9 updt_s:{u} data_s:0.020 smp/s:99"
+                    for n, u in ((50, 9.0), (100, 0.080), (150, 0.180)))
+    assert lerobot_steps_per_s(log, warmup=50) == pytest.approx(1 / 0.15)  # warm-up left out
+    cfg = CompareTrainersConfig(dataset="x", steps=200, log_freq=50)
+    records = [{"msta_train": {"steps_per_s": 10.0}, "lerobot_train": {"steps_per_s": s}}
+               for s in (8.0, 9.0)]
+    assert speed_line(records, cfg).startswith("lerobot-train / msta-train steps/s: 0.85 (")
+    with pytest.raises(ValueError, match="at least 2 x log_freq"):
+        CompareTrainersConfig(dataset="x", steps=60, log_freq=50)
 
 
 def test_documented_plugin_commands_parse():

@@ -10,7 +10,14 @@ Both checkpoints are then scored by msta-train's own validation
 :func:`lerobot_policy_msta.convert.lerobot_to_msta` (bit-exact), next to the untrained
 student's score. What differs between the two runs: the order of the samples, the random
 token removal (msta: its own generator; LeRobot: the global one) and the initial weights'
-random stream, i.e. what another seed changes too. docs/lerobot.md has a measured run::
+random stream, i.e. what another seed changes too.
+
+Speed, measured in the same run: each trainer's training steps per second with the same
+torch threads (``--num_threads``), after its first ``log_freq`` steps (warm-up): msta-train's
+from the time between its steps, lerobot-train's from its own per-step timers (``updt_s``
++ ``data_s`` of its log lines, which cover loading, preprocessing and the update). The last
+line printed is ``lerobot-train / msta-train steps/s: <ratio>``. docs/lerobot.md has a
+measured run::
 
     python -m lerobot_policy_msta.compare_trainers --dataset=outputs/datasets/a1_tiny --steps=300 --batch_size=16 --seeds=[0,1,2]
 """
@@ -19,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -59,6 +67,8 @@ class CompareTrainersConfig:
         log_freq: lerobot-train's --log_freq.
         noise_seeds: extra lerobot-train runs with these seeds on the first seed's split
             (the same data): how much the seed alone moves the score.
+        num_threads: torch CPU threads of both trainers (msta-train's --num_threads,
+            lerobot-train's --policy.num_threads).
     """
 
     dataset: str = ""
@@ -71,11 +81,15 @@ class CompareTrainersConfig:
     val_samples: int = 1024
     log_freq: int = 50
     noise_seeds: tuple[int, ...] = ()
+    num_threads: int = 1
 
     def __post_init__(self) -> None:
         self.seeds = tuple(int(s) for s in self.seeds)
         self.noise_seeds = tuple(int(s) for s in self.noise_seeds)
-        check_at_least(self, 1, "steps", "batch_size", "val_samples", "log_freq")
+        check_at_least(self, 1, "steps", "batch_size", "val_samples", "log_freq", "num_threads")
+        if self.steps < 2 * self.log_freq:
+            raise ValueError(f"steps={self.steps} must be at least 2 x log_freq={self.log_freq} "
+                             "(the first log_freq steps are warm-up, not timed)")
         if not self.seeds:
             raise ValueError("seeds is empty")
         if self.preset not in PRESETS:
@@ -93,6 +107,7 @@ def lerobot_train_args(cfg: CompareTrainersConfig, root: Path, episodes: Sequenc
             f"--dataset.root={root}", f"--dataset.episodes=[{','.join(map(str, episodes))}]",
             *policy, "--policy.device=cpu", f"--steps={cfg.steps}",
             f"--batch_size={cfg.batch_size}", f"--seed={seed}", "--num_workers=0",
+            f"--policy.num_threads={cfg.num_threads}",
             f"--save_freq={cfg.steps}", f"--log_freq={cfg.log_freq}", f"--output_dir={out}"]
 
 
@@ -120,7 +135,18 @@ def lerobot_run(cfg: CompareTrainersConfig, root: Path, split_seed: int, seed: i
     ckpt = out / "lerobot" / "checkpoints" / "last" / "pretrained_model"
     converted = lerobot_to_msta(ckpt, out / "lerobot_as_msta")
     return {**score(load_policy(converted), root, val_eps, cfg, split_seed),
-            "wall_s": time.perf_counter() - t0}
+            "wall_s": time.perf_counter() - t0,
+            "steps_per_s": lerobot_steps_per_s(proc.stdout + proc.stderr, cfg.log_freq)}
+
+
+def lerobot_steps_per_s(log: str, warmup: int) -> float:
+    """Steps per second from lerobot-train's log lines (``step:N ... updt_s:U data_s:D``,
+    the means over each ``log_freq`` window), the windows after step ``warmup``."""
+    times = [float(u) + float(d) for n, u, d in re.findall(
+        r"step:(\d+) .*?updt_s:([\d.]+) data_s:([\d.]+)", log) if int(n) > warmup]
+    if not times:
+        raise RuntimeError("no lerobot-train log line after the warm-up steps to time")
+    return 1.0 / float(np.mean(times))
 
 
 def run_seed(cfg: CompareTrainersConfig, root: Path, out: Path, seed: int) -> dict[str, Any]:
@@ -132,12 +158,18 @@ def run_seed(cfg: CompareTrainersConfig, root: Path, out: Path, seed: int) -> di
                            "untrained": score(make_policy(native, load_stats(root)), root,
                                               val_eps, cfg, seed)}
     t0 = time.perf_counter()
+    stamps: dict[int, float] = {}
     final = train(TrainConfig(dataset=str(root), policy=native, output_dir=str(out / "msta"),
                               steps=cfg.steps, batch_size=cfg.batch_size, seed=seed,
                               val_fraction=cfg.val_fraction, val_samples=cfg.val_samples,
-                              eval_every=0, save_every=0, progress=False))
+                              eval_every=0, save_every=0, progress=False,
+                              num_threads=cfg.num_threads),
+                  on_step=lambda step, _: stamps.__setitem__(step, time.perf_counter()))
+    last = cfg.steps - 1  # the step after the warm-up to the last but the final save
     rec["msta_train"] = {**score(load_policy(final), root, val_eps, cfg, seed),
-                         "wall_s": time.perf_counter() - t0}
+                         "wall_s": time.perf_counter() - t0,
+                         "steps_per_s": (last - cfg.log_freq) / (stamps[last] -
+                                                                 stamps[cfg.log_freq])}
     rec["lerobot_train"] = lerobot_run(cfg, root, seed, seed, out)
     return rec
 
@@ -152,15 +184,15 @@ def noise_lines(split_seed: int, noise: list[dict[str, Any]]) -> str:
 def table(records: list[dict[str, Any]]) -> str:
     """Markdown: per seed and mean +- std over seeds, for each figure and trainer."""
     rows = ["| seed | untrained val MSE | msta-train val MSE | lerobot-train val MSE | "
-            "msta-train action MSE | lerobot-train action MSE | wall s msta / lerobot |",
-            "|---|---|---|---|---|---|---|"]
+            "msta-train action MSE | lerobot-train action MSE | steps/s msta / lerobot | "
+            "wall s msta / lerobot |", "|---|---|---|---|---|---|---|---|"]
     for r in records:
+        m, lr = r["msta_train"], r["lerobot_train"]
         rows.append(f"| {r['seed']} | {r['untrained']['loss_unmasked']:.4f} | "
-                    f"{r['msta_train']['loss_unmasked']:.4f} | "
-                    f"{r['lerobot_train']['loss_unmasked']:.4f} | "
-                    f"{r['msta_train']['action_mse']:.5f} | "
-                    f"{r['lerobot_train']['action_mse']:.5f} | "
-                    f"{r['msta_train']['wall_s']:.0f} / {r['lerobot_train']['wall_s']:.0f} |")
+                    f"{m['loss_unmasked']:.4f} | {lr['loss_unmasked']:.4f} | "
+                    f"{m['action_mse']:.5f} | {lr['action_mse']:.5f} | "
+                    f"{m['steps_per_s']:.1f} / {lr['steps_per_s']:.1f} | "
+                    f"{m['wall_s']:.0f} / {lr['wall_s']:.0f} |")
 
     def stat(who: str, key: str, fmt: str) -> str:
         v = np.array([r[who][key] for r in records])
@@ -170,8 +202,19 @@ def table(records: list[dict[str, Any]]) -> str:
                 f"{stat('msta_train', 'loss_unmasked', '.4f')} | "
                 f"{stat('lerobot_train', 'loss_unmasked', '.4f')} | "
                 f"{stat('msta_train', 'action_mse', '.5f')} | "
-                f"{stat('lerobot_train', 'action_mse', '.5f')} | |")
+                f"{stat('lerobot_train', 'action_mse', '.5f')} | "
+                f"{stat('msta_train', 'steps_per_s', '.1f')} / "
+                f"{stat('lerobot_train', 'steps_per_s', '.1f')} | |")
     return "\n".join(rows)
+
+
+def speed_line(records: list[dict[str, Any]], cfg: CompareTrainersConfig) -> str:
+    """``lerobot-train / msta-train steps/s: <ratio>``: the mean of the per-seed ratios."""
+    ratios = [r["lerobot_train"]["steps_per_s"] / r["msta_train"]["steps_per_s"]
+              for r in records]
+    return (f"lerobot-train / msta-train steps/s: {np.mean(ratios):.2f} (per seed "
+            f"{', '.join(f'{x:.2f}' for x in ratios)}; batch {cfg.batch_size}, preset "
+            f"{cfg.preset}, {cfg.num_threads} thread(s), after {cfg.log_freq} warm-up steps)")
 
 
 def compare(cfg: CompareTrainersConfig) -> list[dict[str, Any]]:
@@ -194,8 +237,10 @@ def compare(cfg: CompareTrainersConfig) -> list[dict[str, Any]]:
     (out / "results.json").write_text(json.dumps(
         {"config": {**cfg.__dict__, "dataset": str(root)}, "runs": records, "noise": noise},
         indent=1) + "\n")
+    speed = speed_line(records, cfg)
     (out / "results.md").write_text(table(records) + "\n\n" + noise_lines(cfg.seeds[0], noise)
-                                     + "\n")
+                                     + "\n\n" + speed + "\n")
+    print(speed, flush=True)
     return records
 
 

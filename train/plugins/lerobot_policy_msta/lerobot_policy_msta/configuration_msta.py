@@ -110,10 +110,10 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     """sensors concatenated in observation.state, in order; lerobot-train reads them from the
     dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
     num_threads: int = 0
-    """torch CPU threads, set when the policy is built; 0: when lerobot-train builds it, half
+    """torch CPU threads, set when the policy is built (lerobot-train, lerobot-eval); 0: half
     the CPU cores, at least 1 (1 on a 2-core machine, where two threads waiting on each
-    other made a cpu-preset update several times slower), leaving the rest to data loading
-    and other work; elsewhere torch's setting is kept."""
+    other made a cpu-preset update, and lerobot-eval, several times slower), leaving the rest
+    to data loading and the simulator."""
     optimizer_lr: float = _LOOP.lr
     """peak learning rate (AdamW), msta-train's --lr."""
     optimizer_weight_decay: float = _LOOP.weight_decay
@@ -153,7 +153,7 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
                 setattr(self, name, values.get(name, _NATIVE_DEFAULTS[name]))
 
     def cpu_threads(self) -> int:
-        """The torch CPU threads to train with: ``num_threads``, or half the cores this
+        """The torch CPU threads the policy sets: ``num_threads``, or half the cores this
         process may use (at least 1) when it is 0."""
         if self.num_threads:
             return self.num_threads

@@ -52,8 +52,9 @@ class MSTAPolicy(PreTrainedPolicy):
         config: an :class:`MSTAConfig` whose features hold ``observation.state``.
         dataset_stats: unused (normalization is the processors'); lerobot passes it.
         dataset_meta: the dataset lerobot-train trains on (its ``make_policy`` passes it): its
-            windows are registered for the preprocessor (:func:`~.history.attach`) and torch
-            takes ``config.cpu_threads()`` threads.
+            windows are registered for the preprocessor (:func:`~.history.attach`).
+
+    Building it sets torch's CPU threads to ``config.cpu_threads()``.
     """
 
     config_class = MSTAConfig
@@ -64,8 +65,7 @@ class MSTAPolicy(PreTrainedPolicy):
                  dataset_meta: Any = None) -> None:
         super().__init__(config)
         config.validate_features()
-        if dataset_meta is not None or config.num_threads:
-            torch.set_num_threads(config.cpu_threads())
+        torch.set_num_threads(config.cpu_threads())
         if dataset_meta is not None:
             attach(dataset_meta.root, config.state_sensors, config.history)
         self.model = MSTATransformer(config.to_native())
