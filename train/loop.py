@@ -18,6 +18,7 @@ from msta_data.budget import TimeLimitReached, passed
 from msta_data.windows import WindowDataset
 from policies.base import CheckpointError, StudentPolicy
 from train.config import LoopConfig, training_mask_ratio
+from train.distributed import FitJob, Group, current
 from train.optim import make_optimizer, make_scheduler
 from train.sampling import WindowSampler
 from train.state import restore_checkpoint, save_checkpoint
@@ -146,6 +147,13 @@ class _Run:
     step: int = 0
     train_time: float = 0.0
     samples: int = 0
+    group: Group | None = None  # under torchrun (train.distributed)
+    loss_fn: Any = None  # policy.loss inside DDP, under torchrun
+
+    @property
+    def main(self) -> bool:
+        """This process writes (the only one, or rank 0 of a torchrun job)."""
+        return self.group is None or self.group.main
 
     @property
     def state(self) -> dict[str, Any]:
@@ -157,19 +165,21 @@ class _Run:
 
 
 def _start(policy: StudentPolicy, n: int, cfg: LoopConfig, out: Path, resume: bool,
-           weights: np.ndarray | None) -> _Run:
+           weights: np.ndarray | None, group: Group | None = None) -> _Run:
     """Optimizer, schedule, sampler, mask generator and weight average, restored from
-    ``out/checkpoints/last`` when resuming."""
+    ``out/checkpoints/last`` when resuming (by every rank of a torchrun job)."""
     mask_ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio)
     optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay, cfg.optimizer)
     scheduler = make_scheduler(optimizer, cfg)
     sampler = WindowSampler(n, cfg.batch_size, cfg.seed, weights)
     gen = torch.Generator(device=policy.device).manual_seed(cfg.seed)
     ema = WeightEMA(policy, cfg.ema_decay) if cfg.ema_decay > 0 else None
-    run = _Run(optimizer, scheduler, sampler, gen, ema, mask_ratio)
+    run = _Run(optimizer, scheduler, sampler, gen, ema, mask_ratio, group=group)
     if resume and (out / "checkpoints" / "last").exists():
         run.step = restore_checkpoint(out, policy, run.state, ema, max_step=cfg.steps)
         scheduler.lr_lambdas[0].total = cfg.steps  # a raised --steps stretches the cosine
+    if group is not None:  # after the restore: DDP starts from rank 0's weights
+        run.loss_fn = group.wrap(policy, cfg.batch_size)
     return run
 
 
@@ -177,9 +187,11 @@ def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
               run: _Run) -> dict[str, float]:
     """One optimizer step (and the weight average's); the result is the average at the end."""
     t0 = time.perf_counter()
-    batch = train_ds.get_batch(run.sampler.next_batch())
+    rows = run.sampler.next_batch()  # the global batch: the same for any number of processes
+    batch = train_ds.get_batch(rows if run.group is None else run.group.shard(rows))
     metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
-                         run.mask_ratio, run.gen, dummy_tokens=cfg.dummy_tokens)
+                         run.mask_ratio, run.gen, dummy_tokens=cfg.dummy_tokens,
+                         loss_fn=run.loss_fn)
     if run.ema is not None:
         run.ema.update()
     run.train_time += time.perf_counter() - t0
@@ -197,6 +209,8 @@ def _log_row(policy: StudentPolicy, val_ds: Any | None, cfg: LoopConfig, run: _R
     step, val = run.step, None
     if step % cfg.log_every == 0 or step == cfg.steps:
         row.update({k: metrics[k] for k in ("lr", "loss", "action_mse", "grad_norm")})
+        if run.group is not None:  # each rank's loss is its share's: their mean
+            row.update(run.group.mean({k: row[k] for k in ("loss", "action_mse")}))
         row["samples_per_s"] = run.samples_per_s()
     if val_ds is not None and ((cfg.eval_every and step % cfg.eval_every == 0)
                                or step == cfg.steps):
@@ -232,11 +246,24 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
     if cfg.dummy_tokens and not policy.supports_dummy_tokens:
         raise ValueError(f"dummy_tokens={cfg.dummy_tokens}: a {policy.config.type!r} student "
                          "has no token input to append them to (MSTA students only)")
-    out.mkdir(parents=True, exist_ok=True)
-    run = _start(policy, len(train_ds), cfg, out, resume, weights)
-    logger = MetricsLogger(out, run.step)
-    bar = tqdm(total=cfg.steps, initial=run.step, disable=not cfg.progress, desc=desc,
-               unit="step")
+    group = current()
+    if group is not None:  # under torchrun: the other ranks train this loop with rank 0
+        group.send(FitJob.of(policy, train_ds, cfg, out, resume, weights, deadline is not None))
+    return _fit(policy, train_ds, val_ds, cfg, out, resume, weights, on_step, desc, deadline,
+                group)
+
+
+def _fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfig,
+         out: Path, resume: bool, weights: np.ndarray | None,
+         on_step: Callable[[int, dict[str, float]], None] | None, desc: str,
+         deadline: float | None, group: Group | None, sync_stop: bool = False) -> FitResult:
+    """:func:`fit` on this process (rank 0 writes; ``sync_stop``: rank 0 has a deadline)."""
+    if group is None or group.main:
+        out.mkdir(parents=True, exist_ok=True)
+    run = _start(policy, len(train_ds), cfg, out, resume, weights, group)
+    logger = MetricsLogger(out, run.step) if run.main else None
+    bar = tqdm(total=cfg.steps, initial=run.step, disable=not (cfg.progress and run.main),
+               desc=desc, unit="step")
     metrics: dict[str, float] = {}
     val: dict[str, float] = {}
     try:
@@ -244,23 +271,39 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
             metrics = _one_step(policy, train_ds, cfg, run)
             row, new_val = _log_row(policy, val_ds, cfg, run, metrics)
             val = val if new_val is None else new_val
-            if row:
+            if row and logger is not None:
                 logger.log(run.step, row)
             stopping = run.step < cfg.steps and passed(deadline)
-            if ((cfg.save_every and run.step % cfg.save_every == 0) or run.step == cfg.steps
-                    or stopping):
+            if group is not None and (sync_stop or deadline is not None):
+                stopping = group.any(stopping)  # every rank stops after the same step
+            if run.main and ((cfg.save_every and run.step % cfg.save_every == 0)
+                             or run.step == cfg.steps or stopping):
                 save_checkpoint(out, run.step, policy, run.state, run.ema)
             bar.update(1)
             bar.set_postfix(loss=f"{metrics['loss']:.4f}", samples_s=f"{run.samples_per_s():.0f}")
             if on_step is not None:
                 on_step(run.step, metrics)
-            if stopping:
+            if stopping and run.main:
                 raise TimeLimitReached(f"{desc}: step {run.step} of {cfg.steps}, checkpoint saved")
+            if stopping:
+                break
     finally:
         bar.close()
-        logger.close()
+        if logger is not None:
+            logger.close()
     return FitResult(run.step, run.samples / run.train_time if run.train_time else 0.0,
                      metrics, val)
+
+
+def follow(group: Group) -> None:
+    """A torchrun rank other than 0: train every loop rank 0 starts (:class:`FitJob`), with
+    it, until its command ends (:func:`train.distributed.rank0_runs`)."""
+    while (job := group.receive()) is not None:
+        torch.set_num_threads(job.threads)
+        policy = job.policy.to(group.device(job.device))
+        dataset = job.dataset.load() if hasattr(job.dataset, "load") else job.dataset
+        _fit(policy, dataset, None, job.cfg, job.out, job.resume, job.weights, None, "train",
+             None, group, job.sync_stop)
 
 
 def load_windows(root: Path, policy: StudentPolicy, episodes: Sequence[int]) -> Any:

@@ -40,6 +40,7 @@ from policies.factory import make_policy
 from policies.msta import MSTAConfig
 from train.cli import USER_ERRORS, parse_cli
 from train.config import LoopConfig, training_mask_ratio
+from train.distributed import rank0_runs
 from train.loop import fit, load_windows, warn_if_not_learned
 from train.optim import seed_everything, select_device
 from train.push import check_push_to, push_stage1
@@ -196,8 +197,8 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
 
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(TrainConfig, argv, prog="msta-train")
-    try:
-        train(cfg)
+    try:  # under torchrun, rank 0 runs it and the others train with it (docs/scale.md)
+        rank0_runs(lambda: train(cfg), cfg.batch_size)
     except USER_ERRORS as e:
         raise SystemExit(f"msta-train: error: {e}") from None
     except TimeLimitReached as e:

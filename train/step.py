@@ -7,7 +7,7 @@ differ only in where the data comes from and in the mask ratio.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -20,7 +20,9 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
                scheduler: torch.optim.lr_scheduler.LRScheduler | None,
                batch: Mapping[str, Any], grad_clip: float, mask_ratio: float | None,
                generator: torch.Generator | None = None,
-               channels: Channels | None = None, dummy_tokens: int = 0) -> dict[str, float]:
+               channels: Channels | None = None, dummy_tokens: int = 0,
+               loss_fn: Callable[..., tuple[torch.Tensor, dict[str, float]]] | None = None
+               ) -> dict[str, float]:
     """Forward, backward, clip, AdamW step, scheduler step.
 
     Args:
@@ -33,6 +35,8 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         generator: RNG of the random token removal (on the policy's device).
         channels: per-sensor channel subsets present in the batch.
         dummy_tokens: random dummy tokens appended to every sample (token students only).
+        loss_fn: called instead of ``policy.loss`` with the same arguments (under torchrun:
+            the policy's loss inside DistributedDataParallel, :mod:`train.distributed`).
 
     Returns:
         the policy's metrics (``loss``, ``action_mse``, ...) plus ``grad_norm`` and ``lr``
@@ -42,10 +46,11 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         FloatingPointError: the loss or the gradient norm is not finite (weights untouched).
     """
     policy.train()
+    fn = policy.loss if loss_fn is None else loss_fn
     if dummy_tokens:
-        loss, metrics = policy.loss(batch, channels, mask_ratio, generator, dummy_tokens)
+        loss, metrics = fn(batch, channels, mask_ratio, generator, dummy_tokens)
     else:
-        loss, metrics = policy.loss(batch, channels, mask_ratio, generator)
+        loss, metrics = fn(batch, channels, mask_ratio, generator)
     if not torch.isfinite(loss):
         raise FloatingPointError(f"training loss is {float(loss.detach())}; metrics {metrics} "
                                  "(a smaller --lr may help)")

@@ -1,0 +1,150 @@
+"""Training on several processes (train/distributed.py): real torchrun jobs of 2 CPU
+processes (gloo) on a tiny MSTA student reach the single process's weights with the same
+global batch, and resume after rank 0 is killed; the token-removal draws give every window
+its single-process mask for every student type."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from msta_test_helpers import tiny_student  # registered by tests/conftest.py
+from safetensors.torch import load_file
+
+from msta_data.windows import WindowDataset
+from policies.factory import registered_policies
+from train.cli import parse_cli
+from train.distributed import ShardedDraws
+from train.offline import TrainConfig, main, train
+
+REPO = Path(__file__).resolve().parents[2]
+STEPS = 20
+FLAGS = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",
+         "--policy.history=5", "--batch_size=16", "--warmup_steps=2", "--progress=false",
+         "--device=cpu", f"--steps={STEPS}", "--save_every=5", "--eval_every=10",
+         "--log_every=5"]
+
+
+def torchrun(*args: str, nproc: int = 2) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone",
+           f"--nproc_per_node={nproc}", *args]
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+                          check=False)
+
+
+def weights(run: Path) -> dict[str, torch.Tensor]:
+    return load_file(str(run / "final" / "model.safetensors"))
+
+
+def assert_same_weights(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None:
+    """Equal to float rounding. The attention's key bias is left out: softmax does not
+    depend on it, so its gradient is 0 in exact arithmetic and Adam turns the rounding
+    noise of that 0 into lr-sized steps whose signs differ with any change in summation
+    order (docs/scale.md)."""
+    assert a.keys() == b.keys()
+    for name, value in a.items():
+        x, y = value.float(), b[name].float()
+        if name.endswith("attn.qkv.bias"):
+            d = x.numel() // 3
+            x, y = torch.cat([x[:d], x[2 * d:]]), torch.cat([y[:d], y[2 * d:]])
+        torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-5, msg=name)
+
+
+def losses(run: Path) -> list[float]:
+    with open(run / "metrics.csv", newline="") as f:
+        return [float(r["loss"]) for r in csv.DictReader(f)]
+
+
+@pytest.fixture(scope="module")
+def one_process(synthetic_dataset, tmp_path_factory) -> Path:
+    """The reference: a plain process (no torchrun variables), as msta-train runs today."""
+    out = tmp_path_factory.mktemp("ddp") / "one"
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as each torchrun process (OMP_NUM_THREADS=1)
+    try:
+        train(parse_cli(TrainConfig, [f"--dataset={synthetic_dataset}", f"--output_dir={out}",
+                                      *FLAGS], prog="msta-train"))
+    finally:
+        torch.set_num_threads(threads)
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_processes(synthetic_dataset, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ddp") / "two"
+    res = torchrun("-m", "train.offline", f"--dataset={synthetic_dataset}",
+                   f"--output_dir={out}", *FLAGS)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return out
+
+
+def test_two_processes_reach_the_single_process_weights(one_process, two_processes):
+    assert_same_weights(weights(one_process), weights(two_processes))
+    np.testing.assert_allclose(losses(two_processes), losses(one_process), rtol=1e-4)
+    assert len(losses(one_process)) == STEPS // 5
+    ckpts = sorted(p.name for p in (two_processes / "checkpoints").iterdir())
+    assert ckpts == ["000005", "000010", "000015", "000020", "last"]
+
+
+def test_resume_under_torchrun_after_rank_0_is_killed(synthetic_dataset, tmp_path, one_process,
+                                                      two_processes):
+    out = tmp_path / "killed"
+    args = [f"--dataset={synthetic_dataset}", f"--output_dir={out}", *FLAGS]
+    res = torchrun(str(REPO / "tests/train/ddp_kill_worker.py"), "12", *args)
+    assert res.returncode != 0 and "SIGKILL" in res.stderr, res.stderr[-3000:]
+    assert (out / "checkpoints" / "last").resolve().name == "000010"
+    assert not (out / "final").exists()
+    res = torchrun("-m", "train.offline", "--resume=true", *args)  # the same command, resumed
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert (out / "checkpoints" / "last").resolve().name == "000020"
+    # the resumed job continued from step 10 and equals the uninterrupted ones
+    resumed = weights(out)
+    for name, a in weights(two_processes).items():
+        assert torch.equal(a, resumed[name]), name
+    assert_same_weights(weights(one_process), resumed)
+    assert losses(out) == losses(two_processes)
+
+
+@pytest.mark.parametrize("name", registered_policies())
+def test_every_window_gets_its_single_process_mask(synthetic_dataset, name):
+    """Two ranks' shards of a batch, each under ShardedDraws, give the loss of the whole
+    batch in one process and leave the mask generator where the single process leaves it;
+    drawn by each rank for its own shard instead, rank 1's masks (and loss) differ."""
+    policy = tiny_student(name, {}, synthetic_dataset).train()
+    ds = WindowDataset(synthetic_dataset, policy.required_sensors, policy.config.history,
+                       extra_columns=(policy.config.action_key,))
+    batch = ds.get_batch(np.random.default_rng(0).permutation(len(ds))[:16])
+    halves = [{k: v[r * 8:(r + 1) * 8] for k, v in batch.items()} for r in range(2)]
+    kw = {"mask_ratio": 0.5, **({"dummy_tokens": 3} if policy.supports_dummy_tokens else {})}
+
+    def gen() -> torch.Generator:
+        return torch.Generator().manual_seed(7)
+
+    with torch.no_grad():
+        g = gen()
+        whole = policy.loss(batch, generator=g, **kw)[0]
+        parts = []
+        for r in range(2):
+            gr = gen()
+            with ShardedDraws(gr, r, 2, 8):
+                parts.append(policy.loss(halves[r], generator=gr, **kw)[0])
+            assert torch.equal(gr.get_state(), g.get_state())
+        plain = policy.loss(halves[1], generator=gen(), **kw)[0]  # rank 1's own draws
+    torch.testing.assert_close(sum(parts) / 2, whole, rtol=1e-5, atol=1e-7)
+    assert abs(float(plain - parts[1])) > 1e-6
+
+
+def test_a_batch_that_does_not_split_is_refused(synthetic_dataset, tmp_path, monkeypatch):
+    monkeypatch.setenv("RANK", "0")
+    monkeypatch.setenv("WORLD_SIZE", "3")
+    monkeypatch.setenv("LOCAL_RANK", "0")
+    with pytest.raises(SystemExit, match="batch_size=16 does not split over 3 processes"):
+        main([f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'o'}", *FLAGS])
+    assert not (tmp_path / "o").exists()

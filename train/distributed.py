@@ -1,0 +1,318 @@
+"""Training on several processes: ``torchrun --nproc_per_node=N msta-train ...``.
+
+Under ``torchrun`` (``RANK``, ``WORLD_SIZE`` and ``LOCAL_RANK`` in the environment) a command
+that trains (msta-train, msta-correct, msta-finetune, msta-compare) runs as one job of N
+processes, and a plain process (no such variables) runs exactly as before:
+
+- **rank 0 runs the command** as a single process would: it reads and writes the dataset,
+  rolls out, evaluates, and alone writes checkpoints, metrics, progress files and the final
+  policy;
+- **the other ranks train with it**: at each training loop (:func:`train.loop.fit`) rank 0
+  sends them a :class:`FitJob` (the student, the dataset's recipe, the loop settings), all
+  ranks train it together under DistributedDataParallel (gloo on the CPU, NCCL on CUDA), and
+  the others wait for the next one until rank 0's command ends (:func:`rank0_runs`).
+
+**The global batch does not depend on N.** Every rank draws the same batch of window indices
+from the seeded sampler (``--batch_size`` windows) and trains on its share, rows
+``r * B/N .. (r+1) * B/N``; DDP averages the gradients, and the loss is a mean over samples,
+so a step is the single process's step on the same ``B`` windows. The random token removal
+is drawn for the whole global batch too (:class:`ShardedDraws`): every draw from the mask
+generator is made at the global batch's size and each rank keeps its rows, so every window
+gets the mask it gets in one process and the generators of all ranks stay in step.
+
+What stays the same for any N, to float rounding (sums in another order): the weights after
+every step, the sampler and mask streams, checkpoints, resume. What does not: dropout
+(``--policy.dropout``, 0 in every preset) draws from each rank's own global RNG; the logged
+training loss is the mean of the ranks' shard losses (equal to the global mean in exact
+arithmetic); validation runs on rank 0 alone.
+
+Resume: rank 0 writes ``checkpoints/``; on ``--resume=true`` every rank restores the same
+checkpoint, so a multi-node job needs the run directory and the dataset on a shared
+filesystem.
+"""
+
+from __future__ import annotations
+
+import copy
+import gc
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import timedelta
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.distributed as dist
+from torch import nn
+from torch.overrides import TorchFunctionMode
+
+from msta_data.windows import WindowDataset
+
+#: How long the other ranks wait for rank 0's next training loop (its rollouts and
+#: evaluations in between may take hours).
+JOB_WAIT = timedelta(days=7)
+
+
+@dataclass(frozen=True)
+class Launch:
+    """This process's place in a torchrun job (from ``RANK``, ``WORLD_SIZE``,
+    ``LOCAL_RANK``)."""
+
+    rank: int
+    world: int
+    local_rank: int
+
+
+def launched() -> Launch | None:
+    """The torchrun variables of this process, or None for a plain process.
+
+    Raises:
+        ValueError: some of the variables are set but not all, or they are not integers.
+    """
+    names = ("RANK", "WORLD_SIZE", "LOCAL_RANK")
+    given = {n: os.environ.get(n) for n in names}
+    if not any(given.values()):
+        return None
+    try:
+        rank, world, local = (int(given[n] or "") for n in names)
+    except ValueError:
+        raise ValueError(f"torchrun variables {given}: RANK, WORLD_SIZE and LOCAL_RANK must all "
+                         "be integers (launch with torchrun, or unset them)") from None
+    if not 0 <= rank < world or local < 0:
+        raise ValueError(f"torchrun variables {given}: need 0 <= RANK < WORLD_SIZE")
+    return Launch(rank, world, local)
+
+
+def check_batch(batch_size: int, world: int) -> None:
+    """The global batch must split evenly over the ranks."""
+    if batch_size % world:
+        raise ValueError(f"batch_size={batch_size} does not split over {world} processes; give "
+                         f"a multiple of {world} (the global batch is the same for any number "
+                         "of processes: each trains batch_size / N of it)")
+
+
+class ShardedDraws(TorchFunctionMode):
+    """Random draws from ``generator`` made for the whole global batch; this rank keeps its
+    rows.
+
+    A student draws its token-removal scores (and dummy tokens) as ``(B, ...)`` tensors from
+    the mask generator; inside this mode a draw of ``B = local`` rows is made at
+    ``local * world`` rows and rows ``rank * local ..`` are returned, which are the values the
+    single process draws for those windows. Any other use of the generator is refused.
+
+    Args:
+        generator: the loop's mask generator.
+        rank, world: this process and the job's size.
+        local: windows per rank.
+    """
+
+    DRAWS = (torch.rand, torch.randn, torch.randint)
+
+    def __init__(self, generator: torch.Generator, rank: int, world: int, local: int) -> None:
+        super().__init__()
+        self.generator, self.rank, self.world, self.local = generator, rank, world, local
+
+    def __torch_function__(self, func: Any, types: Any, args: tuple = (),
+                           kwargs: dict | None = None) -> Any:
+        kwargs = dict(kwargs or {})
+        if kwargs.get("generator") is not self.generator:
+            return func(*args, **kwargs)
+        if func not in self.DRAWS:
+            raise RuntimeError(f"{getattr(func, '__name__', func)} from the mask generator: only "
+                               "(batch, ...) draws with rand, randn and randint can be sharded "
+                               "over processes")
+        if func is torch.randint:
+            lead, size = (args[:-1], args[-1]) if "size" not in kwargs else (args, kwargs["size"])
+            kwargs.pop("size", None)
+        else:
+            lead = ()
+            size = kwargs.pop("size", args[0] if len(args) == 1 and not isinstance(args[0], int)
+                              else args)
+        size = tuple(size)
+        if not size or size[0] != self.local:
+            raise RuntimeError(f"a draw of shape {size} from the mask generator is not one row per "
+                               f"window of this rank's {self.local}; it cannot be sharded")
+        full = func(*lead, (self.local * self.world, *size[1:]), **kwargs)
+        return full[self.rank * self.local:(self.rank + 1) * self.local]
+
+
+class _Loss(nn.Module):
+    """``policy.loss`` as a module's forward, for DDP, with the draws sharded."""
+
+    def __init__(self, policy: nn.Module, world: int, rank: int, local: int) -> None:
+        super().__init__()
+        self.policy, self.world, self.rank, self.local = policy, world, rank, local
+
+    def forward(self, batch: Any, channels: Any, mask_ratio: float | None,
+                generator: torch.Generator | None, dummy_tokens: int = 0) -> Any:
+        with ShardedDraws(generator, self.rank, self.world, self.local):
+            if dummy_tokens:
+                return self.policy.loss(batch, channels, mask_ratio, generator, dummy_tokens)
+            return self.policy.loss(batch, channels, mask_ratio, generator)
+
+
+@dataclass
+class WindowRecipe:
+    """How the other ranks load rank 0's ``WindowDataset`` (from the same files)."""
+
+    root: Path
+    sensors: tuple[str, ...]
+    T: int
+    extra_columns: tuple[str, ...]
+    episodes: list[int]
+    fps: int
+
+    def load(self) -> WindowDataset:
+        return WindowDataset(self.root, self.sensors, self.T, self.extra_columns, self.episodes,
+                             fps=self.fps, verify="sizes")  # rank 0 verified the checksums
+
+
+@dataclass
+class FitJob:
+    """One training loop, as rank 0 sends it to the other ranks.
+
+    Args:
+        policy: the student before the loop (a CPU copy; DDP copies rank 0's weights anyway).
+        device: rank 0's device type (``cpu``/``cuda``): each rank uses its own device of it.
+        dataset: a :class:`WindowRecipe`, or the dataset object itself.
+        cfg: the loop's settings (a ``LoopConfig``).
+        out: the run directory (read on resume, never written by these ranks).
+        resume: restore ``out/checkpoints/last``.
+        weights: per-window sampling weights, or None.
+        sync_stop: rank 0 has a deadline: every step the ranks agree whether to stop.
+        threads: rank 0's torch threads.
+    """
+
+    policy: nn.Module
+    device: str
+    dataset: Any
+    cfg: Any
+    out: Path
+    resume: bool
+    weights: np.ndarray | None
+    sync_stop: bool
+    threads: int
+
+    @classmethod
+    def of(cls, policy: nn.Module, dataset: Any, cfg: Any, out: Path, resume: bool,
+           weights: np.ndarray | None, sync_stop: bool) -> FitJob:
+        device = next(policy.parameters()).device
+        cpu = policy if device.type == "cpu" else copy.deepcopy(policy).to("cpu")
+        if isinstance(dataset, WindowDataset):
+            dataset = WindowRecipe(dataset.root, dataset.sensors, dataset.T,
+                                   dataset.extra_columns, list(dataset.episodes), dataset.fps)
+        return cls(cpu, device.type, dataset, cfg, out, resume, weights, sync_stop,
+                   torch.get_num_threads())
+
+
+class Group:
+    """The job's process group: sharding, the DDP wrapper, the job channel.
+
+    Args:
+        where: this process's place (:func:`launched`).
+    """
+
+    def __init__(self, where: Launch) -> None:
+        self.rank, self.world, self.local_rank = where.rank, where.world, where.local_rank
+        cuda = torch.cuda.is_available()
+        if cuda:
+            torch.cuda.set_device(where.local_rank)
+        # one group, CPU tensors on gloo, CUDA tensors on NCCL; the long timeout is for the
+        # other ranks' wait while rank 0 rolls out or evaluates between training loops (a
+        # second group for that wait breaks torchrun's restarts); a rank that dies ends the
+        # job at once anyway (torchrun stops the others)
+        dist.init_process_group("cpu:gloo,cuda:nccl" if cuda else "gloo", rank=where.rank,
+                                world_size=where.world, timeout=JOB_WAIT)
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+    def device(self, kind: str) -> torch.device:
+        """This rank's device of ``kind`` (its own GPU: ``cuda:LOCAL_RANK``)."""
+        return torch.device("cuda", self.local_rank) if kind == "cuda" else torch.device(kind)
+
+    def shard(self, rows: np.ndarray) -> np.ndarray:
+        """This rank's share of the global batch's window indices."""
+        n = len(rows) // self.world
+        return rows[self.rank * n:(self.rank + 1) * n]
+
+    def wrap(self, policy: nn.Module, batch_size: int) -> nn.Module:
+        """``policy.loss`` under DDP (called as ``train_step``'s ``loss_fn``)."""
+        check_batch(batch_size, self.world)
+        dev = next(policy.parameters()).device
+        return nn.parallel.DistributedDataParallel(
+            _Loss(policy, self.world, self.rank, batch_size // self.world),
+            device_ids=[dev.index] if dev.type == "cuda" else None,
+            find_unused_parameters=True)  # a student may leave a parameter out of its loss
+
+    def mean(self, values: dict[str, float]) -> dict[str, float]:
+        """The ranks' mean of each value."""
+        t = torch.tensor(list(values.values()), dtype=torch.float64)
+        dist.all_reduce(t)
+        return dict(zip(values, (t / self.world).tolist(), strict=True))
+
+    def any(self, flag: bool) -> bool:
+        """True on every rank when it is True on one."""
+        t = torch.tensor([int(flag)])
+        dist.all_reduce(t, op=dist.ReduceOp.MAX)
+        return bool(t.item())
+
+    def send(self, job: FitJob | None) -> None:
+        """Rank 0: the next training loop (None: the command is over)."""
+        dist.broadcast_object_list([job], src=0)
+
+    def receive(self) -> FitJob | None:
+        """The other ranks: wait for rank 0's next training loop."""
+        box: list[Any] = [None]
+        dist.broadcast_object_list(box, src=0)
+        return box[0]
+
+    def close(self) -> None:
+        """Every rank leaves together (one leaving early breaks the others' connections)."""
+        gc.collect()  # the last loop's DDP reducer goes before its process group
+        dist.barrier()
+        dist.destroy_process_group()
+
+
+_GROUP: Group | None = None
+
+
+def current() -> Group | None:
+    """The job's group while :func:`rank0_runs` runs a command under torchrun, else None."""
+    return _GROUP
+
+
+def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
+    """Run a training command in a plain process, or as a torchrun job (module docstring).
+
+    A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
+    other ranks to stop); every other rank trains each loop rank 0 starts and then exits
+    the process (``SystemExit(0)``): it never returns. When rank 0 fails, it exits with its
+    error and torchrun stops the others.
+
+    Args:
+        run: the command.
+        batch_size: the command's global batch (checked to split over the ranks first).
+    """
+    global _GROUP
+    where = launched()
+    if where is None:
+        return run()
+    if batch_size % where.world and where.rank:
+        raise SystemExit(2)  # rank 0 says why
+    check_batch(batch_size, where.world)
+    _GROUP = Group(where)
+    if not _GROUP.main:
+        from train.loop import follow  # train.loop imports this module
+
+        follow(_GROUP)
+        _GROUP.close()
+        raise SystemExit(0)
+    result = run()  # raising, rank 0 exits with its error and torchrun stops the others
+    _GROUP.send(None)
+    _GROUP.close()
+    _GROUP = None
+    return result
