@@ -10,7 +10,7 @@ processes, and a plain process (no such variables) runs exactly as before:
 - **the other ranks train with it**: at each training loop (:func:`train.loop.fit`) rank 0
   sends them a :class:`FitJob` (the student, the dataset's recipe, the loop settings), all
   ranks train it together under DistributedDataParallel (gloo on the CPU, NCCL on CUDA), and
-  the others wait for the next one until rank 0's command ends (:func:`rank0_runs`).
+  the others wait for the next one until rank 0's command ends (:func:`train.loop.rank0_runs`).
 
 **The global batch does not depend on N.** Every rank draws the same batch of window indices
 from the seeded sampler (``--batch_size`` windows) and trains on its share, rows
@@ -36,7 +36,6 @@ from __future__ import annotations
 import copy
 import gc
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import timedelta
 from pathlib import Path
@@ -281,38 +280,25 @@ _GROUP: Group | None = None
 
 
 def current() -> Group | None:
-    """The job's group while :func:`rank0_runs` runs a command under torchrun, else None."""
+    """The job's group while :func:`train.loop.rank0_runs` runs a command under torchrun,
+    else None."""
     return _GROUP
 
 
-def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
-    """Run a training command in a plain process, or as a torchrun job (module docstring).
-
-    A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
-    other ranks to stop); every other rank trains each loop rank 0 starts and then exits
-    the process (``SystemExit(0)``): it never returns. When rank 0 fails, it exits with its
-    error and torchrun stops the others.
-
-    Args:
-        run: the command.
-        batch_size: the command's global batch (checked to split over the ranks first).
-    """
+def join(where: Launch, batch_size: int) -> Group:
+    """Join the job (its batch checked to split first); :func:`current` returns it until
+    :func:`leave`."""
     global _GROUP
-    where = launched()
-    if where is None:
-        return run()
     if batch_size % where.world and where.rank:
         raise SystemExit(2)  # rank 0 says why
     check_batch(batch_size, where.world)
     _GROUP = Group(where)
-    if not _GROUP.main:
-        from train.loop import follow  # train.loop imports this module
+    return _GROUP
 
-        follow(_GROUP)
+
+def leave() -> None:
+    """Leave the job together with the other ranks."""
+    global _GROUP
+    if _GROUP is not None:
         _GROUP.close()
-        raise SystemExit(0)
-    result = run()  # raising, rank 0 exits with its error and torchrun stops the others
-    _GROUP.send(None)
-    _GROUP.close()
     _GROUP = None
-    return result

@@ -18,7 +18,7 @@ from msta_data.budget import TimeLimitReached, passed
 from msta_data.windows import WindowDataset
 from policies.base import CheckpointError, StudentPolicy
 from train.config import LoopConfig, training_mask_ratio
-from train.distributed import FitJob, Group, current
+from train.distributed import FitJob, Group, current, join, launched, leave
 from train.optim import make_optimizer, make_scheduler
 from train.sampling import WindowSampler
 from train.state import restore_checkpoint, save_checkpoint
@@ -297,13 +297,40 @@ def _fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConf
 
 def follow(group: Group) -> None:
     """A torchrun rank other than 0: train every loop rank 0 starts (:class:`FitJob`), with
-    it, until its command ends (:func:`train.distributed.rank0_runs`)."""
+    it, until its command ends (:func:`rank0_runs`)."""
     while (job := group.receive()) is not None:
         torch.set_num_threads(job.threads)
         policy = job.policy.to(group.device(job.device))
         dataset = job.dataset.load() if hasattr(job.dataset, "load") else job.dataset
         _fit(policy, dataset, None, job.cfg, job.out, job.resume, job.weights, None, "train",
              None, group, job.sync_stop)
+
+
+def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
+    """Run a training command in a plain process, or as a torchrun job
+    (:mod:`train.distributed`).
+
+    A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
+    other ranks to stop); every other rank trains each :func:`fit` rank 0 starts
+    (:func:`follow`) and then exits the process (``SystemExit(0)``): it never returns. When
+    rank 0 fails, it exits with its error and torchrun stops the others.
+
+    Args:
+        run: the command.
+        batch_size: the command's global batch (checked to split over the ranks first).
+    """
+    where = launched()
+    if where is None:
+        return run()
+    group = join(where, batch_size)
+    if not group.main:
+        follow(group)
+        leave()
+        raise SystemExit(0)
+    result = run()  # raising, rank 0 exits with its error and torchrun stops the others
+    group.send(None)
+    leave()
+    return result
 
 
 def load_windows(root: Path, policy: StudentPolicy, episodes: Sequence[int]) -> Any:

@@ -40,8 +40,7 @@ from policies.factory import make_policy
 from policies.msta import MSTAConfig
 from train.cli import USER_ERRORS, parse_cli
 from train.config import LoopConfig, training_mask_ratio
-from train.distributed import rank0_runs
-from train.loop import fit, load_windows, warn_if_not_learned
+from train.loop import fit, load_windows, rank0_runs, warn_if_not_learned
 from train.optim import seed_everything, select_device
 from train.push import check_push_to, push_stage1
 from train.state import atomic_json

@@ -63,7 +63,7 @@ from policies.teacher.config import TeacherConfig, build_teacher, teacher_revisi
 from train.cli import USER_ERRORS, parse_cli
 from train.config import LoopConfig, training_mask_ratio
 from train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
-from train.loop import fit, load_windows
+from train.loop import fit, load_windows, rank0_runs
 from train.online_workers import RayOptions, check_ray_options, drive_and_label_on_workers
 from train.optim import seed_everything, select_device
 from train.progress import (
@@ -483,7 +483,7 @@ def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
     checkpoint are (msta-correct, msta-finetune)."""
     cfg = parse_args(argv, cls, prog)
     try:
-        done = run(cfg)
+        done = rank0_runs(lambda: run(cfg), cfg.batch_size)  # torchrun: docs/scale.md
     except USER_ERRORS as e:  # one line naming the file, no traceback
         raise SystemExit(f"{prog}: error: {e}") from None
     except TimeLimitReached as e:

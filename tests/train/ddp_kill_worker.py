@@ -12,7 +12,7 @@ import signal
 import sys
 
 from train.cli import parse_cli
-from train.distributed import rank0_runs
+from train.loop import rank0_runs
 from train.offline import TrainConfig, train
 
 
