@@ -43,6 +43,7 @@ from policies.checkpoint import PolicyPath
 from policies.factory import get_config_class, registered_policies
 from policies.teacher.config import TeacherConfig
 from train.config import check_optimizer
+from train.loop import rank0_runs
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
@@ -298,9 +299,8 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
     train(TrainConfig(
         dataset=str(root), policy=config or policy_config(name, cfg.preset), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
-        optimizer=cfg.optimizer,
-        save_every=max(100, cfg.stage1_steps // 4), eval_every=cfg.stage1_steps,
-        num_threads=cfg.num_threads, progress=cfg.progress,
+        optimizer=cfg.optimizer, save_every=max(100, cfg.stage1_steps // 4),
+        eval_every=cfg.stage1_steps, num_threads=cfg.num_threads, progress=cfg.progress,
         max_minutes=prog.minutes_left()))
     prog.done(f"{name} stage 1", t)
     return final
@@ -487,8 +487,8 @@ def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-compare``); bad flags and inputs exit with one line."""
     args = sys.argv[1:] if argv is None else argv
     cfg = parse_config(CompareConfig, args, "msta-compare")  # bad flags: one line, exit 2
-    try:
-        compare(cfg, " ".join(["msta-compare", *map(shlex.quote, args)]))
+    try:  # under torchrun, rank 0 compares and the other ranks train with it (docs/scale.md)
+        rank0_runs(lambda: compare(cfg, shlex.join(["msta-compare", *args])), cfg.batch_size)
     except TimeLimitReached as e:
         stop("msta-compare", e)
     except (ValueError, FileNotFoundError, DirectoryLockedError) as e:
