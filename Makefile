@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test device-check repro bench bench-sim bench-data bench-train bench-learn bench-deploy venv clean-venv lint docs-terrain hub
+.PHONY: demo test device-check repro bench bench-sim bench-data bench-train bench-learn bench-deploy bench-scale venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -46,7 +46,7 @@ DEVICE_OUT ?= $(if $(OUT),$(OUT),outputs)/device_check
 device-check: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.apps.device_check --output_dir=$(DEVICE_OUT)
 
-bench: bench-sim bench-data bench-train bench-learn bench-deploy
+bench: bench-sim bench-data bench-train bench-learn bench-deploy bench-scale
 
 bench-sim: $(STAMP)
 	$(PY) -m eval.bench.sim
@@ -65,6 +65,11 @@ bench-learn: $(STAMP)
 # eager / TorchScript / onnxruntime, next to the FLOP count and the measured matmul rate.
 bench-deploy: $(STAMP)
 	$(PY) -m eval.bench.deploy
+
+# Rollout throughput (collect, stage 2, eval) on 1 and 2 Ray workers against the single
+# process, round-robin in one run (~5 min on 2 cores); docs/scale.md.
+bench-scale: $(STAMP)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench.scale
 
 docs-terrain: $(STAMP)
 	$(PY) -m collect.sim.terrain_docs --docs docs/
