@@ -352,7 +352,8 @@ class SensorGuard:
         self._pending[fire & (self._pending < 0)] = 0
         active = self._pending >= 0
         by_shape = active & ~sus_gyro & ~sus_grav & (self._pending >= self.cfg.imu_delay)
-        jump = self._jump_share() >= self.cfg.imu_jump
+        jump = by_shape & (self._jump_share() >= self.cfg.imu_jump) if by_shape.any() \
+            else by_shape
         blame = np.zeros_like(others)
         blame[np.ix_((active & sus_gyro & ~sus_grav) | (by_shape & ~jump), gyro)] = True
         blame[np.ix_((active & sus_grav & ~sus_gyro) | (by_shape & jump), grav)] = True
