@@ -65,6 +65,7 @@ class BenchScaleConfig:
         episode_length_s: episode length (s) of every stage.
         stage2_episodes: stage-2 episodes per measurement (``episodes_per_round``).
         trials: msta-eval trials per run (rounds of ``num_envs``).
+        committer_s: seconds the committer alone is timed.
         output_dir: datasets, the student and results.json.
     """
 
@@ -75,6 +76,7 @@ class BenchScaleConfig:
     episode_length_s: float = 2.0
     stage2_episodes: int = 16
     trials: int = 32
+    committer_s: float = 3.0
     output_dir: str = "outputs/bench_scale"
 
     def __post_init__(self) -> None:
@@ -156,7 +158,8 @@ def run_config(args: BenchScaleConfig, out: Path, name: str, student: Any
 
 def committer_rate(args: BenchScaleConfig, out: Path) -> float:
     """The committer alone: frames/s the writer appends (validation, Parquet, checksums,
-    commits) for one block of teacher episodes, written again and again for 3 s."""
+    commits) for one block of teacher episodes, written again and again for
+    ``committer_s``."""
     env_cfg = EnvConfig(num_envs=args.num_envs, episode_length_s=args.episode_length_s)
     job = RecordJob(env_cfg, teacher_factory(TeacherConfig(), 0.0, 0), DEFAULT_RECORDED)
     keys = np.arange(args.num_envs)
@@ -166,7 +169,7 @@ def committer_rate(args: BenchScaleConfig, out: Path) -> float:
     shutil.rmtree(root, ignore_errors=True)
     t0, frames = time.perf_counter(), 0
     with DatasetWriter.create(root, "local/committer") as w:
-        while time.perf_counter() - t0 < 3.0:
+        while time.perf_counter() - t0 < args.committer_s:
             for f, _, _ in eps:
                 w.add_episode(f, {"terrain": "flat", "terrain_level": 0, "source": "teacher",
                                   "round": 0, "policy": "bench", "policy_revision": "",
