@@ -28,9 +28,10 @@ REPO = Path(__file__).resolve().parents[1]
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
 
 
-def tiny(root: Path, workers: int, episodes: int = 6, **kw) -> CollectConfig:
+def tiny(root: Path, workers: int, episodes: int = 6, num_envs: int = 4, **kw) -> CollectConfig:
     """6 episodes of 0.5 s by the shipped PPO teacher, blocks of 3 (num_envs 4 -> 2 blocks)."""
-    return CollectConfig(episodes=episodes, num_envs=4, root=str(root), episode_length_s=0.5,
+    return CollectConfig(episodes=episodes, num_envs=num_envs, root=str(root),
+                         episode_length_s=0.5,
                          progress=False, workers=workers, seed=3,
                          env=EnvConfig(nthread=1, terrain=TERRAIN,
                                        randomization=RandomizationConfig(pool_size=2)), **kw)
@@ -113,15 +114,16 @@ def test_bad_worker_options_are_one_line_errors(tmp_path):
         tiny(tmp_path, workers=0, ray_address="auto")
 
 
-# A committer that records 12 episodes on 2 workers of the test's Ray, committing every
-# episode (flush every 25 frames); the test SIGKILLs it mid-run.
+#: The killed run: 24 episodes in 12 blocks of 2 on 2 workers of the test's Ray, every
+#: episode committed on its own (flush every 25 frames).
+KILLED = {"episodes": 24, "num_envs": 2, "flush_every_frames": 25}
 COMMITTER = r"""
 import sys
 sys.path.insert(0, sys.argv[3])
-from test_ray_collect import tiny
+from test_ray_collect import KILLED, tiny
 from collect.record import collect
-collect(tiny(__import__("pathlib").Path(sys.argv[1]), workers=2, episodes=12,
-             flush_every_frames=25, ray_address=sys.argv[2]))
+collect(tiny(__import__("pathlib").Path(sys.argv[1]), workers=2, ray_address=sys.argv[2],
+             **KILLED))
 """
 
 
@@ -137,7 +139,7 @@ def test_the_committer_killed_mid_run_leaves_a_dataset_that_resumes_to_the_same_
             info = root / "meta" / "info.json"
             if info.is_file() and json.loads(info.read_text())["total_episodes"] >= 4:
                 break
-            time.sleep(0.05)
+            time.sleep(0.01)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
     finally:
@@ -146,11 +148,11 @@ def test_the_committer_killed_mid_run_leaves_a_dataset_that_resumes_to_the_same_
     assert proc.returncode == -signal.SIGKILL
     with DatasetWriter.open(root) as w:  # verifies every committed file
         have = w.num_episodes
-    assert 4 <= have < 12
-    collect(tiny(root, workers=2, episodes=12, flush_every_frames=25, resume=True))
-    whole = collect(tiny(tmp_path / "whole", workers=2, episodes=12))
+    assert 4 <= have < 24
+    collect(tiny(root, workers=2, resume=True, **KILLED))
+    whole = collect(tiny(tmp_path / "whole", workers=2, **KILLED))
     got, want = frames(root), frames(whole)
-    assert len(got) == len(want) == 12
+    assert len(got) == len(want) == 24
     for a, b in zip(got, want, strict=True):
         for c in a:
             np.testing.assert_array_equal(a[c], b[c], err_msg=c)
