@@ -87,6 +87,29 @@ def test_msta_eval_export_and_finetune_take_a_lerobot_checkpoint(ckpts, recorded
     assert ckpt == lerobot and kept == tuple(PolicyConfig.load(native).input_sensors)
 
 
+def test_a_pushed_lerobot_checkpoint_loads_by_hub_id(ckpts, recorded, tmp_path, monkeypatch):
+    """msta-hub push uploads lerobot-train's pretrained_model as it is; msta's loaders take
+    its hub id (real server over HTTP)."""
+    from msta_data.hub_cli import main as hub_main
+    from msta_data.hub_server import HubServer, ServerConfig
+
+    native, lerobot = ckpts
+    srv = HubServer(ServerConfig(root=tmp_path / "hub", tokens=["alice:alice-secret-0001"])).start()
+    try:
+        monkeypatch.setenv("HF_ENDPOINT", srv.url)
+        monkeypatch.setenv("HF_TOKEN", "alice-secret-0001")
+        monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))  # pulls stay in tmp_path
+        monkeypatch.setenv("MSTA_HUB_CACHE", str(tmp_path / "cache"))
+        assert hub_main(["push", str(lerobot), "alice/lerobot_msta", "--tag", "v1"]) == 0
+        batch = WindowDataset(recorded, STUDENT_SENSORS, T=4).get_batch(np.arange(0, 200, 7))
+        torch.manual_seed(0)
+        want = load_policy(native).act(batch)
+        torch.manual_seed(0)
+        assert torch.equal(load_policy("alice/lerobot_msta@v1").act(batch), want)
+    finally:
+        srv.stop()
+
+
 def broken(lerobot: Path, dst: Path, edit) -> Path:
     out = shutil.copytree(lerobot, dst)
     edit(out)
