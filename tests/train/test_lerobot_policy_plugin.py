@@ -7,6 +7,7 @@ import dataclasses
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -302,6 +303,17 @@ def test_lerobot_train_trains_msta(lerobot_trained, synthetic_dataset, tmp_path)
     native = lerobot_to_msta(lerobot_trained, tmp_path / "msta")
     got = lerobot_actions(lerobot_trained, batch)
     assert torch.isfinite(got).all() and torch.equal(got, msta_actions(native, batch))
+
+
+def test_lerobot_train_resumes_with_msta_windows(lerobot_trained, tmp_path):
+    """--resume loads the preprocessor from the checkpoint; its history step still finds the
+    dataset (the policy built for it registers it) and the run continues with loss lines."""
+    run_dir = shutil.copytree(lerobot_trained.parents[2], tmp_path / "run", symlinks=True)
+    proc = run([str(BIN / "lerobot-train"), "--resume=true", f"--output_dir={run_dir}",
+                f"--config_path={run_dir / 'checkpoints/last/pretrained_model/train_config.json'}",
+                "--steps=5"], tmp_path)
+    assert re.findall(r"step:(\d+) .*loss:\d", proc.stdout + proc.stderr) == ["4", "5"]
+    assert (run_dir / "checkpoints" / "000005" / "pretrained_model").is_dir()
 
 
 def test_lerobot_eval_runs_the_trained_student(lerobot_trained, tmp_path):
