@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import socket
 import sys
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -43,9 +44,9 @@ EXIT_HOOK = "MSTA_TEST_WORKER_EXIT"
 @dataclass
 class RayOptions:
     """Args:
-        workers: Ray workers that simulate and label the episodes (one CPU each; this
-            process only commits their results, in order). 0 = the single-process path
-            without Ray. Results are the same for any number >= 1 (docs/scale.md).
+        workers: Ray workers that run the rollouts (simulate, act, label; one CPU each)
+            while this process commits their results, in order. 0 = the single-process
+            path without Ray. Results are the same for any number >= 1 (docs/scale.md).
         ray_address: the Ray cluster the workers run on (``auto``, ``HOST:6379``,
             ``ray://HOST:10001``); empty = a local Ray started for the run with ``workers``
             CPUs. Needs ``workers`` >= 1.
@@ -61,6 +62,20 @@ def check_ray_options(workers: int, ray_address: str) -> None:
         raise ValueError(f"workers={workers!r} must be an integer >= 0 (0 = no Ray)")
     if ray_address and not workers:
         raise ValueError(f"ray_address={ray_address!r} needs --workers >= 1")
+
+
+def check_reachable(address: str, timeout: float = 5.0) -> None:
+    """A one-line error for a ``HOST:PORT`` (or ``ray://HOST:PORT``) address where nothing
+    listens, instead of Ray's minutes of connection retries; ``auto`` and empty pass."""
+    hostport = address.removeprefix("ray://")
+    host, sep, port = hostport.rpartition(":")
+    if not address or address == "auto" or not sep or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ValueError(f"ray_address={address!r}: no Ray cluster answers there ({e}); "
+                         "start one with `ray start --head` or pass its address") from None
 
 
 class Job(Protocol):
@@ -112,7 +127,7 @@ def exit_if_asked(block: int) -> None:
 _CACHE: dict[str, Any] = {}
 
 
-def cached(key: str, build: Callable[[], Any], keep: int = 2) -> Any:
+def cached(key: str, build: Callable[[], Any], keep: int = 4) -> Any:
     """The object ``build()`` made for ``key`` in this process, made once: a worker reuses a
     simulator across jobs with the same settings (a stage-2 round, an evaluation run), as one
     process reuses its own; the ``keep`` most recently used stay."""
@@ -168,6 +183,7 @@ class RayPool:
             raise ValueError("a RayPool needs workers >= 1")
         self.started = not ray.is_initialized()
         if self.started:
+            check_reachable(address)
             kw: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
             ray.init(include_dashboard=False, log_to_driver=False, logging_level="warning",
                      **kw)
@@ -253,13 +269,16 @@ def shared_pool(workers: int, address: str = "") -> RayPool:
     import ray
 
     key = (workers, address)
-    for other in [k for k in _SHARED if k != key]:  # one pool at a time: its CPUs are free
-        _SHARED.pop(other).close()
     pool = _SHARED.get(key)
     if pool is not None and (not ray.is_initialized() or not pool.actors):
         del _SHARED[key]  # its Ray was shut down
         pool = None
     if pool is None:
+        # the other pools go unless the cluster has a CPU for every worker of them all (an
+        # actor waiting for a CPU would wait for ever)
+        cpus = ray.cluster_resources().get("CPU", 0) if ray.is_initialized() else 0
+        if workers + sum(k[0] for k in _SHARED) > cpus:
+            close_shared()
         pool = _SHARED[key] = RayPool(workers, address)
     return pool
 

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.ray_pool import RayOptions, check_ray_options
+from collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from collect.rollout import Step, as_policy, rollout
 from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
 from collect.sim.env_config import check_sizes
@@ -321,6 +321,8 @@ def collect(cfg: CollectConfig) -> Path:
         teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
         revision = teacher_revision(cfg.teacher)
         env = QuadrupedEnv(env_cfg)
+        if cfg.workers:  # the workers too: a cluster that does not answer creates no file
+            shared_pool(cfg.workers, cfg.ray_address)
         if writer is None:
             writer = DatasetWriter.create(root, cfg.repo_id,
                                           sensors=(*DEFAULT_RECORDED, *cfg.extra),

@@ -112,6 +112,8 @@ def test_bad_worker_options_are_one_line_errors(tmp_path):
         tiny(tmp_path, workers=-1)
     with pytest.raises(ValueError, match="needs --workers"):
         tiny(tmp_path, workers=0, ray_address="auto")
+    with pytest.raises(ValueError, match="no Ray cluster answers there"):
+        ray_pool.check_reachable("127.0.0.1:1")
 
 
 #: The killed run: 24 episodes in 12 blocks of 2 on 2 workers of the test's Ray, every
