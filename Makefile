@@ -67,9 +67,11 @@ bench-deploy: $(STAMP)
 	$(PY) -m eval.bench.deploy
 
 # Rollout throughput (collect, stage 2, eval) on 1 and 2 Ray workers against the single
-# process, round-robin in one run (~5 min on 2 cores); docs/scale.md.
+# process, round-robin in one run (~5 min on 2 cores); docs/scale.md. Then msta-train's
+# samples/s as one process and under torchrun with 1 and 2 processes (~4 min).
 bench-scale: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench.scale
+	$(PY) -m eval.bench.scale_train
 
 docs-terrain: $(STAMP)
 	$(PY) -m collect.sim.terrain_docs --docs docs/

@@ -313,7 +313,8 @@ def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
     A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
     other ranks to stop); every other rank trains each :func:`fit` rank 0 starts
     (:func:`follow`) and then exits the process (``SystemExit(0)``): it never returns. When
-    rank 0 fails, it exits with its error and torchrun stops the others.
+    rank 0 fails, it exits with its error and torchrun stops the others; when it stops at
+    ``--max_minutes``, the others end with it.
 
     Args:
         run: the command.
@@ -327,7 +328,12 @@ def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
         follow(group)
         leave()
         raise SystemExit(0)
-    result = run()  # raising, rank 0 exits with its error and torchrun stops the others
+    try:
+        result = run()  # another error: rank 0 exits with it and torchrun stops the others
+    except TimeLimitReached:  # at a safe point: every rank is waiting for the next loop
+        group.send(None)
+        leave()
+        raise
     group.send(None)
     leave()
     return result

@@ -1,5 +1,6 @@
 """``make device-check`` / ``python -m eval.apps.device_check``: the CUDA path of every stage, in one
-prepared call sized for a lent GPU machine (<= ~6 min on one GPU and 16 cores).
+prepared call sized for a lent GPU machine (<= ~6 min on one GPU and 16 cores before the
+torchrun stage, which adds two CPU runs of 20 steps and two CUDA runs of 300; not yet timed).
 
 1. **dataset**: the shipped PPO teacher (``rma_ppo``) records DART episodes on levels 0-2;
 2. **stage 1**: msta-train, ``paper`` preset (d = 128, 4 x 4, T = 15, mask 0.75), on the
@@ -10,7 +11,10 @@ prepared call sized for a lent GPU machine (<= ~6 min on one GPU and 16 cores).
 4. **stage 2**: msta-correct, one round (the student drives, half of the robots at test
    mask 0.5, the teacher labels, retraining) on the main device: env steps/s and samples/s;
 5. **eval**: msta-eval of the teacher and the round's student on the main device (test
-   masks 0 / 25 / 50 %): normalized linear tracking and survival, and the time it took.
+   masks 0 / 25 / 50 %): normalized linear tracking and survival, and the time it took;
+6. **torchrun**: msta-train on the same dataset under torchrun (train/distributed.py) beside
+   today's single process: on CUDA one process per GPU (NCCL), on the CPU 2 processes
+   sharing the cores (gloo); samples/s in all, per process / GPU, and the ratio.
 
 Every figure goes to ``output_dir/device_check.json`` and a table on stdout, beside the
 machine (GPU name, cores, torch). Without CUDA the same stages run on the CPU alone (the
@@ -38,6 +42,11 @@ import torch
 SCALES: dict[str, tuple[int, float, int, int, int, int, int, int, float, str]] = {
     "tiny": (4, 1.0, 4, 2, 8, 2, 2, 2, 1.0, "tiny"),
     "device": (256, 10.0, 1500, 40, 256, 128, 600, 100, 5.0, "paper"),
+}
+#: scale -> (steps on CUDA, steps on the CPU, batch, preset) of the torchrun runs
+TORCHRUN: dict[str, tuple[int, int, int, str]] = {
+    "tiny": (8, 8, 8, "tiny"),
+    "device": (300, 20, 256, "paper"),
 }
 
 
@@ -150,6 +159,27 @@ def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
     return rows
 
 
+def torchrun_training(root: Path, work: Path, main: str, scale: str) -> dict[str, Any]:
+    """msta-train under torchrun and as today's single process, same data and steps: on
+    CUDA (when ``main`` is) one process per GPU, on the CPU 2 processes sharing the cores."""
+    from eval.apps.train_scaling import measure
+
+    gpu_steps, cpu_steps, batch, preset = TORCHRUN[scale]
+    cores = os.cpu_count() or 1
+    runs = [("cpu", 2, cpu_steps, "gloo")]
+    if torch.device(main).type == "cuda":
+        runs.insert(0, ("cuda", torch.cuda.device_count(), gpu_steps, "NCCL"))
+    rows = {}
+    for dev, n, steps, backend in runs:
+        each = max(cores // n, 1)
+        one = measure(root, work / dev, 0, dev, cores, preset, steps, batch)
+        many = measure(root, work / dev, n, dev, each, preset, steps, batch)
+        rows[f"{dev}: torchrun {n} x {each} thread{'s' * (each > 1)} ({backend})"] = {
+            "processes": n, "samples_per_s": many, "per_process": many / n,
+            "single_process_samples_per_s": one, "vs_single_process": many / one}
+    return rows
+
+
 def timed(figures: dict[str, Any], name: str, fn, *args):
     t0 = time.time()
     result = fn(*args)
@@ -189,6 +219,8 @@ def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
                                     out / "stage2", main, r_eps, r_steps, batch, ep_s)
     figs["eval"] = timed(figs, f"eval on {main}", evaluate_student, student, out / "eval", main,
                          trials, ev_s)
+    figs["torchrun"] = timed(figs, "torchrun training", torchrun_training, root,
+                             out / "torchrun", main, cfg.scale)
     (out / "device_check.json").write_text(json.dumps(figs, indent=1) + "\n")
     print_summary(figs)
     return figs
@@ -210,6 +242,11 @@ def print_summary(figs: dict[str, Any]) -> None:
         lin = r["lin_tracking"]
         print(f"| eval {cond}: lin. tracking vs teacher / survival ({r['trials']} trials) | "
               f"{lin if lin is None else round(lin, 3)} / {r['survival']:.3f} |")
+    for name, r in figs["torchrun"].items():
+        one = r["single_process_samples_per_s"]
+        print(f"| {name}: samples/s, per process, vs one process ({one:,.0f}) | "
+              f"{r['samples_per_s']:,.0f}, {r['per_process']:,.0f}, "
+              f"{r['vs_single_process']:.2f} |")
     for name, s in figs["seconds"].items():
         print(f"| time: {name} | {s:.0f} s |")
 

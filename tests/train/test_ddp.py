@@ -1,7 +1,7 @@
 """Training on several processes (train/distributed.py): real torchrun jobs of 2 CPU
 processes (gloo) on a tiny MSTA student reach the single process's weights with the same
-global batch, and resume after rank 0 is killed; the token-removal draws give every window
-its single-process mask for every student type."""
+global batch, and resume after rank 0 is killed and after --max_minutes stops them; the
+token-removal draws give every window its single-process mask for every student type."""
 
 from __future__ import annotations
 
@@ -93,7 +93,7 @@ def test_two_processes_reach_the_single_process_weights(one_process, two_process
     assert ckpts == ["000005", "000010", "000015", "000020", "last"]
 
 
-def test_resume_under_torchrun_after_rank_0_is_killed(synthetic_dataset, tmp_path, one_process,
+def test_resume_under_torchrun_after_a_kill_and_a_time_limit(synthetic_dataset, tmp_path, one_process,
                                                       two_processes):
     out = tmp_path / "killed"
     args = [f"--dataset={synthetic_dataset}", f"--output_dir={out}", *FLAGS]
@@ -101,10 +101,15 @@ def test_resume_under_torchrun_after_rank_0_is_killed(synthetic_dataset, tmp_pat
     assert res.returncode != 0 and "SIGKILL" in res.stderr, res.stderr[-3000:]
     assert (out / "checkpoints" / "last").resolve().name == "000010"
     assert not (out / "final").exists()
+    # resumed with a time limit: every rank stops after the first step, rank 0 saves it
+    res = torchrun("-m", "train.offline", "--resume=true", "--max_minutes=0.0001", *args)
+    assert res.returncode != 0 and "--max_minutes reached" in res.stdout, res.stderr[-3000:]
+    assert "(exitcode: 75)" in res.stderr
+    assert (out / "checkpoints" / "last").resolve().name == "000011"
     res = torchrun("-m", "train.offline", "--resume=true", *args)  # the same command, resumed
     assert res.returncode == 0, res.stderr[-3000:]
     assert (out / "checkpoints" / "last").resolve().name == "000020"
-    # the resumed job continued from step 10 and equals the uninterrupted ones
+    # resumed at step 10 and at 11, the job equals the uninterrupted ones
     resumed = weights(out)
     for name, a in weights(two_processes).items():
         assert torch.equal(a, resumed[name]), name
