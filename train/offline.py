@@ -4,6 +4,7 @@
         --output_dir=outputs/train/msta_cpu --steps=3000 --batch_size=64
     msta-train ... --resume=true          # continue exactly where a killed run stopped
     msta-train ... --max_minutes=8        # stop after 8 min with a checkpoint (exit 75)
+    torchrun --standalone --nproc_per_node=2 --no-python msta-train ...  # docs/scale.md
 
 Output directory::
 
