@@ -124,7 +124,8 @@ def _usage(ref: str, policy_type: str | None) -> list[str]:
         lines += [f"python -m lerobot_policy_msta.convert --policy.path={ref} "
                   "--output_dir=msta_lerobot",
                   "lerobot-eval --env.type=msta_a1 --policy.path=msta_lerobot "
-                  "--eval.n_episodes=10 --eval.batch_size=10 --env.video=false"]
+                  "--eval.n_episodes=10 --eval.batch_size=10 --env.video=false "
+                  "--eval.recording=true"]
     return [*lines, "```", ""]
 
 

@@ -321,10 +321,11 @@ def test_lerobot_eval_runs_the_trained_student(lerobot_trained, tmp_path):
     proc = run([str(BIN / "lerobot-eval"), "--env.type=msta_a1",
                 f"--policy.path={lerobot_trained}", "--eval.n_episodes=2", "--eval.batch_size=2",
                 "--env.terrains=[flat]", "--env.episode_length_s=0.2", "--env.video=false",
-                f"--output_dir={out}"], tmp_path)
+                "--eval.recording=true", f"--output_dir={out}"], tmp_path)
     assert "Overall Aggregated Metrics" in proc.stdout + proc.stderr
     info = json.loads((out / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2 and np.isfinite(info["overall"]["avg_sum_reward"])
+    assert not list(out.rglob("*.mp4"))  # video off and recording: no blank videos
 
 
 def test_compare_trainers_times_both_trainers_alike():
