@@ -3,6 +3,8 @@
 import os
 import sys
 
+import pytest
+
 if sys.platform.startswith("linux"):
     os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -28,3 +30,16 @@ def _register_helpers() -> None:
 
 
 _register_helpers()
+
+
+@pytest.fixture(scope="module")
+def local_ray():
+    """A local Ray of 2 CPUs for one test module (Ray imported only where a test asks)."""
+    import ray
+
+    from collect import ray_pool
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
+    yield
+    ray_pool.close_shared()
+    ray.shutdown()

@@ -6,19 +6,7 @@ from __future__ import annotations
 import json
 import re
 
-import pytest
-import ray
-
-from collect import ray_pool
 from eval.bench.scale import main
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
-    yield
-    ray_pool.close_shared()
-    ray.shutdown()
 
 
 def test_bench_scale_measures_every_stage_against_the_single_process(local_ray, tmp_path,

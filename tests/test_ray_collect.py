@@ -52,14 +52,6 @@ def frames(root: Path) -> list[dict[str, np.ndarray]]:
 
 
 @pytest.fixture(scope="module")
-def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
-    yield
-    ray_pool.close_shared()
-    ray.shutdown()
-
-
-@pytest.fixture(scope="module")
 def one_worker(local_ray, tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("one") / "ds"
     collect(tiny(root, workers=1))

@@ -7,19 +7,10 @@ from __future__ import annotations
 import json
 
 import pytest
-import ray
 from msta_test_helpers import record_gait, tiny_student
 
 from collect import ray_pool
 from eval.evaluate import EvalConfig, evaluate
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
-    yield
-    ray_pool.close_shared()
-    ray.shutdown()
 
 
 @pytest.fixture(scope="module")

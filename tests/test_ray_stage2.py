@@ -10,9 +10,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-import ray
 
-from collect import ray_pool
 from collect.record import CollectConfig, collect
 from collect.sim.env import EnvConfig
 from collect.sim.randomization import RandomizationConfig
@@ -27,14 +25,6 @@ from train.online import CorrectConfig, RoundEvalConfig, correct
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
 ENV = EnvConfig(nthread=1, terrain=TERRAIN, randomization=RandomizationConfig(pool_size=2))
-
-
-@pytest.fixture(scope="module")
-def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
-    yield
-    ray_pool.close_shared()
-    ray.shutdown()
 
 
 @pytest.fixture(scope="module")
