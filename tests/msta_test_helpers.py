@@ -87,6 +87,17 @@ def running_hub(root: Path, *tokens: str) -> Iterator[object]:
         srv.stop()
 
 
+@contextmanager
+def hub_as(root: Path, monkeypatch, user: str = "alice",
+           secret: str = "alice-secret-0001") -> Iterator[object]:
+    """:func:`running_hub` with one ``user:secret`` token, and huggingface_hub pointed at it
+    as that user (``HF_ENDPOINT``, ``HF_TOKEN`` set through ``monkeypatch``)."""
+    with running_hub(root, f"{user}:{secret}") as srv:
+        monkeypatch.setenv("HF_ENDPOINT", srv.url)
+        monkeypatch.setenv("HF_TOKEN", secret)
+        yield srv
+
+
 def record_gait(root: Path, episodes: int, seconds: float) -> Path:
     """``episodes`` gait-teacher episodes of ``seconds`` recorded together in the real
     simulator (terrain curriculum off) into the dataset ``root``."""

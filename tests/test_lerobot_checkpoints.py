@@ -13,7 +13,7 @@ import pytest
 import torch
 from lerobot.utils.constants import POLICY_PREPROCESSOR_DEFAULT_NAME
 from lerobot_policy_msta.convert import msta_to_lerobot
-from msta_test_helpers import record_gait, tiny_student
+from msta_test_helpers import hub_as, record_gait, tiny_student
 
 from eval.evaluate import EvalConfig, evaluate
 from eval.evaluate import main as eval_main
@@ -91,13 +91,9 @@ def test_a_pushed_lerobot_checkpoint_loads_by_hub_id(ckpts, recorded, tmp_path, 
     """msta-hub push uploads lerobot-train's pretrained_model as it is; msta's loaders take
     its hub id (real server over HTTP)."""
     from msta_data.hub_cli import main as hub_main
-    from msta_data.hub_server import HubServer, ServerConfig
 
     native, lerobot = ckpts
-    srv = HubServer(ServerConfig(root=tmp_path / "hub", tokens=["alice:alice-secret-0001"])).start()
-    try:
-        monkeypatch.setenv("HF_ENDPOINT", srv.url)
-        monkeypatch.setenv("HF_TOKEN", "alice-secret-0001")
+    with hub_as(tmp_path / "hub", monkeypatch):
         monkeypatch.setenv("HF_HOME", str(tmp_path / "hf"))  # pulls stay in tmp_path
         monkeypatch.setenv("MSTA_HUB_CACHE", str(tmp_path / "cache"))
         assert hub_main(["push", str(lerobot), "alice/lerobot_msta", "--tag", "v1"]) == 0
@@ -106,8 +102,6 @@ def test_a_pushed_lerobot_checkpoint_loads_by_hub_id(ckpts, recorded, tmp_path, 
         want = load_policy(native).act(batch)
         torch.manual_seed(0)
         assert torch.equal(load_policy("alice/lerobot_msta@v1").act(batch), want)
-    finally:
-        srv.stop()
 
 
 def broken(lerobot: Path, dst: Path, edit) -> Path:

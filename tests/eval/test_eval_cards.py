@@ -11,7 +11,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from msta_test_helpers import running_hub
+from msta_test_helpers import hub_as
 
 from eval.evaluate import EvalConfig, evaluate
 from eval.metrics import HEADLINE_FIGURES, headline
@@ -20,8 +20,6 @@ from msta_data.figures import fmt_ci
 from msta_data.hub_cards import card_metadata
 from msta_data.hub_cli import main as hub
 from msta_data.hub_ids import hub_api
-
-SECRET = "alice-secret-0001"
 
 
 @pytest.fixture(scope="module")
@@ -37,9 +35,7 @@ def evaluated(tiny_ckpt, tmp_path_factory) -> tuple[Path, dict]:
 
 @pytest.fixture
 def hub_env(tmp_path, monkeypatch):
-    with running_hub(tmp_path / "hub", f"alice:{SECRET}") as srv:
-        monkeypatch.setenv("HF_ENDPOINT", srv.url)
-        monkeypatch.setenv("HF_TOKEN", SECRET)
+    with hub_as(tmp_path / "hub", monkeypatch) as srv:
         yield srv
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from msta_test_helpers import running_hub
+from msta_test_helpers import hub_as
 
 from msta_data import layout as L
 from msta_data.hub_ids import hub_api
@@ -16,7 +16,6 @@ from msta_data.hub_pull import default_cache_dir, materialize
 from msta_data.hub_push import PUSH_IGNORE_PATTERNS, push, push_dataset
 from msta_data.locate import locate
 
-SECRET = "alice-secret-0001"
 #: machine-local files planted in a directory before it is pushed
 LOCAL = (L.LOCK_NAME, f"sub/{L.LOCK_NAME}", "MUJOCO_LOG.TXT", "sub/MUJOCO_LOG.TXT",
          f"{L.QUARANTINE_DIR}/2026-01-01T00:00:00/data/x.parquet",
@@ -25,9 +24,7 @@ LOCAL = (L.LOCK_NAME, f"sub/{L.LOCK_NAME}", "MUJOCO_LOG.TXT", "sub/MUJOCO_LOG.TX
 
 @pytest.fixture
 def hub(tmp_path, monkeypatch):
-    with running_hub(tmp_path / "hub", f"alice:{SECRET}") as srv:
-        monkeypatch.setenv("HF_ENDPOINT", srv.url)
-        monkeypatch.setenv("HF_TOKEN", SECRET)
+    with hub_as(tmp_path / "hub", monkeypatch) as srv:
         yield srv
 
 
