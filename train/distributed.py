@@ -144,12 +144,10 @@ class _Loss(nn.Module):
         super().__init__()
         self.policy, self.world, self.rank, self.local = policy, world, rank, local
 
-    def forward(self, batch: Any, channels: Any, mask_ratio: float | None,
-                generator: torch.Generator | None, dummy_tokens: int = 0) -> Any:
-        with ShardedDraws(generator, self.rank, self.world, self.local):
-            if dummy_tokens:
-                return self.policy.loss(batch, channels, mask_ratio, generator, dummy_tokens)
-            return self.policy.loss(batch, channels, mask_ratio, generator)
+    def forward(self, *args: Any) -> Any:
+        """``policy.loss(*args)`` as ``train_step`` calls it (the generator is the fourth)."""
+        with ShardedDraws(args[3], self.rank, self.world, self.local):
+            return self.policy.loss(*args)
 
 
 @dataclass

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from eval.apps.train_scaling import measure
+from train.distributed import check_batch
 
 #: today's run: one plain process on every core (the reference of every ratio)
 TODAY = "1 process (today)"
@@ -61,10 +62,8 @@ class ScaleTrainConfig:
         self.procs = tuple(int(n) for n in self.procs)
         if not self.procs or min(self.procs) < 1:
             raise ValueError(f"procs={self.procs}: give process counts >= 1")
-        bad = [n for n in self.procs if self.batch_size % n]
-        if bad:
-            raise ValueError(f"batch_size={self.batch_size} does not split over {bad[0]} "
-                             "processes")
+        for n in self.procs:
+            check_batch(self.batch_size, n)
         if self.device not in ("cpu", "cuda"):
             raise ValueError(f"device={self.device!r}: cpu or cuda")
 
