@@ -301,6 +301,7 @@ class Evaluator:
                                "spec": spec_dict(cond.spec), **fault_record(cond, self.cfg.seed)}
         label = f"{entry.name} | {cond.key}"
         actors: list = []  # a fault run's actors (detection figures)
+        detect = cond.removal in ("oracle", "guard")  # its actors are read afterwards
         try:
             if entry.kind == "teacher":
                 if not _is_null(cond.spec) or is_fault_run(cond):
@@ -313,12 +314,12 @@ class Evaluator:
             if key not in self._cache:
                 res = self._run(label, make, key,
                                 entry.obj.device.type if entry.kind == "student" else "cpu",
-                                here=cond.removal in ("oracle", "guard"))
+                                here=detect)
                 self._cache[key] = (res, aggregate(res, self.layout))
         except NotApplicable as e:
             return {**rec, "status": "n/a", "reason": str(e)}
         res, raw = self._cache[key]
-        if cond.removal in ("oracle", "guard"):
+        if detect:
             rec["detection"] = detection_summary(actors, res.steps, self.env.dt)
         return {**rec, "inputs": _digest(key[2:]), "status": "ok", "raw": raw,
                 "normalized": normalize(res, self.reference_trials, self.layout)}

@@ -29,7 +29,6 @@ import numpy as np
 from eval.metrics import RETURNS
 from eval.scenarios import SCENARIOS
 from msta_data.cli import parse_config
-from msta_data.figures import fmt as _fmt  # noqa: F401  (other reports import it here)
 from msta_data.figures import fmt_ci
 
 METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":

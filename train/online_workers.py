@@ -97,7 +97,8 @@ def drive_and_label_on_workers(cfg: Any, policy: StudentPolicy, r: int, revision
 
     def keep(ep: tuple[dict[str, np.ndarray], int, int]) -> None:
         frames, type_idx, level = ep
-        shares.append(frames["action"] == frames["executed_action"])
+        if beta > 0:  # the teacher's share of the executed actions (0 without DAgger mixing)
+            shares.append(frames["action"] == frames["executed_action"])
         episodes.append((frames, {
             "terrain": types[type_idx], "terrain_level": level, "source": "student",
             "round": r, "policy": policy.config.type, "policy_revision": revision,

@@ -411,7 +411,7 @@ def _average(metrics: dict[str, Any], policy: str, metric: str = "total") -> lis
 
 def paper_table(metrics: dict[str, Any]) -> str:
     """Average normalized total reward per test mask, beside the paper's Table I."""
-    from eval.report import _fmt
+    from msta_data.figures import fmt as _fmt
 
     rows = ["| policy | ours 0 % | ours 25 % | ours 50 % | paper 0 % | paper 25 % | paper 50 % |",
             "|---|---|---|---|---|---|---|"]

@@ -13,7 +13,8 @@ from typing import Any
 
 from eval.apps.compare import paper_table
 from eval.metrics import headline
-from eval.report import _fmt, fmt_cell, table_one
+from eval.report import fmt_cell, table_one
+from msta_data.figures import fmt as _fmt
 
 #: (figure name in eval.metrics.headline, column title)
 FIGURES = (("lin_tracking_vs_teacher", "lin. tracking vs teacher"), ("survival", "survival"),
