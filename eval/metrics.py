@@ -209,25 +209,37 @@ def run_trials(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout,
     out = TrialResults.zeros(len(rounds) * n, max_steps)
     bar = tqdm(total=len(rounds) * n * max_steps, desc=desc, unit="step", unit_scale=True,
                disable=not progress, leave=False)
-    types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
     for r, ids in enumerate(rounds):
         if r < len(done):
             out.put(ids, done[r])
             bar.update(n * max_steps)
             continue
-        start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
-        if r == 0:
-            try:
-                actor: Any = _FirstStepGuard(*as_policy(make_actor(0, n)))
-            except (ValueError, KeyError, NotImplementedError) as e:
-                raise NotApplicable(f"{type(e).__name__}: {e}") from e
-        else:
-            actor = make_actor(r, n)
-        _round(env, actor, out, ids, bar)
+        play_round(env, make_actor, layout, r, ids, out, bar)
         if on_round is not None:
             on_round(r, len(rounds), out.take(ids))
     bar.close()
     return out.take(np.arange(layout.trials))
+
+
+def play_round(env: QuadrupedEnv, make_actor: ActorFactory, layout: TrialLayout, r: int,
+               ids: np.ndarray, out: TrialResults, bar: tqdm) -> None:
+    """Round ``r`` of the trials ``ids``: start them on their tiles, build the round's actor
+    and play it (:func:`run_trials`' round, also what a Ray worker runs).
+
+    Raises:
+        NotApplicable: round 0's actor cannot be built or fails on its first step.
+    """
+    n = env.num_envs
+    types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
+    start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
+    if r == 0:
+        try:
+            actor: Any = _FirstStepGuard(*as_policy(make_actor(0, n)))
+        except (ValueError, KeyError, NotImplementedError) as e:
+            raise NotApplicable(f"{type(e).__name__}: {e}") from e
+    else:
+        actor = make_actor(r, n)
+    _round(env, actor, out, ids, bar)
 
 
 def _round(env: QuadrupedEnv, actor: Any, out: TrialResults, ids: np.ndarray,

@@ -18,17 +18,8 @@ import torch
 from tqdm import tqdm
 
 from collect.ray_pool import RayPool, cached
-from collect.rollout import as_policy
 from collect.sim.env import QuadrupedEnv
-from eval.metrics import (
-    ActorFactory,
-    NotApplicable,
-    TrialLayout,
-    TrialResults,
-    _FirstStepGuard,
-    _round,
-    start_trials,
-)
+from eval.metrics import ActorFactory, TrialLayout, TrialResults, play_round
 from eval.scenarios import TrialConfig
 
 
@@ -64,21 +55,11 @@ class TrialsJob:
         """The sums of round ``r``'s trials."""
         from eval.evaluator import torch_eval_settings
 
-        n, layout = env.num_envs, self.layout
-        ids = layout.rounds(n)[r]
-        types = np.asarray([env.cfg.terrain.types.index(t) for t in layout.terrains])
+        ids = self.layout.rounds(env.num_envs)[r]
         out = TrialResults.zeros(int(ids[-1]) + 1, env.max_steps)
         with torch_eval_settings(self.cfg.num_threads):
             torch.manual_seed(self.cfg.seed)
-            start_trials(env, ids, types[layout.terrain_of(ids)], layout.level_of(ids))
-            if r == 0:  # as run_trials: a failure on construction or first step is n/a
-                try:
-                    actor = _FirstStepGuard(*as_policy(self.make_actor(0, n)))
-                except (ValueError, KeyError, NotImplementedError) as e:
-                    raise NotApplicable(f"{type(e).__name__}: {e}") from e
-            else:
-                actor = self.make_actor(r, n)
-            _round(env, actor, out, ids, tqdm(disable=True))
+            play_round(env, self.make_actor, self.layout, r, ids, out, tqdm(disable=True))
         return out.take(ids)
 
 

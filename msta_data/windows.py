@@ -233,19 +233,24 @@ class WindowDataset:
             the episode's first frame).
         """
         idx = np.asarray(indices, dtype=np.int64)
+        windows, pad = self.windows(idx)
+        out: dict[str, np.ndarray] = {name: windows[..., sl] for name, sl in self._slices.items()}
+        for c, arr in self._extra.items():
+            out[c] = arr[idx]
+        out["pad"] = pad
+        return out
+
+    def windows(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(B, T, D)`` float32 windows of every sensor, concatenated in ``sensors`` order,
+        and their ``(B, T)`` pad flags (what :meth:`get_batch` splits per sensor)."""
+        idx = np.asarray(indices, dtype=np.int64)
         if idx.ndim != 1:
             raise ValueError(f"indices must be 1-D, got shape {idx.shape}")
         if len(idx) and (idx.min() < 0 or idx.max() >= len(self)):
             raise IndexError(f"sample index out of range [0, {len(self)})")
         offsets = idx[:, None] + self._offsets  # (B, T)
         start = self._ep_start[idx][:, None]  # (B, 1)
-        pad = offsets < start
-        windows = self._obs[np.maximum(offsets, start)]  # (B, T, D)
-        out: dict[str, np.ndarray] = {name: windows[..., sl] for name, sl in self._slices.items()}
-        for c, arr in self._extra.items():
-            out[c] = arr[idx]
-        out["pad"] = pad
-        return out
+        return self._obs[np.maximum(offsets, start)], offsets < start
 
     def __getitem__(self, i: int) -> dict[str, np.ndarray]:
         """One sample (no batch axis), for ``torch.utils.data.DataLoader``."""

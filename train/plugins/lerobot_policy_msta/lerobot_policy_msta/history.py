@@ -96,9 +96,7 @@ class DatasetWindows:
         if (rows < 0).any():
             bad = int(index[np.argmax(rows < 0)])
             raise IndexError(f"{self.root}: no frame with index {bad}")
-        batch = reader.get_batch(rows)
-        windows = np.concatenate([batch[s] for s in self.state_sensors], axis=-1)
-        return windows, batch["pad"]
+        return reader.windows(rows)  # the reader holds exactly the state sensors, in order
 
 
 #: Datasets of the policies built for training in this process, the newest last.
