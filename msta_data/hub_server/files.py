@@ -125,6 +125,11 @@ class TicketBook:
             raise HttpError(403, "upload ticket is unknown or expired; ask the batch endpoint again")
         return ticket
 
+    def used(self, key: str) -> bool:
+        """Whether an upload holds the ticket ``key`` now or has used it."""
+        with self._lock:
+            return key in self._used
+
     def get(self, key: str) -> Ticket:
         key = boundary.ticket(key)
         with self._lock:

@@ -133,13 +133,17 @@ def test_an_lfs_ticket_in_use_is_refused_to_a_second_upload(srv):
     with socket.create_connection(("127.0.0.1", srv.port), timeout=10) as first:
         first.sendall(f"PUT {put} HTTP/1.1\r\nHost: x\r\nContent-Length: {len(data)}\r\n\r\n".encode()
                       + data[:10])
-        deadline, statuses = time.monotonic() + 5, []
-        while not statuses or statuses[-1] == 400:  # 400: wrong bytes, sent before the first got its ticket
-            assert time.monotonic() < deadline, statuses
-            statuses.append(H.call(srv, "PUT", put, bytes(len(data)))[0])
-        assert statuses[-1] == 403
+        # The second PUT goes out once the first holds the ticket: sent earlier, the second
+        # would hold it and the first be the one refused.
+        deadline = time.monotonic() + 30
+        while not srv.app.tickets.used(put.rsplit("/", 1)[1]):
+            assert time.monotonic() < deadline, "the first upload never took its ticket"
+            time.sleep(0.01)
+        status, answer, _ = H.call(srv, "PUT", put, data)
+        assert status == 403 and b"already used" in answer, (status, answer)
         first.sendall(data[10:])
         assert first.recv(100).startswith(b"HTTP/1.1 200")
+    assert H.call(srv, "PUT", put, data)[0] == 403  # the first upload used it up
 
 
 def test_lfs_batch_cost_is_linear_in_the_number_of_objects(srv):
