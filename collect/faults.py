@@ -8,7 +8,8 @@ uniformly in ``onset_s`` at every :meth:`~FaultInjector.reset`, from a seeded ge
 reach the student's observation only: the simulator's state, the teacher's inputs and the
 recorded privileged signals never see them. It optionally removes channels from the
 student's input: the *oracle* removes exactly the fault's channels where it is active; a
-*guard* (``policies.guard``) removes what it flags.
+*guard* (``policies.guard``) removes what it flags (a gravity vector flagged alone it
+repairs: ``SensorGuard.repair``).
 
 Fault models, from the onset step on (``x`` the true reading, ``std`` the channel's std in
 the student's normalization statistics, ``k`` the severity, ``t`` the seconds since onset):
@@ -310,8 +311,9 @@ class FaultyActor:
     """A student actor whose observations pass through a :class:`FaultInjector`.
 
     Each step: inject; then remove channels (``oracle``: the injector's :meth:`absent`;
-    ``guard``: what ``guard.update(faulty_obs)`` flags; neither: nothing); then
-    ``actor.act(faulty_obs, absent=...)`` (``absent`` passed only when a channel is removed).
+    ``guard``: what ``guard.update(faulty_obs)`` flags, less what ``guard.repair`` replaces
+    where the guard repairs; neither: nothing); then ``actor.act(faulty_obs, absent=...)``
+    (``absent`` passed only when a channel is removed).
 
     It records, per environment of the current episodes, the step of the first removal of a
     fault channel at or after onset (``detected``, -1 before; the oracle's is the onset),
@@ -361,7 +363,9 @@ class FaultyActor:
         elif self.guard is not None:
             absent = self.guard.update(faulty)
         if absent is not None:
-            self._score(absent)
+            self._score(absent)  # what was flagged: a repaired channel counts as found
+        if self.guard is not None and getattr(self.guard, "repairs", False):
+            faulty, absent = self.guard.repair(faulty)
         if self.removed is not None:
             self.removed.append({s: m.copy() for s, m in (absent or {}).items()})
         reads = getattr(self.actor, "sensors", None)  # a sensor it does not read: nothing

@@ -31,10 +31,23 @@ not the healthy ones it distorts.
   residuals: a gravity fault enters as a jump, one step carrying at least ``imu_jump`` of
   it; a gyro fault builds up over the steps).
 * ``binary``: a contact reading's distance from 0 or 1.
+* ``contact`` (``contact_model``): each foot contact's reading one step back against a
+  small network's probability of that contact from every other physical and software
+  input over the last ``contact_lags`` steps; the reading's surprise ``-log p(reading)``
+  averaged over ``window`` steps. It is held at 0 on a robot while any non-contact channel
+  is flagged or accused (the network's inputs are then not to be trusted).
+
+With ``repair_gravity``, a gravity vector flagged alone is not removed but replaced by the
+last trusted one carried forward by the gyro (:meth:`SensorGuard.repair`,
+``policies/guard_imu.py``).
+
+Every statistic is 0 for the first ``warmup`` steps of an episode (a robot dropped at its
+spawn point settles first; the calibration sees the same zeros).
 
 Thresholds are the largest value each statistic takes on fault-free calibration episodes
-times ``margin`` (``margin2`` for ``z2_sq``) (``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint
-encoder's q and q-dot are flagged together.
+times ``margin`` (``margin2`` for ``z2_sq``, ``contact_margin`` for ``contact``)
+(``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint encoder's q and q-dot
+are flagged together.
 """
 
 from __future__ import annotations
@@ -47,6 +60,7 @@ import numpy as np
 
 from msta_data import sensors as registry
 from msta_data.sensors import PHYSICAL_SENSORS
+from policies.guard_imu import ImuRules
 
 GUARD_JSON = "guard.json"
 GUARD_ARRAYS = "guard.safetensors"
@@ -61,10 +75,17 @@ OFFSET = {s: registry.total_dim(INPUT_SENSORS[:i]) for i, s in enumerate(INPUT_S
 ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "threshold")
 #: Further arrays of a two-sided guard (``GuardConfig.two_sided``).
 TWO_SIDED_ARRAYS = ("weight2", "bias2", "z2_std")
+#: Further arrays of a guard with the contact network (``GuardConfig.contact_model``).
+CONTACT_ARRAYS = ("contact_mean", "contact_std", "contact_w0", "contact_b0", "contact_w1",
+                  "contact_b1", "contact_w2", "contact_b2")
 #: Config a guard saved before a setting existed gets for it (its behaviour then).
-LEGACY_CONFIG = {"two_sided": False, "explain": False, "imu_attribution": False}
-GYRO = np.arange(OFFSET["ang_vel"], OFFSET["ang_vel"] + 3)
-GRAVITY = np.arange(OFFSET["gravity"], OFFSET["gravity"] + 3)
+LEGACY_CONFIG = {"two_sided": False, "explain": False, "imu_attribution": False,
+                 "contact_model": False, "repair_gravity": False, "warmup": 0}
+CONTACTS = np.arange(OFFSET["foot_contact"], OFFSET["foot_contact"] + 4)
+#: The contact network's inputs at one step: every input but the contacts.
+CONTACT_INPUTS = np.setdiff1d(np.arange(D), CONTACTS)
+#: The physical channels but the contacts (the contact network trusts them or not).
+NOT_CONTACTS = np.setdiff1d(np.arange(P), CONTACTS)
 
 
 @dataclass
@@ -92,6 +113,19 @@ class GuardConfig:
         imu_jump: share of the IMU residual one step must carry for the gravity vector to
             be blamed (fault-free noise aside, a gravity fault puts ~1 in one step, a gyro
             fault ~1 / steps since onset).
+        contact_model: add the ``contact`` statistics: each foot contact against a small
+            network's prediction from the other inputs (a stuck contact).
+        contact_lags: steps of the other inputs the contact network reads (t back to
+            t - contact_lags + 1; it judges the reading at t - 1).
+        contact_hidden: width of the contact network's two hidden layers.
+        contact_epochs: passes over the fitting data when the contact network is fitted.
+        contact_margin: the margin of the ``contact`` statistics (the network's held-out
+            surprise runs above its fitted one).
+        warmup: steps of an episode before the guard judges (its statistics are 0 until
+            then, in calibration too): a robot dropped at its spawn point settles first.
+        repair_gravity: once the gravity vector alone is flagged, feed the student the
+            last trusted one carried forward by the gyro instead of removing it
+            (``SensorGuard.repair``; students fall without their gravity vector).
     """
 
     window: int = 8
@@ -106,14 +140,23 @@ class GuardConfig:
     imu_attribution: bool = True
     imu_delay: int = 2
     imu_jump: float = 0.5
+    contact_model: bool = True
+    contact_lags: int = 6
+    contact_hidden: int = 64
+    contact_epochs: float = 10.0
+    contact_margin: float = 1.8
+    repair_gravity: bool = True
+    warmup: int = 50
 
     def __post_init__(self) -> None:
-        if int(self.imu_delay) < 0:
-            raise ValueError(f"guard imu_delay must be >= 0, got {self.imu_delay}")
-        for name in ("window", "imu_window", "min_repeat"):
+        for name in ("imu_delay", "warmup"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"guard {name} must be >= 0, got {getattr(self, name)}")
+        for name in ("window", "imu_window", "min_repeat", "contact_lags", "contact_hidden"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"guard {name} must be >= 1, got {getattr(self, name)}")
-        for name in ("ridge", "margin", "binary_tolerance", "margin2", "imu_jump"):
+        for name in ("ridge", "margin", "binary_tolerance", "margin2", "imu_jump",
+                     "contact_epochs", "contact_margin"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"guard {name} must be > 0, got {getattr(self, name)}")
 
@@ -129,7 +172,23 @@ def nonbinary_channels() -> np.ndarray:
     return np.array([c for c in range(P) if c not in binary])
 
 
-def statistic_layout(two_sided: bool = False) -> tuple[list[str], np.ndarray]:
+def array_shapes(cfg: GuardConfig) -> dict[str, tuple[int, ...]]:
+    """The fitted arrays a guard with settings ``cfg`` holds, and their shapes."""
+    shapes = {"feat_mean": (3 * D,), "feat_std": (3 * D,), "weight": (3 * D, P), "bias": (P,),
+              "z_std": (P,), "enc_std": (NJ,),
+              "threshold": (len(statistic_layout(cfg.two_sided, cfg.contact_model)[0]),)}
+    if cfg.two_sided:
+        shapes |= {"weight2": (3 * D, P), "bias2": (P,), "z2_std": (P,)}
+    if cfg.contact_model:
+        f, h = cfg.contact_lags * len(CONTACT_INPUTS), cfg.contact_hidden
+        shapes |= {"contact_mean": (f,), "contact_std": (f,), "contact_w0": (f, h),
+                   "contact_b0": (h,), "contact_w1": (h, h), "contact_b1": (h,),
+                   "contact_w2": (h, len(CONTACTS)), "contact_b2": (len(CONTACTS),)}
+    return shapes
+
+
+def statistic_layout(two_sided: bool = False,
+                     contact: bool = False) -> tuple[list[str], np.ndarray]:
     """Names of the statistics (one per entry of the vector) and which physical channels
     each one accuses: ``(names, accuse (S, P) bool)``."""
     eye = np.eye(P, dtype=bool)
@@ -150,20 +209,24 @@ def statistic_layout(two_sided: bool = False) -> tuple[list[str], np.ndarray]:
     imu[1, OFFSET["gravity"]:OFFSET["gravity"] + 3] = True
     names += ["gnorm", "imu"]
     rows.append(imu)
-    fc = np.arange(OFFSET["foot_contact"], OFFSET["foot_contact"] + 4)
-    names += [f"binary:{c}" for c in fc]
-    rows.append(eye[fc])
+    names += [f"binary:{c}" for c in CONTACTS]
+    rows.append(eye[CONTACTS])
+    if contact:
+        names += [f"contact:{c}" for c in CONTACTS]
+        rows.append(eye[CONTACTS])
     return names, np.concatenate(rows)
 
 
-class SensorGuard:
+class SensorGuard(ImuRules):
     """Online fault detector for ``num_envs`` robots.
 
     Args:
         cfg: the decision settings.
-        stats: the fitted arrays (``ARRAY_NAMES``): feature mean/std (3 D,), ridge weight
-            (3 D, P) and bias (P,), residual std ``z_std`` (P,), encoder residual std
-            ``enc_std`` (12,) and one threshold per statistic (S,).
+        stats: the fitted arrays (``ARRAY_NAMES``, plus ``TWO_SIDED_ARRAYS`` and
+            ``CONTACT_ARRAYS`` where ``cfg`` asks for them; shapes: :func:`array_shapes`):
+            feature mean/std (3 D,), ridge weight (3 D, P) and bias (P,), residual std
+            ``z_std`` (P,), encoder residual std ``enc_std`` (12,), the contact network and
+            one threshold per statistic (S,).
         sensors: the physical sensors whose flags it reports (others are never flagged).
         num_envs: robots stepped together.
         dt: control period (s).
@@ -172,7 +235,8 @@ class SensorGuard:
     def __init__(self, cfg: GuardConfig, stats: dict[str, np.ndarray],
                  sensors: tuple[str, ...] = PHYSICAL_SENSORS, num_envs: int = 1,
                  dt: float = 0.02) -> None:
-        need = ARRAY_NAMES + (TWO_SIDED_ARRAYS if cfg.two_sided else ())
+        need = (ARRAY_NAMES + (TWO_SIDED_ARRAYS if cfg.two_sided else ())
+                + (CONTACT_ARRAYS if cfg.contact_model else ()))
         missing = [k for k in need if k not in stats]
         if missing:
             raise KeyError(f"guard arrays missing: {missing}")
@@ -184,7 +248,7 @@ class SensorGuard:
             raise ValueError(f"guard needs num_envs >= 1 and dt > 0, got {num_envs}, {dt}")
         self.cfg, self.sensors, self.num_envs, self.dt = cfg, tuple(sensors), num_envs, dt
         self.stats = {k: np.asarray(stats[k], np.float64) for k in need}
-        self.names, accuse = statistic_layout(cfg.two_sided)
+        self.names, accuse = statistic_layout(cfg.two_sided, cfg.contact_model)
         if self.stats["threshold"].shape != (len(self.names),):
             raise ValueError(f"guard threshold has shape {self.stats['threshold'].shape}, "
                              f"expected ({len(self.names)},)")
@@ -204,9 +268,14 @@ class SensorGuard:
         self._ebuf = np.zeros((num_envs, n, NJ))
         self._cbuf = np.zeros((num_envs, k + 1, 3))  # w x g
         self._gbuf = np.zeros((num_envs, k + 1, 3))
+        self._wbuf = np.zeros((num_envs, k + 1, 3))  # the gyro
+        self._ghat = np.zeros((num_envs, 3))  # the repaired gravity vector
+        self._repairing = np.zeros(num_envs, bool)
         self._rep = np.zeros((num_envs, len(self._nb)))
         self._imu_row = self.names.index("imu")
         self._pending = np.full(num_envs, -1)  # steps since the IMU check fired, undecided
+        self._clag = np.zeros((num_envs, cfg.contact_lags, len(CONTACT_INPUTS)))  # newest first
+        self._ubuf = np.zeros((num_envs, n, len(CONTACTS)))  # contact surprise
         self._t = 0  # ring position, shared by all envs
 
     def reset(self, ids: np.ndarray | list[int] | None = None) -> None:
@@ -216,6 +285,7 @@ class SensorGuard:
         self.age[ids] = 0
         self._rep[ids] = 0.0
         self._pending[ids] = -1
+        self._repairing[ids] = False
 
     def _concat(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         parts = []
@@ -238,6 +308,9 @@ class SensorGuard:
                               axis=1)
         if self.cfg.explain:
             stat = self._explained(stat, inst, win)
+        if self.cfg.contact_model:
+            stat = np.concatenate([stat, self._contact(x, first, lag1, stat, win)], axis=1)
+        stat[self.age < self.cfg.warmup] = 0.0
         self._lag[:, 1], self._lag[:, 0] = lag1, x
         self.age += 1
         self._t += 1
@@ -277,7 +350,8 @@ class SensorGuard:
     def _explained(self, stat: np.ndarray, inst: np.ndarray, win: np.ndarray) -> np.ndarray:
         """``stat`` with each predictor statistic the smaller of itself and its value once
         the suspects' residuals (channels flagged or accused now) are taken out."""
-        suspect = self.flags | ((stat > self.stats["threshold"]) @ self.accuse > 0)
+        k = stat.shape[1]  # the contact statistics come later
+        suspect = self.flags | ((stat > self.stats["threshold"][:k]) @ self.accuse[:k] > 0)
         rows = suspect.any(1)
         if not rows.any():
             return stat
@@ -313,6 +387,7 @@ class SensorGuard:
         w = x[:, OFFSET["ang_vel"]:OFFSET["ang_vel"] + 3]
         self._cbuf[:, i % (k + 1)] = np.cross(w, g)
         self._gbuf[:, i % (k + 1)] = g
+        self._wbuf[:, i % (k + 1)] = w
         old = self._gbuf[:, (i + 1) % (k + 1)]  # g_{t-k}
         c = self._cbuf
         integral = self.dt * (c.sum(1) - (c[:, (i + 1) % (k + 1)] + c[:, i % (k + 1)]) / 2)
@@ -324,6 +399,22 @@ class SensorGuard:
         binary = np.minimum(np.abs(fc), np.abs(fc - 1.0))
         return [np.abs(e) * inst, np.abs(self._ebuf.mean(1)) * win, self._rep, gnorm,
                 imu * (self.age >= k + 1)[:, None], binary]
+
+    def _contact(self, x: np.ndarray, first: np.ndarray, lag1: np.ndarray, stat: np.ndarray,
+                 win: np.ndarray) -> np.ndarray:
+        """The ``contact`` statistics (N, 4); ``stat`` holds every other statistic."""
+        s = self.stats
+        self._clag[:, 1:] = self._clag[:, :-1].copy()
+        self._clag[:, 0] = x[:, CONTACT_INPUTS]
+        self._clag[first] = x[first][:, None, CONTACT_INPUTS]  # a new episode repeats its first
+        p = contact_probability(s, self._clag.reshape(self.num_envs, -1))
+        seen = lag1[:, CONTACTS] > 0.5
+        u = -np.log(np.clip(np.where(seen, p, 1.0 - p), 1e-6, 1.0))
+        self._ubuf[:, self._t % self.cfg.window] = u
+        other = NOT_CONTACTS
+        accused = (stat > s["threshold"][:stat.shape[1]]) @ self.accuse[:stat.shape[1]]
+        trusted = ~(self.flags[:, other].any(1) | (accused[:, other] > 0).any(1))
+        return self._ubuf.mean(1) * (win & trusted[:, None])
 
     def update(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """One control step: ``obs[s]`` is ``(N, dim_s)`` for every sensor in
@@ -343,36 +434,6 @@ class SensorGuard:
         out = (fire @ self.accuse) > 0
         return out | self._imu_blame(imu, out)
 
-    def _imu_blame(self, fire: np.ndarray, others: np.ndarray) -> np.ndarray:
-        """The channels the IMU check blames (N, P): see ``imu_attribution``."""
-        row = self.accuse[self._imu_row] > 0
-        gyro, grav = GYRO[row[GYRO]], GRAVITY[row[GRAVITY]]
-        sus = others | self.flags
-        sus_gyro, sus_grav = sus[:, gyro].any(1), sus[:, grav].any(1)
-        self._pending[fire & (self._pending < 0)] = 0
-        active = self._pending >= 0
-        by_shape = active & ~sus_gyro & ~sus_grav & (self._pending >= self.cfg.imu_delay)
-        jump = by_shape & (self._jump_share() >= self.cfg.imu_jump) if by_shape.any() \
-            else by_shape
-        blame = np.zeros_like(others)
-        blame[np.ix_((active & sus_gyro & ~sus_grav) | (by_shape & ~jump), gyro)] = True
-        blame[np.ix_((active & sus_grav & ~sus_gyro) | (by_shape & jump), grav)] = True
-        decided = by_shape | (active & (sus_gyro | sus_grav))
-        self._pending[decided] = -1
-        self._pending[active & ~decided] += 1
-        return blame
-
-    def _jump_share(self) -> np.ndarray:
-        """(N,): the largest share of the IMU residual carried by one of its steps (the
-        window's residual is the sum of its one-step residuals)."""
-        k, t = self.cfg.imu_window, self._t - 1  # the step statistics() just took
-        order = (t - np.arange(k + 1)[::-1]) % (k + 1)  # oldest first
-        g, c = self._gbuf[:, order], self._cbuf[:, order]
-        e = g[:, 1:] - g[:, :-1] + self.dt * (c[:, 1:] + c[:, :-1]) / 2  # (N, k, 3)
-        r = e.sum(1)
-        norm = np.maximum(np.linalg.norm(r, axis=1), 1e-12)
-        return np.einsum("nkd,nd->nk", e, r).max(1) / norm ** 2
-
     def flagged(self) -> dict[str, np.ndarray]:
         return {s: self.flags[:, OFFSET[s]:OFFSET[s] + registry.get(s).dim].copy()
                 for s in self.sensors}
@@ -390,6 +451,17 @@ class SensorGuard:
                 "dt": self.dt, "statistics": self.names}
         (out / GUARD_JSON).write_text(json.dumps(meta, indent=1) + "\n")
         return out / GUARD_JSON
+
+
+def contact_probability(s: dict[str, np.ndarray], feats: np.ndarray) -> np.ndarray:
+    """The contact network: the probability (N, 4) of each foot's contact one step back
+    from the other inputs of the last ``contact_lags`` steps (N, lags x 45), newest first."""
+    def gelu(v: np.ndarray) -> np.ndarray:  # torch's GELU(approximate="tanh")
+        return 0.5 * v * (1.0 + np.tanh(0.7978845608028654 * (v + 0.044715 * v ** 3)))
+
+    h = gelu((feats - s["contact_mean"]) / s["contact_std"] @ s["contact_w0"] + s["contact_b0"])
+    h = gelu(h @ s["contact_w1"] + s["contact_b1"])
+    return 1.0 / (1.0 + np.exp(-(h @ s["contact_w2"] + s["contact_b2"])))
 
 
 def load_guard(directory: str | Path, num_envs: int = 1) -> SensorGuard | None:

@@ -15,7 +15,9 @@ An export with a guard (spec.json ``guard``) also runs it, numpy only
 (:class:`policies.guard.SensorGuard`): every step the guard reads the newest readings of all
 its sensors (``guard.reads``: pass them all, even those the student does not read), and its
 latched flags of the sensors with an ``absent_<sensor>`` input remove those channels from
-the student's window (:attr:`OnnxStudent.flags` holds them; :meth:`reset` clears them).
+the student's window (:attr:`OnnxStudent.flags` holds them; :meth:`reset` clears them),
+except a gravity vector flagged alone, which a repairing guard replaces by its estimate
+carried forward by the gyro (:meth:`policies.guard.SensorGuard.repair`).
 
 This module must not import torch: ``tests/policies/test_export.py`` runs it in a fresh
 interpreter and checks ``sys.modules``.
@@ -106,8 +108,12 @@ class OnnxStudent:
         current = {name: self._reading(readings, name, dim) for name, dim in needed.items()}
         removed = {s: np.zeros(self.dims[s], bool) for s in self.absent}
         if self.guard is not None:
-            flags = self.guard.update({s: current[s][None] for s in INPUT_SENSORS})
+            step = {s: current[s][None] for s in INPUT_SENSORS}
+            flags = self.guard.update(step)
             self.flags = {s: f[0] for s, f in flags.items()}
+            if self.guard.repairs:  # a flagged gravity vector replaced, not removed
+                fixed, flags = self.guard.repair(step)
+                current["gravity"] = np.asarray(fixed["gravity"][0], np.float32)
             removed |= {s: f[0] | removed[s] for s, f in flags.items() if s in removed}
         for s, m in (absent or {}).items():
             if s not in removed:

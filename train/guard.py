@@ -20,6 +20,8 @@ import numpy as np
 
 from msta_data.windows import WindowDataset, episode_split, load_episode_table
 from policies.guard import (
+    CONTACT_INPUTS,
+    CONTACTS,
     INPUT_SENSORS,
     NJ,
     GuardConfig,
@@ -90,6 +92,59 @@ def fit_predictors(data: Episodes, ridge: float, dt: float = 0.02,
     return out
 
 
+def contact_rows(data: Episodes, lags: int) -> tuple[np.ndarray, np.ndarray]:
+    """The contact network's features and targets of every valid step: the other inputs at
+    t, t-1, ..., t - lags + 1 (newest first; the first frame repeated before an episode's
+    start, as the guard does after reset) and the contacts at t - 1: ``(rows, lags x 45)``,
+    ``(rows, 4)``."""
+    x = np.concatenate([data[s] for s in INPUT_SENSORS], axis=2)  # (E, T, D)
+    lagged = [np.concatenate([np.repeat(x[:, :1], k, 1), x[:, :x.shape[1] - k]], 1)
+              for k in range(lags)]
+    feats = np.concatenate([v[..., CONTACT_INPUTS] for v in lagged], axis=2)
+    before = np.concatenate([x[:, :1], x[:, :-1]], 1)[..., CONTACTS]
+    valid = np.arange(x.shape[1])[None] < data["length"][:, None]
+    return feats[valid], before[valid]
+
+
+def fit_contact_model(data: Episodes, cfg: GuardConfig, seed: int = 0,
+                      batch: int = 512) -> dict[str, np.ndarray]:
+    """The contact network's arrays (``policies.guard.CONTACT_ARRAYS``): two hidden GELU
+    layers of ``cfg.contact_hidden``, logistic outputs, fitted by AdamW (lr 3e-3, cosine
+    decay) on binary cross-entropy for ``cfg.contact_epochs`` passes (at least 200 steps);
+    seeded."""
+    import torch
+
+    feats, target = contact_rows(data, cfg.contact_lags)
+    mean, std = feats.mean(0), feats.std(0) + 1e-6
+    gen = torch.Generator().manual_seed(seed)
+    h, nn = cfg.contact_hidden, torch.nn
+    with torch.random.fork_rng():  # seeded initial weights, the caller's generator untouched
+        torch.manual_seed(seed)
+        net = nn.Sequential(nn.Linear(feats.shape[1], h), nn.GELU(approximate="tanh"),
+                            nn.Linear(h, h), nn.GELU(approximate="tanh"),
+                            nn.Linear(h, len(CONTACTS)))
+    x = torch.tensor((feats - mean) / std, dtype=torch.float32)
+    y = torch.tensor(target > 0.5, dtype=torch.float32)
+    # at least 200 steps: a few recorded episodes are too few rows for epochs to count
+    steps = int(np.ceil(max(cfg.contact_epochs * len(x), 200 * batch) / batch))
+    opt = torch.optim.AdamW(net.parameters(), lr=3e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    for _ in range(steps):
+        i = torch.randint(0, len(x), (min(batch, len(x)),), generator=gen)
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(net(x[i]), y[i])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+    lin = [m for m in net if isinstance(m, nn.Linear)]
+    out = {"contact_mean": mean, "contact_std": std}
+    for k, m in enumerate(lin):
+        out[f"contact_w{k}"] = m.weight.detach().double().numpy().T.copy()
+        out[f"contact_b{k}"] = m.bias.detach().double().numpy().copy()
+    out["contact_w0"][std < 1e-5] = 0.0  # an input that never varied: its weights never trained
+    return out
+
+
 def _ridge(f: np.ndarray, gram: np.ndarray, target: np.ndarray, drop: np.ndarray,
            ridge: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ridge fit of each target column from the standardized features ``f`` but those
@@ -133,13 +188,17 @@ def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.nd
 
 def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
               dt: float = 0.02) -> np.ndarray:
-    """Thresholds: margin x each statistic's largest value on ``data`` (fault-free), no
-    lower than ``min_repeat`` steps for repeats and ``binary_tolerance`` for contacts."""
-    inf = np.full(len(statistic_layout(cfg.two_sided)[0]), np.inf)
+    """Thresholds: margin x each statistic's largest value on ``data`` (fault-free; margin2
+    for ``z2_sq``, contact_margin for ``contact``), no lower than ``min_repeat`` steps for
+    repeats and ``binary_tolerance`` for contacts."""
+    inf = np.full(len(statistic_layout(cfg.two_sided, cfg.contact_model)[0]), np.inf)
     probe = SensorGuard(cfg, {**arrays, "threshold": inf}, num_envs=len(data["length"]), dt=dt)
     peak = stream(probe, data)["max_stat"]
     kind = np.array([n.split(":")[0] for n in probe.names])
-    thr = np.where(np.char.startswith(kind.astype(str), "z2_sq"), cfg.margin2, cfg.margin) * peak
+    margin = np.full(len(peak), cfg.margin)
+    margin[kind == "z2_sq"] = cfg.margin2
+    margin[kind == "contact"] = cfg.contact_margin
+    thr = margin * peak
     thr[kind == "repeat"] = np.maximum(peak[kind == "repeat"] + 1, cfg.min_repeat)
     thr[kind == "binary"] = np.maximum(thr[kind == "binary"], cfg.binary_tolerance)
     return thr
@@ -164,7 +223,13 @@ def fit_guard(dataset_root: str | Path, episodes: list[int] | None = None,
     if episodes is not None and not len(episodes):
         raise ValueError("fit_guard needs at least one episode")
     data = load_episodes(dataset_root, None if episodes is None else sorted(episodes))
+    if data["length"].max() <= cfg.warmup + cfg.window:
+        raise ValueError(f"fit_guard needs episodes longer than warmup + window "
+                         f"({cfg.warmup + cfg.window} steps) to calibrate on; the longest has "
+                         f"{int(data['length'].max())}")
     arrays = fit_predictors(data, cfg.ridge, dt, cfg.two_sided)
+    if cfg.contact_model:
+        arrays |= fit_contact_model(data, cfg)
     arrays["threshold"] = calibrate(cfg, arrays, data, dt)
     return SensorGuard(cfg, arrays, dt=dt)
 

@@ -42,7 +42,6 @@ import numpy as np
 import torch
 
 from msta_data import sensors as registry
-from msta_data.sensors import NUM_JOINTS
 from policies import guard as guard_mod
 from policies.export import (
     MINIMIZED_HISTORY,
@@ -54,7 +53,7 @@ from policies.export import (
     resolve_sensors,
 )
 from policies.factory import make_policy
-from policies.guard import INPUT_SENSORS, D, GuardConfig, P, SensorGuard, statistic_layout
+from policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
 from policies.msta import MSTAConfig
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
@@ -67,16 +66,11 @@ def synthetic_guard(seed: int = 0) -> SensorGuard:
     nothing exceeds."""
     rng = np.random.default_rng(seed)
     cfg = GuardConfig()
-    two_sided = bool(getattr(cfg, "two_sided", False))  # the z2 statistics' extra arrays
-    names, _ = statistic_layout(two_sided) if two_sided else statistic_layout()
-    need = guard_mod.ARRAY_NAMES + (guard_mod.TWO_SIDED_ARRAYS if two_sided else ())
-    shapes = {"feat_mean": (3 * D,), "feat_std": (3 * D,), "enc_std": (NUM_JOINTS,),
-              "threshold": (len(names),)}
     stats = {}
-    for k in need:
-        shape = (3 * D, P) if k.startswith("weight") else shapes.get(k, (P,))
-        stats[k] = (0.05 * rng.standard_normal(shape) if k.startswith("weight")
-                    else np.zeros(shape) if k.startswith(("bias", "feat_mean"))
+    for k, shape in guard_mod.array_shapes(cfg).items():
+        stats[k] = (0.05 * rng.standard_normal(shape) if k.startswith(("weight", "contact_w"))
+                    else np.zeros(shape) if k.startswith(("bias", "feat_mean", "contact_b",
+                                                          "contact_mean"))
                     else np.full(shape, np.inf) if k == "threshold" else np.ones(shape))
     return SensorGuard(cfg, stats)
 

@@ -17,7 +17,8 @@ import torch
 from msta_test_helpers import record_gait, tiny_student  # registered by tests/conftest.py
 
 import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.faults import FaultInjector, FaultSpec
+from collect.faults import FaultInjector, FaultSpec, std_from_stats
+from msta_data.stats import load_stats
 from policies.export import (
     absent_masks,
     export_student,
@@ -25,14 +26,14 @@ from policies.export import (
     random_windows,
     resolve_sensors,
 )
-from policies.guard import INPUT_SENSORS, load_guard
+from policies.guard import INPUT_SENSORS, GuardConfig, load_guard
 from train.guard import fit_guard, load_episodes
 
 REPO = Path(__file__).resolve().parents[2]
 CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),
          ("gru", {}), ("tert_mask", {}), ("rma_tcn", {}), ("mlp", {})]
 IDS = [n + "".join(f"-{k}" for k in o) for n, o in CASES]
-ONSET_S = 0.6
+ONSET_S = 1.4  # after the guard's 1-s warm-up, so the repair starts from trusted readings
 T = 5
 
 pytestmark = pytest.mark.usefixtures("one_thread")
@@ -40,8 +41,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory) -> Path:
-    """Two 2-second gait-teacher episodes recorded in the real simulator."""
-    return record_gait(tmp_path_factory.mktemp("export_guard_data") / "dataset", 2, 2.0)
+    """Two 3-second gait-teacher episodes recorded in the real simulator."""
+    return record_gait(tmp_path_factory.mktemp("export_guard_data") / "dataset", 2, 3.0)
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def checkpoint(recorded, tmp_path_factory) -> Path:
     """A tiny MSTA student saved with a guard fitted on the recorded episodes."""
     ckpt = student("msta", {}, recorded).save_pretrained(
         tmp_path_factory.mktemp("ckpt") / "ckpt")
-    fit_guard(recorded).save(ckpt)
+    fit_guard(recorded, cfg=GuardConfig(ridge=30.0)).save(ckpt)  # 300 steps: a firm fit
     return Path(ckpt)
 
 
@@ -138,14 +139,19 @@ def test_cli_copies_the_guard_and_rejects_bad_removal_inputs(checkpoint, recorde
 
 def eager_loop(policy, guard, stream: dict[str, np.ndarray], names) -> tuple[np.ndarray, ...]:
     """The Python guard and the eager student on ``stream`` ({sensor: (steps, dim)}): the
-    same windows the ONNX loop builds, the guard's flags as ``absent``."""
+    same windows the ONNX loop builds, the guard's flags as ``absent`` (less the gravity
+    vector it repairs, whose estimate the window holds instead)."""
     guard.reset()
     steps = len(stream["joint_pos"])
     actions, flags = [], []
+    seen = {n: stream[n].copy() for n in names}
     for t in range(steps):
-        f = guard.update({s: stream[s][t][None] for s in INPUT_SENSORS})
+        obs = {s: stream[s][t][None] for s in INPUT_SENSORS}
+        f = guard.update(obs)
         flags.append(np.concatenate([f[s][0] for s in guard.sensors]))
-        window = {n: np.concatenate([np.repeat(stream[n][:1], T, 0), stream[n][:t + 1]])[-T:]
+        fixed, f = guard.repair(obs)
+        seen["gravity"][t] = fixed["gravity"][0]
+        window = {n: np.concatenate([np.repeat(seen[n][:1], T, 0), seen[n][:t + 1]])[-T:]
                   for n in names}
         absent = {s: f[s] for s in guard.sensors if s in names}
         actions.append(policy.act({n: torch.from_numpy(w[None]) for n, w in window.items()},
@@ -153,15 +159,16 @@ def eager_loop(policy, guard, stream: dict[str, np.ndarray], names) -> tuple[np.
     return np.stack(actions), np.stack(flags)
 
 
-def test_the_onnx_loop_runs_the_guard_as_python_does_on_a_stuck_encoder(
-        checkpoint, recorded, tmp_path):
+@pytest.mark.parametrize("fault", ["stuck:0:encoder:3", "bias:3:gravity"])
+def test_the_onnx_loop_runs_the_guard_as_python_does(fault, checkpoint, recorded, tmp_path):
     out = tmp_path / "export"
     main([f"--policy={checkpoint}", f"--output_dir={out}", f"--history={T}",
           "--random_windows=8", f"--dataset={recorded}", "--parity_windows=8"])
     episode = load_episodes(recorded, [1])
     steps = int(episode["length"][0])
     clean = {s: episode[s][:, :steps].astype(np.float32) for s in INPUT_SENSORS}  # (1, t, d)
-    inj = FaultInjector(FaultSpec("stuck", 0.0, "encoder:3", onset_s=(ONSET_S, ONSET_S)), 1)
+    std = std_from_stats(load_stats(recorded), INPUT_SENSORS)
+    inj = FaultInjector(FaultSpec.parse(f"{fault}/onset={ONSET_S}"), 1, std)
     faulty = [inj.apply({s: clean[s][:, t] for s in INPUT_SENSORS}) for t in range(steps)]
     stream = {s: np.concatenate([f[s] for f in faulty]).astype(np.float32)
               for s in INPUT_SENSORS}  # (steps, dim)
@@ -194,8 +201,11 @@ print("torch" in sys.modules)
     onset = round(ONSET_S / 0.02)
     assert guard.sensors[:2] == ("joint_pos", "joint_vel")  # flags: q (12), q-dot (12), ...
     assert not expect_flags[:onset].any()  # quiet on the stream it was calibrated on
-    assert expect_flags[-1, 3] and expect_flags[-1, 12 + 3]  # q and q-dot of joint 3
-    # the guard's removal changes the student's actions once it flags
+    if fault.endswith("encoder:3"):
+        assert expect_flags[-1, 3] and expect_flags[-1, 12 + 3]  # q and q-dot of joint 3
+    else:  # the gravity vector (flags: q, q-dot, gyro, gravity, ...), repaired
+        assert expect_flags[-1, 27:30].all() and not expect_flags[-1, 24:27].any()
+    # the guard's removal or repair changes the student's actions once it flags
     assert np.abs(expect[-1] - plain_last_action(policy, stream, names)).max() > 1e-4
 
 

@@ -9,14 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from policies.guard import load_guard
+from policies.guard import GuardConfig, load_guard
 from train.guard import main
 from train.guard_eval import evaluate_guard, format_table
 
 
 def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys):
+    # the synthetic episodes are 40 steps: shorter than the default warm-up
     main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", "--guard.margin=2",
-          "--guard.explain=false"])
+          "--guard.explain=false", "--guard.warmup=0"])
     assert "saved" in capsys.readouterr().out
     guard = load_guard(tmp_path, num_envs=3)
     meta = json.loads((tmp_path / "guard.json").read_text())
@@ -30,7 +31,7 @@ def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys
 def test_evaluate_reports_detection_and_false_alarms(synthetic_dataset, tmp_path):
     from train.guard import fit_guard
 
-    guard = fit_guard(synthetic_dataset, list(range(8)))
+    guard = fit_guard(synthetic_dataset, list(range(8)), cfg=GuardConfig(warmup=0))
     report = evaluate_guard(guard, synthetic_dataset, [8, 9, 10, 11], min_length=40,
                             faults=(("bias", 3.0),))
     fa = report["false_alarms"]
@@ -46,8 +47,11 @@ def test_evaluate_reports_detection_and_false_alarms(synthetic_dataset, tmp_path
 @pytest.mark.parametrize("argv,msg", [
     (["nope", "--dataset=x", "--output_dir=y"], "command must be fit or evaluate"),
     (["fit"], "--dataset and --output_dir are required"),
+    (["fit", "--dataset=SYNTH", "--output_dir=y"], "needs episodes longer than warmup + window"),
 ])
-def test_bad_options_are_one_line_errors(argv, msg, capsys):
+def test_bad_options_are_one_line_errors(argv, msg, capsys, synthetic_dataset, tmp_path):
+    argv = [a.replace("SYNTH", str(synthetic_dataset)).replace("=y", f"={tmp_path}")
+            for a in argv]
     with pytest.raises(SystemExit) as e:
         main(argv)
     err = capsys.readouterr().err.strip()
@@ -61,7 +65,7 @@ def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_data
     from train.guard import fit_guard, load_episodes
     from train.guard_eval import run_fault, summarize
 
-    guard = fit_guard(synthetic_dataset, list(range(8)))
+    guard = fit_guard(synthetic_dataset, list(range(8)), cfg=GuardConfig(warmup=0))
     data = load_episodes(synthetic_dataset, [8, 9, 10, 11])
     std = std_from_stats(load_stats(synthetic_dataset), PHYSICAL_SENSORS)
 
