@@ -72,6 +72,12 @@ class LoopConfig:
             (the paper's stress test, as msta-eval's ``dummy_tokens`` scenario draws them:
             fresh each step, never trained), so the student learns to ignore distractors;
             token students (MSTA) only. Validation runs without them. 0 = none.
+        sensor_dropout: probability that a training sample loses one whole physical sensor
+            (joint angles, joint velocities, gyro, gravity or foot contacts, uniformly chosen)
+            for its whole window, on top of the token mask, so that the student learns to
+            walk with a sensor gone (msta-eval's ``sensor_removal``; a guard that removes a
+            lying sensor). MSTA removes the sensor's tokens, the baselines put their
+            placeholders in; validation runs without it. 0 = off.
         max_minutes: stop after this many minutes at the next safe point and exit with
             status 75: after an optimizer step, with a checkpoint saved (msta-correct also
             after a round's append, its retraining and its evaluation); the same command
@@ -95,6 +101,7 @@ class LoopConfig:
     progress: bool = True
     ema_decay: float = 0.0
     dummy_tokens: int = 0
+    sensor_dropout: float = 0.0
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
@@ -109,6 +116,8 @@ class LoopConfig:
             raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.min_lr_ratio <= 1.0:
             raise ValueError(f"min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
+        if not 0.0 <= self.sensor_dropout <= 1.0:
+            raise ValueError(f"sensor_dropout={self.sensor_dropout} must be in [0, 1]")
         if self.mask_ratio is not None and not 0.0 <= self.mask_ratio < 1.0:
             raise ValueError(f"mask_ratio={self.mask_ratio} must be in [0, 1)")
 

@@ -22,7 +22,7 @@ from train.distributed import FitJob, Group, current, join, launched, leave
 from train.optim import make_optimizer, make_scheduler
 from train.sampling import WindowSampler
 from train.state import restore_checkpoint, save_checkpoint
-from train.step import train_step, validate
+from train.step import draw_sensor_dropout, train_step, validate
 
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
               "val_loss", "val_loss_unmasked", "val_action_mse")
@@ -169,6 +169,11 @@ def _start(policy: StudentPolicy, n: int, cfg: LoopConfig, out: Path, resume: bo
     """Optimizer, schedule, sampler, mask generator and weight average, restored from
     ``out/checkpoints/last`` when resuming (by every rank of a torchrun job)."""
     mask_ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio)
+    if cfg.sensor_dropout and not policy.supports_absent:
+        raise ValueError(f"--sensor_dropout needs a student that removes channels per sample; "
+                         f"{policy.config.type} cannot")
+    if cfg.sensor_dropout and group is not None:
+        raise ValueError("--sensor_dropout does not run under torchrun (one process only)")
     optimizer = make_optimizer(policy, cfg.lr, cfg.weight_decay, cfg.optimizer)
     scheduler = make_scheduler(optimizer, cfg)
     sampler = WindowSampler(n, cfg.batch_size, cfg.seed, weights)
@@ -189,9 +194,11 @@ def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
     t0 = time.perf_counter()
     rows = run.sampler.next_batch()  # the global batch: the same for any number of processes
     batch = train_ds.get_batch(rows if run.group is None else run.group.shard(rows))
+    absent = draw_sensor_dropout(policy, len(batch[policy.config.action_key]),
+                                 cfg.sensor_dropout, run.gen) if cfg.sensor_dropout else None
     metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
                          run.mask_ratio, run.gen, dummy_tokens=cfg.dummy_tokens,
-                         loss_fn=run.loss_fn)
+                         loss_fn=run.loss_fn, absent=absent)
     if run.ema is not None:
         run.ema.update()
     run.train_time += time.perf_counter() - t0

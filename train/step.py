@@ -21,8 +21,8 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
                batch: Mapping[str, Any], grad_clip: float, mask_ratio: float | None,
                generator: torch.Generator | None = None,
                channels: Channels | None = None, dummy_tokens: int = 0,
-               loss_fn: Callable[..., tuple[torch.Tensor, dict[str, float]]] | None = None
-               ) -> dict[str, float]:
+               loss_fn: Callable[..., tuple[torch.Tensor, dict[str, float]]] | None = None,
+               absent: Mapping[str, torch.Tensor] | None = None) -> dict[str, float]:
     """Forward, backward, clip, AdamW step, scheduler step.
 
     Args:
@@ -37,6 +37,8 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         dummy_tokens: random dummy tokens appended to every sample (token students only).
         loss_fn: called instead of ``policy.loss`` with the same arguments (under torchrun:
             the policy's loss inside DistributedDataParallel, :mod:`train.distributed`).
+        absent: per-sample channel removal (:func:`draw_sensor_dropout`; students with
+            ``supports_absent`` only).
 
     Returns:
         the policy's metrics (``loss``, ``action_mse``, ...) plus ``grad_norm`` and ``lr``
@@ -47,7 +49,9 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
     """
     policy.train()
     fn = policy.loss if loss_fn is None else loss_fn
-    if dummy_tokens:
+    if absent is not None:
+        loss, metrics = fn(batch, channels, mask_ratio, generator, dummy_tokens, absent)
+    elif dummy_tokens:
         loss, metrics = fn(batch, channels, mask_ratio, generator, dummy_tokens)
     else:
         loss, metrics = fn(batch, channels, mask_ratio, generator)
@@ -66,6 +70,29 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
     if scheduler is not None:
         scheduler.step()
     return {**metrics, "grad_norm": float(norm), "lr": lr}
+
+
+def draw_sensor_dropout(policy: StudentPolicy, batch_size: int, rate: float,
+                        generator: torch.Generator) -> dict[str, torch.Tensor] | None:
+    """Whole sensors removed per training sample: each sample loses, with probability
+    ``rate``, every channel of one of the student's physical sensors (joint angles, joint
+    velocities, gyro, gravity, foot contacts; uniformly chosen) for its whole window, as
+    msta-eval's ``sensor_removal`` removes one at test time. Returns ``absent`` for
+    :meth:`StudentPolicy.loss` (sensor -> (B, dim) bool), or None when no sample lost one.
+    The draws come from ``generator`` (the run's mask generator: seeded, and resumed with
+    it)."""
+    from msta_data.sensors import PHYSICAL_SENSORS, get
+
+    sensors = [s for s in policy.required_sensors if s in PHYSICAL_SENSORS]
+    if rate <= 0 or not sensors:
+        return None
+    dev = generator.device
+    hit = torch.rand(batch_size, generator=generator, device=dev) < rate  # (B,)
+    pick = torch.randint(len(sensors), (batch_size,), generator=generator, device=dev)
+    if not bool(hit.any()):
+        return None
+    return {s: (hit & (pick == i))[:, None].expand(batch_size, get(s).dim).to(policy.device)
+            for i, s in enumerate(sensors)}
 
 
 @torch.no_grad()

@@ -280,3 +280,66 @@ def test_dummy_tokens_take_part_in_training_and_only_token_students_take_them(
     with pytest.raises(ValueError, match="MSTA students only"):
         train(cfg_for(synthetic_dataset, tmp_path / "c", "--steps=1", "--policy.type=gru",
                       "--dummy_tokens=4"))
+
+
+def test_sensor_dropout_removes_one_whole_physical_sensor_per_sample(synthetic_dataset, tmp_path):
+    """--sensor_dropout=1: every training sample loses all tokens of one physical sensor
+    (joint_pos or gravity here; the command is software and stays), so the longest sample
+    of a batch lacks at least gravity's 3 channels x 5 steps; the weights change."""
+    from train import loop
+
+    seen: list[dict] = []
+    real = loop.train_step
+
+    def spy(*args, **kw):
+        seen.append(kw["absent"])
+        return real(*args, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(loop, "train_step", spy)
+        plain = train(cfg_for(synthetic_dataset, tmp_path / "a", "--steps=3", "--eval_every=0",
+                              "--mask_ratio=0.0"))
+        assert seen == [None] * 3
+        seen.clear()
+        dropped = train(cfg_for(synthetic_dataset, tmp_path / "b", "--steps=3",
+                                "--eval_every=0", "--mask_ratio=0.0", "--sensor_dropout=1.0"))
+    assert len(seen) == 3
+    for absent in seen:
+        assert set(absent) == {"joint_pos", "gravity"}
+        jp, g = absent["joint_pos"].numpy(), absent["gravity"].numpy()
+        assert jp.shape == (16, 12) and g.shape == (16, 3)
+        assert (jp.all(1) == jp.any(1)).all() and (g.all(1) == g.any(1)).all()  # whole sensors
+        assert (jp.any(1) ^ g.any(1)).all()  # exactly one per sample
+        assert 0 < jp.any(1).sum() < 16
+    a, b = load_file(plain / "model.safetensors"), load_file(dropped / "model.safetensors")
+    assert any(not torch.equal(a[k], b[k]) for k in a)
+    # the baselines take it too: their placeholders stand in for the removed sensor
+    gru = [train(cfg_for(synthetic_dataset, tmp_path / f"g{r}", "--steps=2", "--eval_every=0",
+                         "--policy.type=gru", f"--sensor_dropout={r}")) for r in (0, 1)]
+    a, b = (load_file(g / "model.safetensors") for g in gru)
+    assert any(not torch.equal(a[k], b[k]) for k in a)
+    from msta_data.cli import UsageError
+
+    with pytest.raises(UsageError, match=r"sensor_dropout=1.5 must be in \[0, 1\]"):
+        cfg_for(synthetic_dataset, tmp_path / "d", "--sensor_dropout=1.5")
+
+
+def test_sensor_dropout_draws_the_rate_evenly_over_the_physical_sensors():
+    from types import SimpleNamespace
+
+    from msta_data.sensors import PHYSICAL_SENSORS, STUDENT_SENSORS
+    from train.step import draw_sensor_dropout
+
+    student = SimpleNamespace(required_sensors=STUDENT_SENSORS, device=torch.device("cpu"))
+    B = 20000
+    gen = torch.Generator().manual_seed(0)
+    absent = draw_sensor_dropout(student, B, 0.3, gen)
+    assert set(absent) == set(PHYSICAL_SENSORS)  # never the command or the last action
+    lost = torch.stack([absent[s].any(1) for s in PHYSICAL_SENSORS])  # (5, B)
+    assert int(lost.sum(0).max()) == 1  # at most one sensor per sample
+    assert abs(float(lost.any(0).float().mean()) - 0.3) < 0.02
+    share = lost.sum(1).float() / lost.sum()
+    assert (share - 1 / len(PHYSICAL_SENSORS)).abs().max() < 0.03
+    again = draw_sensor_dropout(student, B, 0.3, torch.Generator().manual_seed(0))
+    assert all(torch.equal(absent[s], again[s]) for s in absent)  # seeded
+    assert draw_sensor_dropout(student, B, 0.0, gen) is None
