@@ -85,6 +85,9 @@ class EvalConfig(TrialConfig, RayOptions):
     """the sensor_faults scenario's faults, comma-separated one-string forms
     ``TYPE:VALUE:TARGET[/rate=R][/onset=A-B]`` (e.g. ``stuck:0:encoder:2,bias:3:ang_vel``);
     empty = the default sweep (docs/faults.md)."""
+    windows: str = ""
+    """the history scenario's windows T, comma-separated (e.g. ``2,3,4,7,15`` for a student
+    trained at T = 4); empty = the suite's (paper: 3,5,7,10,15,20)."""
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     """the reference teacher (``--teacher.type=gait``)."""
     video: str = ""
@@ -118,6 +121,9 @@ class EvalConfig(TrialConfig, RayOptions):
         self.fault_list = [str(FaultSpec.parse(f)) for f in split_faults(self.faults)]
         if self.fault_list and "sensor_faults" not in self.scenario_list:
             raise ValueError("--faults needs --scenarios to include sensor_faults")
+        self.window_list = _parse_windows(self.windows)
+        if self.window_list and "history" not in self.scenario_list:
+            raise ValueError("--windows needs --scenarios to include history")
         check_ray_options(self.workers, self.ray_address)
         if self.workers and self.device not in ("auto", "cpu"):
             raise ValueError(f"--workers runs the students on the workers' CPUs; "
@@ -137,7 +143,21 @@ class EvalConfig(TrialConfig, RayOptions):
             d["faults"] = self.fault_list
         else:
             d.pop("faults")
+        if self.window_list:  # likewise
+            d["windows"] = list(self.window_list)
+        else:
+            d.pop("windows")
         return d
+
+
+def _parse_windows(text: str) -> tuple[int, ...]:
+    """``--windows`` as sorted, distinct window lengths (each a whole number >= 1)."""
+    out = set()
+    for item in split_csv(text):
+        if not item.isdigit() or int(item) < 1:
+            raise ValueError(f"--windows: {item!r} is not a window length (a whole number >= 1)")
+        out.add(int(item))
+    return tuple(sorted(out))
 
 
 def _parse_matrix(text: str, policies: list[str]) -> dict[str, tuple[float, float]]:
@@ -187,7 +207,7 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
 def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
     """Every (policy, condition) pair, policies in --policies order."""
     suite = get_suite(cfg.suite)
-    values = {"sensor_faults": tuple(cfg.fault_list)} if cfg.fault_list else None
+    values = {"sensor_faults": tuple(cfg.fault_list), "history": cfg.window_list}
     out = []
     for e in entries:
         sensors = e.obj.required_sensors if e.kind == "student" else STUDENT_SENSORS

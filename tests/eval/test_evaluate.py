@@ -187,12 +187,26 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
     (["--suite", "huge"], "unknown suite 'huge'"),
     (["--policies", "teacher:nope"], "unknown teacher type 'nope'"),
     (["--device", "tpu9"], "unknown device 'tpu9'; use auto, cpu, cuda or cuda:<index>"),
+    (["--scenarios", "history", "--windows", "4,0"], "--windows: '0' is not a window length"),
+    (["--scenarios", "history", "--windows", "4,x"], "--windows: 'x' is not a window length"),
+    (["--scenarios", "token_removal", "--windows", "4"],
+     "--windows needs --scenarios to include history"),
 ])
 def test_clear_errors(args, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--output_dir", str(tmp_path), "--progress", "false", *args])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_windows_replace_the_suites_history_sweep(tiny_ckpt, tmp_path):
+    cfg = EvalConfig(policies=str(tiny_ckpt), scenarios="history", windows="8,2,4,2", trials=2,
+                     episode_length_s=0.3, output_dir=str(tmp_path), **FAST)
+    metrics = evaluate(cfg)
+    assert [r["condition"] for r in metrics["runs"]] == ["T=2", "T=4", "T=8"]
+    assert [r["spec"]["history"] for r in metrics["runs"]] == [2, 4, 8]
+    assert metrics["config"]["windows"] == [2, 4, 8]
+    assert "windows" not in EvalConfig(policies=str(tiny_ckpt), **FAST).resolved()
 
 
 def test_eval_settings_are_restored_and_cuda_only_warns():
