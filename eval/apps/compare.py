@@ -26,15 +26,15 @@ import json
 import shlex
 import shutil
 import sys
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import draccus
 
+from eval.apps.phases import Progress
 from msta_data import layout
-from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, minutes_left, stop
+from msta_data.budget import TimeLimitReached, deadline_after, stop
 from msta_data.cli import check_at_least, parse_config
 from msta_data.errors import DirectoryLockedError
 from msta_data.features import load_info
@@ -59,7 +59,8 @@ PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {
 RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collect_num_envs",
               "preset", "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
               "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs",
-              "stage2_mask_ratio", "stage2_rollout_mask_ratios", "optimizer", "batch_size", "seed")
+              "stage2_mask_ratio", "stage2_rollout_mask_ratios", "optimizer", "batch_size", "seed",
+              "msta_history")
 
 
 @dataclass
@@ -75,6 +76,8 @@ class CompareConfig:
             registered policy type (msta, gru, rma_tcn, tert_concat, tert_separate, tert_mask,
             mlp, ...); empty = msta, msta_mask and every registered baseline.
         preset: policy preset for every policy (paper, cpu, tiny).
+        msta_history: window T of the MSTA students (msta, msta_mask; 0: the preset's,
+            15); the other policies keep their preset's T.
         teacher: the teacher that records, labels stage 2 and is the eval reference.
         stage1_steps: optimizer steps of stage 1 (every policy).
         stage2_rounds: correction rounds (0: no stage 2).
@@ -112,6 +115,7 @@ class CompareConfig:
     collect_num_envs: int = 16
     policies: str = ""
     preset: str = "cpu"
+    msta_history: int = 0
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     stage1_steps: int = 800
     stage2_rounds: int = 1
@@ -143,10 +147,10 @@ class CompareConfig:
         if len(set(self.policy_list)) != len(self.policy_list):
             raise ValueError(f"--policies {self.policies!r} has duplicates")
         for name in self.policy_list:
-            policy_config(name, self.preset)  # unknown names / presets fail before any work
+            self.policy(name)  # unknown names / presets fail before any work
         check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
                        "collect_num_envs")
-        check_at_least(self, 0, "stage2_rounds", "stage2_steps", "collect_episodes",
+        check_at_least(self, 0, "msta_history", "stage2_rounds", "stage2_steps", "collect_episodes",
                        "stage2_num_envs", "trials", "num_threads", "max_minutes")
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
@@ -157,6 +161,13 @@ class CompareConfig:
         check_optimizer(self.optimizer)
         if not self.dataset and not self.collect_episodes:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
+
+    def policy(self, name: str) -> Any:
+        """The config ``name`` trains with: its preset's, at ``msta_history`` for MSTA."""
+        config = policy_config(name, self.preset)
+        if self.msta_history and config.type == "msta":
+            config = replace(config, history=self.msta_history)
+        return config
 
     @property
     def dataset_root(self) -> Path:
@@ -182,60 +193,6 @@ def policy_config(name: str, preset: str) -> Any:
 
 
 # ----- phases ----------------------------------------------------------------------------
-class Progress:
-    """One line per phase with the elapsed time; phase durations go to ``output_dir/timing.json``."""
-
-    def __init__(self, out: Path, prog: str = "msta-compare",
-                 deadline: float | None = None) -> None:
-        self.prog, self.deadline = prog, deadline
-        self.started = False  # a phase has started in this process
-        self.path = out / "timing.json"
-        self.timing: dict[str, float] = json.loads(self.path.read_text()) \
-            if self.path.exists() else {}
-        # seconds spent in unfinished phases by calls that --max_minutes stopped
-        self.partial_path = out / "timing_partial.json"
-        self.partial: dict[str, float] = json.loads(self.partial_path.read_text()) \
-            if self.partial_path.exists() else {}
-        self.current: tuple[str, float] | None = None
-        self.t0 = time.perf_counter()
-
-    def start(self, phase: str, detail: str = "") -> float:
-        """Announce a phase (past ``--max_minutes``, raises :class:`TimeLimitReached`
-        instead, unless it is this process's first phase)."""
-        if self.started:
-            check_deadline(self.deadline, f"before {phase}")
-        self.started = True
-        self.current = (phase, time.perf_counter())
-        print(f"[{self.prog} {self._clock()}] {phase}{': ' + detail if detail else ''}",
-              flush=True)
-        return time.perf_counter()
-
-    def done(self, phase: str, t_start: float) -> None:
-        dt = time.perf_counter() - t_start
-        self.current = None
-        self.timing[phase] = round(dt + self.partial.pop(phase, 0.0), 1)
-        self.path.write_text(json.dumps(self.timing, indent=1) + "\n")
-        self.partial_path.write_text(json.dumps(self.partial, indent=1) + "\n")
-        print(f"[{self.prog} {self._clock()}] {phase}: done in {dt:.0f} s", flush=True)
-
-    def stopped(self) -> None:
-        """Keep the time the running phase has had so far (``--max_minutes`` stopped it):
-        the call that finishes the phase adds it to that phase's time."""
-        if self.current is not None:
-            phase, t = self.current
-            self.partial[phase] = round(self.partial.get(phase, 0.0) + time.perf_counter() - t, 1)
-            self.partial_path.write_text(json.dumps(self.partial, indent=1) + "\n")
-            self.current = None
-
-    def minutes_left(self) -> float:
-        """``--max_minutes`` for the running phase's sub-command (0: no limit)."""
-        return minutes_left(self.deadline)
-
-    def _clock(self) -> str:
-        s = int(time.perf_counter() - self.t0)
-        return f"{s // 60:02d}:{s % 60:02d}"
-
-
 def check_run_config(cfg: CompareConfig, out: Path) -> None:
     """Write ``compare_config.json``, or check that a continued run has the same budgets."""
     encoded = draccus.encode(cfg)
@@ -243,6 +200,7 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
     if path.exists():
         saved = json.loads(path.read_text())
         saved.setdefault("stage2_rollout_mask_ratios", saved.pop("stage2_rollout_masks", None))
+        saved.setdefault("msta_history", 0)  # written before the option: the preset's T
         bad = [k for k in RUN_FIELDS if saved.get(k) != encoded.get(k)]
         if bad:
             raise ValueError(f"{out} holds a comparison with different {bad} "
@@ -282,7 +240,7 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
     """Stage 1 of one policy (resumed when killed); returns its final checkpoint.
 
     Args:
-        config: the policy config to train (default: ``policy_config(name, cfg.preset)``;
+        config: the policy config to train (default: ``cfg.policy(name)``;
             msta-repro's mask heatmap passes other training masks).
     """
     from train.offline import TrainConfig, train
@@ -297,7 +255,7 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
     t = prog.start(f"{name} stage 1", f"{cfg.stage1_steps} steps, batch {cfg.batch_size}"
                    f"{' (resumed)' if resume else ''}")
     train(TrainConfig(
-        dataset=str(root), policy=config or policy_config(name, cfg.preset), output_dir=str(out),
+        dataset=str(root), policy=config or cfg.policy(name), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
         optimizer=cfg.optimizer, save_every=max(100, cfg.stage1_steps // 4),
         eval_every=cfg.stage1_steps, num_threads=cfg.num_threads, progress=cfg.progress,
@@ -340,7 +298,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     resume = (out / "progress.json").exists()
     masked = True  # an explicit mask: a token-masking student (msta-repro's heatmap)
     if mask is None:
-        stage1 = policy_config(name, cfg.preset).mask_ratio
+        stage1 = cfg.policy(name).mask_ratio
         masked = stage1 > 0
         mask = training_mask_ratio(cfg.stage2_mask_ratio if masked else None, stage1, stage=2)
     envs = cfg.stage2_num_envs or min(cfg.episodes_per_round, 32)
@@ -353,6 +311,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
         episodes_per_round=cfg.episodes_per_round, num_envs=envs,
         episode_length_s=cfg.stage2_episode_length_s, teacher=cfg.teacher, steps=cfg.stage2_steps,
         batch_size=cfg.batch_size, mask_ratio=mask, seed=cfg.seed, optimizer=cfg.optimizer,
+        warmup_steps=min(20, cfg.stage2_steps // 5),  # the demo's: a round starts trained
         rollout_mask_ratios=cfg.stage2_rollout_mask_ratios if masked else (),
         save_every=max(100, cfg.stage2_steps // 2), eval_every=cfg.stage2_steps,
         eval=RoundEvalConfig(enabled=False), resume=resume, num_threads=cfg.num_threads,

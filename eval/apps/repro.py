@@ -13,12 +13,14 @@ continues where it stopped; a killed training resumes from its last checkpoint):
    learnable mask, GRU, RMA-TCN, TERT concat / separate / w/ learnable mask) gets stage 1 and
    stage 2 with the same budgets, each on its own dataset copy (msta-compare's code:
    :func:`eval.apps.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
-   the stage-2 rollouts of masked students drive half of the robots at test mask 0.5;
+   the stage-2 rollouts of masked students drive half of the robots at test mask 0.5; at
+   reference scale every student gets the demo's budgets and the MSTA students its window
+   T = 4 (the others keep the paper's 15);
 3. **heatmap**: MSTA students at every (stage-1, stage-2) training mask of the scale's grid
    (a reduced grid at reference scale; the paper's 4 x 4 at paper scale);
 4. **evaluation** (msta-eval, the same trials, terrains, levels and seed everywhere):
    Table I (test masks 0 / 25 / 50 %) for every policy; one sensor removed, k dead joint
-   encoders and the window T for MSTA; the heatmap's test masks for the grid; MSTA and
+   encoders and the window T for MSTA (windows around the trained T: 2-8 for T = 4); the heatmap's test masks for the grid; MSTA and
    the GRU at levels 3-4 too;
 5. **report**: ``report_dir/report.md`` (every table with the paper's value beside ours,
    the issue's minimums and the paper's qualitative findings checked with the numbers, the
@@ -55,7 +57,6 @@ from eval.apps.compare import (
     CompareConfig,
     Progress,
     paper_table,
-    policy_config,
     stage1,
     stage2,
     train_policy,
@@ -96,6 +97,10 @@ class Scale:
     heatmap_stage1: tuple[float, ...]
     heatmap_stage2: tuple[float, ...]
     heatmap_rounds: int
+    #: window T of the MSTA students (0: the preset's, the paper's 15); the others keep 15
+    msta_history: int
+    #: windows T of the MSTA window sweep (finding (b): T // 2 against T, longer ones unseen)
+    windows: tuple[int, ...]
     #: estimated wall-clock on 2 CPU cores (reference: from the demo's measured phases)
     minutes: float
 
@@ -103,15 +108,17 @@ class Scale:
 SCALES: dict[str, Scale] = {
     # the pipeline in seconds (tests)
     "tiny": Scale(3, 0.4, "tiny", 3, 1, 2, 2, 0.3, 8, 2, "0", "flat", 1.0, (0.75,),
-                  (0.0, 0.5), 1, 1.0),
-    # 2 CPU cores, <= 2.5 h: the demo's recipe per policy (288 DART episodes, cpu preset at
-    # the paper's T = 15); the estimate adds up the phases of the reference run
-    # (docs/reference/README.md) timed on idle cores, heatmap included
-    "reference": Scale(288, 10.0, "cpu", 2000, 2, 32, 800, 10.0, 64, 100, "0,1,2", "", 5.0,
-                       (0.5, 0.75), (0.0, 0.5), 1, 140.0),
+                  (0.0, 0.5), 1, 4, (2, 3, 4, 5, 8), 1.0),
+    # 2 CPU cores, <= 2.5 h: the demo's recipe for every policy (288 DART episodes, stage 1
+    # 4,000 steps, seven rounds of 1,300 steps; MSTA at the demo's T = 4, which walks better
+    # than T = 15 in less training time: docs/reference/README.md); the estimate adds up
+    # the phases of the reference run timed on idle cores, heatmap included
+    "reference": Scale(288, 10.0, "cpu", 4000, 7, 32, 1300, 10.0, 64, 100, "0,1,2", "", 5.0,
+                       (0.5, 0.75), (0.0, 0.5), 1, 4, (2, 3, 4, 5, 8), 55.0),
     # the paper's sizes (a GPU machine): 5000 trials over every level, the full 4 x 4 grid
     "paper": Scale(4000, 20.0, "paper", 20000, 5, 256, 4000, 20.0, 256, 5000, "", "", 0.0,
-                   (0.0, 0.25, 0.5, 0.75), (0.0, 0.25, 0.5, 0.75), 5, 1440.0),
+                   (0.0, 0.25, 0.5, 0.75), (0.0, 0.25, 0.5, 0.75), 5, 0,
+                   (3, 5, 7, 10, 15, 20), 1440.0),
 }
 #: Fields that must match output_dir/repro_config.json when a run is continued.
 RUN_FIELDS = ("scale", "policies", "teacher", "optimizer", "seed")
@@ -170,12 +177,16 @@ class ReproConfig:
         check_at_least(self, 0, "num_threads", "max_minutes")
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()] \
             or list(PAPER_POLICIES)
-        for name in self.policy_list:
-            policy_config(name, SCALES[self.scale].preset)  # unknown names fail here
+        compare_config(self, Path(self.output_dir))  # unknown names fail here
 
     @property
     def sizes(self) -> Scale:
         return SCALES[self.scale]
+
+    @property
+    def msta_window(self) -> int:
+        """The window T the study's MSTA students train at."""
+        return compare_config(self, Path(self.output_dir)).policy("msta").history
 
     @property
     def report_path(self) -> Path:
@@ -187,6 +198,7 @@ def compare_config(cfg: ReproConfig, root: Path) -> CompareConfig:
     s = cfg.sizes
     return CompareConfig(
         dataset=str(root), policies=",".join(cfg.policy_list), preset=s.preset,
+        msta_history=s.msta_history,
         teacher=cfg.teacher, stage1_steps=s.stage1_steps, stage2_rounds=s.stage2_rounds,
         stage2_steps=s.stage2_steps, episodes_per_round=s.episodes_per_round,
         stage2_episode_length_s=s.stage2_episode_length_s,
@@ -217,7 +229,8 @@ def print_sizes(cfg: ReproConfig) -> None:
     print(f"[{PROG}] scale {cfg.scale}: teacher {cfg.teacher.label}; dataset "
           f"{s.collect_episodes} episodes of {s.collect_episode_length_s:g} s (levels 0-2, DART "
           f"noise 0.5); {len(cfg.policy_list)} policies ({', '.join(cfg.policy_list)}), preset "
-          f"{s.preset}: stage 1 {s.stage1_steps} steps x {s.batch_size}, stage 2 "
+          f"{s.preset} (MSTA at T = {cfg.msta_window}): stage 1 {s.stage1_steps} steps x "
+          f"{s.batch_size}, stage 2 "
           f"{s.stage2_rounds} rounds x {s.episodes_per_round} episodes + {s.stage2_steps} "
           f"steps; heatmap {grid} MSTA students ({s.heatmap_rounds} rounds each); "
           f"evaluation {s.trials or 'suite'} "
@@ -246,7 +259,7 @@ def heatmap_students(cfg: ReproConfig, ccfg: CompareConfig, root: Path,
     s, base = cfg.sizes, Path(cfg.output_dir) / "heatmap"
     hcfg = replace(ccfg, stage2_rounds=s.heatmap_rounds)
     out: dict[Path, tuple[float, float]] = {}
-    main = policy_config("msta", s.preset)
+    main = ccfg.policy("msta")
     for m1 in s.heatmap_stage1:
         pol = replace(main, mask_ratio=m1)
         start = None
@@ -268,9 +281,10 @@ def heatmap_students(cfg: ReproConfig, ccfg: CompareConfig, root: Path,
 
 
 def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
-             prog: Progress, matrix: str = "", levels: str = "") -> dict[str, Any]:
+             prog: Progress, matrix: str = "", levels: str = "",
+             windows: tuple[int, ...] = ()) -> dict[str, Any]:
     """One msta-eval run (skipped when its metrics.json exists); ``levels``: other terrain
-    levels than the scale's."""
+    levels than the scale's; ``windows``: the history scenario's."""
     from eval.evaluate import EvalConfig, evaluate
 
     out = Path(cfg.output_dir) / "eval" / name
@@ -282,7 +296,8 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
                       suite="quick" if cfg.scale == "tiny" else "paper", trials=s.trials,
                       terrains=s.terrains, levels=levels or s.levels,
                       episode_length_s=s.eval_episode_length_s, scenarios=scenarios,
-                      matrix=matrix, seed=cfg.seed, teacher=cfg.teacher,
+                      matrix=matrix, windows=",".join(map(str, windows)), seed=cfg.seed,
+                      teacher=cfg.teacher,
                       output_dir=str(out), progress=cfg.progress, resume=True,
                       nthread=0)  # MuJoCo threads: one per core of the machine
     t = prog.start(f"eval {name}", f"{scenarios}: {len(policies)} students + teacher")
@@ -320,7 +335,8 @@ def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
                                      levels=HARD_LEVELS)
     if "msta" in ckpts:
         evals["msta"] = run_eval(cfg, "msta", [ckpts["msta"]],
-                                 "sensor_removal,dead_joints,history", prog)
+                                 "sensor_removal,dead_joints,history", prog,
+                                 windows=cfg.sizes.windows)
     if "msta" in ckpts and cfg.heatmap:
         grid = heatmap_students(cfg, ccfg, root, prog)
         matrix = ",".join(f"{p}={a:g}:{b:g}" for p, (a, b) in grid.items())

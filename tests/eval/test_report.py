@@ -8,8 +8,9 @@ from pathlib import Path
 
 from eval.report import fmt_ci, identical_groups, identical_warnings, markdown, raw_table
 
-#: a metrics.json written before the window was named ``history`` (its runs' spec has "T")
-OLD_METRICS = Path(__file__).resolve().parents[2] / "docs" / "reference" / "msta" / "metrics.json"
+#: a metrics.json written before the window was named ``history`` (its runs' spec has "T"):
+#: the 2026-12-04 reference study's MSTA sweeps, three conditions of them
+OLD_METRICS = Path(__file__).parent / "fixtures" / "metrics_before_history.json"
 
 
 def _run(condition: str, inputs: str, lin: float, policy: str = "s") -> dict:

@@ -78,8 +78,8 @@ def test_the_report_has_every_row_and_column(study) -> None:
             assert f"| {name} | {mask} | 2 | " in md, (name, mask)
     rows = [line for line in md.splitlines() if line.startswith("| msta | ")]
     assert all(line.count("|") == 7 for line in rows if "mask" in line or "T=" in line)
-    for cond in ("none", "-joint_pos", "-gravity", "-last_action", "k=0", "k=6", "T=7",
-                 "T=15", "T=20"):
+    for cond in ("none", "-joint_pos", "-gravity", "-last_action", "k=0", "k=6", "T=2",
+                 "T=4", "T=8"):
         assert f"| msta | {cond} | 2 | " in md, cond
     s = SCALES["tiny"]
     for m1 in s.heatmap_stage1:
@@ -102,6 +102,20 @@ def test_the_report_has_every_row_and_column(study) -> None:
                       )["config"]["levels"] == [3, 4]
     assert (out / "report" / "heatmap" / "mask_matrix.png").is_file()
     assert (out / "report" / "msta" / "history.png").is_file()
+
+
+def test_the_msta_students_train_at_the_scales_window_and_the_others_at_15(study) -> None:
+    out, _ = study
+    windows = {p.name: json.loads((p / "config.json").read_text())["history"]
+               for p in (out / "compare" / "checkpoints").iterdir()}
+    assert windows == {"msta": 4, "msta_mask": 4, "gru": 15}
+    heat = {json.loads((p / "config.json").read_text())["history"]
+            for p in (out / "heatmap" / "checkpoints").iterdir()}
+    assert heat == {4}
+    md = (out / "report" / "report.md").read_text()
+    assert "MSTA's window T = 4" in md
+    assert "- (b) T = 2 within 5 % of the trained T = 4 and the unseen T = 5, 8 not worse: " \
+        "**" in md
 
 
 def test_masked_students_roll_out_masked_in_stage_2_and_the_others_do_not(study) -> None:
@@ -153,7 +167,7 @@ def test_without_the_heatmap_the_report_says_finding_a_was_not_measured(study) -
     assert "heatmap 0 MSTA students" in text and "stage 2:" not in text
     md = path.read_text()
     assert "- (a) stage-2 mask vs stage-1 mask: n/a (no heatmap)" in md
-    assert "## Train-mask heatmap" not in md and "| msta | T=20 | 2 | " in md
+    assert "## Train-mask heatmap" not in md and "| msta | T=8 | 2 | " in md
     assert not (out / "report_nh" / "heatmap").exists()
 
 
