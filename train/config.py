@@ -78,6 +78,10 @@ class LoopConfig:
             walk with a sensor gone (msta-eval's ``sensor_removal``; a guard that removes a
             lying sensor). MSTA removes the sensor's tokens, the baselines put their
             placeholders in; validation runs without it. 0 = off.
+        unmasked_share: share of the optimizer steps that train with every token (mask 0)
+            instead of the training mask ratio, drawn per step from the run's seeded mask
+            generator (so a resumed run draws the same): the student fits the whole input
+            better and keeps most of its fit with tokens removed. 0 = every step at the mask.
         max_minutes: stop after this many minutes at the next safe point and exit with
             status 75: after an optimizer step, with a checkpoint saved (msta-correct also
             after a round's append, its retraining and its evaluation); the same command
@@ -102,6 +106,7 @@ class LoopConfig:
     ema_decay: float = 0.0
     dummy_tokens: int = 0
     sensor_dropout: float = 0.0
+    unmasked_share: float = 0.0
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
@@ -118,6 +123,8 @@ class LoopConfig:
             raise ValueError(f"min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
         if not 0.0 <= self.sensor_dropout <= 1.0:
             raise ValueError(f"sensor_dropout={self.sensor_dropout} must be in [0, 1]")
+        if not 0.0 <= self.unmasked_share <= 1.0:
+            raise ValueError(f"unmasked_share={self.unmasked_share} must be in [0, 1]")
         if self.mask_ratio is not None and not 0.0 <= self.mask_ratio < 1.0:
             raise ValueError(f"mask_ratio={self.mask_ratio} must be in [0, 1)")
 

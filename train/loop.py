@@ -196,8 +196,11 @@ def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
     batch = train_ds.get_batch(rows if run.group is None else run.group.shard(rows))
     absent = draw_sensor_dropout(policy, len(batch[policy.config.action_key]),
                                  cfg.sensor_dropout, run.gen) if cfg.sensor_dropout else None
+    mask = run.mask_ratio
+    if cfg.unmasked_share and float(torch.rand((), generator=run.gen, device=run.gen.device)) < cfg.unmasked_share:
+        mask = 0.0
     metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
-                         run.mask_ratio, run.gen, dummy_tokens=cfg.dummy_tokens,
+                         mask, run.gen, dummy_tokens=cfg.dummy_tokens,
                          loss_fn=run.loss_fn, absent=absent)
     if run.ema is not None:
         run.ema.update()

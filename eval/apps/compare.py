@@ -60,7 +60,7 @@ RUN_FIELDS = ("dataset", "collect_episodes", "collect_episode_length_s", "collec
               "preset", "teacher", "stage1_steps", "stage2_rounds", "stage2_steps",
               "episodes_per_round", "stage2_episode_length_s", "stage2_num_envs",
               "stage2_mask_ratio", "stage2_rollout_mask_ratios", "optimizer", "batch_size", "seed",
-              "msta_history")
+              "msta_history", "msta_mask_ratio")
 
 
 @dataclass
@@ -78,6 +78,8 @@ class CompareConfig:
         preset: policy preset for every policy (paper, cpu, tiny).
         msta_history: window T of the MSTA students (msta, msta_mask; 0: the preset's,
             15); the other policies keep their preset's T.
+        msta_mask_ratio: stage-1 training mask ratio of the MSTA students (msta, msta_mask;
+            0: the preset's, the paper's 0.75; the demo's 0.5).
         teacher: the teacher that records, labels stage 2 and is the eval reference.
         stage1_steps: optimizer steps of stage 1 (every policy).
         stage2_rounds: correction rounds (0: no stage 2).
@@ -116,6 +118,7 @@ class CompareConfig:
     policies: str = ""
     preset: str = "cpu"
     msta_history: int = 0
+    msta_mask_ratio: float = 0.0
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     stage1_steps: int = 800
     stage2_rounds: int = 1
@@ -146,6 +149,8 @@ class CompareConfig:
             raise ValueError("--policies is empty")
         if len(set(self.policy_list)) != len(self.policy_list):
             raise ValueError(f"--policies {self.policies!r} has duplicates")
+        if not 0.0 <= self.msta_mask_ratio < 1.0:
+            raise ValueError(f"msta_mask_ratio={self.msta_mask_ratio} must be in [0, 1)")
         for name in self.policy_list:
             self.policy(name)  # unknown names / presets fail before any work
         check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
@@ -163,10 +168,13 @@ class CompareConfig:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
 
     def policy(self, name: str) -> Any:
-        """The config ``name`` trains with: its preset's, at ``msta_history`` for MSTA."""
+        """The config ``name`` trains with: its preset's, at ``msta_history`` and
+        ``msta_mask_ratio`` for MSTA."""
         config = policy_config(name, self.preset)
         if self.msta_history and config.type == "msta":
             config = replace(config, history=self.msta_history)
+        if self.msta_mask_ratio and config.type == "msta":
+            config = replace(config, mask_ratio=self.msta_mask_ratio)
         return config
 
     @property
@@ -201,6 +209,7 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
         saved = json.loads(path.read_text())
         saved.setdefault("stage2_rollout_mask_ratios", saved.pop("stage2_rollout_masks", None))
         saved.setdefault("msta_history", 0)  # written before the option: the preset's T
+        saved.setdefault("msta_mask_ratio", 0.0)  # likewise: the preset's mask
         bad = [k for k in RUN_FIELDS if saved.get(k) != encoded.get(k)]
         if bad:
             raise ValueError(f"{out} holds a comparison with different {bad} "

@@ -93,7 +93,7 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
-               mask: float = 0.75, sensor_dropout: float = 0.0) -> Path:
+               mask: float = 0.75, **loop: float) -> Path:
     from policies.msta import MSTAConfig
     from train.offline import TrainConfig, train
 
@@ -104,8 +104,7 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
         output_dir=str(out / "stage1"),
         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
         steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
-        eval_every=max(steps // 2, 1), save_every=steps, sensor_dropout=sensor_dropout,
-        progress=False))
+        eval_every=max(steps // 2, 1), save_every=steps, progress=False, **loop))
 
 
 def start_hub(out: Path):
@@ -150,7 +149,7 @@ def round_scores(progress: dict) -> dict[int, float]:
 def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, mask: float, threads: int, select_trials: int,
                  select_s: float, teacher: TeacherConfig,
-                 rollout_masks: tuple[float, ...] = (), sensor_dropout: float = 0.0) -> int:
+                 rollout_masks: tuple[float, ...] = (), **loop: float) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
     best on the selection trials (DAgger promises a good policy among its iterates, not
     that the last is best). ``select_trials=0``: no round evaluation (it costs about as
@@ -172,7 +171,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask, teacher=teacher, rollout_mask_ratios=rollout_masks,
                         warmup_steps=min(20, steps // 5), eval_every=steps, save_every=steps,
-                        sensor_dropout=sensor_dropout,
+                        **loop,
                         eval=RoundEvalConfig(enabled=select_trials > 0, trials=max(select_trials, 1),
                                         levels="0,1,2",
                                         episode_length_s=select_s, seed=SELECT_SEED, num_threads=threads),
@@ -275,6 +274,8 @@ class DemoConfig:
         correct_mask_ratio: stage-2 training mask ratio (the paper's 0.5).
         sensor_dropout: both stages: probability that a training sample loses one whole
             physical sensor (msta-train's ``--sensor_dropout``); 0 = off.
+        unmasked_share: both stages: share of the optimizer steps that train with every
+            token instead of the stage's mask (msta-train's ``--unmasked_share``); 0 = off.
         rollout_mask_ratios: test-time mask ratios the stage-2 student drives at, spread
             over the round's environments (msta-correct's option; the default: half of
             them with half of the tokens removed, so the rounds also hold the states the
@@ -309,6 +310,7 @@ class DemoConfig:
     correct_mask_ratio: float = 0.5
     rollout_mask_ratios: tuple[float, ...] = (0.0, 0.5)
     sensor_dropout: float = 0.0
+    unmasked_share: float = 0.0
     select_trials: int = 0
     select_episode_length_s: float = 5.0
     teacher_seconds: float = 8.0
@@ -336,6 +338,8 @@ class DemoConfig:
             raise ValueError(f"train_mask_ratio={self.train_mask_ratio} must be in [0, 1)")
         if not 0.0 <= self.sensor_dropout <= 1.0:
             raise ValueError(f"sensor_dropout={self.sensor_dropout} must be in [0, 1]")
+        if not 0.0 <= self.unmasked_share <= 1.0:
+            raise ValueError(f"unmasked_share={self.unmasked_share} must be in [0, 1]")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
 
@@ -357,12 +361,13 @@ def main(argv: list[str] | None = None) -> None:
         dataset = step_collect(out, cfg.episodes, cfg.episode_length_s, cfg.teacher,
                                cfg.action_noise)
     server = start_hub(out)
+    loop = {"sensor_dropout": cfg.sensor_dropout, "unmasked_share": cfg.unmasked_share}
     try:
         with timed("step 3"):
             hub_dataset = step_push(dataset)
         with timed("step 4"):
             stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads,
-                                cfg.history, cfg.train_mask_ratio, cfg.sensor_dropout)
+                                cfg.history, cfg.train_mask_ratio, **loop)
         best = 0
         if cfg.rounds:
             with timed("step 5"):
@@ -370,7 +375,7 @@ def main(argv: list[str] | None = None) -> None:
                                     cfg.correct_episodes, cfg.correct_mask_ratio,
                                     cfg.num_threads, cfg.select_trials,
                                     cfg.select_episode_length_s, cfg.teacher,
-                                    cfg.rollout_mask_ratios, cfg.sensor_dropout)
+                                    cfg.rollout_mask_ratios, **loop)
         with timed("step 6"):
             metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
                                 cfg.num_threads, cfg.teacher)

@@ -343,3 +343,32 @@ def test_sensor_dropout_draws_the_rate_evenly_over_the_physical_sensors():
     again = draw_sensor_dropout(student, B, 0.3, torch.Generator().manual_seed(0))
     assert all(torch.equal(absent[s], again[s]) for s in absent)  # seeded
     assert draw_sensor_dropout(student, B, 0.0, gen) is None
+
+
+def test_unmasked_share_trains_that_share_of_the_steps_with_every_token(synthetic_dataset, tmp_path):
+    """--unmasked_share=p: each step trains at mask 0 with probability p, else at the
+    training mask; the draws are seeded (two runs see the same steps unmasked)."""
+    from train import loop
+
+    seen: list[float] = []
+    real = loop.train_step
+
+    def spy(*args, **kw):
+        seen.append(args[5])  # the step's mask ratio
+        return real(*args, **kw)
+
+    runs = {}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(loop, "train_step", spy)
+        for name, share in (("none", 0.0), ("all", 1.0), ("half", 0.5), ("again", 0.5)):
+            seen.clear()
+            train(cfg_for(synthetic_dataset, tmp_path / name, "--steps=12", "--eval_every=0",
+                          "--mask_ratio=0.5", f"--unmasked_share={share}"))
+            runs[name] = list(seen)
+    assert runs["none"] == [0.5] * 12 and runs["all"] == [0.0] * 12
+    assert set(runs["half"]) == {0.0, 0.5}  # 12 draws at p = 0.5 (seed 0): both kinds
+    assert runs["again"] == runs["half"]
+    from msta_data.cli import UsageError
+
+    with pytest.raises(UsageError, match=r"unmasked_share=2.0 must be in \[0, 1\]"):
+        cfg_for(synthetic_dataset, tmp_path / "d", "--unmasked_share=2")

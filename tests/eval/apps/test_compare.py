@@ -152,3 +152,16 @@ def test_a_run_saved_under_the_rollout_masks_old_name_continues(tmp_path) -> Non
                           stage2_rollout_mask_ratios=(0.0,))
     with pytest.raises(ValueError, match="stage2_rollout_mask_ratios"):
         check_run_config(other, tmp_path)
+
+
+def test_msta_window_and_stage1_mask_reach_the_msta_students_only(tmp_path) -> None:
+    cfg = CompareConfig(dataset=str(tmp_path / "ds"), policies="msta,msta_mask,gru",
+                        msta_history=4, msta_mask_ratio=0.5)
+    msta, learnable, gru = (cfg.policy(n) for n in ("msta", "msta_mask", "gru"))
+    assert (msta.history, msta.mask_ratio) == (4, 0.5)
+    assert (learnable.history, learnable.mask_ratio, learnable.learnable_mask) == (4, 0.5, True)
+    preset = CompareConfig(dataset=str(tmp_path / "ds"), policies="msta,gru")
+    assert (gru.history, gru.mask_ratio) == (preset.policy("gru").history, preset.policy("gru").mask_ratio)
+    assert (preset.policy("msta").history, preset.policy("msta").mask_ratio) == (15, 0.75)
+    with pytest.raises(ValueError, match="msta_mask_ratio=1.0 must be in"):
+        CompareConfig(dataset=str(tmp_path / "ds"), policies="msta", msta_mask_ratio=1.0)
