@@ -31,7 +31,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
 
-# The paper's experiments at reference scale (~2.5 h on 2 cores; resumable: run it again
+# The paper's experiments at reference scale (~1 h on 2 cores; resumable: run it again
 # after a kill). `make repro SCALE=paper` for the paper's sizes (a GPU machine).
 SCALE ?= reference
 REPRO_REPORT = $(if $(filter paper,$(SCALE)),docs/reference/paper_scale,docs/reference)

@@ -86,7 +86,7 @@ class EvalConfig(TrialConfig, RayOptions):
     ``TYPE:VALUE:TARGET[/rate=R][/onset=A-B]`` (e.g. ``stuck:0:encoder:2,bias:3:ang_vel``);
     empty = the default sweep (docs/faults.md)."""
     windows: str = ""
-    """the history scenario's windows T, comma-separated (e.g. ``2,3,4,7,15`` for a student
+    """the history scenario's windows T, comma-separated (e.g. ``2,3,4,5,8`` for a student
     trained at T = 4); empty = the suite's (paper: 3,5,7,10,15,20)."""
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     """the reference teacher (``--teacher.type=gait``)."""

@@ -78,8 +78,8 @@ class ImuRules:
         """After :meth:`update` on ``obs``: ``(obs, removed)``, the observation with the
         gravity vector replaced on the robots whose gravity vector (and not the gyro) is
         flagged, and the flags without those repaired channels: what to remove. The
-        estimate starts from the reading ``imu_window`` steps before the flag (before
-        most faults began) and follows the gyro from there."""
+        estimate starts from the mean of the ring's older readings (10 to 5 steps before
+        the flag, before most faults began), each carried forward by the gyro."""
         flags = self.flagged()
         if not self.repairs:
             return dict(obs), flags

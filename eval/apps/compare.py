@@ -79,7 +79,7 @@ class CompareConfig:
         msta_history: window T of the MSTA students (msta, msta_mask; 0: the preset's,
             15); the other policies keep their preset's T.
         msta_mask_ratio: stage-1 training mask ratio of the MSTA students (msta, msta_mask;
-            0: the preset's, the paper's 0.75; the demo's 0.5).
+            0: the preset's, the paper's 0.75, as in the demo).
         teacher: the teacher that records, labels stage 2 and is the eval reference.
         stage1_steps: optimizer steps of stage 1 (every policy).
         stage2_rounds: correction rounds (0: no stage 2).
@@ -149,14 +149,14 @@ class CompareConfig:
             raise ValueError("--policies is empty")
         if len(set(self.policy_list)) != len(self.policy_list):
             raise ValueError(f"--policies {self.policies!r} has duplicates")
-        if not 0.0 <= self.msta_mask_ratio < 1.0:
-            raise ValueError(f"msta_mask_ratio={self.msta_mask_ratio} must be in [0, 1)")
-        for name in self.policy_list:
-            self.policy(name)  # unknown names / presets fail before any work
         check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
                        "collect_num_envs")
         check_at_least(self, 0, "msta_history", "stage2_rounds", "stage2_steps", "collect_episodes",
                        "stage2_num_envs", "trials", "num_threads", "max_minutes")
+        if not 0.0 <= self.msta_mask_ratio < 1.0:
+            raise ValueError(f"msta_mask_ratio={self.msta_mask_ratio} must be in [0, 1)")
+        for name in self.policy_list:
+            self.policy(name)  # unknown names / presets fail before any work
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
         self.stage2_rollout_mask_ratios = tuple(float(r) for r in self.stage2_rollout_mask_ratios)

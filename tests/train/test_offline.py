@@ -128,8 +128,9 @@ def test_max_minutes_stops_with_a_checkpoint_and_the_resume_is_bit_identical(
     assert all(torch.equal(a[k], b[k]) for k in a), "the stopped and resumed run differs"
 
 
-@pytest.mark.parametrize("extra", ["--ema_decay=0.0", "--ema_decay=0.9", "--optimizer=muon"],
-                         ids=["plain", "ema", "muon"])
+@pytest.mark.parametrize("extra", ["--ema_decay=0.0", "--ema_decay=0.9", "--optimizer=muon",
+                                   "--unmasked_share=0.5", "--sensor_dropout=0.5"],
+                         ids=["plain", "ema", "muon", "unmasked_share", "sensor_dropout"])
 def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, extra):
     args = ("--steps=8", "--save_every=4", "--eval_every=4", "--log_every=1", "--lr=3e-3",
             extra)
@@ -284,8 +285,7 @@ def test_dummy_tokens_take_part_in_training_and_only_token_students_take_them(
 
 def test_sensor_dropout_removes_one_whole_physical_sensor_per_sample(synthetic_dataset, tmp_path):
     """--sensor_dropout=1: every training sample loses all tokens of one physical sensor
-    (joint_pos or gravity here; the command is software and stays), so the longest sample
-    of a batch lacks at least gravity's 3 channels x 5 steps; the weights change."""
+    (joint_pos or gravity here; the command is software and stays); the weights change."""
     from train import loop
 
     seen: list[dict] = []
@@ -347,7 +347,8 @@ def test_sensor_dropout_draws_the_rate_evenly_over_the_physical_sensors():
 
 def test_unmasked_share_trains_that_share_of_the_steps_with_every_token(synthetic_dataset, tmp_path):
     """--unmasked_share=p: each step trains at mask 0 with probability p, else at the
-    training mask; the draws are seeded (two runs see the same steps unmasked)."""
+    training mask; the draws are seeded (two runs see the same steps unmasked; a resumed
+    run draws the same: test_resume_after_a_crash_is_bit_identical)."""
     from train import loop
 
     seen: list[float] = []

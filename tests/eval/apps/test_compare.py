@@ -165,3 +165,5 @@ def test_msta_window_and_stage1_mask_reach_the_msta_students_only(tmp_path) -> N
     assert (preset.policy("msta").history, preset.policy("msta").mask_ratio) == (15, 0.75)
     with pytest.raises(ValueError, match="msta_mask_ratio=1.0 must be in"):
         CompareConfig(dataset=str(tmp_path / "ds"), policies="msta", msta_mask_ratio=1.0)
+    with pytest.raises(ValueError, match="msta_history"):
+        CompareConfig(dataset=str(tmp_path / "ds"), policies="msta", msta_history=-1)
