@@ -71,13 +71,6 @@ NJ = registry.NUM_JOINTS
 P = registry.total_dim(PHYSICAL_SENSORS)  # 34 physical channels
 D = registry.total_dim(INPUT_SENSORS)  # 49 inputs
 OFFSET = {s: registry.total_dim(INPUT_SENSORS[:i]) for i, s in enumerate(INPUT_SENSORS)}
-#: Fitted arrays a guard holds (names in guard.safetensors).
-ARRAY_NAMES = ("feat_mean", "feat_std", "weight", "bias", "z_std", "enc_std", "threshold")
-#: Further arrays of a two-sided guard (``GuardConfig.two_sided``).
-TWO_SIDED_ARRAYS = ("weight2", "bias2", "z2_std")
-#: Further arrays of a guard with the contact network (``GuardConfig.contact_model``).
-CONTACT_ARRAYS = ("contact_mean", "contact_std", "contact_w0", "contact_b0", "contact_w1",
-                  "contact_b1", "contact_w2", "contact_b2")
 #: Config a guard saved before a setting existed gets for it (its behaviour then).
 LEGACY_CONFIG = {"two_sided": False, "explain": False, "imu_attribution": False,
                  "contact_model": False, "repair_gravity": False, "warmup": 0}
@@ -173,7 +166,9 @@ def nonbinary_channels() -> np.ndarray:
 
 
 def array_shapes(cfg: GuardConfig) -> dict[str, tuple[int, ...]]:
-    """The fitted arrays a guard with settings ``cfg`` holds, and their shapes."""
+    """The fitted arrays a guard with settings ``cfg`` holds (their names in
+    guard.safetensors), and their shapes: the two-sided arrays with ``two_sided``, the
+    contact network's (``contact_*``) with ``contact_model``."""
     shapes = {"feat_mean": (3 * D,), "feat_std": (3 * D,), "weight": (3 * D, P), "bias": (P,),
               "z_std": (P,), "enc_std": (NJ,),
               "threshold": (len(statistic_layout(cfg.two_sided, cfg.contact_model)[0]),)}
@@ -222,8 +217,8 @@ class SensorGuard(ImuRules):
 
     Args:
         cfg: the decision settings.
-        stats: the fitted arrays (``ARRAY_NAMES``, plus ``TWO_SIDED_ARRAYS`` and
-            ``CONTACT_ARRAYS`` where ``cfg`` asks for them; shapes: :func:`array_shapes`):
+        stats: the fitted arrays that ``cfg`` asks for (names and shapes in guard.safetensors:
+            :func:`array_shapes`):
             feature mean/std (3 D,), ridge weight (3 D, P) and bias (P,), residual std
             ``z_std`` (P,), encoder residual std ``enc_std`` (12,), the contact network and
             one threshold per statistic (S,).
@@ -235,8 +230,7 @@ class SensorGuard(ImuRules):
     def __init__(self, cfg: GuardConfig, stats: dict[str, np.ndarray],
                  sensors: tuple[str, ...] = PHYSICAL_SENSORS, num_envs: int = 1,
                  dt: float = 0.02) -> None:
-        need = (ARRAY_NAMES + (TWO_SIDED_ARRAYS if cfg.two_sided else ())
-                + (CONTACT_ARRAYS if cfg.contact_model else ()))
+        need = tuple(array_shapes(cfg))
         missing = [k for k in need if k not in stats]
         if missing:
             raise KeyError(f"guard arrays missing: {missing}")

@@ -108,7 +108,7 @@ def contact_rows(data: Episodes, lags: int) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_contact_model(data: Episodes, cfg: GuardConfig, seed: int = 0,
                       batch: int = 512) -> dict[str, np.ndarray]:
-    """The contact network's arrays (``policies.guard.CONTACT_ARRAYS``): two hidden GELU
+    """The contact network's arrays (the ``contact_*`` of ``policies.guard.array_shapes``): two hidden GELU
     layers of ``cfg.contact_hidden``, logistic outputs, fitted by AdamW (lr 3e-3, cosine
     decay) on binary cross-entropy for ``cfg.contact_epochs`` passes (at least 200 steps);
     seeded."""

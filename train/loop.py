@@ -22,7 +22,7 @@ from train.distributed import FitJob, Group, current, join, launched, leave
 from train.optim import make_optimizer, make_scheduler
 from train.sampling import WindowSampler
 from train.state import restore_checkpoint, save_checkpoint
-from train.step import draw_sensor_dropout, train_step, validate
+from train.step import draw_sensor_dropout, draw_step_mask, train_step, validate
 
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
               "val_loss", "val_loss_unmasked", "val_action_mse")
@@ -196,9 +196,7 @@ def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
     batch = train_ds.get_batch(rows if run.group is None else run.group.shard(rows))
     absent = draw_sensor_dropout(policy, len(batch[policy.config.action_key]),
                                  cfg.sensor_dropout, run.gen) if cfg.sensor_dropout else None
-    mask = run.mask_ratio
-    if cfg.unmasked_share and float(torch.rand((), generator=run.gen, device=run.gen.device)) < cfg.unmasked_share:
-        mask = 0.0
+    mask = draw_step_mask(run.mask_ratio, cfg.unmasked_share, run.gen)
     metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
                          mask, run.gen, dummy_tokens=cfg.dummy_tokens,
                          loss_fn=run.loss_fn, absent=absent)

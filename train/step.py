@@ -95,6 +95,17 @@ def draw_sensor_dropout(policy: StudentPolicy, batch_size: int, rate: float,
             for i, s in enumerate(sensors)}
 
 
+def draw_step_mask(mask_ratio: float, unmasked_share: float,
+                   generator: torch.Generator) -> float:
+    """This step's training mask: 0 (every token) with probability ``unmasked_share``, else
+    ``mask_ratio``; the draw comes from ``generator`` (the run's mask generator) only when
+    ``unmasked_share`` > 0."""
+    if unmasked_share and float(torch.rand((), generator=generator,
+                                           device=generator.device)) < unmasked_share:
+        return 0.0
+    return mask_ratio
+
+
 @torch.no_grad()
 def validate(policy: StudentPolicy, dataset: Any, batch_size: int, max_samples: int,
              mask_ratio: float, seed: int = 0) -> dict[str, float]:

@@ -171,11 +171,10 @@ class CompareConfig:
         """The config ``name`` trains with: its preset's, at ``msta_history`` and
         ``msta_mask_ratio`` for MSTA."""
         config = policy_config(name, self.preset)
-        if self.msta_history and config.type == "msta":
-            config = replace(config, history=self.msta_history)
-        if self.msta_mask_ratio and config.type == "msta":
-            config = replace(config, mask_ratio=self.msta_mask_ratio)
-        return config
+        if config.type != "msta":
+            return config
+        given = {"history": self.msta_history, "mask_ratio": self.msta_mask_ratio}
+        return replace(config, **{k: v for k, v in given.items() if v})
 
     @property
     def dataset_root(self) -> Path:
