@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.apps.demo
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.apps.demo
 
 test: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m pytest -q -x -p no:cacheprovider
@@ -36,7 +36,7 @@ test: $(STAMP)
 SCALE ?= reference
 REPRO_REPORT = $(if $(filter paper,$(SCALE)),docs/reference/paper_scale,docs/reference)
 repro: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.apps.repro --scale=$(SCALE) \
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.apps.repro --scale=$(SCALE) \
 		--output_dir=outputs/repro_$(SCALE) --report_dir=$(REPRO_REPORT)
 
 # The CUDA path of every stage (stage 1 on GPU and CPU, their action parity, one stage-2
@@ -44,37 +44,37 @@ repro: $(STAMP)
 # same stages run on the CPU. Figures: $(DEVICE_OUT)/device_check.json.
 DEVICE_OUT ?= $(if $(OUT),$(OUT),outputs)/device_check
 device-check: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.apps.device_check --output_dir=$(DEVICE_OUT)
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.apps.device_check --output_dir=$(DEVICE_OUT)
 
 bench: bench-sim bench-data bench-train bench-learn bench-deploy bench-scale
 
 bench-sim: $(STAMP)
-	$(PY) -m eval.bench.sim
+	$(PY) -m msta.eval.bench.sim
 
 bench-data: $(STAMP)
-	$(PY) -m eval.bench.data
+	$(PY) -m msta.eval.bench.data
 
 bench-train: $(STAMP)
-	$(PY) -m eval.bench.train
+	$(PY) -m msta.eval.bench.train
 
 # Equal wall-clock learning race on one seeded teacher dataset (~9 min): MSTA vs GRU vs MLP.
 bench-learn: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench.learn
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.bench.learn
 
 # Batch-1 latency on one core (~1 min): MSTA paper preset, full and minimized observation,
 # eager / TorchScript / onnxruntime, next to the FLOP count and the measured matmul rate.
 bench-deploy: $(STAMP)
-	$(PY) -m eval.bench.deploy
+	$(PY) -m msta.eval.bench.deploy
 
 # Rollout throughput (collect, stage 2, eval) on 1 and 2 Ray workers against the single
 # process, round-robin in one run (~5 min on 2 cores); docs/scale.md. Then msta-train's
 # samples/s as one process and under torchrun with 1 and 2 processes (~4 min).
 bench-scale: $(STAMP)
-	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m eval.bench.scale
-	$(PY) -m eval.bench.scale_train
+	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.bench.scale
+	$(PY) -m msta.eval.bench.scale_train
 
 docs-terrain: $(STAMP)
-	$(PY) -m collect.sim.terrain_docs --docs docs/
+	$(PY) -m msta.collect.sim.terrain_docs --docs docs/
 
 # A local Hugging Face-compatible hub for air-gapped labs (see docs/hub.md).
 hub: $(STAMP)

@@ -6,8 +6,8 @@ variant, commands, latency, pushes, observation noise) comes from its own stream
 from a generator keyed the same way (:func:`slot_tiles`; the level stays for the run, no
 curriculum). A block of slots is simulated together in one batched simulator by one worker
 (:func:`record_block`); its policies are seeded by (run seed, block index)
-(:func:`collect.ray_pool.block_seed`). The blocks are fixed by the run's episode count and
-``--num_envs`` (:func:`collect.ray_pool.plan_blocks`), so the episodes, and the order the
+(:func:`msta.collect.ray_pool.block_seed`). The blocks are fixed by the run's episode count and
+``--num_envs`` (:func:`msta.collect.ray_pool.plan_blocks`), so the episodes, and the order the
 committer writes them in (block by block, slot by slot), are the same for any worker count.
 
 Two ways to fill a slot: its first episode (msta-collect; msta-correct without
@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from collect.ray_pool import (
+from msta.collect.ray_pool import (
     RayPool,
     block_seed,
     cached,
@@ -32,9 +32,9 @@ from collect.ray_pool import (
     plan_blocks,
     shared_pool,
 )
-from collect.record import EpisodeRecorder, LabelledActor
-from collect.rollout import Step, rollout
-from collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.record import EpisodeRecorder, LabelledActor
+from msta.collect.rollout import Step, rollout
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
 
 #: Salt of the per-slot tile generators (apart from the simulator's stream salts).
 TILE_SALT = 0x711E
@@ -67,7 +67,7 @@ def record_block(env: QuadrupedEnv, actor: Any, block: int, keys: np.ndarray,
 
     Args:
         env: a simulator of ``len(keys)`` environments, curriculum off, seeded by the run.
-        actor: drives and labels (a :class:`~collect.record.LabelledActor`, or any policy,
+        actor: drives and labels (a :class:`~msta.collect.record.LabelledActor`, or any policy,
             which then labels itself).
         block: the block's index (the test hook's key).
         keys: (n,) slot indices.
@@ -108,7 +108,7 @@ def record_block(env: QuadrupedEnv, actor: Any, block: int, keys: np.ndarray,
 
 @dataclass
 class RecordJob:
-    """A pool job (:class:`collect.ray_pool.Job`): record blocks of slots.
+    """A pool job (:class:`msta.collect.ray_pool.Job`): record blocks of slots.
 
     Args:
         env: the run's simulator settings (its ``seed`` keys every slot; ``num_envs`` is
@@ -170,7 +170,7 @@ def teacher_factory(teacher_cfg: Any, noise: float, seed: int) -> ActorFactory:
     """msta-collect's block actor: a fresh teacher (stateful ones are sized per batch)
     that drives and labels, with ``noise`` on what it executes (DART), seeded per block."""
     def make(block: int, n: int) -> LabelledActor:
-        from policies.teacher.config import build_teacher
+        from msta.policies.teacher.config import build_teacher
 
         return LabelledActor(build_teacher(teacher_cfg), noise=noise,
                              seed=block_seed(seed, block))

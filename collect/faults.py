@@ -8,7 +8,7 @@ uniformly in ``onset_s`` at every :meth:`~FaultInjector.reset`, from a seeded ge
 reach the student's observation only: the simulator's state, the teacher's inputs and the
 recorded privileged signals never see them. It optionally removes channels from the
 student's input: the *oracle* removes exactly the fault's channels where it is active; a
-*guard* (``policies.guard``) removes what it flags (a gravity vector flagged alone it
+*guard* (``msta.policies.guard``) removes what it flags (a gravity vector flagged alone it
 repairs: ``SensorGuard.repair``).
 
 Fault models, from the onset step on (``x`` the true reading, ``std`` the channel's std in
@@ -48,8 +48,8 @@ from typing import Any
 
 import numpy as np
 
-from msta_data.sensors import JOINT_ENCODER_SENSORS, PHYSICAL_SENSORS, get
-from msta_data.stats import MIN_STD
+from msta.data.sensors import JOINT_ENCODER_SENSORS, PHYSICAL_SENSORS, get
+from msta.data.stats import MIN_STD
 
 FAULT_TYPES: tuple[str, ...] = ("stuck", "bias", "drift", "noise", "spikes", "dropout", "scale")
 #: The target that names one joint encoder: its q (joint_pos) and q-dot (joint_vel).
@@ -189,7 +189,7 @@ def std_from_stats(stats: Mapping[str, Mapping[str, Any]], sensors: Sequence[str
                    ) -> dict[str, np.ndarray]:
     """{sensor: (dim,) std} from a student processor's statistics (``policy.processor.
     stats``, keyed by dataset column), the std it z-scores with (1 below
-    :data:`msta_data.stats.MIN_STD`, as ``policies.processor.effective_std``); binary
+    :data:`msta.data.stats.MIN_STD`, as ``msta.policies.processor.effective_std``); binary
     sensors and sensors without statistics are left out."""
     out = {}
     for s in sensors:
@@ -321,7 +321,7 @@ class FaultyActor:
     of ``channel_steps`` removable ones (:meth:`detections`).
 
     Args:
-        actor: a student actor (``policies.actor.StudentActor``) or anything with
+        actor: a student actor (``msta.policies.actor.StudentActor``) or anything with
             ``act(obs[, absent=])`` / ``reset(ids)``.
         injector: the fault.
         guard: a detector with ``reset(ids)`` / ``update(obs) -> {sensor: (N, dim) bool}``.

@@ -14,7 +14,7 @@ before it is extended, and a damaged one is refused with one line naming the fil
 dataset left empty by a run that recorded nothing is reused by the next run.
 
 Episodes carry the per-sensor columns only; the writer adds ``observation.state`` and
-``observation.environment_state`` for stock LeRobot policies (:mod:`msta_data.derived`).
+``observation.environment_state`` for stock LeRobot policies (:mod:`msta.data.derived`).
 """
 
 from __future__ import annotations
@@ -28,19 +28,19 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.ray_pool import RayOptions, check_ray_options, shared_pool
-from collect.rollout import Step, as_policy, rollout
-from collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
-from collect.sim.env_config import check_sizes
-from collect.sim.terrain import TerrainConfig
-from msta_data import cli, layout
-from msta_data.errors import DatasetError, DirectoryLockedError
-from msta_data.features import NON_SENSOR_FEATURES, load_info
-from msta_data.layout import LOCK_NAME
-from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
-from msta_data.writer import DatasetWriter
-from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
+from msta.collect.rollout import Step, as_policy, rollout
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv, StepResult
+from msta.collect.sim.env_config import check_sizes
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data import cli, layout
+from msta.data.errors import DatasetError, DirectoryLockedError
+from msta.data.features import NON_SENSOR_FEATURES, load_info
+from msta.data.layout import LOCK_NAME
+from msta.data.robot import NUM_JOINTS
+from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
+from msta.data.writer import DatasetWriter
+from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 
 class EpisodeRecorder:
@@ -149,7 +149,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
                     sensors: tuple[str, ...] | None = None, label: Any = None,
                     progress: bool = True, horizon: int | None = None) -> int:
     """Run ``actor`` until ``episodes`` episodes have finished, handing each to ``write``
-    (:func:`collect.rollout.rollout` with a recording hook); or, with ``horizon``, for
+    (:func:`msta.collect.rollout.rollout` with a recording hook); or, with ``horizon``, for
     exactly ``horizon`` control steps, keeping every frame.
 
     Args:
@@ -343,7 +343,7 @@ def collect(cfg: CollectConfig) -> Path:
         t0 = time.time()
         sensors = tuple(writer.msta_meta["sensors"])
         if cfg.workers:  # Ray workers simulate, this process commits (docs/scale.md)
-            from collect.distributed import collect_on_workers
+            from msta.collect.distributed import collect_on_workers
 
             steps = collect_on_workers(cfg, write, have, sensors)
         else:
@@ -357,7 +357,7 @@ def collect(cfg: CollectConfig) -> Path:
 
 
 def parse_config(argv: Sequence[str] | None = None, prog: str = "msta-collect") -> CollectConfig:
-    """:func:`msta_data.cli.parse_config`: an unknown option or an invalid value exits 2 with
+    """:func:`msta.data.cli.parse_config`: an unknown option or an invalid value exits 2 with
     one line naming the field and the reason."""
     return cli.parse_config(CollectConfig, argv, prog, aliases={
         "env.num_envs": "num_envs", "env.seed": "seed", "env.episode_length_s": "episode_length_s"})

@@ -3,8 +3,8 @@
 A policy here is anything with ``act(obs) -> (N, 12)`` and ``reset(ids)`` (every teacher,
 and students through their adapters), or a plain callable ``obs -> actions``.
 
-:func:`rollout` is the loop every caller shares: recording (``collect.record``), stage 2
-(``train.online`` through recording), the evaluation's trials (``eval.metrics``), the
+:func:`rollout` is the loop every caller shares: recording (``msta.collect.record``), stage 2
+(``msta.train.online`` through recording), the evaluation's trials (``msta.eval.metrics``), the
 teacher report, ``msta-sim`` (:func:`run`) and every film (:func:`film`). What differs
 between them (recording frames, per-trial bookkeeping, when to stop) is a hook called after
 every step with a :class:`Step`; :func:`step_quantities` defines the per-step figures every
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.sim.env import REASONS, QuadrupedEnv, StepResult
+from msta.collect.sim.env import REASONS, QuadrupedEnv, StepResult
 
 
 def as_policy(policy: Any) -> tuple[Callable, Callable]:
@@ -73,7 +73,7 @@ def step_quantities(step: Step) -> dict[str, np.ndarray]:
             "yaw_err": np.abs(m["base_ang_vel"][:, 2] - cmd[:, 2])}
 
 
-#: Why an episode ends when it is not survived (indices into ``collect.sim.env.REASONS``).
+#: Why an episode ends when it is not survived (indices into ``msta.collect.sim.env.REASONS``).
 FALL_REASONS = ("fall", "nan")
 _FELL = np.isin(np.arange(len(REASONS)), [REASONS.index(r) for r in FALL_REASONS])
 
@@ -129,7 +129,7 @@ def rollout(env: QuadrupedEnv, policy: Any, on_step: StepHook, max_steps: int | 
     return t
 
 
-#: env -> the camera of the next frame (:func:`collect.sim.render.tracking_camera`).
+#: env -> the camera of the next frame (:func:`msta.collect.sim.render.tracking_camera`).
 CameraFn = Callable[[QuadrupedEnv], Any]
 
 
@@ -148,14 +148,14 @@ def film(env: QuadrupedEnv, policy: Any, steps: int, every: int = 5, first: int 
         first: the step before which the first frame is taken.
         env_id: which environment to film.
         size: (height, width) of the frames.
-        camera: the camera of each frame (default: :func:`~collect.sim.render.tracking_camera`).
+        camera: the camera of each frame (default: :func:`~msta.collect.sim.render.tracking_camera`).
         on_step: the caller's hook, called after every step before its frame is taken.
     Returns:
         (height, width, 3) uint8 frames.
     """
     import mujoco
 
-    from collect.sim.render import make_renderer, render_state, tracking_camera
+    from msta.collect.sim.render import make_renderer, render_state, tracking_camera
 
     renderer = make_renderer(env.model, *size)
     data = mujoco.MjData(env.model)

@@ -4,7 +4,7 @@
     msta-sim --teacher.type=gait --env.terrain.types='[flat,stairs_up]'
 
 The teacher is chosen as everywhere else (``--teacher.type``, ``--teacher.path``: the same
-:class:`~policies.teacher.config.TeacherConfig` as msta-collect, msta-correct and msta-eval);
+:class:`~msta.policies.teacher.config.TeacherConfig` as msta-collect, msta-correct and msta-eval);
 ``zero`` holds the default pose.
 """
 
@@ -14,11 +14,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import policies.teacher  # noqa: F401  (registers the built-in teachers)
-from collect.rollout import film, run
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from msta_data.cli import parse_config
-from policies.teacher.config import TeacherConfig, build_teacher
+import msta.policies.teacher  # noqa: F401  (registers the built-in teachers)
+from msta.collect.rollout import film, run
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.cli import parse_config
+from msta.policies.teacher.config import TeacherConfig, build_teacher
 
 
 @dataclass
@@ -57,7 +57,7 @@ def simulate(cfg: SimRunConfig) -> str:
     print(table)
     if cfg.image or cfg.video:
         os.environ.setdefault("MUJOCO_GL", "egl")
-        from collect.sim.render import save_strip, save_video
+        from msta.collect.sim.render import save_strip, save_video
 
         env.reset()
         frames = film(env, policy, min(steps, 150), every=5)

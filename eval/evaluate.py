@@ -8,14 +8,14 @@
 ``--policies`` entries: ``teacher`` (the reference teacher of ``--teacher.type``, rolled out
 again as a row), ``teacher:<type>`` (another registered teacher as a fixed-input row, e.g.
 ``teacher:zero`` holds the default pose), a checkpoint directory, or a hub id
-``user/name[@revision]`` (pulled by msta's one path-or-hub rule, ``msta_data.locate``).
+``user/name[@revision]`` (pulled by msta's one path-or-hub rule, ``msta.data.locate``).
 
 Writes into ``--output_dir``: ``metrics.json`` (every number with its trial count and 95 %
 interval per cell, the configuration, each policy's source and revision), ``report.md``
 (Table I layout and one table per scenario, trials per cell, intervals, a warning for a
 student whose figures do not change with its inputs), PNG plots for scenarios 2-5,
 ``timing.json``, and optionally a video (``--video``). See docs/eval.md for the metric
-definitions; the runs themselves are :class:`eval.evaluator.Evaluator`'s.
+definitions; the runs themselves are :class:`msta.eval.evaluator.Evaluator`'s.
 """
 
 from __future__ import annotations
@@ -31,12 +31,18 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-import policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
-from collect.faults import FaultSpec, split_faults
-from collect.ray_pool import RayOptions, check_ray_options, shared_pool
-from collect.rollout import film
-from eval import report
-from eval.evaluator import (
+import msta.policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
+from msta.collect.faults import FaultSpec, split_faults
+from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
+from msta.collect.rollout import film
+from msta.data.budget import TimeLimitReached, deadline_after, stop
+from msta.data.cli import parse_config
+from msta.data.errors import DirectoryLockedError
+from msta.data.locate import locate, reads_as_hub_id
+from msta.data.locking import hold_directory
+from msta.data.sensors import STUDENT_SENSORS
+from msta.eval import report
+from msta.eval.evaluator import (
     METRICS_VERSION,
     RUNS,
     Evaluator,
@@ -45,8 +51,8 @@ from eval.evaluator import (
     student_entry,
     torch_eval_settings,
 )
-from eval.metrics import start_trials
-from eval.scenarios import (
+from msta.eval.metrics import start_trials
+from msta.eval.scenarios import (
     Condition,
     TrialConfig,
     build_conditions,
@@ -54,17 +60,11 @@ from eval.scenarios import (
     get_suite,
     split_csv,
 )
-from eval.sensor_faults import is_fault_run, load_guard
-from msta_data.budget import TimeLimitReached, deadline_after, stop
-from msta_data.cli import parse_config
-from msta_data.errors import DirectoryLockedError
-from msta_data.locate import locate, reads_as_hub_id
-from msta_data.locking import hold_directory
-from msta_data.sensors import STUDENT_SENSORS
-from policies.actor import StudentActor
-from policies.factory import select_device
-from policies.teacher.base import TEACHERS
-from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.eval.sensor_faults import is_fault_run, load_guard
+from msta.policies.actor import StudentActor
+from msta.policies.factory import select_device
+from msta.policies.teacher.base import TEACHERS
+from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 
 @dataclass
@@ -277,7 +277,7 @@ def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
 
 def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) -> Path:
     """Render ``cfg.video`` = ``POLICY:TERRAIN[:LEVEL]`` (one robot, ``cfg.video_s``) to MP4."""
-    from collect.sim.render import save_video
+    from msta.collect.sim.render import save_video
 
     parts = cfg.video.rsplit(":", 2) if cfg.video.count(":") >= 2 else cfg.video.rsplit(":", 1)
     if len(parts) < 2:

@@ -1,8 +1,8 @@
 """The evaluation's engine: :class:`Evaluator` runs conditions on one shared simulator and
 normalizes every figure by the reference teacher on the same trials.
 
-msta-eval (:mod:`eval.evaluate`) and msta-correct's per-round evaluation
-(``train.evaluation``) both use it, so the same checkpoint on the same trials (and device
+msta-eval (:mod:`msta.eval.evaluate`) and msta-correct's per-round evaluation
+(``msta.train.evaluation``) both use it, so the same checkpoint on the same trials (and device
 type) gets the same figures in both. Also here: the rows (:class:`PolicyEntry`), the
 evaluation simulator (:func:`make_env`), torch as an evaluation needs it
 (:func:`torch_eval_settings`), and the store of finished runs that ``--resume`` reuses
@@ -23,24 +23,24 @@ from typing import Any
 import numpy as np
 import torch
 
-from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
-from eval.scenarios import Condition, TrialConfig
-from eval.sensor_faults import (
+from msta.collect.sim.commands import CommandConfig
+from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.budget import check_deadline
+from msta.data.revision import content_revision, file_parts
+from msta.eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
+from msta.eval.scenarios import Condition, TrialConfig
+from msta.eval.sensor_faults import (
     detection_summary,
     fault_key,
     fault_record,
     faulty_factory,
     is_fault_run,
 )
-from msta_data.budget import check_deadline
-from msta_data.revision import content_revision, file_parts
-from policies.actor import InputSpec, StudentActor
-from policies.factory import load_policy
-from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.factory import load_policy
+from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 METRICS_VERSION = 2  # 2: trials and 95 % intervals per cell, per-level averages, run inputs
 
@@ -99,7 +99,7 @@ def student_entry(path: Path, name: str, source: str,
 
 def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
     """The evaluation simulator: tiles pinned (curriculum off), only the evaluated terrain
-    columns built; :func:`eval.metrics.start_trials` gives every trial its random stream."""
+    columns built; :func:`msta.eval.metrics.start_trials` gives every trial its random stream."""
     return QuadrupedEnv(EnvConfig(
         num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
         terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
@@ -110,7 +110,7 @@ def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
 
 def spec_dict(spec: InputSpec) -> dict[str, Any]:
     """JSON-ready InputSpec (metrics.json's ``spec``; files written before the window was
-    named ``history`` have the key ``T``, :func:`eval.report.spec_history` reads both)."""
+    named ``history`` have the key ``T``, :func:`msta.eval.report.spec_history` reads both)."""
     out = {"history": spec.history, "drop_sensors": list(spec.drop_sensors),
            "dead_joints": list(spec.dead_joints), "mask_ratio": spec.mask_ratio,
            "seed": spec.seed}
@@ -199,10 +199,10 @@ class Evaluator:
         progress: show progress bars.
         store: the folder of finished runs to reuse and add to (``output_dir/eval_runs``);
             None keeps nothing.
-        deadline: ``time.monotonic()`` limit (``msta_data.budget``); checked between runs
+        deadline: ``time.monotonic()`` limit (``msta.data.budget``); checked between runs
             and rounds of trials, never inside one.
-        pool: Ray workers (``collect.ray_pool.RayPool``) that run the rounds of trials
-            (:mod:`eval.trials_pool`; the same figures); the fault runs with removal, whose
+        pool: Ray workers (``msta.collect.ray_pool.RayPool``) that run the rounds of trials
+            (:mod:`msta.eval.trials_pool`; the same figures); the fault runs with removal, whose
             detection figures need their actors here, stay in this process. None: all here.
     """
 
@@ -257,7 +257,7 @@ class Evaluator:
 
         t0 = time.perf_counter()
         if self.pool is not None and not here:
-            from eval.trials_pool import run_trials_on_workers
+            from msta.eval.trials_pool import run_trials_on_workers
 
             res = run_trials_on_workers(self.pool, self.cfg, make_actor, self.layout,
                                         self.env.max_steps, done, on_round)
@@ -292,7 +292,7 @@ class Evaluator:
         Returns:
             the run record of metrics.json: policy, scenario, condition, value, spec,
             ``inputs`` (a digest of what the policy really sees: equal digests mean equal
-            inputs), status, and ``raw`` and ``normalized`` (eval.metrics) or ``reason``.
+            inputs), status, and ``raw`` and ``normalized`` (msta.eval.metrics) or ``reason``.
         """
         if self.reference_trials is None:
             raise RuntimeError("run_reference() first: every figure is normalized by it")

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from eval.report import _norm_cell, fmt_cell
-from eval.scenarios import REMOVALS
-from msta_data.figures import fmt as _fmt
+from msta.data.figures import fmt as _fmt
+from msta.eval.report import _norm_cell, fmt_cell
+from msta.eval.scenarios import REMOVALS
 
 _HEAD = ("| policy | removal | lin tracking vs teacher | total vs teacher | survival | "
          "faults removed | within 0.2 s | mean delay (s) | false removals / channel-step |")

@@ -1,6 +1,6 @@
 """95 % confidence intervals for the evaluation figures (``msta-eval``, ``msta-correct``).
 
-Every figure of :mod:`eval.metrics` is a weighted mean over the trials of its cell,
+Every figure of :mod:`msta.eval.metrics` is a weighted mean over the trials of its cell,
 ``theta = sum_i w_i x_i`` with ``sum_i w_i = 1`` (a terrain cell: equal weights; the
 ``average`` row: each terrain weighs 1/K, split over its trials; step-weighted errors:
 weights proportional to the steps lived), or a ratio of two such means over the *same*

@@ -1,6 +1,6 @@
 """Are a teacher's labels sound on the states a student drives into? (stage 2's premise)
 
-    python -m eval.label_check --policy.path=outputs/demo/stage1/final --robots=60 \\
+    python -m msta.eval.label_check --policy.path=outputs/demo/stage1/final --robots=60 \\
         --student_seconds=3 --episode_length_s=5
 
 The student drives every robot for ``--student_seconds`` while the teacher sees every
@@ -15,11 +15,11 @@ takeover keeps the robots up about as well as a teacher restarted at that moment
   default labelling; teachers without that attribute skip the row);
 * ``takeover reset``: the teacher restarted at the takeover.
 
-Every row runs through msta's one rollout loop (:func:`collect.rollout.rollout`) on the
+Every row runs through msta's one rollout loop (:func:`msta.collect.rollout.rollout`) on the
 same robots, terrains (levels 0 to ``--max_level``), commands and seeds. Survival is msta's
-one figure (:func:`eval.metrics.survival`: the share of robots that did not fall, with a
+one figure (:func:`msta.eval.metrics.survival`: the share of robots that did not fall, with a
 95 % Wilson interval); linear tracking (the per-step return over the whole episode,
-:func:`collect.rollout.step_quantities`' ``lin``, a fallen robot scoring 0 from its fall
+:func:`msta.collect.rollout.step_quantities`' ``lin``, a fallen robot scoring 0 from its fall
 on) is divided by the teacher's on the same robots, with a 95 % delta-method interval over
 the paired robots (eval/intervals.py).
 """
@@ -32,20 +32,20 @@ from typing import Any
 import numpy as np
 import torch
 
-from collect.rollout import Step, fell, rollout, step_quantities
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.terrain import TerrainConfig
-from eval.intervals import ratio_interval
-from eval.metrics import survival
-from msta_data.cli import check_at_least, parse_config, usage_error
-from msta_data.locate import locate_checkpoint
-from msta_data.robot import CONTROL_DT
-from policies.actor import StudentActor
-from policies.checkpoint import PolicyPath
-from policies.factory import load_policy
-from policies.teacher.config import TeacherConfig, build_teacher
+from msta.collect.rollout import Step, fell, rollout, step_quantities
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.cli import check_at_least, parse_config, usage_error
+from msta.data.locate import locate_checkpoint
+from msta.data.robot import CONTROL_DT
+from msta.eval.intervals import ratio_interval
+from msta.eval.metrics import survival
+from msta.policies.actor import StudentActor
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import load_policy
+from msta.policies.teacher.config import TeacherConfig, build_teacher
 
-PROG = "python -m eval.label_check"
+PROG = "python -m msta.eval.label_check"
 MODES = ("teacher", "student", "takeover shadow", "takeover follow", "takeover reset")
 
 
@@ -181,7 +181,7 @@ def render(rows: dict[str, dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Run the label check and print its table (``python -m eval.label_check --help``)."""
+    """Run the label check and print its table (``python -m msta.eval.label_check --help``)."""
     cfg = parse_config(LabelCheckConfig, argv, PROG)
     torch.set_num_threads(cfg.num_threads)
     try:

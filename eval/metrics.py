@@ -8,8 +8,8 @@ generator keyed by ``(seed, i)`` (the simulator's per-environment streams,
 identical tiles, levels, spawns, command samples and noise on the same trial, whatever
 happens in the other environments of the batch. Only the first episode of every
 environment counts; the auto-reset episodes after it are ignored. The trials run through the
-one rollout loop (:func:`collect.rollout.rollout`), and the per-step figures are
-:func:`collect.rollout.step_quantities`, the same that msta-sim and the teacher report sum.
+one rollout loop (:func:`msta.collect.rollout.rollout`), and the per-step figures are
+:func:`msta.collect.rollout.step_quantities`, the same that msta-sim and the teacher report sum.
 
 Metrics per trial (rewards are the simulator's, already scaled by dt):
 
@@ -17,7 +17,7 @@ Metrics per trial (rewards are the simulator's, already scaled by dt):
   angular-velocity tracking terms and of the total reward, divided by the episode's time
   limit in steps (per-step return; a fall ends the return early);
 - ``survival``: 1 if the episode ended by the time limit, 0 on a fall or physics blow-up
-  (:func:`collect.rollout.fell`; the cell's figure is :func:`survival`);
+  (:func:`msta.collect.rollout.fell`; the cell's figure is :func:`survival`);
 - ``vel_err``, ``yaw_err``: mean |v_xy - cmd_xy| (m/s) and |w_z - cmd_wz| (rad/s) over the
   steps lived (true base velocities);
 - ``length``: steps lived / time limit.
@@ -27,11 +27,11 @@ steps); the ``average`` row is the mean over terrain types (per level likewise: 
 ``average`` of ``per_level`` is the mean over the terrains at that level); ``normalized``
 divides the three returns by the teacher's on the same trials (for ``average``: the
 student's terrain-averaged return over the teacher's). Every cell records its number of
-trials and a 95 % confidence interval per figure (:mod:`eval.intervals`: Student t over
+trials and a 95 % confidence interval per figure (:mod:`msta.eval.intervals`: Student t over
 trials, the delta method on paired trials for ratios, Wilson for survival).
 
-``msta-eval`` (:mod:`eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
-through :class:`eval.evaluator.Evaluator`, so the same checkpoint on the same trials (and
+``msta-eval`` (:mod:`msta.eval.evaluate`) and ``msta-correct``'s per-round evaluation both go
+through :class:`msta.eval.evaluator.Evaluator`, so the same checkpoint on the same trials (and
 device type) gets the same figures in both; msta-correct's round table and the stage-2 model card pick theirs
 from the run record with :func:`headline`. The teacher report summarizes its tiles with
 :func:`summarize` (one trial per finished episode).
@@ -47,10 +47,10 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import STEP_QUANTITIES, Step, as_policy, fell, rollout, step_quantities
-from collect.sim.env import QuadrupedEnv
-from eval.intervals import Interval, mean_interval, proportion_interval, ratio_interval
-from msta_data.hub_eval import HEADLINE_FIGURES
+from msta.collect.rollout import STEP_QUANTITIES, Step, as_policy, fell, rollout, step_quantities
+from msta.collect.sim.env import QuadrupedEnv
+from msta.data.hub_eval import HEADLINE_FIGURES
+from msta.eval.intervals import Interval, mean_interval, proportion_interval, ratio_interval
 
 #: Returns normalized by the teacher's (the paper's three metrics).
 RETURNS: tuple[str, ...] = ("lin_tracking", "ang_tracking", "total")
@@ -135,7 +135,7 @@ class TrialResults:
         return cls(*z[:4], np.zeros(n, dtype=bool), *z[4:6], max_steps=max_steps)
 
     def add(self, ids: np.ndarray, step: Step, weight: np.ndarray) -> None:
-        """Sum one step's :func:`~collect.rollout.step_quantities` of the environments
+        """Sum one step's :func:`~msta.collect.rollout.step_quantities` of the environments
         running trials ``ids``, each times ``weight`` (1 while its first episode runs)."""
         q = step_quantities(step)
         for key in STEP_QUANTITIES:
@@ -311,8 +311,8 @@ def _ci(interval: tuple[float, float] | None) -> list[float] | None:
 
 def survival(fallen: np.ndarray, w: np.ndarray | None = None) -> tuple[float, Interval]:
     """msta's survival figure: the (weighted) share of episodes that did not end by a fall
-    or a physics blow-up (``fallen``: :func:`collect.rollout.fell` at each episode's end),
-    with its 95 % Wilson interval (:func:`eval.intervals.proportion_interval`; equal weights:
+    or a physics blow-up (``fallen``: :func:`msta.collect.rollout.fell` at each episode's end),
+    with its 95 % Wilson interval (:func:`msta.eval.intervals.proportion_interval`; equal weights:
     the share survived / episodes over that many episodes).
 
     Args:
@@ -324,7 +324,7 @@ def survival(fallen: np.ndarray, w: np.ndarray | None = None) -> tuple[float, In
 
 def summarize(res: TrialResults, strata: list[np.ndarray]) -> dict[str, Any]:
     """One cell's metrics: the mean over its strata of each stratum's mean (module
-    docstring), the cell's trial count and a 95 % interval per metric (eval.intervals).
+    docstring), the cell's trial count and a 95 % interval per metric (msta.eval.intervals).
 
     Args:
         res: per-trial results.
@@ -365,7 +365,7 @@ def aggregate(res: TrialResults, layout: TrialLayout) -> dict[str, Any]:
 def normalize(student: TrialResults, teacher: TrialResults, layout: TrialLayout
               ) -> dict[str, Any]:
     """The three returns divided by the teacher's on the same trials, with 95 % intervals
-    (delta method on the paired trials, eval.intervals).
+    (delta method on the paired trials, msta.eval.intervals).
 
     Args:
         student, teacher: per-trial results over the same ``layout``.
@@ -394,10 +394,10 @@ def normalize(student: TrialResults, teacher: TrialResults, layout: TrialLayout
 
 
 def headline(run: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The :data:`HEADLINE_FIGURES` of one run record (``eval.evaluator.Evaluator.condition``
+    """The :data:`HEADLINE_FIGURES` of one run record (``msta.eval.evaluator.Evaluator.condition``
     with status ok) per terrain and ``average``, as cells keyed by figure name:
     ``{terrain: {name: value, ..., "trials": n, "ci": {name: [low, high] or None}}}``
-    (``eval.report.fmt_cell`` formats them). msta-correct's round table and the stage-2 model
+    (``msta.eval.report.fmt_cell`` formats them). msta-correct's round table and the stage-2 model
     card read their figures here, so both show msta-eval's numbers."""
     out: dict[str, dict[str, Any]] = {}
     for name, figure, key in HEADLINE_FIGURES:

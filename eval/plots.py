@@ -2,7 +2,7 @@
 the sweeps of scenarios 2-5 and the train-mask heatmap.
 
 Every point says how many trials stand behind it (``n`` in the title) and carries its 95 %
-interval as an error bar (the interval stored in metrics.json, :mod:`eval.intervals`). A
+interval as an error bar (the interval stored in metrics.json, :mod:`msta.eval.intervals`). A
 policy that is n/a under every condition of a sweep (the teacher under test-time input
 changes) is left out of the plot and its legend; the dashed line at 1 is the teacher, by
 which every figure is normalized. Other n/a points are marked "n/a".
@@ -13,8 +13,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from eval.metrics import RETURNS
-from eval.report import (
+from msta.eval.metrics import RETURNS
+from msta.eval.report import (
     METRIC_TITLES,
     _conditions,
     _lookup,
@@ -22,7 +22,7 @@ from eval.report import (
     _policy_names,
     _runs,
 )
-from eval.scenarios import SCENARIOS
+from msta.eval.scenarios import SCENARIOS
 
 
 def _pyplot():

@@ -1,14 +1,14 @@
 """Markdown tables and PNG plots from a metrics.json written by ``msta-eval``.
 
-    python -m eval.report outputs/eval/metrics.json      # rewrite report.md and the plots
-    python -m eval.report outputs/eval/metrics.json --output_dir=outputs/eval_restyled
+    python -m msta.eval.report outputs/eval/metrics.json      # rewrite report.md and the plots
+    python -m msta.eval.report outputs/eval/metrics.json --output_dir=outputs/eval_restyled
 
 Everything here reads only the metrics dictionary, so reports can be regenerated (or
 restyled) without rerunning the simulator. n/a runs stay visible: "n/a" in tables, an
 "n/a" mark in plots.
 
 Every table cell shows its figure with the 95 % confidence interval stored in metrics.json
-(:mod:`eval.intervals`: ``±`` half-width of a Student-t / delta-method interval, or
+(:mod:`msta.eval.intervals`: ``±`` half-width of a Student-t / delta-method interval, or
 ``(low–high)`` Wilson bounds for survival), and every table ends with a *trials per cell*
 row; the header says how the trials spread over terrain cells. A student whose figures are
 identical (to 4 significant digits, every cell) across conditions that change its inputs
@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from eval.metrics import RETURNS
-from eval.scenarios import SCENARIOS
-from msta_data.cli import parse_config
-from msta_data.figures import fmt_ci
+from msta.data.cli import parse_config
+from msta.data.figures import fmt_ci
+from msta.eval.metrics import RETURNS
+from msta.eval.scenarios import SCENARIOS
 
 METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":
                  "angular-velocity tracking", "total": "total reward"}
@@ -39,7 +39,7 @@ SHORT_TERRAIN = {"smooth_slope": "smooth", "rough_slope": "rough", "stairs_up": 
 
 
 def fmt_cell(cell: dict | None, metric: str, digits: int = 2) -> str:
-    """One figure of an eval.metrics cell (``{metric: value, "ci": {metric: [lo, hi]}}``)
+    """One figure of an msta.eval.metrics cell (``{metric: value, "ci": {metric: [lo, hi]}}``)
     with its interval."""
     if cell is None:
         return "n/a"
@@ -309,7 +309,7 @@ def markdown(metrics: dict) -> str:
             parts += [f"{METRIC_TITLES[m]} (normalized, mean over terrains):", "",
                       scenario_table(metrics, name, m), ""]
     if _runs(metrics, "sensor_faults"):
-        from eval.fault_report import section  # (it formats with this module's cells)
+        from msta.eval.fault_report import section  # (it formats with this module's cells)
         parts += [section(metrics)]
     if "mask_matrix" in cfg["scenarios"]:
         parts += ["## Train mask ratios (stage 1 x stage 2)", ""]
@@ -332,7 +332,7 @@ def write_report(metrics: dict, out: str | Path) -> list[Path]:
         metrics: metrics.json content.
         out: output directory.
     """
-    from eval.plots import write_plots  # (the plots read this module's lookups)
+    from msta.eval.plots import write_plots  # (the plots read this module's lookups)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -343,7 +343,7 @@ def write_report(metrics: dict, out: str | Path) -> list[Path]:
 
 @dataclass
 class EvalReportConfig:
-    """``python -m eval.report``: rewrite report.md and the plots from a metrics.json.
+    """``python -m msta.eval.report``: rewrite report.md and the plots from a metrics.json.
 
     Args:
         metrics: a metrics.json written by msta-eval (also the first bare word).
@@ -361,8 +361,8 @@ class EvalReportConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Rewrite report.md and the plots (``python -m eval.report METRICS [--output_dir=DIR]``)."""
-    cfg = parse_config(EvalReportConfig, argv, "python -m eval.report", positionals=("metrics",))
+    """Rewrite report.md and the plots (``python -m msta.eval.report METRICS [--output_dir=DIR]``)."""
+    cfg = parse_config(EvalReportConfig, argv, "python -m msta.eval.report", positionals=("metrics",))
     path = Path(cfg.metrics)
     metrics = json.loads(path.read_text())
     for f in write_report(metrics, Path(cfg.output_dir) if cfg.output_dir else path.parent):

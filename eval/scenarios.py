@@ -1,7 +1,7 @@
 """The paper's test-time experiments as a registry of scenarios, and the suites that run them.
 
 A *scenario* turns a student (its input sensors) and a suite's values into *conditions*:
-one :class:`~policies.actor.InputSpec` each (what the student sees at test time) plus the
+one :class:`~msta.policies.actor.InputSpec` each (what the student sees at test time) plus the
 label and x-axis value used in tables and plots. The teacher is the reference: no input
 change applies to it.
 
@@ -18,7 +18,7 @@ Scenarios (registry :data:`SCENARIOS`):
    in the checkpoints).
 6. ``dummy_tokens``: N random "dummy" tokens appended to every sample of a token student
    (MSTA), 0 / 256 (quick) or 0 / 64 / 256 (paper); other students are not applicable.
-7. ``sensor_faults``: a sensor that lies (``collect.faults``: stuck, bias, drift, noise,
+7. ``sensor_faults``: a sensor that lies (``msta.collect.faults``: stuck, bias, drift, noise,
    spikes, dropout, scale) from a random onset on, each fault run three ways: the student
    unguarded, with the oracle removing exactly the faulty channels, and with the guard saved
    with the checkpoint (when it has one); plus the fault-free student. Not part of a
@@ -39,13 +39,13 @@ from typing import Any
 
 import numpy as np
 
-from collect.faults import FaultSpec
-from collect.sim.env_config import check_sizes
-from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from eval.metrics import TrialLayout
-from msta_data.cli import check_at_least
-from msta_data.robot import NUM_JOINTS
-from policies.actor import InputSpec
+from msta.collect.faults import FaultSpec
+from msta.collect.sim.env_config import check_sizes
+from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from msta.data.cli import check_at_least
+from msta.data.robot import NUM_JOINTS
+from msta.eval.metrics import TrialLayout
+from msta.policies.actor import InputSpec
 
 #: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
 PAPER_TERRAINS: tuple[str, ...] = (
@@ -176,7 +176,7 @@ def _history(ctx: ScenarioContext) -> list[Condition]:
 
 #: The joint whose encoder (or q channel) the default fault sweep breaks: FL calf (the knee).
 FAULT_JOINT = 2
-#: sensor_faults' default sweep (one-string form, collect.faults): every type at the
+#: sensor_faults' default sweep (one-string form, msta.collect.faults): every type at the
 #: severity the issue's minimums name, on one joint encoder, one channel and a whole sensor.
 DEFAULT_FAULTS: tuple[str, ...] = tuple(
     f"{kind}:{target}" for target in (f"encoder:{FAULT_JOINT}", f"joint_pos:{FAULT_JOINT}",
@@ -309,7 +309,7 @@ class TrialConfig:
 
     A *trial* is one episode of one robot on a pinned (terrain, level) tile; trial i runs
     on terrain ``i mod n_terrains`` at level ``levels[(i // n_terrains) mod n_levels]``
-    (eval.metrics.TrialLayout). Options left at 0 / empty take the suite's value.
+    (msta.eval.metrics.TrialLayout). Options left at 0 / empty take the suite's value.
     """
 
     suite: str = "quick"

@@ -1,5 +1,5 @@
 """The sensor_faults scenario at run time: the student's actor behind a fault
-(:class:`collect.faults.FaultyActor`), the guard hook, and what metrics.json records.
+(:class:`msta.collect.faults.FaultyActor`), the guard hook, and what metrics.json records.
 
 Every round of trials gets a fresh injector seeded by ``(seed, round)`` only, so the
 unguarded, oracle and guard runs of a fault, and every fault of the sweep, share the onsets
@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
-from eval.scenarios import Condition
-from policies.actor import StudentActor
+from msta.collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
+from msta.eval.scenarios import Condition
+from msta.policies.actor import StudentActor
 
 #: Mixed into every injector's seed (apart from the students' mask streams).
 FAULT_SEED_TAG = 0xFA17
@@ -30,7 +30,7 @@ def fault_seed(seed: int, round_: int) -> list[int]:
 def load_guard(path: str, num_envs: int) -> Any:
     """The guard saved with the checkpoint at ``path`` for ``num_envs`` environments, or
     None (no guard saved there)."""
-    from policies.guard import load_guard as load
+    from msta.policies.guard import load_guard as load
 
     return load(path, num_envs=num_envs) if path else None
 

@@ -1,13 +1,13 @@
 """Progress of an ``msta-train-teacher`` run at fixed terrains: survival vs environment steps.
 
-    python -m eval.teacher_curve --run=outputs/teacher --image=outputs/teacher/curve.png
+    python -m msta.eval.teacher_curve --run=outputs/teacher --image=outputs/teacher/curve.png
 
 The curriculum's own survival (``curve.json``) mixes levels that move with the policy, so a
 run's progress is measured here on fixed tiles instead: the snapshots the run kept
 (``snapshots/iter_<n>/``, ``--ppo.snapshot_interval``; ``--every`` thins them), the run's
 starting point (``init/`` or ``warmstart/``) and the gait controller each walk
 ``--episodes`` episodes of ``--episode_length_s`` per terrain type at ``--level`` (the
-harness of ``eval.teacher_report``: terrain curriculum off, randomization and observation
+harness of ``msta.eval.teacher_report``: terrain curriculum off, randomization and observation
 noise on, seed 0; 95 % Wilson intervals). Results are cached in ``<run>/curve_eval.json``,
 one cache per setting, each entry with the evaluated checkpoint's content revision:
 re-running evaluates only snapshots that are new or whose files changed. The image has two
@@ -28,13 +28,13 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
-from collect.sim.terrain import TERRAIN_TYPES
-from eval.intervals import wilson_interval
-from eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
-from msta_data.cli import check_at_least, parse_config
-from policies.teacher.config import TeacherConfig, teacher_revision
+from msta.collect.sim.terrain import TERRAIN_TYPES
+from msta.data.cli import check_at_least, parse_config
+from msta.eval.intervals import wilson_interval
+from msta.eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
+from msta.policies.teacher.config import TeacherConfig, teacher_revision
 
-PROG = "python -m eval.teacher_curve"
+PROG = "python -m msta.eval.teacher_curve"
 _SNAP = re.compile(r"^iter_(\d+)$")
 GAIT, START = "gait controller", "start"
 
@@ -47,7 +47,7 @@ class TeacherCurveConfig:
         terrains: comma-separated terrain types evaluated at ``level``.
         level: the terrain level of every evaluated tile.
         episodes: episodes per terrain type and checkpoint (rounded up to a multiple of
-            envs_per_tile, as eval.teacher_report runs them).
+            envs_per_tile, as msta.eval.teacher_report runs them).
         envs_per_tile: robots per tile (each runs episodes / envs_per_tile episodes).
         episode_length_s: episode length (s); 20 is the length of docs/teacher_quality.md.
         nthread: MuJoCo rollout threads and torch threads.
@@ -86,7 +86,7 @@ class TeacherCurveConfig:
 
     @property
     def episodes_run(self) -> int:
-        """Episodes per tile that eval.teacher_report actually runs."""
+        """Episodes per tile that msta.eval.teacher_report actually runs."""
         return self.envs_per_tile * math.ceil(self.episodes / self.envs_per_tile)
 
 

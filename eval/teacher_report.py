@@ -1,8 +1,8 @@
 """Quality report of a teacher: survival and command tracking per terrain type and level.
 
-    python -m eval.teacher_report --episodes=100 --envs_per_tile=20 \\
+    python -m msta.eval.teacher_report --episodes=100 --envs_per_tile=20 \\
         --report=docs/teacher_quality.md --image=docs/teacher_stairs_up.png
-    python -m eval.teacher_report --teacher.type=rma --teacher.path=CKPT --terrains=flat \\
+    python -m msta.eval.teacher_report --teacher.type=rma --teacher.path=CKPT --terrains=flat \\
         --levels=0-4 --report=outputs/rma_quality.md --image=''
 
 Every terrain type runs on its own grid (``--columns`` columns of that type x the levels),
@@ -27,27 +27,27 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from collect.rollout import Step, fell, film, rollout
-from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from eval.metrics import TrialResults, summarize
-from msta_data.cli import check_at_least, parse_config
-from policies.teacher.config import TeacherConfig, build_teacher
+from msta.collect.rollout import Step, fell, film, rollout
+from msta.collect.sim.commands import CommandConfig
+from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from msta.data.cli import check_at_least, parse_config
+from msta.eval.metrics import TrialResults, summarize
+from msta.policies.teacher.config import TeacherConfig, build_teacher
 
-PROG = "python -m eval.teacher_report"
+PROG = "python -m msta.eval.teacher_report"
 
 MINIMUM_FLAT_LEVELS = 5          # flat and smooth slope levels 0-4: >= 95 % survival
 MINIMUM_LOW_LEVELS = 3           # every type, levels 0-2: >= 80 % survival
 
 
 def tile_row(summary: dict[str, Any]) -> dict[str, Any]:
-    """A report row from :func:`eval.metrics.summarize` over a tile's episodes: ``episodes``,
+    """A report row from :func:`msta.eval.metrics.summarize` over a tile's episodes: ``episodes``,
     ``survival`` (share ending by the time limit) with its 95 % interval ``survival_ci``,
     ``lin_reward`` / ``ang_reward`` (tracking reward per step lived: the episodes' summed
     returns over their summed steps), ``lin_err`` / ``ang_err`` (mean |v_xy - cmd_xy| and
-    |w_z - cmd_wz| over all steps, :func:`collect.rollout.step_quantities`)."""
+    |w_z - cmd_wz| over all steps, :func:`msta.collect.rollout.step_quantities`)."""
     length = summary["length"] or float("nan")
     return {"episodes": summary["trials"], "survival": summary["survival"],
             "survival_ci": summary["ci"]["survival"],
@@ -62,7 +62,7 @@ Stats = dict[tuple[str, int], dict[str, Any]]
 
 @dataclass
 class TeacherReportConfig:
-    """What the report runs and where it writes it (``python -m eval.teacher_report``).
+    """What the report runs and where it writes it (``python -m msta.eval.teacher_report``).
 
     Args:
         teacher: the teacher to report on (``--teacher.type``, ``--teacher.path``).
@@ -145,8 +145,8 @@ def evaluate(cfg: TeacherReportConfig) -> Stats:
 
 def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
     """One terrain type: every environment runs ``ceil(episodes / envs_per_tile)`` episodes
-    through :func:`collect.rollout.rollout`; each finished episode is one trial of
-    :class:`eval.metrics.TrialResults`, summarized per tile by :func:`eval.metrics.summarize`."""
+    through :func:`msta.collect.rollout.rollout`; each finished episode is one trial of
+    :class:`msta.eval.metrics.TrialResults`, summarized per tile by :func:`msta.eval.metrics.summarize`."""
     k = cfg.envs_per_tile
     n = len(cfg.level_list) * k
     env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
@@ -283,7 +283,7 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
         seed: simulator seed.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from collect.sim.render import save_strip, tracking_camera
+    from msta.collect.sim.render import save_strip, tracking_camera
 
     cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),

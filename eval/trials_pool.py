@@ -1,9 +1,9 @@
 """msta-eval's trials on Ray workers (``--workers``): one round of trials per block.
 
-A round of trials (``eval.metrics.TrialLayout.rounds``) is already independent of every other:
+A round of trials (``msta.eval.metrics.TrialLayout.rounds``) is already independent of every other:
 a fresh actor, every trial on its own tile with its own random stream. A worker runs a round
-exactly as :func:`eval.metrics.run_trials` does in one process (same simulator, same torch
-settings, :func:`eval.evaluator.torch_eval_settings`), and this process puts the rounds
+exactly as :func:`msta.eval.metrics.run_trials` does in one process (same simulator, same torch
+settings, :func:`msta.eval.evaluator.torch_eval_settings`), and this process puts the rounds
 together in order, storing each finished round as the single-process run does, so the figures
 are those of ``--workers=0`` for any worker count, and ``--resume`` reuses rounds across them.
 """
@@ -17,10 +17,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from collect.ray_pool import RayPool, cached
-from collect.sim.env import QuadrupedEnv
-from eval.metrics import ActorFactory, TrialLayout, TrialResults, play_round
-from eval.scenarios import TrialConfig
+from msta.collect.ray_pool import RayPool, cached
+from msta.collect.sim.env import QuadrupedEnv
+from msta.eval.metrics import ActorFactory, TrialLayout, TrialResults, play_round
+from msta.eval.scenarios import TrialConfig
 
 
 def trial_config(cfg: TrialConfig) -> TrialConfig:
@@ -31,10 +31,10 @@ def trial_config(cfg: TrialConfig) -> TrialConfig:
 
 @dataclass
 class TrialsJob:
-    """A pool job (:class:`collect.ray_pool.Job`): rounds of one run's trials.
+    """A pool job (:class:`msta.collect.ray_pool.Job`): rounds of one run's trials.
 
     Args:
-        cfg: the trials (:func:`eval.evaluator.make_env` builds the simulator from it).
+        cfg: the trials (:func:`msta.eval.evaluator.make_env` builds the simulator from it).
         make_actor: (round, num_envs) -> a fresh actor, as for ``run_trials``.
         layout: the trials and their tiles.
     """
@@ -44,7 +44,7 @@ class TrialsJob:
     layout: TrialLayout
 
     def setup(self) -> QuadrupedEnv:
-        from eval.evaluator import make_env
+        from msta.eval.evaluator import make_env
 
         # one MuJoCo thread: a worker is one CPU (the thread count changes no figure); one
         # simulator per worker for every run on the same trials, as Evaluator keeps one
@@ -53,7 +53,7 @@ class TrialsJob:
 
     def run(self, env: QuadrupedEnv, r: int) -> TrialResults:
         """The sums of round ``r``'s trials."""
-        from eval.evaluator import torch_eval_settings
+        from msta.eval.evaluator import torch_eval_settings
 
         ids = self.layout.rounds(env.num_envs)[r]
         out = TrialResults.zeros(int(ids[-1]) + 1, env.max_steps)
@@ -68,7 +68,7 @@ def run_trials_on_workers(pool: RayPool, cfg: TrialConfig, make_actor: ActorFact
                           done: Sequence[TrialResults] = (),
                           on_round: Callable[[int, int, TrialResults], None] | None = None
                           ) -> TrialResults:
-    """:func:`eval.metrics.run_trials` with the rounds on ``pool``'s workers: the same
+    """:func:`msta.eval.metrics.run_trials` with the rounds on ``pool``'s workers: the same
     arguments (``max_steps``: the simulator's episode length in control steps) and the same
     results; ``on_round`` is called here, in round order."""
     rounds = layout.rounds(cfg.envs)

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from msta_data import sensors as registry
+from msta.data import sensors as registry
 
 #: lerobot's robot-state column (``lerobot.utils.constants.OBS_STATE``).
 STATE_COLUMN = "observation.state"
@@ -100,7 +100,7 @@ def derive_stats(stats: dict[str, dict[str, np.ndarray]], dataset_columns: Itera
     """Statistics of the derived columns: the sources' per-channel statistics concatenated.
 
     Args:
-        stats: per-column statistics (:mod:`msta_data.stats` format) of the sources.
+        stats: per-column statistics (:mod:`msta.data.stats` format) of the sources.
         dataset_columns: the dataset's column names (as :func:`derive`).
 
     Returns:

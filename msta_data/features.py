@@ -8,7 +8,7 @@ Columns of ``data/chunk-*/file-*.parquet`` (one row per control step, 50 Hz):
 * ``observation.state`` (the student sensors concatenated) and
   ``observation.environment_state`` (the velocity command), computed by the writer from the
   sensor columns so that stock LeRobot policies (ACT, diffusion) train on the dataset
-  unchanged (:mod:`msta_data.derived`; schema 2 on);
+  unchanged (:mod:`msta.data.derived`; schema 2 on);
 * ``action`` (12): the teacher's label for this step; ``executed_action`` (12): the
   action actually applied (equal to ``action`` for teacher rollouts, the student's action
   in stage 2);
@@ -45,13 +45,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from msta_data import derived as D
-from msta_data import layout as L
-from msta_data import sensors as registry
-from msta_data.errors import DatasetFormatError, EpisodeValidationError
+from msta.data import derived as D
+from msta.data import layout as L
+from msta.data import sensors as registry
+from msta.data.errors import DatasetFormatError, EpisodeValidationError
 
 CODEBASE_VERSION = "v3.0"
-#: Schema of new datasets: 2 adds the derived columns (msta_data.derived) to schema 1.
+#: Schema of new datasets: 2 adds the derived columns (msta.data.derived) to schema 1.
 MSTA_SCHEMA_VERSION = 2
 #: Schemas the writer appends to (each in its own layout) and the readers read.
 SCHEMA_VERSIONS: tuple[int, ...] = (1, 2)
@@ -173,7 +173,7 @@ def build_features(sensors: Sequence[str] | None = None,
     Args:
         sensors: registry names; ``None`` = the whole registry but the extension sensors.
         derived: include ``observation.state`` / ``observation.environment_state``
-            (:mod:`msta_data.derived`), as a schema-2 dataset (every new one) does;
+            (:mod:`msta.data.derived`), as a schema-2 dataset (every new one) does;
             ``False`` gives a schema-1 dataset's features.
 
     Returns:
@@ -240,7 +240,7 @@ def data_schema(features: dict[str, dict[str, Any]]) -> pa.Schema:
 # On-disk layout (LeRobot v3.0) shared by the writer and the reader.
 # ---------------------------------------------------------------------------------------
 
-# File names and path templates: msta_data.layout.
+# File names and path templates: msta.data.layout.
 #: Episode-table columns every msta dataset has (besides ``stats/...``), lerobot's first.
 EPISODE_INDEX_COLUMNS: dict[str, pa.DataType] = {
     "episode_index": pa.int64(),

@@ -21,10 +21,10 @@ from typing import Any
 
 from huggingface_hub import CardData, RepoCard
 
-from msta_data import features as F
-from msta_data import layout as L
-from msta_data import sensors as registry
-from msta_data.figures import fmt_ci
+from msta.data import features as F
+from msta.data import layout as L
+from msta.data import sensors as registry
+from msta.data.figures import fmt_ci
 
 
 @dataclass
@@ -115,7 +115,7 @@ def _usage(ref: str, policy_type: str | None) -> list[str]:
     repo, _, tag = ref.partition("@")
     kind = policy_type or "msta"
     rev = f', revision="{tag}"' if tag else ""
-    lines = ["## Usage", "", "```python", "from policies.factory import get_policy_class, load_policy",
+    lines = ["## Usage", "", "```python", "from msta.policies.factory import get_policy_class, load_policy",
              "", f'policy = load_policy("{ref}")  # or a local checkpoint directory',
              f'policy = get_policy_class("{kind}").from_pretrained("{repo}"{rev})  # the same',
              "actions = policy.act(batch)  # batch: sensor windows, see docs/msta_model.md", "```",
@@ -154,7 +154,7 @@ def _bounds_key(key: str, end: str) -> str:
 
 def with_intervals(row: dict[str, Any]) -> dict[str, Any]:
     """``row`` with each figure's ``_ci95_low`` / ``_ci95_high`` bounds folded into its cell
-    (:func:`msta_data.figures.fmt_ci`); figures without bounds as they are."""
+    (:func:`msta.data.figures.fmt_ci`); figures without bounds as they are."""
     out: dict[str, Any] = {}
     for key, value in row.items():
         if "_ci95_low" in key or "_ci95_high" in key:

@@ -1,6 +1,6 @@
 """``msta-hub``: run a local hub server, push/pull checkpoints and datasets, list versions.
 
-Each command parses its own typed config through :func:`msta_data.cli.parse_config` (every
+Each command parses its own typed config through :func:`msta.data.cli.parse_config` (every
 option described in ``msta-hub <command> --help`` with its default; a bad option or value is
 one line, exit 2). The client commands talk to HF_ENDPOINT with the token in HF_TOKEN (never
 on the command line, so it stays out of shell history and process lists).
@@ -18,15 +18,15 @@ from pathlib import Path
 
 from huggingface_hub.errors import HfHubHTTPError
 
-from msta_data.cli import parse_config, usage_error
-from msta_data.errors import DirectoryLockedError
-from msta_data.hub_cards import CardInfo
-from msta_data.hub_eval import EvalFigures, EvalJsonError, read_eval_json
-from msta_data.hub_ids import HubError
-from msta_data.hub_pull import pull
-from msta_data.hub_push import push, push_dataset
-from msta_data.hub_server.protocol import Limits
-from msta_data.hub_versions import versions
+from msta.data.cli import parse_config, usage_error
+from msta.data.errors import DirectoryLockedError
+from msta.data.hub_cards import CardInfo
+from msta.data.hub_eval import EvalFigures, EvalJsonError, read_eval_json
+from msta.data.hub_ids import HubError
+from msta.data.hub_pull import pull
+from msta.data.hub_push import push, push_dataset
+from msta.data.hub_server.protocol import Limits
+from msta.data.hub_versions import versions
 
 _EPILOG = """examples:
   msta-hub serve --root /srv/msta-hub --port 8008 --token_file /etc/msta-hub/tokens
@@ -232,7 +232,7 @@ class VersionsConfig(ClientConfig):
 
 
 def _serve(cfg: ServeConfig) -> int:
-    from msta_data.hub_server import HubServer, ServerConfig
+    from msta.data.hub_server import HubServer, ServerConfig
 
     if not cfg.token and cfg.token_file is None:
         print("warning: no tokens given: the server is read-only (nobody can push)", file=sys.stderr)

@@ -10,7 +10,7 @@ FILE is one of:
   masks of ``token_removal`` (else the first condition run) also become flat metrics
   ``<figure>@mask<m>`` (``_ci95_low`` / ``_ci95_high`` bounds, ``eval_trials``) as on a
   stage-2 card, which ``msta-hub versions`` lists. The student is the one whose checkpoint
-  revision (``msta_data.revision`` over the directory's files, as msta-eval records it)
+  revision (``msta.data.revision`` over the directory's files, as msta-eval records it)
   is the pushed directory's, the only student in the file, or ``--eval_policy``.
 - ``{metric: number}``: flat metrics.
 - ``{row: {column: number}}``: an evaluation table.
@@ -27,14 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from msta_data.revision import content_revision, file_parts
+from msta.data.revision import content_revision, file_parts
 
 #: metrics.json formats this module reads (msta-eval's ``msta_eval_version``).
 READABLE_VERSIONS = (2,)
 #: The headline figures of an msta-eval run record, as msta-correct's round table, the
 #: stage-2 model card and eval cards show them: (name, figure, metric); the returns
 #: normalized by the teacher's on the same trials, survival raw. Defined here (msta_data
-#: may not import eval); ``eval.metrics`` uses this one.
+#: may not import eval); ``msta.eval.metrics`` uses this one.
 HEADLINE_FIGURES: tuple[tuple[str, str, str], ...] = (
     ("lin_tracking_vs_teacher", "normalized", "lin_tracking"), ("survival", "raw", "survival"),
     ("total_vs_teacher", "normalized", "total"))

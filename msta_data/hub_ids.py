@@ -5,9 +5,9 @@ Everything goes through the huggingface_hub client. The endpoint and token come 
 unless passed explicitly; nothing names a host. Hub ids look like ``user/name[@revision]``
 (``datasets/user/name[@revision]`` for datasets); a revision is a branch, a tag or a commit sha.
 
-The hub client is split by job: ids and the API here, :mod:`msta_data.hub_cards` (model
-and dataset cards), :mod:`msta_data.hub_push`, :mod:`msta_data.hub_pull` (resolve, pull,
-materialize) and :mod:`msta_data.hub_versions`; ``msta-hub`` is :mod:`msta_data.hub_cli`.
+The hub client is split by job: ids and the API here, :mod:`msta.data.hub_cards` (model
+and dataset cards), :mod:`msta.data.hub_push`, :mod:`msta.data.hub_pull` (resolve, pull,
+materialize) and :mod:`msta.data.hub_versions`; ``msta-hub`` is :mod:`msta.data.hub_cli`.
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ from pathlib import Path
 from huggingface_hub import HfApi
 from huggingface_hub.errors import RepositoryNotFoundError, RevisionNotFoundError
 
-from msta_data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, parse_hub_id
+from msta.data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, parse_hub_id
 
 logger = logging.getLogger(__name__)
 

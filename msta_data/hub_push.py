@@ -18,12 +18,12 @@ from pathlib import Path
 from huggingface_hub import CommitOperationAdd, CommitOperationDelete, HfApi
 from huggingface_hub.utils import DEFAULT_IGNORE_PATTERNS, filter_repo_objects
 
-from msta_data import layout as L
-from msta_data.errors import DatasetLockedError
-from msta_data.hub_cards import CardInfo, model_card, root_dataset_card
-from msta_data.hub_ids import HubError, hub_api
-from msta_data.integrity import verify_for_publish
-from msta_data.locking import lock_directory
+from msta.data import layout as L
+from msta.data.errors import DatasetLockedError
+from msta.data.hub_cards import CardInfo, model_card, root_dataset_card
+from msta.data.hub_ids import HubError, hub_api
+from msta.data.integrity import verify_for_publish
+from msta.data.locking import lock_directory
 
 logger = logging.getLogger(__name__)
 
@@ -135,7 +135,7 @@ def push_dataset(root: str | os.PathLike, repo_id: str, private: bool = False, *
     """Push a LeRobot dataset root to a dataset repo and tag it with its codebase version.
 
     The dataset is locked (no writer may append meanwhile) and verified first
-    (``msta_data.integrity.verify_for_publish``: every committed file against the size and
+    (``msta.data.integrity.verify_for_publish``: every committed file against the size and
     sha256 recorded at commit, no leftover of an unfinished commit); a bad file is an error
     naming it and nothing is uploaded.
 

@@ -9,9 +9,9 @@ from typing import Any
 
 from huggingface_hub import HfApi
 
-from msta_data import layout as L
-from msta_data.hub_cards import card_metadata, card_metrics
-from msta_data.hub_ids import hub_api, parse_hub_id
+from msta.data import layout as L
+from msta.data.hub_cards import card_metadata, card_metrics
+from msta.data.hub_ids import hub_api, parse_hub_id
 
 
 @dataclass

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
-from msta_data import layout as L
-from msta_data.errors import DatasetFormatError, DatasetIntegrityError
+from msta.data import layout as L
+from msta.data.errors import DatasetFormatError, DatasetIntegrityError
 
 logger = logging.getLogger(__name__)
 
@@ -271,7 +271,7 @@ def check_counts(root: str | Path, gen: Generation | None) -> None:
     the counts must be the ones the commit recorded; an episode file the commit lists (any,
     without a manifest) may not hold only episodes beyond the count; no file may hold
     episodes on both sides of the count or an empty episode
-    (:func:`msta_data.features.check_episode_rows`); and the other files must hold exactly
+    (:func:`msta.data.features.check_episode_rows`); and the other files must hold exactly
     episodes ``0 .. total_episodes - 1``, ending at frame ``total_frames``. Files the commit
     does not list are a killed writer's: readers ignore them.
 
@@ -281,7 +281,7 @@ def check_counts(root: str | Path, gen: Generation | None) -> None:
     """
     import numpy as np
 
-    from msta_data import features as F
+    from msta.data import features as F
 
     root = Path(root)
     info = F.load_info(root)
@@ -384,8 +384,8 @@ def check_structure(root: str | Path) -> None:
     import numpy as np
     import pyarrow as pa
 
-    from msta_data import features as F
-    from msta_data.lerobot_edits import fixed_size
+    from msta.data import features as F
+    from msta.data.lerobot_edits import fixed_size
 
     info = F.load_info(root)
     table = F.read_episode_table(root, info).to_pandas()

@@ -19,7 +19,7 @@ STATS_PATH = f"{META_DIR}/stats.json"
 TASKS_PATH = f"{META_DIR}/tasks.parquet"
 #: msta's schema version and sensor list.
 MSTA_META_PATH = f"{META_DIR}/msta.json"
-#: msta's checksum manifest: size and sha256 of every committed file (msta_data.integrity).
+#: msta's checksum manifest: size and sha256 of every committed file (msta.data.integrity).
 MANIFEST_PATH = f"{META_DIR}/msta_checksums.json"
 #: Directory of the frame Parquet files.
 DATA_DIR = "data"
@@ -34,10 +34,10 @@ NUMBERED_GLOB = "chunk-*/file-*.parquet"
 #: Directories whose numbered Parquet files make up the committed episodes.
 NUMBERED_DIRS = (DATA_DIR, EPISODES_DIR)
 #: Where a writer moves files it finds in the chunk directories that no commit lists
-#: (``<QUARANTINE_DIR>/<UTC time>/<relative path>``; msta_data.quarantine): never read, never
+#: (``<QUARANTINE_DIR>/<UTC time>/<relative path>``; msta.data.quarantine): never read, never
 #: pushed.
 QUARANTINE_DIR = ".msta-quarantine"
-#: The exclusive lock of a directory (a dataset root, a training run; msta_data.locking).
+#: The exclusive lock of a directory (a dataset root, a training run; msta.data.locking).
 LOCK_NAME = ".msta.lock"
 #: A dataset card or model card on the hub.
 CARD_NAME = "README.md"

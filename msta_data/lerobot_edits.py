@@ -10,7 +10,7 @@ version and sensors), the checksum manifest ``meta/msta_checksums.json`` and the
 the ``provenance/*`` columns are gone; ``merge`` keeps them (empty for a source without them)
 and writes its vectors as variable-length lists (``list<float>``) instead of fixed-size ones.
 
-:meth:`msta_data.writer.DatasetWriter.open` (``msta-collect --resume``, stage 2's append) takes
+:meth:`msta.data.writer.DatasetWriter.open` (``msta-collect --resume``, stage 2's append) takes
 a dataset with neither ``meta/msta.json`` nor a manifest as rewritten by LeRobot and, after
 the structural checks every dataset without a manifest gets, re-derives:
 
@@ -43,12 +43,12 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from msta_data import derived as D
-from msta_data import features as F
-from msta_data import layout as L
-from msta_data import sensors as registry
-from msta_data.errors import DatasetFormatError
-from msta_data.integrity import FileRecord
+from msta.data import derived as D
+from msta.data import features as F
+from msta.data import layout as L
+from msta.data import sensors as registry
+from msta.data.errors import DatasetFormatError
+from msta.data.integrity import FileRecord
 
 logger = logging.getLogger(__name__)
 

@@ -5,7 +5,7 @@
    a first component that exists here) is local: when it is missing the error says so and
    gives the absolute path; no hub is asked.
 3. Otherwise a ``[datasets/]user/name[@revision]`` is fetched (once per commit, hash
-   verified, :func:`msta_data.hub_pull.materialize`) from ``HF_ENDPOINT`` — only when that is
+   verified, :func:`msta.data.hub_pull.materialize`) from ``HF_ENDPOINT`` — only when that is
    set. msta never contacts a hub it was not pointed at, so with ``HF_ENDPOINT`` unset a
    mistyped relative path (``outpts/a1``) is reported as a missing local path, not looked
    up on huggingface.co.
@@ -21,10 +21,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from msta_data import layout as L
-from msta_data.hub_ids import is_hub_id
-from msta_data.hub_pull import materialize
-from msta_data.integrity import VerifyMode, verify_dataset
+from msta.data import layout as L
+from msta.data.hub_ids import is_hub_id
+from msta.data.hub_pull import materialize
+from msta.data.integrity import VerifyMode, verify_dataset
 
 
 def looks_like_path(spec: str) -> bool:

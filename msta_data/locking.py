@@ -16,8 +16,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from msta_data.errors import DirectoryLockedError
-from msta_data.layout import LOCK_NAME
+from msta.data.errors import DirectoryLockedError
+from msta.data.layout import LOCK_NAME
 
 
 def lock_directory(directory: str | Path, holder: str = "another writer",

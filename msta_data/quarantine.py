@@ -23,10 +23,10 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from msta_data import features as F
-from msta_data import integrity as I
-from msta_data import layout as L
-from msta_data.errors import DatasetIntegrityError
+from msta.data import features as F
+from msta.data import integrity as I
+from msta.data import layout as L
+from msta.data.errors import DatasetIntegrityError
 
 logger = logging.getLogger(__name__)
 

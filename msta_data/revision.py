@@ -4,7 +4,7 @@ A revision is the first 12 hex digits of a sha256 over a sequence of parts, with
 optional ``<prefix>-`` (the policy or teacher type). Datasets record it per episode
 (``provenance/policy_revision``) and msta-eval per entry, so equal content gives an equal
 revision in every process. Dataset *files* are checked with full sha256 digests instead
-(:mod:`msta_data.integrity`).
+(:mod:`msta.data.integrity`).
 """
 
 from __future__ import annotations

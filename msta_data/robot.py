@@ -2,7 +2,7 @@
 
 The simulator (collect/sim) builds its model from these numbers and the teachers
 (policies/teacher) plan with them; both import this module, neither imports the other.
-Joint order everywhere is :data:`msta_data.sensors.JOINT_NAMES` (hip, thigh, calf per leg,
+Joint order everywhere is :data:`msta.data.sensors.JOINT_NAMES` (hip, thigh, calf per leg,
 legs FL, FR, RL, RR).
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from msta_data.sensors import JOINT_NAMES, LEGS
+from msta.data.sensors import JOINT_NAMES, LEGS
 
 #: Joints (= action channels) of the robot.
 NUM_JOINTS = len(JOINT_NAMES)

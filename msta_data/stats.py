@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from msta_data import layout as L
+from msta.data import layout as L
 
 #: A channel whose std is below this never varied in the data (a constant channel, or
-#: statistics that say so): it is z-scored with std 1 (``policies.processor.effective_std``;
+#: statistics that say so): it is z-scored with std 1 (``msta.policies.processor.effective_std``;
 #: the sensor faults size themselves by the same std).
 MIN_STD = 1e-6
 

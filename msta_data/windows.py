@@ -12,7 +12,7 @@ model should mask them; lerobot clamps the same way and calls the flag ``*_is_pa
 Everything is validated when the dataset is opened (schema version, fps, column presence,
 Arrow type and width, nulls, NaN/Inf, index consistency, Parquet page checksums), then every
 committed file is checked against the size and sha256 recorded at commit
-(:mod:`msta_data.integrity`; a changed byte that still decodes is caught there); errors name
+(:mod:`msta.data.integrity`; a changed byte that still decodes is caught there); errors name
 the file and column. Nothing is skipped or filled silently.
 """
 
@@ -26,12 +26,12 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from msta_data import features as F
-from msta_data import integrity as I
-from msta_data import layout as L
-from msta_data import sensors as registry
-from msta_data.errors import DatasetFormatError
-from msta_data.lerobot_edits import fixed_size
+from msta.data import features as F
+from msta.data import integrity as I
+from msta.data import layout as L
+from msta.data import sensors as registry
+from msta.data.errors import DatasetFormatError
+from msta.data.lerobot_edits import fixed_size
 
 _INDEX_COLUMNS = ("index", "episode_index", "frame_index", "timestamp")
 
@@ -93,7 +93,7 @@ class WindowDataset:
     """T-step windows of sensor columns, fully in memory.
 
     Args:
-        root: dataset root (LeRobot v3.0, written by :class:`~msta_data.writer.DatasetWriter`).
+        root: dataset root (LeRobot v3.0, written by :class:`~msta.data.writer.DatasetWriter`).
         sensors: registry names whose columns to load, e.g. ``STUDENT_SENSORS``.
         T: history length (window = current step and the ``T-1`` before it).
         extra_columns: other columns returned at the current step only (``"action"``,

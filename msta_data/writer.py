@@ -14,7 +14,7 @@ Durability protocol (one writer at a time, enforced by ``flock`` on ``root/.msta
    modified, so earlier episodes stay byte-identical on append.
 3. Then ``meta/tasks.parquet`` and ``meta/stats.json`` are rewritten, the checksum
    manifest ``meta/msta_checksums.json`` records the new generation as *pending*
-   (size and sha256 of every file, :mod:`msta_data.integrity`), ``meta/info.json``
+   (size and sha256 of every file, :mod:`msta.data.integrity`), ``meta/info.json``
    (``total_episodes``/``total_frames``) is rewritten — the commit point — and the manifest
    records the generation as *committed*.
 
@@ -27,19 +27,19 @@ flush uncommitted (lerobot still loads the dataset: its frame count comes from
 ``info.json``). :meth:`DatasetWriter.open` first verifies every committed file against the
 manifest (and refuses, naming the file, when one is missing, truncated or changed, or when
 ``info.json`` matches no recorded commit, or when its counts disagree with the episode files:
-:func:`~msta_data.integrity.check_counts`), then moves every file of the chunk directories the
+:func:`~msta.data.integrity.check_counts`), then moves every file of the chunk directories the
 commit does not list to ``.msta-quarantine/`` (it deletes nothing but its own partial ``.tmp``
-writes: :mod:`msta_data.quarantine`), and recomputes ``stats.json`` from the committed
+writes: :mod:`msta.data.quarantine`), and recomputes ``stats.json`` from the committed
 per-episode stats when it is not the committed one. A dataset LeRobot's tools rewrote (no
-``meta/msta.json``, no manifest) gets msta's metadata re-derived: :mod:`msta_data.lerobot_edits`.
+``meta/msta.json``, no manifest) gets msta's metadata re-derived: :mod:`msta.data.lerobot_edits`.
 
 The writer also fills ``observation.state`` and ``observation.environment_state`` from the
-sensor columns, with their statistics (:mod:`msta_data.derived`). A dataset written before
+sensor columns, with their statistics (:mod:`msta.data.derived`). A dataset written before
 them (msta schema 1) is appended to in its own layout, without them, so all its files keep
 the same columns; re-record it to give it the derived columns.
 
 After each commit the dataset card ``README.md`` is rebuilt from the committed files
-(:func:`msta_data.hub_cards.write_dataset_card`: sizes, provenance counts, features); a
+(:func:`msta.data.hub_cards.write_dataset_card`: sizes, provenance counts, features); a
 README.md of the user's own is left alone.
 """
 
@@ -58,18 +58,18 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from msta_data import derived as D
-from msta_data import features as F
-from msta_data import integrity as I
-from msta_data import layout as L
-from msta_data import lerobot_edits as E
-from msta_data import quarantine as Q
-from msta_data import stats as S
-from msta_data.errors import DatasetFormatError, DatasetLockedError
-from msta_data.features import validate_episode
-from msta_data.hub_cards import write_dataset_card
-from msta_data.layout import LOCK_NAME
-from msta_data.locking import lock_directory
+from msta.data import derived as D
+from msta.data import features as F
+from msta.data import integrity as I
+from msta.data import layout as L
+from msta.data import lerobot_edits as E
+from msta.data import quarantine as Q
+from msta.data import stats as S
+from msta.data.errors import DatasetFormatError, DatasetLockedError
+from msta.data.features import validate_episode
+from msta.data.hub_cards import write_dataset_card
+from msta.data.layout import LOCK_NAME
+from msta.data.locking import lock_directory
 
 __all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
 
@@ -241,7 +241,7 @@ class DatasetWriter:
 
     def _adopt(self) -> None:
         """Re-derive msta's metadata of a dataset LeRobot's tools rewrote
-        (:mod:`msta_data.lerobot_edits`): ``meta/msta.json`` and the provenance columns."""
+        (:mod:`msta.data.lerobot_edits`): ``meta/msta.json`` and the provenance columns."""
         self._new_files.update(E.adopt(self.root, self.msta_meta, _atomic_write))
 
     def _recover(self, manifest: I.Manifest | None) -> None:
@@ -302,7 +302,7 @@ class DatasetWriter:
             frames: column -> ``(L, dim)`` array for every column of
                 ``features.input_columns`` (float32; ``next.done`` bool; scalars may be
                 ``(L,)``). Timestamps, indices and the derived columns are filled by the writer.
-            provenance: the :class:`~msta_data.features.Provenance` fields as a dict.
+            provenance: the :class:`~msta.data.features.Provenance` fields as a dict.
 
         Returns:
             the episode's index in the dataset.
@@ -456,7 +456,7 @@ class DatasetWriter:
 
     def _commit(self) -> None:
         """Record the new generation as pending, write ``info.json`` (the commit point),
-        then record it as committed (see :mod:`msta_data.integrity`)."""
+        then record it as committed (see :mod:`msta.data.integrity`)."""
         info = dict(self.info)
         info["features"] = {c: {**ft, "shape": list(ft["shape"])}
                             for c, ft in self.features.items()}

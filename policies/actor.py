@@ -2,7 +2,7 @@
 
 ``StudentActor`` keeps, for every environment, the last ``history`` steps of the sensors the
 student reads, marks the steps before the episode start as padding (filled with the episode's
-first frame, exactly like ``msta_data.windows.WindowDataset``), applies the test-time
+first frame, exactly like ``msta.data.windows.WindowDataset``), applies the test-time
 input changes of the paper's experiments (sensors removed, dead joint encoders, random
 token removal, another window length, random dummy tokens appended) and calls the policy on
 the whole batch at once; ``act(obs, absent)`` also removes channels per environment (the
@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import JOINT_ENCODER_SENSORS, get
-from policies.config import check_fraction
+from msta.data.robot import NUM_JOINTS
+from msta.data.sensors import JOINT_ENCODER_SENSORS, get
+from msta.policies.config import check_fraction
 
 #: sensors whose channels are per joint (a dead joint encoder removes q_j and qdot_j)
 
@@ -66,7 +66,7 @@ class StudentActor:
     """A student policy as a batched actor with per-environment history.
 
     Args:
-        policy: a student (``policies.base.Policy``): ``act(batch, channels, mask_ratio,
+        policy: a student (``msta.policies.base.Policy``): ``act(batch, channels, mask_ratio,
             generator)`` on raw windows.
         num_envs: environments driven together.
         spec: test-time input changes.

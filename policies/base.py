@@ -13,8 +13,8 @@ Checkpoint layout (LeRobot-style), written by :meth:`StudentPolicy.save_pretrain
 
 Loading a checkpoint from someone else is checked before anything is allocated (file size
 limits, a parameter limit, the safetensors header against the model; one-line
-:class:`CheckpointError` naming the file): :mod:`policies.checkpoint` holds those checks,
-:mod:`policies.config` the config every student starts from; the names students and
+:class:`CheckpointError` naming the file): :mod:`msta.policies.checkpoint` holds those checks,
+:mod:`msta.policies.config` the config every student starts from; the names students and
 trainers use from both are re-exported here.
 """
 
@@ -30,8 +30,8 @@ import torch.nn.functional as F
 from safetensors.torch import save_file
 from torch import Tensor, nn
 
-from msta_data.sensors import get as get_sensor
-from policies.checkpoint import (
+from msta.data.sensors import get as get_sensor
+from msta.policies.checkpoint import (
     CONFIG_NAME,
     PROCESSOR_NAME,
     WEIGHTS_NAME,
@@ -41,8 +41,8 @@ from policies.checkpoint import (
     read_json_file,
     resolve_pretrained,
 )
-from policies.config import PolicyConfig, check_fraction
-from policies.processor import Batch, Channels, StudentProcessor
+from msta.policies.config import PolicyConfig, check_fraction
+from msta.policies.processor import Batch, Channels, StudentProcessor
 
 #: Per-sample channel removal: sensor name -> (B, dim) bool over the sensor's full channels
 #: (tensor or numpy), True = removed at every step of that sample's window.

@@ -10,7 +10,7 @@ must match that model (:func:`check_safetensors`). Every failure is a one-line
 A LeRobot checkpoint of ``--policy.type=msta`` (lerobot-train's ``pretrained_model/``, or
 ``python -m lerobot_policy_msta.convert``'s output) loads wherever an msta checkpoint does:
 its ``config.json`` reads as the msta config it holds (:func:`read_json_file`), and
-:func:`resolve_pretrained` gives an msta checkpoint made from it (:mod:`policies.lerobot_checkpoint`).
+:func:`resolve_pretrained` gives an msta checkpoint made from it (:mod:`msta.policies.lerobot_checkpoint`).
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def read_json_file(path: Path, limit: int | None = None, raw: bool = False) -> A
         path: the file.
         limit: largest accepted size in bytes (default: ``MAX_JSON_BYTES`` by file name).
         raw: the file as it is; otherwise the ``config.json`` of a LeRobot checkpoint reads
-            as the msta config it holds (:func:`policies.lerobot_checkpoint.msta_config_dict`).
+            as the msta config it holds (:func:`msta.policies.lerobot_checkpoint.msta_config_dict`).
     """
     limit = limit or MAX_JSON_BYTES.get(path.name, 1 << 20)
     if not path.is_file():
@@ -75,7 +75,7 @@ def read_json_file(path: Path, limit: int | None = None, raw: bool = False) -> A
     except (ValueError, UnicodeDecodeError) as e:
         raise CheckpointError(f"{path}: not valid JSON ({e})") from None
     if not raw and path.name == CONFIG_NAME and isinstance(data, dict):
-        from policies.lerobot_checkpoint import is_lerobot_checkpoint, msta_config_dict
+        from msta.policies.lerobot_checkpoint import is_lerobot_checkpoint, msta_config_dict
 
         if is_lerobot_checkpoint(path.parent):
             return msta_config_dict(data, path)
@@ -150,24 +150,24 @@ def load_weights(module: nn.Module, path: Path) -> None:
 
 
 def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None) -> Path:
-    """A local checkpoint directory for ``path_or_repo_id`` (``msta_data.locate``, the one
+    """A local checkpoint directory for ``path_or_repo_id`` (``msta.data.locate``, the one
     path-or-hub-id resolver).
 
     Args:
         path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
-            (once per commit, hash-verified) through ``msta_data.hub_pull.materialize`` from
+            (once per commit, hash-verified) through ``msta.data.hub_pull.materialize`` from
             ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
 
     Returns:
         the directory; for a LeRobot msta checkpoint, an msta checkpoint made from it
-        (:func:`policies.lerobot_checkpoint.as_msta_checkpoint`).
+        (:func:`msta.policies.lerobot_checkpoint.as_msta_checkpoint`).
 
     Raises:
         FileNotFoundError: no such directory, or a file (path named).
         CheckpointError: a LeRobot checkpoint of another policy type, or a malformed one.
     """
-    from msta_data.locate import locate_checkpoint  # the hub client loads only when used
-    from policies.lerobot_checkpoint import as_msta_checkpoint
+    from msta.data.locate import locate_checkpoint  # the hub client loads only when used
+    from msta.policies.lerobot_checkpoint import as_msta_checkpoint
 
     return as_msta_checkpoint(locate_checkpoint(str(path_or_repo_id), "checkpoint", revision))

@@ -24,14 +24,14 @@ statistics; the largest |action difference| is printed, stored in spec.json, and
 ``--tolerance`` (default 1e-5, fp32) the export fails.
 
 The Python checks of the eager path (NaN inputs, shapes) are not part of the graph: a
-robot program checks its readings itself (the runtime in :mod:`policies.onnx_runtime` does).
+robot program checks its readings itself (the runtime in :mod:`msta.policies.onnx_runtime` does).
 
 A checkpoint with a sensor guard (``guard.json`` + ``guard.safetensors``, ``msta-guard fit``)
 exports with it: the two files are copied next to the student, spec.json's ``guard`` names
 them, and the graph takes one more input per guarded sensor it reads, ``absent_<sensor>``
 ``(B, dim)`` bool over the sensor's channels (True = remove that channel from the window, as
 ``policy.act(absent=...)`` does; all False = the plain student). The robot loop runs the
-guard (numpy, :mod:`policies.guard`) on each observation and feeds its flags there. The
+guard (numpy, :mod:`msta.policies.guard`) on each observation and feeds its flags there. The
 parity check then draws a random removal mask for every window (the first of each set
 removes nothing). ``--absent_inputs`` asks for these inputs without a guard (a comma list
 of sensors) or leaves them out (``none``); without a guard and the flag the export is as
@@ -53,10 +53,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from msta_data import robot
-from msta_data import sensors as registry
-from policies.base import StudentPolicy
-from policies.export_removal import (
+from msta.data import robot
+from msta.data import sensors as registry
+from msta.policies.base import StudentPolicy
+from msta.policies.export_removal import (
     ABSENT_PREFIX,
     absent_inputs,
     absent_masks,
@@ -165,7 +165,7 @@ def recorded_windows(root: str | Path, sensors: Sequence[str], T: int, n: int
                      ) -> dict[str, np.ndarray]:
     """``n`` evenly spaced windows of a recorded dataset (padded steps repeat the episode's
     first reading, as a robot program fills its window). ``{sensor: (n, T, dim) float32}``."""
-    from msta_data.windows import WindowDataset
+    from msta.data.windows import WindowDataset
 
     ds = WindowDataset(root, sensors, T, extra_columns=(), verify="sizes")
     idx = np.linspace(0, len(ds) - 1, min(n, len(ds))).round().astype(np.int64)
@@ -199,7 +199,7 @@ def export_student(
         source: provenance stored in the spec (checkpoint path, dataset, ...).
         absent: exported sensors that get an ``absent_<sensor>`` (B, dim) bool input (the
             per-sample channel removal a guard's flags drive); () = none.
-        guard_dir: a folder with a saved guard (:func:`policies.guard.load_guard`) whose
+        guard_dir: a folder with a saved guard (:func:`msta.policies.guard.load_guard`) whose
             files are copied into ``output_dir`` and named in the spec.
 
     Raises:
@@ -402,8 +402,8 @@ def training_dataset(checkpoint: Path) -> str | None:
 
 
 def run(cfg: ExportConfig) -> dict[str, Any]:
-    from policies.checkpoint import resolve_pretrained
-    from policies.factory import load_policy
+    from msta.policies.checkpoint import resolve_pretrained
+    from msta.policies.factory import load_policy
 
     directory = Path(resolve_pretrained(cfg.policy, cfg.revision))
     policy = load_policy(directory)
@@ -449,8 +449,8 @@ def _print_parity(spec_path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-export``)."""
-    from msta_data.cli import parse_config
-    from msta_data.quiet import shorten_torchcodec_warning
+    from msta.data.cli import parse_config
+    from msta.data.quiet import shorten_torchcodec_warning
 
     shorten_torchcodec_warning()
     cfg = parse_config(ExportConfig, argv, "msta-export")  # bad flags: one line, exit 2

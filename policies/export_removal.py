@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from msta_data import sensors as registry
+from msta.data import sensors as registry
 
 #: ONNX / TorchScript input name of a sensor's per-sample channel removal
 ABSENT_PREFIX = "absent_"
@@ -53,7 +53,7 @@ def removal_spec(absent: Sequence[str], guard_dir: str | Path | None, out: Path
 
 def copy_guard(src: Path, out: Path) -> dict[str, Any]:
     """Copy a saved guard's files into the export folder; its spec.json entry."""
-    from policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS
+    from msta.policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS
 
     meta = json.loads((src / GUARD_JSON).read_text())
     for name in (GUARD_JSON, GUARD_ARRAYS):
@@ -61,7 +61,7 @@ def copy_guard(src: Path, out: Path) -> dict[str, Any]:
             shutil.copyfile(src / name, out / name)
     return {"files": [GUARD_JSON, GUARD_ARRAYS], "reads": list(INPUT_SENSORS),
             "flags": meta["sensors"], "dt": meta["dt"],
-            "use": "policies.guard.load_guard(<export dir>).update(readings) each step; its "
+            "use": "msta.policies.guard.load_guard(<export dir>).update(readings) each step; its "
                    "flags of the sensors with an absent_<sensor> input go there (latched until "
                    "reset at an episode start)"}
 
@@ -69,7 +69,7 @@ def copy_guard(src: Path, out: Path) -> dict[str, Any]:
 def absent_inputs(option: str, checkpoint: Path, names: Sequence[str]
                    ) -> tuple[tuple[str, ...], Path | None]:
     """``--absent_inputs`` -> (sensors with a removal input, the guard's folder or None)."""
-    from policies.guard import load_guard
+    from msta.policies.guard import load_guard
 
     guard = load_guard(checkpoint)
     if option == "auto":

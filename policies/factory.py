@@ -21,10 +21,10 @@ from typing import Any
 
 import torch
 
-from policies.base import PolicyConfig, StudentPolicy, resolve_pretrained
+from msta.policies.base import PolicyConfig, StudentPolicy, resolve_pretrained
 
 #: Packages whose modules hold the built-in students (imported, recursively, on first use).
-BUILTIN_PACKAGES: tuple[str, ...] = ("policies.msta", "policies.baselines")
+BUILTIN_PACKAGES: tuple[str, ...] = ("msta.policies.msta", "msta.policies.baselines")
 #: What a registered policy is: the paper's ``method`` (MSTA), one of the paper's
 #: ``baseline`` students, or a ``reference`` learner that is neither.
 KINDS: tuple[str, ...] = ("method", "baseline", "reference")

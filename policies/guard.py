@@ -58,9 +58,9 @@ from pathlib import Path
 
 import numpy as np
 
-from msta_data import sensors as registry
-from msta_data.sensors import PHYSICAL_SENSORS
-from policies.guard_imu import ImuRules
+from msta.data import sensors as registry
+from msta.data.sensors import PHYSICAL_SENSORS
+from msta.policies.guard_imu import ImuRules
 
 GUARD_JSON = "guard.json"
 GUARD_ARRAYS = "guard.safetensors"

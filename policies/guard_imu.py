@@ -3,7 +3,7 @@ gyro disagrees with the gravity vector's change, and, once the gravity vector al
 flagged, its repair: the last trusted gravity vector carried forward by the gyro
 (``dg/dt = -w x g`` in the base frame), fed to the student in place of the lying reading.
 
-A mixin of :class:`policies.guard.SensorGuard`; it reads the guard's ring buffers of the
+A mixin of :class:`msta.policies.guard.SensorGuard`; it reads the guard's ring buffers of the
 gravity vector, the gyro and their product over the last ``imu_window`` + 1 steps. Numpy
 only.
 """
@@ -14,7 +14,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from msta_data.sensors import PHYSICAL_SENSORS, total_dim
+from msta.data.sensors import PHYSICAL_SENSORS, total_dim
 
 _AT = {s: total_dim(PHYSICAL_SENSORS[:i]) for i, s in enumerate(PHYSICAL_SENSORS)}
 GYRO = np.arange(_AT["ang_vel"], _AT["ang_vel"] + 3)

@@ -36,8 +36,8 @@ from typing import Any
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 
-from msta_data import sensors
-from policies.checkpoint import (
+from msta.data import sensors
+from msta.policies.checkpoint import (
     CONFIG_NAME,
     MAX_JSON_BYTES,
     PROCESSOR_NAME,
@@ -77,7 +77,7 @@ def msta_config_dict(data: dict[str, Any], path: Path) -> dict[str, Any]:
         raise CheckpointError(f"{path.parent} is a LeRobot {kind!r} policy checkpoint; msta's "
                               "tools load msta students (LeRobot checkpoints of "
                               "--policy.type=msta load as they are)")
-    from policies.factory import get_config_class
+    from msta.policies.factory import get_config_class
 
     names = {f.name for f in fields(get_config_class("msta"))}
     return {"type": "msta", **{k: v for k, v in data.items() if k in names}}
@@ -165,8 +165,8 @@ def as_msta_checkpoint(directory: Path) -> Path:
     key = (str(directory.resolve()), _signature(directory))
     if key in _MADE and _MADE[key].is_dir():
         return _MADE[key]
-    from policies.base import PolicyConfig
-    from policies.factory import get_policy_class
+    from msta.policies.base import PolicyConfig
+    from msta.policies.factory import get_policy_class
 
     config = PolicyConfig.load(directory)  # its msta fields (msta_config_dict)
     processor = get_policy_class(config.type).processor_class.from_stats(

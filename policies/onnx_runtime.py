@@ -1,5 +1,5 @@
 """Run an exported student with onnxruntime and numpy only (no torch): the reference
-robot-side loop for files written by ``msta-export`` (:mod:`policies.export`).
+robot-side loop for files written by ``msta-export`` (:mod:`msta.policies.export`).
 
     student = OnnxStudent("outputs/export")           # reads spec.json + student.onnx
     student.reset()                                   # at every episode start
@@ -12,12 +12,12 @@ the action it returned on the previous step (zeros after a reset, as the simulat
 Joint targets are ``default_pose + action_scale * action`` (spec.json ``action_convention``).
 
 An export with a guard (spec.json ``guard``) also runs it, numpy only
-(:class:`policies.guard.SensorGuard`): every step the guard reads the newest readings of all
+(:class:`msta.policies.guard.SensorGuard`): every step the guard reads the newest readings of all
 its sensors (``guard.reads``: pass them all, even those the student does not read), and its
 latched flags of the sensors with an ``absent_<sensor>`` input remove those channels from
 the student's window (:attr:`OnnxStudent.flags` holds them; :meth:`reset` clears them),
 except a gravity vector flagged alone, which a repairing guard replaces by its estimate
-carried forward by the gyro (:meth:`policies.guard.SensorGuard.repair`).
+carried forward by the gyro (:meth:`msta.policies.guard.SensorGuard.repair`).
 
 This module must not import torch: ``tests/policies/test_export.py`` runs it in a fresh
 interpreter and checks ``sys.modules``.
@@ -67,7 +67,7 @@ class OnnxStudent:
         self.absent = {a["sensor"]: a["name"] for a in self.spec.get("absent_inputs", [])}
         self.guard = None
         if "guard" in self.spec:
-            from policies.guard import load_guard
+            from msta.policies.guard import load_guard
 
             self.guard = load_guard(d)
         #: the guard's latched flags after the last step, ``{sensor: (dim,) bool}``
@@ -101,8 +101,8 @@ class OnnxStudent:
         """
         needed = dict(self.dims)
         if self.guard is not None:
-            from msta_data.sensors import get
-            from policies.guard import INPUT_SENSORS
+            from msta.data.sensors import get
+            from msta.policies.guard import INPUT_SENSORS
 
             needed |= {s: get(s).dim for s in INPUT_SENSORS if s not in needed}
         current = {name: self._reading(readings, name, dim) for name, dim in needed.items()}

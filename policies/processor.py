@@ -20,8 +20,8 @@ from typing import Any, ClassVar, Self
 import torch
 from torch import Tensor
 
-from msta_data import sensors
-from msta_data.stats import MIN_STD  # the normalizer's floor (:func:`effective_std`)
+from msta.data import sensors
+from msta.data.stats import MIN_STD  # the normalizer's floor (:func:`effective_std`)
 
 #: Per-sensor channel subsets: ``{"joint_pos": [0, 1, 2, 4, ...]}`` lists the channel
 #: indices present in the batch tensor (in that order). Sensors not listed carry all channels.
@@ -91,7 +91,7 @@ class StudentProcessor:
         """Processor for a policy ``config`` from dataset statistics (stats.json layout).
 
         Args:
-            config: a :class:`policies.config.PolicyConfig`.
+            config: a :class:`msta.policies.config.PolicyConfig`.
             stats: ``{column: {"mean": [...], "std": [...], ...}}``.
         """
         return cls(config.input_sensors, stats, clip_std=config.clip_std,

@@ -15,6 +15,7 @@ if sys.platform.startswith("linux"):
 HELPERS = {
     "msta_test_helpers": "msta_test_helpers.py",  # builders several test packages share
     "msta_hub_security_helpers": "msta_data/hub_security_helpers.py",  # raw-HTTP hub tests
+    "msta_source_tree": "msta_source_tree.py",  # the source files as modules, their imports
 }
 
 
@@ -37,7 +38,7 @@ def local_ray():
     """A local Ray of 2 CPUs for one test module (Ray imported only where a test asks)."""
     import ray
 
-    from collect import ray_pool
+    from msta.collect import ray_pool
 
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="warning")
     yield

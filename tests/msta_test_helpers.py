@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msta_data import features as F
-from msta_data import sensors
+from msta.data import features as F
+from msta.data import sensors
 
 
 def random_batch(B: int, steps: int, seed: int = 1, names: Sequence[str] | None = None
@@ -78,7 +78,7 @@ def overfit(policy: torch.nn.Module, batch: dict[str, torch.Tensor], steps: int 
 def running_hub(root: Path, *tokens: str) -> Iterator[object]:
     """A started ``HubServer`` on 127.0.0.1 storing under ``root`` with the ``user:secret``
     ``tokens``; stopped on exit."""
-    from msta_data.hub_server import HubServer, ServerConfig
+    from msta.data.hub_server import HubServer, ServerConfig
 
     srv = HubServer(ServerConfig(root=root, tokens=list(tokens))).start()
     try:
@@ -101,10 +101,10 @@ def hub_as(root: Path, monkeypatch, user: str = "alice",
 def record_gait(root: Path, episodes: int, seconds: float) -> Path:
     """``episodes`` gait-teacher episodes of ``seconds`` recorded together in the real
     simulator (terrain curriculum off) into the dataset ``root``."""
-    from collect.record import CollectConfig, collect
-    from collect.sim.env import EnvConfig
-    from collect.sim.terrain import TerrainConfig
-    from policies.teacher.config import TeacherConfig
+    from msta.collect.record import CollectConfig, collect
+    from msta.collect.sim.env import EnvConfig
+    from msta.collect.sim.terrain import TerrainConfig
+    from msta.policies.teacher.config import TeacherConfig
 
     collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=episodes,
                           num_envs=episodes, root=str(root), episode_length_s=seconds,
@@ -115,8 +115,8 @@ def record_gait(root: Path, episodes: int, seconds: float) -> Path:
 def tiny_student(name: str, overrides: dict, root: Path):
     """A tiny ``name`` student (``overrides`` on its preset) with the dataset ``root``'s
     statistics and large random weights (seeded): its actions vary with its inputs."""
-    from msta_data.stats import load_stats
-    from policies.factory import get_config_class, make_policy
+    from msta.data.stats import load_stats
+    from msta.policies.factory import get_config_class, make_policy
 
     torch.manual_seed(0)
     cfg = get_config_class(name).from_preset("tiny", **overrides)

@@ -17,27 +17,27 @@ from typing import Any
 
 import pytest
 
-from collect.record import parse_config as collect_args
-from collect.simulate import SimRunConfig
-from eval.apps.compare import CompareConfig
-from eval.apps.demo import DemoConfig
-from eval.bench.data import BenchDataConfig
-from eval.bench.deploy import BenchDeployConfig
-from eval.bench.learn import BenchLearnConfig
-from eval.bench.sim import BenchSimConfig
-from eval.bench.train import BenchTrainConfig
-from eval.evaluate import EvalConfig
-from eval.label_check import LabelCheckConfig
-from eval.report import EvalReportConfig
-from eval.teacher_report import TeacherReportConfig
-from msta_data.cli import parse_config
-from msta_data.hub_cli import parse_command
-from policies.export import ExportConfig
-from train.cli import parse_cli
-from train.guard import GuardCommand
-from train.offline import TrainConfig
-from train.online import parse_args as correct_args
-from train.teacher.cli import TrainTeacherConfig
+from msta.collect.record import parse_config as collect_args
+from msta.collect.simulate import SimRunConfig
+from msta.data.cli import parse_config
+from msta.data.hub_cli import parse_command
+from msta.eval.apps.compare import CompareConfig
+from msta.eval.apps.demo import DemoConfig
+from msta.eval.bench.data import BenchDataConfig
+from msta.eval.bench.deploy import BenchDeployConfig
+from msta.eval.bench.learn import BenchLearnConfig
+from msta.eval.bench.sim import BenchSimConfig
+from msta.eval.bench.train import BenchTrainConfig
+from msta.eval.evaluate import EvalConfig
+from msta.eval.label_check import LabelCheckConfig
+from msta.eval.report import EvalReportConfig
+from msta.eval.teacher_report import TeacherReportConfig
+from msta.policies.export import ExportConfig
+from msta.train.cli import parse_cli
+from msta.train.guard import GuardCommand
+from msta.train.offline import TrainConfig
+from msta.train.online import parse_args as correct_args
+from msta.train.teacher.cli import TrainTeacherConfig
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -58,20 +58,20 @@ PARSERS: dict[str, Callable[[list[str]], Any]] = {
     "msta-sim": _config(SimRunConfig, "msta-sim"),
     "msta-hub": parse_command,
     "msta-demo": _config(DemoConfig, "msta-demo"),
-    "python -m eval.apps.demo": _config(DemoConfig, "python -m eval.apps.demo"),
-    "python -m eval.bench.learn": _config(BenchLearnConfig, "python -m eval.bench.learn"),
-    "python -m eval.bench.train": _config(BenchTrainConfig, "python -m eval.bench.train"),
-    "python -m eval.bench.sim": _config(BenchSimConfig, "python -m eval.bench.sim"),
-    "python -m eval.bench.data": _config(BenchDataConfig, "python -m eval.bench.data"),
-    "python -m eval.bench.deploy": _config(BenchDeployConfig, "python -m eval.bench.deploy"),
+    "python -m msta.eval.apps.demo": _config(DemoConfig, "python -m msta.eval.apps.demo"),
+    "python -m msta.eval.bench.learn": _config(BenchLearnConfig, "python -m msta.eval.bench.learn"),
+    "python -m msta.eval.bench.train": _config(BenchTrainConfig, "python -m msta.eval.bench.train"),
+    "python -m msta.eval.bench.sim": _config(BenchSimConfig, "python -m msta.eval.bench.sim"),
+    "python -m msta.eval.bench.data": _config(BenchDataConfig, "python -m msta.eval.bench.data"),
+    "python -m msta.eval.bench.deploy": _config(BenchDeployConfig, "python -m msta.eval.bench.deploy"),
     "msta-export": _config(ExportConfig, "msta-export"),
     "msta-guard": lambda argv: parse_config(GuardCommand, argv, "msta-guard",
                                             positionals=("command",)),
-    "python -m eval.label_check": _config(LabelCheckConfig, "python -m eval.label_check"),
-    "python -m eval.teacher_report": _config(TeacherReportConfig,
-                                             "python -m eval.teacher_report"),
-    "python -m eval.report": lambda argv: parse_config(
-        EvalReportConfig, argv, "python -m eval.report", positionals=("metrics",)),
+    "python -m msta.eval.label_check": _config(LabelCheckConfig, "python -m msta.eval.label_check"),
+    "python -m msta.eval.teacher_report": _config(TeacherReportConfig,
+                                             "python -m msta.eval.teacher_report"),
+    "python -m msta.eval.report": lambda argv: parse_config(
+        EvalReportConfig, argv, "python -m msta.eval.report", positionals=("metrics",)),
 }
 #: A parse that fails only because an example input does not exist here.
 MISSING_INPUT = re.compile(r"no such (file|checkpoint)|does not exist")

@@ -19,10 +19,10 @@ from typing import Any
 
 import pytest
 
-from eval.apps.demo import DemoConfig
-from policies.teacher.config import SHIPPED_RMA_PPO
-from train.offline import TrainConfig
-from train.online import CorrectConfig
+from msta.eval.apps.demo import DemoConfig
+from msta.policies.teacher.config import SHIPPED_RMA_PPO
+from msta.train.offline import TrainConfig
+from msta.train.online import CorrectConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

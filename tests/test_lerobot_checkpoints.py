@@ -12,20 +12,20 @@ import numpy as np
 import pytest
 import torch
 from lerobot.utils.constants import POLICY_PREPROCESSOR_DEFAULT_NAME
-from lerobot_policy_msta.convert import msta_to_lerobot
 from msta_test_helpers import hub_as, record_gait, tiny_student
 
-from eval.evaluate import EvalConfig, evaluate
-from eval.evaluate import main as eval_main
-from msta_data.sensors import STUDENT_SENSORS
-from msta_data.windows import WindowDataset
-from policies.base import PolicyConfig
-from policies.checkpoint import CheckpointError
-from policies.export import main as export_main
-from policies.factory import get_policy_class, load_policy
-from policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, as_msta_checkpoint
-from policies.teacher.config import TeacherConfig
-from train.guard import main as guard_main
+from lerobot_policy_msta.convert import msta_to_lerobot
+from msta.data.sensors import STUDENT_SENSORS
+from msta.data.windows import WindowDataset
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.evaluate import main as eval_main
+from msta.policies.base import PolicyConfig
+from msta.policies.checkpoint import CheckpointError
+from msta.policies.export import main as export_main
+from msta.policies.factory import get_policy_class, load_policy
+from msta.policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, as_msta_checkpoint
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.guard import main as guard_main
 
 
 @pytest.fixture(scope="module")
@@ -65,8 +65,8 @@ def test_msta_loaders_read_a_lerobot_checkpoint(ckpts, recorded):
 
 def test_msta_eval_export_and_finetune_take_a_lerobot_checkpoint(ckpts, recorded, tmp_path,
                                                                  capsys):
-    from policies.checkpoint import PolicyPath
-    from train.finetune import FinetuneConfig, check_source
+    from msta.policies.checkpoint import PolicyPath
+    from msta.train.finetune import FinetuneConfig, check_source
 
     native, lerobot = ckpts
     export_main([f"--policy={lerobot}", f"--output_dir={tmp_path / 'export'}",
@@ -90,7 +90,7 @@ def test_msta_eval_export_and_finetune_take_a_lerobot_checkpoint(ckpts, recorded
 def test_a_pushed_lerobot_checkpoint_loads_by_hub_id(ckpts, recorded, tmp_path, monkeypatch):
     """msta-hub push uploads lerobot-train's pretrained_model as it is; msta's loaders take
     its hub id (real server over HTTP)."""
-    from msta_data.hub_cli import main as hub_main
+    from msta.data.hub_cli import main as hub_main
 
     native, lerobot = ckpts
     with hub_as(tmp_path / "hub", monkeypatch):

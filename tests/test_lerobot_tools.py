@@ -17,12 +17,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from collect.record import main as msta_collect
-from msta_data import layout as L
-from msta_data.integrity import verify_dataset
-from msta_data.lerobot_edits import UNKNOWN
-from msta_data.windows import load_episode_table
-from train.offline import main as msta_train
+from msta.collect.record import main as msta_collect
+from msta.data import layout as L
+from msta.data.integrity import verify_dataset
+from msta.data.lerobot_edits import UNKNOWN
+from msta.data.windows import load_episode_table
+from msta.train.offline import main as msta_train
 
 BIN = Path(sys.executable).parent
 RECORD = ["--teacher.type=zero", "--num_envs=2", "--episode_length_s=0.4", "--progress=false",
@@ -145,8 +145,8 @@ def test_split_and_merge_then_resume_and_train(recorded, tmp_path):
 
 def test_a_lerobot_rewritten_dataset_that_is_not_msta_is_refused(recorded, tmp_path):
     """Features that no msta schema has: one line, nothing written."""
-    from msta_data.errors import DatasetFormatError
-    from msta_data.writer import DatasetWriter
+    from msta.data.errors import DatasetFormatError
+    from msta.data.writer import DatasetWriter
 
     root = _copy(recorded, tmp_path / "ds")
     for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import re
 
-from eval.bench.scale import main
+from msta.eval.bench.scale import main
 
 
 def test_bench_scale_measures_every_stage_against_the_single_process(local_ray, tmp_path,

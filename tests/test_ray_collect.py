@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 import ray
 
-from collect import ray_pool
-from collect.distributed import slot_tiles
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.windows import load_episode_table
-from msta_data.writer import DatasetWriter
+from msta.collect import ray_pool
+from msta.collect.distributed import slot_tiles
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.windows import load_episode_table
+from msta.data.writer import DatasetWriter
 
 REPO = Path(__file__).resolve().parents[1]
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
@@ -115,7 +115,7 @@ COMMITTER = r"""
 import sys
 sys.path.insert(0, sys.argv[3])
 from test_ray_collect import KILLED, tiny
-from collect.record import collect
+from msta.collect.record import collect
 collect(tiny(__import__("pathlib").Path(sys.argv[1]), workers=2, ray_address=sys.argv[2],
              **KILLED))
 """

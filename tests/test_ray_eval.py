@@ -9,8 +9,8 @@ import json
 import pytest
 from msta_test_helpers import record_gait, tiny_student
 
-from collect import ray_pool
-from eval.evaluate import EvalConfig, evaluate
+from msta.collect import ray_pool
+from msta.eval.evaluate import EvalConfig, evaluate
 
 
 @pytest.fixture(scope="module")

@@ -11,17 +11,17 @@ from pathlib import Path
 
 import pytest
 
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.stats import load_stats
-from msta_data.windows import load_episode_table
-from policies.checkpoint import PolicyPath
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.online import CorrectConfig, RoundEvalConfig, correct
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.stats import load_stats
+from msta.data.windows import load_episode_table
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.online import CorrectConfig, RoundEvalConfig, correct
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
 ENV = EnvConfig(nthread=1, terrain=TERRAIN, randomization=RandomizationConfig(pool_size=2))

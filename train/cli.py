@@ -8,18 +8,18 @@ import sys
 from collections.abc import Sequence
 from dataclasses import replace
 
-from msta_data.cli import parse_config, usage_error
-from msta_data.errors import DatasetError, DirectoryLockedError
-from policies.base import CheckpointError, PolicyConfig
-from policies.factory import registered_policies
-from train.push import PushError
+from msta.data.cli import parse_config, usage_error
+from msta.data.errors import DatasetError, DirectoryLockedError
+from msta.policies.base import CheckpointError, PolicyConfig
+from msta.policies.factory import registered_policies
+from msta.train.push import PushError
 
 _PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
 
 
 def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
                  aliases: dict[str, str] | None = None) -> T:
-    """:func:`msta_data.cli.parse_config` plus two conveniences for a ``policy`` field that
+    """:func:`msta.data.cli.parse_config` plus two conveniences for a ``policy`` field that
     configures a new student (a :class:`PolicyConfig`; a ``--policy.path`` field is parsed as is).
 
     ``--policy.preset=<name>`` starts from a named preset (``MSTAConfig.from_preset``);

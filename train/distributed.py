@@ -7,10 +7,10 @@ processes, and a plain process (no such variables) runs exactly as before:
 - **rank 0 runs the command** as a single process would: it reads and writes the dataset,
   rolls out, evaluates, and alone writes checkpoints, metrics, progress files and the final
   policy;
-- **the other ranks train with it**: at each training loop (:func:`train.loop.fit`) rank 0
+- **the other ranks train with it**: at each training loop (:func:`msta.train.loop.fit`) rank 0
   sends them a :class:`FitJob` (the student, the dataset's recipe, the loop settings), all
   ranks train it together under DistributedDataParallel (gloo on the CPU, NCCL on CUDA), and
-  the others wait for the next one until rank 0's command ends (:func:`train.loop.rank0_runs`).
+  the others wait for the next one until rank 0's command ends (:func:`msta.train.loop.rank0_runs`).
 
 **The global batch does not depend on N.** Every rank draws the same batch of window indices
 from the seeded sampler (``--batch_size`` windows) and trains on its share, rows
@@ -47,7 +47,7 @@ import torch.distributed as dist
 from torch import nn
 from torch.overrides import TorchFunctionMode
 
-from msta_data.windows import WindowDataset
+from msta.data.windows import WindowDataset
 
 #: How long the other ranks wait for rank 0's next training loop (its rollouts and
 #: evaluations in between may take hours).
@@ -278,7 +278,7 @@ _GROUP: Group | None = None
 
 
 def current() -> Group | None:
-    """The job's group while :func:`train.loop.rank0_runs` runs a command under torchrun,
+    """The job's group while :func:`msta.train.loop.rank0_runs` runs a command under torchrun,
     else None."""
     return _GROUP
 

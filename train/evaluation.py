@@ -1,11 +1,11 @@
 """``msta-correct``'s per-round evaluation: msta-eval's figures for each round's checkpoint.
 
 A round's checkpoint runs msta-eval's ``token_removal`` conditions at ``--eval.mask_ratios``
-through :class:`eval.evaluator.Evaluator` on the trials of ``--eval.*``
-(:class:`eval.scenarios.TrialConfig`, msta-eval's own options), against the reference
+through :class:`msta.eval.evaluator.Evaluator` on the trials of ``--eval.*``
+(:class:`msta.eval.scenarios.TrialConfig`, msta-eval's own options), against the reference
 teacher on the same trials. The records stored in progress.json are msta-eval's run
 records (``raw``, ``normalized``, trials and 95 % intervals per cell), so msta-correct's
-table (:func:`print_table`), the model card (``train.push.round_eval``) and
+table (:func:`print_table`), the model card (``msta.train.push.round_eval``) and
 ``msta-eval --policies teacher,<round_r> --scenarios token_removal`` with the same options
 on the same device type report the same figures.
 """
@@ -18,20 +18,20 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from eval.evaluator import Evaluator, student_entry, torch_eval_settings
-from eval.metrics import HEADLINE_FIGURES, headline
-from eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
-from eval.scenarios import ScenarioContext, TrialConfig, get_scenario
-from policies.teacher.config import TeacherConfig
+from msta.eval.evaluator import Evaluator, student_entry, torch_eval_settings
+from msta.eval.metrics import HEADLINE_FIGURES, headline
+from msta.eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
+from msta.eval.scenarios import ScenarioContext, TrialConfig, get_scenario
+from msta.policies.teacher.config import TeacherConfig
 
 if TYPE_CHECKING:
-    from train.progress import Progress
+    from msta.train.progress import Progress
 
 
 @dataclass
 class RoundEvalConfig(TrialConfig):
     """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
-    on msta-eval's trials (``eval.evaluator.Evaluator``: the same trial layout, per-trial
+    on msta-eval's trials (``msta.eval.evaluator.Evaluator``: the same trial layout, per-trial
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
     figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
     --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
@@ -55,7 +55,7 @@ class RoundEvalConfig(TrialConfig):
 
 
 class RoundEvaluator:
-    """Phase 5 of msta-correct through msta-eval's :class:`~eval.evaluator.Evaluator` on
+    """Phase 5 of msta-correct through msta-eval's :class:`~msta.eval.evaluator.Evaluator` on
     ``cfg``'s trials. The reference teacher runs once per process, on first use; a
     checkpoint is evaluated from its directory, loaded as msta-eval loads it.
 
@@ -72,7 +72,7 @@ class RoundEvaluator:
         self.ev: Any = None
 
     def teacher(self) -> dict[str, Any]:
-        """The reference teacher's raw figures on the evaluation trials (eval.metrics)."""
+        """The reference teacher's raw figures on the evaluation trials (msta.eval.metrics)."""
         if self.ev is None:
             ev = Evaluator(self.cfg, self.teacher_cfg, progress=False)
             with torch_eval_settings(self.cfg.num_threads, cuda=self.cuda):
@@ -96,7 +96,7 @@ def print_table(prog: Progress) -> None:
     """Per-round table: speeds, then per test mask the trials and msta-eval's figures
     (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
     total reward normalized by the teacher on the same trials, and survival
-    (:func:`eval.metrics.headline`, the model card's figures too)."""
+    (:func:`msta.eval.metrics.headline`, the model card's figures too)."""
     lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
              "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
              "tracking vs teacher / survival |", "|" + "---|" * 11]

@@ -8,11 +8,11 @@ fine-tuning the token projections of the frozen transformer).
     msta-finetune ... --sensors=joint_pos,gravity,command --history=10 --trainable=embeddings+head
     msta-finetune ... --sensors=command,joint_pos,gravity,last_action,height_map
 
-This is msta-correct (:mod:`train.online`, the same rounds, options, resume and per-round
+This is msta-correct (:mod:`msta.train.online`, the same rounds, options, resume and per-round
 table) on a prepared student:
 
 1. the starting checkpoint is restricted to ``--sensors`` and window ``--history``
-   (:meth:`~policies.msta.modeling_msta.MSTAPolicy.with_inputs`: the kept sensors' value
+   (:meth:`~msta.policies.msta.modeling_msta.MSTAPolicy.with_inputs`: the kept sensors' value
    tables and sensor embeddings are copied, the others dropped; config.json and
    processor.json then name only the kept inputs). A named sensor the checkpoint lacks
    (e.g. the ``height_map`` extension in the third example) is added with fresh weights
@@ -20,7 +20,7 @@ table) on a prepared student:
    ``output_dir/start/``,
    which round 0 evaluates: the minimized observation before any fine-tuning;
 2. every parameter outside ``--trainable`` is frozen (``requires_grad`` False; the optimizer,
-   :func:`train.optim.parameter_groups`, receives only the trainable ones). The transformer
+   :func:`msta.train.optim.parameter_groups`, receives only the trainable ones). The transformer
    blocks are always frozen;
 3. each round the student drives on the minimized inputs, the teacher labels every step
    (the dataset records every column, as msta-correct does), the round retrains on
@@ -40,18 +40,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
-from msta_data import layout
-from msta_data import sensors as registry
-from msta_data.cli import check_at_least
-from msta_data.features import load_info
-from msta_data.locate import locate_checkpoint
-from msta_data.stats import load_stats
-from policies.base import PolicyConfig, StudentPolicy
-from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
-from policies.msta import MSTAPolicy
-from train import online
-from train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, Progress, correct
-from train.state import atomic_json
+from msta.data import layout
+from msta.data import sensors as registry
+from msta.data.cli import check_at_least
+from msta.data.features import load_info
+from msta.data.locate import locate_checkpoint
+from msta.data.stats import load_stats
+from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
+from msta.policies.msta import MSTAPolicy
+from msta.train import online
+from msta.train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, Progress, correct
+from msta.train.state import atomic_json
 
 RECORD = "finetune.json"
 RECORD_FORMAT = "msta-finetune/1"
@@ -239,7 +239,7 @@ def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> Progress
 
     Args:
         cfg: the parsed configuration.
-        on_phase: as :func:`train.online.correct`'s (after finetune.json is written).
+        on_phase: as :func:`msta.train.online.correct`'s (after finetune.json is written).
     """
     source, kept = check_source(cfg)
     prep, out = Preparation(cfg, source, kept), Path(cfg.output_dir)

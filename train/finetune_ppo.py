@@ -5,11 +5,11 @@ reward (the paper's Fig. 6 third arm), through rsl_rl's PPO.
         --output_dir=outputs/finetune_ppo/msta --ppo.iterations=40
     msta-finetune-ppo ... --sensors=all --history=15 --trainable=embeddings+head
 
-msta-finetune (:mod:`train.finetune`) fine-tunes the same parameters by supervised online
+msta-finetune (:mod:`msta.train.finetune`) fine-tunes the same parameters by supervised online
 correction with the teacher; this command uses no teacher and no dataset:
 
 1. the starting checkpoint is restricted to ``--sensors`` and window ``--history`` exactly
-   as msta-finetune does (:meth:`~policies.msta.modeling_msta.MSTAPolicy.with_inputs`) and
+   as msta-finetune does (:meth:`~msta.policies.msta.modeling_msta.MSTAPolicy.with_inputs`) and
    saved as ``output_dir/start/`` (direct deployment, before any fine-tuning);
 2. rsl_rl's ``OnPolicyRunner`` runs PPO on :class:`StudentVecEnv`, msta's batched simulator
    with the legged_gym rewards, where the actor (:class:`MSTAActor`) is the student itself:
@@ -46,25 +46,25 @@ from rsl_rl.modules.distribution import GaussianDistribution
 from tensordict import TensorDict
 from torch import nn
 
-from collect.sim.env import EnvConfig
-from msta_data import sensors as registry
-from msta_data.cli import check_at_least, parse_config
-from msta_data.errors import DirectoryLockedError
-from msta_data.locate import locate_checkpoint
-from msta_data.locking import hold_directory
-from msta_data.stats import load_stats
-from policies.actor import StudentActor
-from policies.base import PolicyConfig, StudentPolicy
-from policies.checkpoint import PolicyPath
-from policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
-from policies.factory import load_policy
-from policies.msta import MSTAPolicy
-from policies.teacher.rma import RMAConfig
-from train.finetune import freeze, module_of, sensor_names, trainable_modules
-from train.optim import select_device
-from train.ppo import ChunkLoop, PPOConfig
-from train.state import atomic_json
-from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
+from msta.collect.sim.env import EnvConfig
+from msta.data import sensors as registry
+from msta.data.cli import check_at_least, parse_config
+from msta.data.errors import DirectoryLockedError
+from msta.data.locate import locate_checkpoint
+from msta.data.locking import hold_directory
+from msta.data.stats import load_stats
+from msta.policies.actor import StudentActor
+from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
+from msta.policies.factory import load_policy
+from msta.policies.msta import MSTAPolicy
+from msta.policies.teacher.rma import RMAConfig
+from msta.train.finetune import freeze, module_of, sensor_names, trainable_modules
+from msta.train.optim import select_device
+from msta.train.ppo import ChunkLoop, PPOConfig
+from msta.train.state import atomic_json
+from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 
 PROG = "msta-finetune-ppo"
 RECORD = "finetune.json"
@@ -76,16 +76,16 @@ DUMMY = "dummy"
 
 
 class StudentVecEnv(RslVecEnv):
-    """:class:`~train.teacher.env.RslVecEnv` plus the group ``student``: every robot's last
+    """:class:`~msta.train.teacher.env.RslVecEnv` plus the group ``student``: every robot's last
     T steps of the student's sensors in the registry's raw units, concatenated over the
     sensors in the student's order, with a last column that is 1 on steps before the
     episode start (filled with the episode's first frame, the datasets' window rule,
-    :class:`policies.actor.StudentActor`'s buffer).
+    :class:`msta.policies.actor.StudentActor`'s buffer).
 
     With ``dummy_tokens`` = D > 0 there is also the group ``dummy``: D x 4 uniform numbers
     in [0, 1) per robot, fresh every step (seeded by ``env_cfg.seed``), that fix the draws of
     the D random dummy tokens appended to the student's tokens (the paper's stress test,
-    :mod:`policies.msta.modeling_msta`): stored with the rollout, they give PPO's update the
+    :mod:`msta.policies.msta.modeling_msta`): stored with the rollout, they give PPO's update the
     same tokens the rollout saw.
 
     Args:
@@ -404,7 +404,7 @@ def save_student(actor: MSTAActor, student: Path, record: dict[str, Any],
 def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], out: Path,
                 log) -> tuple[ChunkLoop, int]:
     """rsl_rl's runner with the student as its actor on :class:`StudentVecEnv`, in the PPO
-    chunk loop (:class:`train.ppo.ChunkLoop`), resumed from the newest checkpoint in
+    chunk loop (:class:`msta.train.ppo.ChunkLoop`), resumed from the newest checkpoint in
     ``output_dir/ppo`` when there is one; returns the loop and the iterations done."""
     from rsl_rl.runners import OnPolicyRunner
 

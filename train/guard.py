@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from msta_data.windows import WindowDataset, episode_split, load_episode_table
-from policies.guard import (
+from msta.data.windows import WindowDataset, episode_split, load_episode_table
+from msta.policies.guard import (
     CONTACT_INPUTS,
     CONTACTS,
     INPUT_SENSORS,
@@ -108,7 +108,7 @@ def contact_rows(data: Episodes, lags: int) -> tuple[np.ndarray, np.ndarray]:
 
 def fit_contact_model(data: Episodes, cfg: GuardConfig, seed: int = 0,
                       batch: int = 512) -> dict[str, np.ndarray]:
-    """The contact network's arrays (the ``contact_*`` of ``policies.guard.array_shapes``): two hidden GELU
+    """The contact network's arrays (the ``contact_*`` of ``msta.policies.guard.array_shapes``): two hidden GELU
     layers of ``cfg.contact_hidden``, logistic outputs, fitted by AdamW (lr 3e-3, cosine
     decay) on binary cross-entropy for ``cfg.contact_epochs`` passes (at least 200 steps);
     seeded."""
@@ -161,7 +161,7 @@ def _ridge(f: np.ndarray, gram: np.ndarray, target: np.ndarray, drop: np.ndarray
 
 def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.ndarray]:
     """Run ``guard`` (num_envs = episodes) over ``data`` step by step, faults from
-    ``injector`` (a ``collect.faults.FaultInjector`` or None). Returns ``max_stat`` (S,)
+    ``injector`` (a ``msta.collect.faults.FaultInjector`` or None). Returns ``max_stat`` (S,)
     over valid steps, ``flags`` (E, T, P) bool latched flags, ``active`` (E, T) bool and
     ``changed`` (E, T) bool: the fault changed a reading at that step."""
     e, tmax = data["length"].shape[0], int(data["length"].max())
@@ -271,7 +271,7 @@ def run(cmd: GuardCommand) -> dict:
         path = guard.save(cmd.output_dir)
         print(f"msta-guard: saved {path}")
         return {"path": str(path)}
-    from train.guard_eval import evaluate_guard, format_table
+    from msta.train.guard_eval import evaluate_guard, format_table
 
     train_eps, held = episode_split(cmd.dataset, cmd.val_fraction, cmd.seed)
     guard = fit_guard(cmd.dataset, train_eps, cfg=cfg)
@@ -284,7 +284,7 @@ def run(cmd: GuardCommand) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-guard``)."""
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
     cmd = parse_config(GuardCommand, argv, "msta-guard", positionals=("command",))
     try:

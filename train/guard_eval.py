@@ -1,4 +1,4 @@
-"""Offline measurement of the sensor guard: faults from ``collect.faults.FaultInjector``
+"""Offline measurement of the sensor guard: faults from ``msta.collect.faults.FaultInjector``
 injected into recorded held-out episodes, the guard streamed over them step by step
 (``msta-guard evaluate``; docs/faults.md, "The guard").
 
@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from collect.faults import BINARY_FAULTS, FaultInjector, FaultSpec, std_from_stats
-from msta_data.sensors import get
-from msta_data.stats import load_stats
-from policies.guard import NJ, OFFSET, PHYSICAL_SENSORS, P, SensorGuard, encoder_partner
-from train.guard import load_episodes, stream
+from msta.collect.faults import BINARY_FAULTS, FaultInjector, FaultSpec, std_from_stats
+from msta.data.sensors import get
+from msta.data.stats import load_stats
+from msta.policies.guard import NJ, OFFSET, PHYSICAL_SENSORS, P, SensorGuard, encoder_partner
+from msta.train.guard import load_episodes, stream
 
 WITHIN = 10
 #: (type, severity) with a detection minimum (docs/faults.md), then the subtle ones (reported).

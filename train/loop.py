@@ -14,15 +14,15 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from msta_data.budget import TimeLimitReached, passed
-from msta_data.windows import WindowDataset
-from policies.base import CheckpointError, StudentPolicy
-from train.config import LoopConfig, training_mask_ratio
-from train.distributed import FitJob, Group, current, join, launched, leave
-from train.optim import make_optimizer, make_scheduler
-from train.sampling import WindowSampler
-from train.state import restore_checkpoint, save_checkpoint
-from train.step import draw_sensor_dropout, draw_step_mask, train_step, validate
+from msta.data.budget import TimeLimitReached, passed
+from msta.data.windows import WindowDataset
+from msta.policies.base import CheckpointError, StudentPolicy
+from msta.train.config import LoopConfig, training_mask_ratio
+from msta.train.distributed import FitJob, Group, current, join, launched, leave
+from msta.train.optim import make_optimizer, make_scheduler
+from msta.train.sampling import WindowSampler
+from msta.train.state import restore_checkpoint, save_checkpoint
+from msta.train.step import draw_sensor_dropout, draw_step_mask, train_step, validate
 
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
               "val_loss", "val_loss_unmasked", "val_action_mse")
@@ -147,7 +147,7 @@ class _Run:
     step: int = 0
     train_time: float = 0.0
     samples: int = 0
-    group: Group | None = None  # under torchrun (train.distributed)
+    group: Group | None = None  # under torchrun (msta.train.distributed)
     loss_fn: Any = None  # policy.loss inside DDP, under torchrun
 
     @property
@@ -236,7 +236,7 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
 
     Args:
         policy: the student, already on its device (trained in place; its config is left
-            as it is: the mask ratio trained at is :func:`train.config.training_mask_ratio`
+            as it is: the mask ratio trained at is :func:`msta.train.config.training_mask_ratio`
             of ``cfg.mask_ratio`` and the config's).
         train_ds: a ``WindowDataset`` whose batches carry the action target.
         val_ds: validation windows, or None.
@@ -316,7 +316,7 @@ def follow(group: Group) -> None:
 
 def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
     """Run a training command in a plain process, or as a torchrun job
-    (:mod:`train.distributed`).
+    (:mod:`msta.train.distributed`).
 
     A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
     other ranks to stop); every other rank trains each :func:`fit` rank 0 starts

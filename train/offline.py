@@ -15,7 +15,7 @@ Output directory::
     checkpoints/last -> <step>
     final/                            the final policy (``<PolicyClass>.from_pretrained``)
 
-The training loop itself is :func:`train.loop.fit`; stage 2 (``train/online.py``) runs it
+The training loop itself is :func:`msta.train.loop.fit`; stage 2 (``train/online.py``) runs it
 every round.
 """
 
@@ -30,21 +30,21 @@ from pathlib import Path
 import draccus
 import torch
 
-from msta_data.budget import TimeLimitReached, deadline_after, stop
-from msta_data.layout import LOCK_NAME
-from msta_data.locate import locate_dataset
-from msta_data.locking import hold_directory
-from msta_data.stats import load_stats
-from msta_data.windows import episode_split
-from policies.base import PolicyConfig
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from train.cli import USER_ERRORS, parse_cli
-from train.config import LoopConfig, training_mask_ratio
-from train.loop import fit, load_windows, rank0_runs, warn_if_not_learned
-from train.optim import seed_everything, select_device
-from train.push import check_push_to, push_stage1
-from train.state import atomic_json
+from msta.data.budget import TimeLimitReached, deadline_after, stop
+from msta.data.layout import LOCK_NAME
+from msta.data.locate import locate_dataset
+from msta.data.locking import hold_directory
+from msta.data.stats import load_stats
+from msta.data.windows import episode_split
+from msta.policies.base import PolicyConfig
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.train.cli import USER_ERRORS, parse_cli
+from msta.train.config import LoopConfig, training_mask_ratio
+from msta.train.loop import fit, load_windows, rank0_runs, warn_if_not_learned
+from msta.train.optim import seed_everything, select_device
+from msta.train.push import check_push_to, push_stage1
+from msta.train.state import atomic_json
 
 #: Fields that must match the saved train_config.json when resuming.
 RESUME_FIELDS = ("dataset", "policy", "batch_size", "seed", "val_fraction", "mask_ratio")
@@ -145,7 +145,7 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
         cfg: the parsed configuration.
         on_step: forwarded to :func:`fit` (tests use it to interrupt a run).
 
-    The dataset is verified (``msta_data.locate.locate_dataset``) before ``output_dir`` is created; the
+    The dataset is verified (``msta.data.locate.locate_dataset``) before ``output_dir`` is created; the
     run directory is then locked (``output_dir/.msta.lock``: a second msta-train on it gets
     a one-line error and changes nothing) until the run ends.
     """

@@ -17,10 +17,10 @@ Each round r = 1..R:
 3. **append** the round's episodes in one writer session (provenance source=student,
    round=r, policy=<type>, policy_revision=hash of the weights that drove);
 4. **retrain** from the current weights on all episodes (``--recent_weight`` < 1 favours
-   recent rounds), with :func:`train.loop.fit` (mask ratio: the paper's 0.5, capped at
+   recent rounds), with :func:`msta.train.loop.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
-   (:mod:`train.evaluation`: ``eval.evaluator.Evaluator`` on the trials of ``--eval.*``, the
+   (:mod:`msta.train.evaluation`: ``msta.eval.evaluator.Evaluator`` on the trials of ``--eval.*``, the
    ``token_removal`` conditions at ``--eval.mask_ratios``): linear-velocity tracking and
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
@@ -29,7 +29,7 @@ Each round r = 1..R:
    model card (``--push_to``).
 
 Resume and crash windows (``progress.json``, written after every phase): see
-:mod:`train.progress`.
+:mod:`msta.train.progress`.
 """
 
 from __future__ import annotations
@@ -44,29 +44,29 @@ import draccus
 import numpy as np
 import torch
 
-import policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
-from collect.record import LabelledActor, record_rollouts
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.env_config import check_sizes
-from msta_data.budget import TimeLimitReached, check_deadline, deadline_after, stop
-from msta_data.cli import check_at_least
-from msta_data.features import load_info, sensor_column_to_name
-from msta_data.locking import hold_directory
-from msta_data.revision import content_revision
-from msta_data.windows import episode_split, load_episode_table
-from msta_data.writer import DatasetWriter
-from policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
-from policies.base import StudentPolicy
-from policies.checkpoint import PolicyPath
-from policies.factory import load_policy
-from policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
-from train.cli import USER_ERRORS, parse_cli
-from train.config import LoopConfig, training_mask_ratio
-from train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
-from train.loop import fit, load_windows, rank0_runs
-from train.online_workers import RayOptions, check_ray_options, drive_and_label_on_workers
-from train.optim import seed_everything, select_device
-from train.progress import (
+import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
+from msta.collect.record import LabelledActor, record_rollouts
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env_config import check_sizes
+from msta.data.budget import TimeLimitReached, check_deadline, deadline_after, stop
+from msta.data.cli import check_at_least
+from msta.data.features import load_info, sensor_column_to_name
+from msta.data.locking import hold_directory
+from msta.data.revision import content_revision
+from msta.data.windows import episode_split, load_episode_table
+from msta.data.writer import DatasetWriter
+from msta.policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
+from msta.policies.base import StudentPolicy
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import load_policy
+from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.train.cli import USER_ERRORS, parse_cli
+from msta.train.config import LoopConfig, training_mask_ratio
+from msta.train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
+from msta.train.loop import fit, load_windows, rank0_runs
+from msta.train.online_workers import RayOptions, check_ray_options, drive_and_label_on_workers
+from msta.train.optim import seed_everything, select_device
+from msta.train.progress import (
     PROGRESS,
     RESUME_FIELDS,
     Progress,
@@ -78,8 +78,8 @@ from train.progress import (
     resolve_inputs,
     rollout_levels,
 )
-from train.push import check_push_to, dataset_source, push_round
-from train.state import atomic_json
+from msta.train.push import check_push_to, dataset_source, push_round
+from msta.train.state import atomic_json
 
 #: A round checkpoint's record of how it was retrained (beside config.json).
 TRAINING_RECORD = "training.json"
@@ -91,7 +91,7 @@ class CorrectConfig(LoopConfig, RayOptions):
         steps: optimizer steps of each round's retraining.
         lr: peak learning rate of each round's retraining.
         mask_ratio: retraining token-removal ratio; null = 0.5 capped at the ratio the
-            student was trained with (:func:`train.config.training_mask_ratio`: a student
+            student was trained with (:func:`msta.train.config.training_mask_ratio`: a student
             trained without masking keeps 0). Each round checkpoint's training.json records
             it; its config.json keeps the student's stage-1 ratio.
         policy: the starting student: ``--policy.path=<checkpoint directory or hub id>``
@@ -219,10 +219,10 @@ Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
 def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
              sensors: tuple[str, ...] | None = None) -> tuple[list[Episode], dict[str, float]]:
     """Phase 1-2: the round's student episodes with teacher labels, in memory (the shared
-    rollout loop through :func:`collect.record.record_rollouts`; the student drives, the
+    rollout loop through :func:`msta.collect.record.record_rollouts`; the student drives, the
     teacher labels every step and executes with probability beta: ``LabelledActor``).
     ``sensors``: the ones to record (the dataset's; None: the default recorded set)."""
-    if cfg.workers:  # on Ray workers, seeded per slot (train.online_workers)
+    if cfg.workers:  # on Ray workers, seeded per slot (msta.train.online_workers)
         return drive_and_label_on_workers(cfg, policy, r, revision, sensors)
     teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
     if hasattr(teacher, "follow_robot"):
@@ -268,7 +268,7 @@ def append_episodes(root: Path, episodes: list[Episode]) -> int:
 
 
 def check_tail(root: Path, before: int, expected: int, r: int, revision: str) -> bool:
-    """Did a killed run already commit this round's episodes? (:mod:`train.progress`)"""
+    """Did a killed run already commit this round's episodes? (:mod:`msta.train.progress`)"""
     table = load_episode_table(root)
     if len(table) == before:
         return False
@@ -286,7 +286,7 @@ def check_tail(root: Path, before: int, expected: int, r: int, revision: str) ->
 
 def round_loop(cfg: CorrectConfig, policy: StudentPolicy, r: int) -> LoopConfig:
     """Round ``r``'s retraining settings: the run's loop options with seed ``seed + r`` and
-    the stage-2 mask ratio (:func:`train.config.training_mask_ratio`; the student's config
+    the stage-2 mask ratio (:func:`msta.train.config.training_mask_ratio`; the student's config
     keeps the ratio stage 1 trained it with)."""
     ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio, stage=2)
     return replace(cfg.loop_part(), seed=cfg.seed + r, mask_ratio=ratio)
@@ -294,7 +294,7 @@ def round_loop(cfg: CorrectConfig, policy: StudentPolicy, r: int) -> LoopConfig:
 
 def retrain(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int, out: Path,
             deadline: float | None = None) -> dict[str, float]:
-    """Phase 4: :func:`train.loop.fit` on the aggregate, from the current weights."""
+    """Phase 4: :func:`msta.train.loop.fit` on the aggregate, from the current weights."""
 
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed + r)
     train_ds = load_windows(root, policy, train_eps)
@@ -344,7 +344,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
             ``output_dir/start/``: round 0 evaluates it and round 1 starts from it.
 
     Once the inputs are checked, output_dir is locked until the run ends
-    (:func:`msta_data.locking.hold_directory`): another process on it fails at once.
+    (:func:`msta.data.locking.hold_directory`): another process on it fails at once.
     """
     deadline = deadline_after(cfg.max_minutes)
     out = Path(cfg.output_dir)
@@ -411,7 +411,7 @@ def evaluate_start(cfg: CorrectConfig, policy: StudentPolicy, ckpt: Path, root: 
 
 def append_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int,
                  rec: RoundRecord, prog: Progress, hook: PhaseHook) -> None:
-    """Phases 1-3, or the recovery of an append a killed run committed (:mod:`train.progress`)."""
+    """Phases 1-3, or the recovery of an append a killed run committed (:mod:`msta.train.progress`)."""
     revision = policy_revision(policy)
     # how many the round appends (recorded before the append; older files: exactly
     # episodes_per_round)

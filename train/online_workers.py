@@ -1,11 +1,11 @@
 """Stage 2's rollouts on Ray workers (msta-correct / msta-finetune ``--workers``).
 
 A round's student episodes are recorded in blocks of ``--num_envs`` slots
-(:mod:`collect.distributed`): slot k of round r draws everything random from its own stream
+(:mod:`msta.collect.distributed`): slot k of round r draws everything random from its own stream
 keyed by (``env.seed + 1000 r``, k) on its own tile; the block's student masks, DAgger coin
 flips and teacher are seeded by (round, block). Workers drive with the student (on their CPU)
 and label with the teacher; this process gathers the episodes in slot order, and
-:func:`train.online.append_episodes` commits them in one writer session, as without workers.
+:func:`msta.train.online.append_episodes` commits them in one writer session, as without workers.
 So a round appends the same episodes for any worker count.
 
 How many: with ``keep_unfinished`` (the default) ``ceil(episodes_per_round / num_envs) *
@@ -25,12 +25,12 @@ from typing import Any
 
 import numpy as np
 
-from collect.distributed import RecordJob, record_on_workers
-from collect.ray_pool import RayOptions, block_seed, check_ray_options, shared_pool
-from collect.record import LabelledActor
-from policies.actor import InputSpec, mask_split_actor
-from policies.base import StudentPolicy
-from policies.teacher.config import TeacherConfig, build_teacher
+from msta.collect.distributed import RecordJob, record_on_workers
+from msta.collect.ray_pool import RayOptions, block_seed, check_ray_options, shared_pool
+from msta.collect.record import LabelledActor
+from msta.policies.actor import InputSpec, mask_split_actor
+from msta.policies.base import StudentPolicy
+from msta.policies.teacher.config import TeacherConfig, build_teacher
 
 
 class StudentLabeller:
@@ -75,10 +75,10 @@ def round_slots(cfg: Any, max_steps: int) -> tuple[int, int | None]:
 def drive_and_label_on_workers(cfg: Any, policy: StudentPolicy, r: int, revision: str,
                                sensors: tuple[str, ...] | None = None
                                ) -> tuple[list, dict[str, float]]:
-    """:func:`train.online.drive_and_label` on ``cfg.workers`` Ray workers: the same
+    """:func:`msta.train.online.drive_and_label` on ``cfg.workers`` Ray workers: the same
     arguments and return (episodes with provenance, rollout figures; the share of steps the
     teacher executed is counted over the recorded frames whose action is the label's)."""
-    from msta_data.sensors import DEFAULT_RECORDED
+    from msta.data.sensors import DEFAULT_RECORDED
 
     seed = cfg.env.seed + 1000 * r
     env = replace(cfg.env, num_envs=cfg.num_envs, seed=seed,

@@ -8,8 +8,8 @@ import random
 import numpy as np
 import torch
 
-from policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
-from train.config import LoopConfig, check_optimizer
+from msta.policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
+from msta.train.config import LoopConfig, check_optimizer
 
 
 def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:

@@ -1,6 +1,6 @@
 """rsl_rl PPO as msta runs it: the settings (:class:`PPOConfig`) and the one chunk loop
-(:class:`ChunkLoop`) that msta-train-teacher (:mod:`train.teacher.cli`) and
-msta-finetune-ppo (:mod:`train.finetune_ppo`) both run.
+(:class:`ChunkLoop`) that msta-train-teacher (:mod:`msta.train.teacher.cli`) and
+msta-finetune-ppo (:mod:`msta.train.finetune_ppo`) both run.
 
 A run lives in ``out/``: rsl_rl's ``OnPolicyRunner`` learns in chunks that end at multiples
 of ``save_interval`` (also after a resume from mid-chunk, and after a critic warm-up that
@@ -24,11 +24,11 @@ from typing import Any
 
 import torch
 
-from msta_data.cli import check_at_least, check_number
-from policies.teacher.rma import RMAConfig
-from train.state import atomic_json
-from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
-from train.teacher.model import actor_cfg
+from msta.data.cli import check_at_least, check_number
+from msta.policies.teacher.rma import RMAConfig
+from msta.train.state import atomic_json
+from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
+from msta.train.teacher.model import actor_cfg
 
 _MODEL = re.compile(r"^model_(\d+)\.pt$")
 

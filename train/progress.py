@@ -32,15 +32,15 @@ from typing import TYPE_CHECKING, Any
 
 import draccus
 
-from msta_data.layout import LOCK_NAME
-from msta_data.locate import locate_checkpoint, locate_dataset
-from msta_data.windows import load_episode_table
-from policies.base import PolicyConfig
-from policies.teacher.config import teacher_revision
-from train.state import atomic_json
+from msta.data.layout import LOCK_NAME
+from msta.data.locate import locate_checkpoint, locate_dataset
+from msta.data.windows import load_episode_table
+from msta.policies.base import PolicyConfig
+from msta.policies.teacher.config import teacher_revision
+from msta.train.state import atomic_json
 
 if TYPE_CHECKING:
-    from train.online import CorrectConfig
+    from msta.train.online import CorrectConfig
 
 PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
@@ -156,7 +156,7 @@ class Progress:
         return cls(**known, rounds=rounds, extra=extra, path=path)
 
     def save(self) -> None:
-        """Write the file atomically (:func:`train.state.atomic_json`)."""
+        """Write the file atomically (:func:`msta.train.state.atomic_json`)."""
         if self.path is None:
             raise ValueError("this Progress has no path to be saved to")
         atomic_json(self.path, self.to_json())

@@ -3,7 +3,7 @@
 ``msta-train --push_to=user/name`` pushes ``output_dir/final`` with tag ``stage1``;
 ``msta-correct --push_to=user/name`` pushes ``output_dir/round_<r>`` with tag ``stage2-r<r>``
 after the round's evaluation. The endpoint and token come from ``HF_ENDPOINT`` / ``HF_TOKEN``
-(``msta_data.hub_push``); the token is never printed.
+(``msta.data.hub_push``); the token is never printed.
 
 Tags are moved when they already exist (``move_tag=True``): a tag names the newest push of
 that stage and round to the repo, and the commit sha (printed, and listed by
@@ -12,7 +12,7 @@ earlier versions stay in the history.
 
 The model card records the training dataset (hub id and the commit sha it resolved to, or
 for a local dataset the ``repo_id`` of its ``meta/msta.json``; local paths are never written:
-:func:`msta_data.hub_cards.portable`), the training configuration, stage, round, summary metrics (stage 1:
+:func:`msta.data.hub_cards.portable`), the training configuration, stage, round, summary metrics (stage 1:
 the last train and validation losses of ``metrics.csv``; stage 2: msta-correct's per-round
 figures, which are msta-eval's on the same trials: linear-velocity tracking and total
 reward normalized by the teacher's, survival, their 95 % intervals and the trial count, at
@@ -36,12 +36,12 @@ from typing import Any
 
 import draccus
 
-from eval.metrics import HEADLINE_FIGURES, headline
-from msta_data import layout
-from msta_data.hub_cards import CardInfo, portable
-from msta_data.hub_ids import parse_hub_id
-from msta_data.hub_pull import resolve
-from msta_data.hub_push import push
+from msta.data import layout
+from msta.data.hub_cards import CardInfo, portable
+from msta.data.hub_ids import parse_hub_id
+from msta.data.hub_pull import resolve
+from msta.data.hub_push import push
+from msta.eval.metrics import HEADLINE_FIGURES, headline
 
 _SHA = re.compile(r"^[0-9a-f]{40}$")
 
@@ -94,7 +94,7 @@ def push_checkpoint(ckpt: Path, repo_id: str, tag: str, card: Any, private: bool
         ckpt: the saved checkpoint directory.
         repo_id: ``user/name``.
         tag: moved to the new commit when it exists.
-        card: a ``msta_data.hub_cards.CardInfo`` for README.md.
+        card: a ``msta.data.hub_cards.CardInfo`` for README.md.
         private: create the repo as private.
         retry_hint: how to retry, for the error message.
 
@@ -165,8 +165,8 @@ def push_stage1(cfg: Any, root: Path, out: Path, final: Path) -> dict[str, str]:
 def round_eval(prog: dict[str, Any], r: int) -> tuple[dict[str, float], dict | None]:
     """(metrics, per-terrain table) of round ``r`` from msta-correct's progress.json content.
 
-    The figures are msta-eval's (msta-correct evaluates with ``eval.evaluator.Evaluator``;
-    :func:`eval.metrics.headline` picks them, as for msta-correct's round table):
+    The figures are msta-eval's (msta-correct evaluates with ``msta.eval.evaluator.Evaluator``;
+    :func:`msta.eval.metrics.headline` picks them, as for msta-correct's round table):
     per test mask m, ``lin_tracking_vs_teacher@mask<m>`` and ``total_vs_teacher@mask<m>``
     (per-step returns over the teacher's on the same trials), ``survival@mask<m>`` (share
     of trials without a fall), each with ``<name>_ci95_low@mask<m>`` / ``_high`` (95 %

@@ -15,11 +15,11 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from policies.base import WEIGHTS_NAME, CheckpointError, StudentPolicy, load_weights
-from train.sampling import WindowSampler
+from msta.policies.base import WEIGHTS_NAME, CheckpointError, StudentPolicy, load_weights
+from msta.train.sampling import WindowSampler
 
 if TYPE_CHECKING:
-    from train.loop import WeightEMA
+    from msta.train.loop import WeightEMA
 
 
 def atomic_json(path: Path, obj: Any) -> None:

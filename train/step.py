@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from policies.base import Channels, StudentPolicy
+from msta.policies.base import Channels, StudentPolicy
 
 
 def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
@@ -36,7 +36,7 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         channels: per-sensor channel subsets present in the batch.
         dummy_tokens: random dummy tokens appended to every sample (token students only).
         loss_fn: called instead of ``policy.loss`` with the same arguments (under torchrun:
-            the policy's loss inside DistributedDataParallel, :mod:`train.distributed`).
+            the policy's loss inside DistributedDataParallel, :mod:`msta.train.distributed`).
         absent: per-sample channel removal (:func:`draw_sensor_dropout`; students with
             ``supports_absent`` only).
 
@@ -81,7 +81,7 @@ def draw_sensor_dropout(policy: StudentPolicy, batch_size: int, rate: float,
     :meth:`StudentPolicy.loss` (sensor -> (B, dim) bool), or None when no sample lost one.
     The draws come from ``generator`` (the run's mask generator: seeded, and resumed with
     it)."""
-    from msta_data.sensors import PHYSICAL_SENSORS, get
+    from msta.data.sensors import PHYSICAL_SENSORS, get
 
     sensors = [s for s in policy.required_sensors if s in PHYSICAL_SENSORS]
     if rate <= 0 or not sensors:

@@ -14,5 +14,5 @@ if sys.platform.startswith("linux") and "mujoco" not in sys.modules:
 # Gymnasium's plugin packages do. The entry points are strings, so MuJoCo and gym_env load
 # only when an env is made.
 if "msta/A1-v0" not in registry:
-    register(id="msta/A1-v0", entry_point="collect.sim.gym_env:MstaEnv",
-             vector_entry_point="collect.sim.gym_env:MstaVectorEnv")
+    register(id="msta/A1-v0", entry_point="msta.collect.sim.gym_env:MstaEnv",
+             vector_entry_point="msta.collect.sim.gym_env:MstaVectorEnv")

@@ -23,15 +23,15 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from collect.sim import robot
-from collect.sim.commands import CommandSampler
-from collect.sim.env_config import ControlConfig, EnvConfig, NoiseConfig
-from collect.sim.randomization import build_pool
-from collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
-from collect.sim.terrain import Terrain, sample_initial, update_levels
-from msta_data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
-from msta_data.robot import DEFAULT_POSE, NUM_JOINTS, SPAWN_HEIGHT
-from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
+from msta.collect.sim import robot
+from msta.collect.sim.commands import CommandSampler
+from msta.collect.sim.env_config import ControlConfig, EnvConfig, NoiseConfig
+from msta.collect.sim.randomization import build_pool
+from msta.collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
+from msta.collect.sim.terrain import Terrain, sample_initial, update_levels
+from msta.data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
+from msta.data.robot import DEFAULT_POSE, NUM_JOINTS, SPAWN_HEIGHT
+from msta.data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 
 PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
 #: Episode end reasons reported in ``StepResult.reason``.

@@ -1,16 +1,16 @@
-"""Configuration of the batched simulator (``collect.sim.env.QuadrupedEnv``)."""
+"""Configuration of the batched simulator (``msta.collect.sim.env.QuadrupedEnv``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from collect.sim import robot
-from collect.sim.commands import CommandConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.rewards import RewardConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.cli import check_finite_fields, check_number
-from msta_data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
+from msta.collect.sim import robot
+from msta.collect.sim.commands import CommandConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.rewards import RewardConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.cli import check_finite_fields, check_number
+from msta.data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
 
 #: The most environments one simulator steps (legged_gym trains with 4,096; every
 #: environment holds its own state arrays and recording buffers).

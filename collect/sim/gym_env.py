@@ -1,14 +1,14 @@
 """Gymnasium views of the batched simulator, registered as ``msta/A1-v0``.
 
-``import collect.sim`` registers the id, the way Gymnasium's plugin packages do
-(``import ale_py``, ``import gymnasium_robotics``; ``gym.register_envs(collect.sim)`` keeps
-linters from dropping the import, ``gym.make("collect.sim:msta/A1-v0")`` does the import
+``import msta.collect.sim`` registers the id, the way Gymnasium's plugin packages do
+(``import ale_py``, ``import gymnasium_robotics``; ``gym.register_envs(msta.collect.sim)`` keeps
+linters from dropping the import, ``gym.make("msta.collect.sim:msta/A1-v0")`` does the import
 itself). The package is what simulator users import anyway, and the registration names its
 entry points as strings, so it costs only Gymnasium's import: MuJoCo and this module load
 when an env is made::
 
     import gymnasium as gym
-    import collect.sim  # noqa: F401  (registers msta/A1-v0)
+    import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
 
     env = gym.make("msta/A1-v0", render_mode="rgb_array")           # MstaEnv, one robot
     envs = gym.make_vec("msta/A1-v0", num_envs=64,
@@ -57,13 +57,13 @@ Autoreset of ``MstaVectorEnv`` (``metadata["autoreset_mode"]``), chosen by ``aut
 the next call must be ``reset()``. ``gym.make_vec(..., vectorization_mode="sync")`` also works
 (one simulator per env, slower).
 
-Step infos: ``reason`` (one of ``collect.sim.env.REASONS``), ``lin_vel_tracking`` and
+Step infos: ``reason`` (one of ``msta.collect.sim.env.REASONS``), ``lin_vel_tracking`` and
 ``ang_vel_tracking`` (the paper's metrics), each with a ``_<key>`` mask that is False for
 envs being reset by a NEXT_STEP step.
 
 ``render_mode="rgb_array"``: ``render()`` draws the robot with ``render.py``'s tracking
 camera (``MstaVectorEnv``: one frame per env). Until an ended episode is reset, it shows the
-state that ended it. Headless Linux renders through EGL: ``import collect.sim`` sets
+state that ended it. Headless Linux renders through EGL: ``import msta.collect.sim`` sets
 ``MUJOCO_GL=egl`` unless it is set (docs/simulator.md, "Rendering without a display", says
 which backends fail where and why).
 """
@@ -80,13 +80,13 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from collect.sim.env import REASONS, EnvConfig, QuadrupedEnv, StepResult
-from collect.sim.render import make_renderer, render_state
-from collect.sim.robot import joint_limits
-from collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds
-from collect.sim.terrain import sample_initial
-from msta_data.robot import NUM_JOINTS
-from msta_data.sensors import STUDENT_SENSORS, get
+from msta.collect.sim.env import REASONS, EnvConfig, QuadrupedEnv, StepResult
+from msta.collect.sim.render import make_renderer, render_state
+from msta.collect.sim.robot import joint_limits
+from msta.collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds
+from msta.collect.sim.terrain import sample_initial
+from msta.data.robot import NUM_JOINTS
+from msta.data.sensors import STUDENT_SENSORS, get
 
 RESET_OPTIONS = ("type_idx", "level")
 INFO_KEYS = ("reason", "lin_vel_tracking", "ang_vel_tracking")

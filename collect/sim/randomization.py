@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from msta_data.sensors import DYNAMICS_NAMES
+from msta.data.sensors import DYNAMICS_NAMES
 
 
 def _check_range(name: str, lo_hi: tuple[float, float]) -> None:

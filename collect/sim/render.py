@@ -1,6 +1,6 @@
 """Offscreen pictures of the batched env: one frame of a state, image strips (PNG) and short
 videos (MP4). Films of a policy are taken through the one rollout loop
-(:func:`collect.rollout.film`)."""
+(:func:`msta.collect.rollout.film`)."""
 
 from __future__ import annotations
 

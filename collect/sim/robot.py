@@ -1,4 +1,4 @@
-"""A1-class scene assembly (robot MJCF + terrain heightfield); the MuJoCo side of msta_data.robot."""
+"""A1-class scene assembly (robot MJCF + terrain heightfield); the MuJoCo side of msta.data.robot."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from importlib import resources
 import mujoco
 import numpy as np
 
-from msta_data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, NUM_JOINTS, SIM_DT, SPAWN_HEIGHT
-from msta_data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
+from msta.data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, NUM_JOINTS, SIM_DT, SPAWN_HEIGHT
+from msta.data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
 
 ASSET = "a1.xml"
 
@@ -84,7 +84,7 @@ def build_model(hfield: dict | None, timestep: float = SIM_DT,
         collision: one of ``COLLISION_SETS``.
     """
     check_collision_set(collision)
-    xml = resources.files("collect.sim").joinpath("assets", ASSET).read_text()
+    xml = resources.files("msta.collect.sim").joinpath("assets", ASSET).read_text()
     spec = mujoco.MjSpec.from_string(xml)
     spec.option.timestep = timestep
     if collision == "full":

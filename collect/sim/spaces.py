@@ -31,7 +31,7 @@ turned at up to 33.5 rad/s and moved at up to 4.7 m/s, and stood 0.05-0.89 m abo
 ground below it. Readings beyond a range are clipped to it.
 
 The normalized action (``ActionMap``): ``a`` in [-1, 1] per joint; 0 is the default pose
-(``msta_data.robot.DEFAULT_POSE``), +1 the joint's upper stop and -1 its lower stop, linear on
+(``msta.data.robot.DEFAULT_POSE``), +1 the joint's upper stop and -1 its lower stop, linear on
 each side. It maps to the simulator's action ``(target - default) / action_scale``, so a
 normalized action and the simulator action of the same joint target move the robot alike.
 """
@@ -40,10 +40,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from collect.sim.randomization import nominal_params
-from collect.sim.robot import joint_limits
-from msta_data.robot import DEFAULT_POSE, NUM_JOINTS
-from msta_data.sensors import SENSORS, get
+from msta.collect.sim.randomization import nominal_params
+from msta.collect.sim.robot import joint_limits
+from msta.data.robot import DEFAULT_POSE, NUM_JOINTS
+from msta.data.sensors import SENSORS, get
 
 #: rad past a joint stop still inside the joint_pos range (0.51 rad measured; module docstring).
 JOINT_POS_MARGIN = 0.6
@@ -64,7 +64,7 @@ class ActionMap:
     ``action_scale``).
 
     Args:
-        limits: (12, 2) joint ranges (``collect.sim.robot.joint_limits``).
+        limits: (12, 2) joint ranges (``msta.collect.sim.robot.joint_limits``).
         action_scale: the simulator's ``control.action_scale``.
     """
 

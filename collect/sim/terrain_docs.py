@@ -1,6 +1,6 @@
-"""PNG pictures of the terrain grid for docs/ (``python -m collect.sim.terrain_docs --docs docs/``).
+"""PNG pictures of the terrain grid for docs/ (``python -m msta.collect.sim.terrain_docs --docs docs/``).
 
-Only this module imports :mod:`collect.sim.terrain` for the pictures; the terrain module
+Only this module imports :mod:`msta.collect.sim.terrain` for the pictures; the terrain module
 does not import it back.
 """
 
@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from collect.sim.terrain import Terrain, TerrainConfig
-from msta_data.cli import parse_config
+from msta.collect.sim.terrain import Terrain, TerrainConfig
+from msta.data.cli import parse_config
 
 DOC_LEVELS = (0, 4, 9)
 
@@ -134,8 +134,8 @@ class DocsConfig:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """CLI: ``python -m collect.sim.terrain_docs --docs docs/`` prints each PNG written."""
-    cfg = parse_config(DocsConfig, argv, prog="python -m collect.sim.terrain_docs")
+    """CLI: ``python -m msta.collect.sim.terrain_docs --docs docs/`` prints each PNG written."""
+    cfg = parse_config(DocsConfig, argv, prog="python -m msta.collect.sim.terrain_docs")
     for path in write_docs(cfg.docs, seed=cfg.seed):
         print(path)
 

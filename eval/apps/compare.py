@@ -7,15 +7,15 @@ evaluate them together and print the paper's Table I.
 
 For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered policy type):
 
-1. **stage 1** (``train.offline.train``) on the shared teacher dataset, ``--stage1_steps``;
-2. **stage 2** (``train.online.correct``) on the policy's **own copy** of the dataset
+1. **stage 1** (``msta.train.offline.train``) on the shared teacher dataset, ``--stage1_steps``;
+2. **stage 2** (``msta.train.online.correct``) on the policy's **own copy** of the dataset
    (``shutil.copytree`` before the first round), ``--stage2_rounds`` rounds of
    ``--episodes_per_round`` student episodes and ``--stage2_steps`` steps: every policy
    appends its own correction episodes, and the shared dataset is never written;
 3. the final checkpoint is copied to ``output_dir/checkpoints/<policy>`` (the table's row
    name); rerun, a policy with a final checkpoint is skipped and a killed stage resumes.
 
-Then one ``msta-eval`` run (``eval.evaluate``) over the teacher and all final checkpoints on
+Then one ``msta-eval`` run (``msta.eval.evaluate``) over the teacher and all final checkpoints on
 the same trials writes ``output_dir/eval/`` and the table is printed and saved as
 ``output_dir/comparison.md``. See docs/baselines_comparison.md.
 """
@@ -32,18 +32,18 @@ from typing import Any
 
 import draccus
 
-from eval.apps.phases import Progress
-from msta_data import layout
-from msta_data.budget import TimeLimitReached, deadline_after, stop
-from msta_data.cli import check_at_least, parse_config
-from msta_data.errors import DirectoryLockedError
-from msta_data.features import load_info
-from msta_data.locking import hold_directory
-from policies.checkpoint import PolicyPath
-from policies.factory import get_config_class, registered_policies
-from policies.teacher.config import TeacherConfig
-from train.config import check_optimizer
-from train.loop import rank0_runs
+from msta.data import layout
+from msta.data.budget import TimeLimitReached, deadline_after, stop
+from msta.data.cli import check_at_least, parse_config
+from msta.data.errors import DirectoryLockedError
+from msta.data.features import load_info
+from msta.data.locking import hold_directory
+from msta.eval.apps.phases import Progress
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import get_config_class, registered_policies
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.config import check_optimizer
+from msta.train.loop import rank0_runs
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
@@ -223,7 +223,7 @@ def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
     root = cfg.dataset_root
     have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
     if cfg.collect_episodes and have < cfg.collect_episodes:  # recorded, or extended
-        from collect.record import CollectConfig, collect
+        from msta.collect.record import CollectConfig, collect
 
         t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.label} episodes of "
                        f"{cfg.collect_episode_length_s:g} s -> {root}")
@@ -251,7 +251,7 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
         config: the policy config to train (default: ``cfg.policy(name)``;
             msta-repro's mask heatmap passes other training masks).
     """
-    from train.offline import TrainConfig, train
+    from msta.train.offline import TrainConfig, train
 
     out = run / "stage1"
     final = out / "final"
@@ -295,8 +295,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
             trained with masking, else 0); given, the student is taken for a token-masking
             one and rolls out at ``cfg.stage2_rollout_mask_ratios``.
     """
-    from train.config import training_mask_ratio
-    from train.online import CorrectConfig, RoundEvalConfig, correct
+    from msta.train.config import training_mask_ratio
+    from msta.train.online import CorrectConfig, RoundEvalConfig, correct
 
     out = run / "stage2"
     last = out / f"round_{cfg.stage2_rounds}"
@@ -349,7 +349,7 @@ def train_policy(cfg: CompareConfig, name: str, root: Path, prog: Progress) -> P
 
 def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str, Any]:
     """One msta-eval run over the teacher and every final checkpoint (same trials)."""
-    from eval.evaluate import EvalConfig, evaluate
+    from msta.eval.evaluate import EvalConfig, evaluate
 
     ecfg = EvalConfig(policies=",".join(["teacher", *map(str, ckpts)]), suite=cfg.eval_suite,
                       output_dir=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
@@ -378,7 +378,7 @@ def _average(metrics: dict[str, Any], policy: str, metric: str = "total") -> lis
 
 def paper_table(metrics: dict[str, Any]) -> str:
     """Average normalized total reward per test mask, beside the paper's Table I."""
-    from msta_data.figures import fmt as _fmt
+    from msta.data.figures import fmt as _fmt
 
     rows = ["| policy | ours 0 % | ours 25 % | ours 50 % | paper 0 % | paper 25 % | paper 50 % |",
             "|---|---|---|---|---|---|---|"]
@@ -395,7 +395,7 @@ def paper_table(metrics: dict[str, Any]) -> str:
 def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: str,
                         timing: dict[str, float]) -> str:
     """``output_dir/comparison.md``: the command, the budgets, Table I (three returns), timings."""
-    from eval.report import table_one
+    from msta.eval.report import table_one
 
     ec = metrics["config"]
     setup = (
@@ -425,7 +425,7 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     Returns:
         the content of ``out/eval/metrics.json``.
     """
-    from eval.report import table_one
+    from msta.eval.report import table_one
 
     out = Path(cfg.output_dir)
     if not cfg.collect_episodes:

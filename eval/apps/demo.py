@@ -36,10 +36,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.cli import check_at_least
-from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.cli import check_at_least
+from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
@@ -60,7 +60,7 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
         action_noise: ``CollectConfig.action_noise`` (DART).
         extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
     """
-    from collect.record import CollectConfig, collect
+    from msta.collect.record import CollectConfig, collect
 
     return collect(CollectConfig(
         teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
@@ -70,7 +70,7 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
 
 
 def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig) -> None:
-    from collect.simulate import SimRunConfig, simulate
+    from msta.collect.simulate import SimRunConfig, simulate
 
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
@@ -94,8 +94,8 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
                mask: float = 0.75, **loop: float) -> Path:
-    from policies.msta import MSTAConfig
-    from train.offline import TrainConfig, train
+    from msta.policies.msta import MSTAConfig
+    from msta.train.offline import TrainConfig, train
 
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
           f"ratio {mask:g} ==")
@@ -108,7 +108,7 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
 
 
 def start_hub(out: Path):
-    from msta_data.hub_server.server import HubServer, ServerConfig
+    from msta.data.hub_server.server import HubServer, ServerConfig
 
     server = HubServer(ServerConfig(root=str(out / "hub"), host="127.0.0.1", port=0,
                                     tokens=[f"{HUB_USER}:{HUB_SECRET}"]))
@@ -120,7 +120,7 @@ def start_hub(out: Path):
 
 
 def step_push(dataset: Path) -> str:
-    from msta_data.hub_push import push_dataset
+    from msta.data.hub_push import push_dataset
 
     print("\n== 3. local hub: push the dataset ==")
     sha = push_dataset(dataset, f"{HUB_USER}/a1_teacher")
@@ -156,9 +156,9 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     much as a round's rollouts), the last round is evaluated."""
     import json
 
-    from policies.checkpoint import PolicyPath
-    from train.evaluation import RoundEvalConfig
-    from train.online import CorrectConfig, correct
+    from msta.policies.checkpoint import PolicyPath
+    from msta.train.evaluation import RoundEvalConfig
+    from msta.train.online import CorrectConfig, correct
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
           "student drives alone (DAgger beta 0) at test-time mask "
@@ -192,8 +192,8 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
 
 def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int,
               teacher: TeacherConfig) -> dict:
-    from eval.evaluate import EvalConfig, evaluate
-    from msta_data.hub_pull import pull
+    from msta.data.hub_pull import pull
+    from msta.eval.evaluate import EvalConfig, evaluate
 
     tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
@@ -345,10 +345,10 @@ class DemoConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Run the msta pipeline demo on built-in defaults (``python -m eval.apps.demo --help``)."""
-    from msta_data.cli import parse_config
+    """Run the msta pipeline demo on built-in defaults (``python -m msta.eval.apps.demo --help``)."""
+    from msta.data.cli import parse_config
 
-    cfg = parse_config(DemoConfig, argv, prog="python -m eval.apps.demo")
+    cfg = parse_config(DemoConfig, argv, prog="python -m msta.eval.apps.demo")
     out = Path(cfg.output_dir)
     os.environ.setdefault("MUJOCO_GL", "egl")
     if out.exists():

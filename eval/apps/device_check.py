@@ -1,4 +1,4 @@
-"""``make device-check`` / ``python -m eval.apps.device_check``: the CUDA path of every stage, in one
+"""``make device-check`` / ``python -m msta.eval.apps.device_check``: the CUDA path of every stage, in one
 prepared call sized for a lent GPU machine (<= ~6 min on one GPU and 16 cores before the
 torchrun stage, which adds two CPU runs of 20 steps and two CUDA runs of 300; not yet timed).
 
@@ -90,8 +90,8 @@ def last_samples_per_s(run: Path) -> float:
 
 
 def stage1(root: Path, out: Path, device: str, steps: int, batch: int, preset: str) -> Path:
-    from policies.msta import MSTAConfig
-    from train.offline import TrainConfig, train
+    from msta.policies.msta import MSTAConfig
+    from msta.train.offline import TrainConfig, train
 
     return train(TrainConfig(
         dataset=str(root), policy=MSTAConfig.from_preset(preset), output_dir=str(out),
@@ -101,8 +101,8 @@ def stage1(root: Path, out: Path, device: str, steps: int, batch: int, preset: s
 
 def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
     """The same checkpoint's actions on the CPU and on ``device`` for 512 windows."""
-    from msta_data.windows import WindowDataset
-    from policies.factory import load_policy
+    from msta.data.windows import WindowDataset
+    from msta.policies.factory import load_policy
 
     if torch.device(device).type != "cuda":
         return {"compared": False, "why": "no CUDA device: CPU only"}
@@ -122,8 +122,8 @@ def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
 
 def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps: int,
            batch: int, seconds: float) -> tuple[Path, dict[str, Any]]:
-    from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
-    from train.online import CorrectConfig, PolicyPath, RoundEvalConfig, correct
+    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.train.online import CorrectConfig, PolicyPath, RoundEvalConfig, correct
 
     copy = out.parent / "stage2_dataset"
     shutil.copytree(root, copy)
@@ -141,8 +141,8 @@ def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps:
 
 def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
                      seconds: float) -> dict[str, Any]:
-    from eval.evaluate import EvalConfig, evaluate
-    from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.eval.evaluate import EvalConfig, evaluate
+    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
     metrics = evaluate(EvalConfig(
         policies=f"teacher,{ckpt}", suite="quick", scenarios="token_removal", output_dir=str(out),
@@ -162,7 +162,7 @@ def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
 def torchrun_training(root: Path, work: Path, main: str, scale: str) -> dict[str, Any]:
     """msta-train under torchrun and as today's single process, same data and steps: on
     CUDA (when ``main`` is) one process per GPU, on the CPU 2 processes sharing the cores."""
-    from eval.apps.train_scaling import measure
+    from msta.eval.apps.train_scaling import measure
 
     gpu_steps, cpu_steps, batch, preset = TORCHRUN[scale]
     cores = os.cpu_count() or 1
@@ -190,9 +190,9 @@ def timed(figures: dict[str, Any], name: str, fn, *args):
 
 def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     """Every stage; returns (and writes) the figures."""
-    from eval.apps.demo import easy_terrain_dataset
-    from policies.factory import select_device
-    from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.eval.apps.demo import easy_terrain_dataset
+    from msta.policies.factory import select_device
+    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
 
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
@@ -252,9 +252,9 @@ def print_summary(figs: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    run(parse_config(DeviceCheckConfig, argv, prog="python -m eval.apps.device_check"))
+    run(parse_config(DeviceCheckConfig, argv, prog="python -m msta.eval.apps.device_check"))
 
 
 if __name__ == "__main__":

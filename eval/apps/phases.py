@@ -7,7 +7,7 @@ import json
 import time
 from pathlib import Path
 
-from msta_data.budget import check_deadline, minutes_left
+from msta.data.budget import check_deadline, minutes_left
 
 
 class Progress:

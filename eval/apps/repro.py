@@ -12,7 +12,7 @@ continues where it stopped; a killed training resumes from its last checkpoint):
 2. **policies**: every policy of ``--policies`` (default the paper's seven: MSTA, MSTA w/
    learnable mask, GRU, RMA-TCN, TERT concat / separate / w/ learnable mask) gets stage 1 and
    stage 2 with the same budgets, each on its own dataset copy (msta-compare's code:
-   :func:`eval.apps.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
+   :func:`msta.eval.apps.compare.train_policy`); MSTA trains at the paper's masks 0.75 / 0.5, and
    the stage-2 rollouts of masked students drive half of the robots at test mask 0.5; at
    reference scale every student gets the demo's budgets and the MSTA students its window
    T = 4 (the others keep the paper's 15);
@@ -52,7 +52,13 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from eval.apps.compare import (
+from msta.data import layout
+from msta.data.budget import TimeLimitReached, deadline_after, stop
+from msta.data.cli import check_at_least, parse_config
+from msta.data.errors import DirectoryLockedError
+from msta.data.features import load_info
+from msta.data.locking import hold_directory
+from msta.eval.apps.compare import (
     PAPER_TABLE_I,
     CompareConfig,
     Progress,
@@ -61,15 +67,9 @@ from eval.apps.compare import (
     stage2,
     train_policy,
 )
-from msta_data import layout
-from msta_data.budget import TimeLimitReached, deadline_after, stop
-from msta_data.cli import check_at_least, parse_config
-from msta_data.errors import DirectoryLockedError
-from msta_data.features import load_info
-from msta_data.locking import hold_directory
-from policies.factory import select_device
-from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
-from train.config import check_optimizer
+from msta.policies.factory import select_device
+from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+from msta.train.config import check_optimizer
 
 PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).
@@ -240,7 +240,7 @@ def print_sizes(cfg: ReproConfig) -> None:
 
 
 def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:
-    from eval.apps.demo import easy_terrain_dataset
+    from msta.eval.apps.demo import easy_terrain_dataset
 
     root = Path(cfg.output_dir) / "teacher_dataset"
     s = cfg.sizes
@@ -285,7 +285,7 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
              windows: tuple[int, ...] = ()) -> dict[str, Any]:
     """One msta-eval run (skipped when its metrics.json exists); ``levels``: other terrain
     levels than the scale's; ``windows``: the history scenario's."""
-    from eval.evaluate import EvalConfig, evaluate
+    from msta.eval.evaluate import EvalConfig, evaluate
 
     out = Path(cfg.output_dir) / "eval" / name
     done = out / "metrics.json"
@@ -323,7 +323,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
 
 def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
     """:func:`repro`'s phases."""
-    from eval.apps.repro_report import write_report
+    from msta.eval.apps.repro_report import write_report
 
     root = ensure_dataset(cfg, prog)
     ccfg = compare_config(cfg, root)

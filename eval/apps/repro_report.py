@@ -11,12 +11,12 @@ import datetime
 from pathlib import Path
 from typing import Any
 
-from eval.apps.compare import paper_table
-from eval.metrics import headline
-from eval.report import fmt_cell, table_one
-from msta_data.figures import fmt as _fmt
+from msta.data.figures import fmt as _fmt
+from msta.eval.apps.compare import paper_table
+from msta.eval.metrics import headline
+from msta.eval.report import fmt_cell, table_one
 
-#: (figure name in eval.metrics.headline, column title)
+#: (figure name in msta.eval.metrics.headline, column title)
 FIGURES = (("lin_tracking_vs_teacher", "lin. tracking vs teacher"), ("survival", "survival"),
            ("total_vs_teacher", "total vs teacher"))
 #: sensors the paper found individually redundant, and the critical ones
@@ -155,7 +155,7 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
                  machine: str, out: Path) -> Path:
     """``out/report.md`` from the evaluations (``table1``, and ``msta`` / ``heatmap`` when
     MSTA was in the study)."""
-    from eval.apps.repro import ROLLOUT_MASKS
+    from msta.eval.apps.repro import ROLLOUT_MASKS
 
     t1, msta, heat = evals["table1"], evals.get("msta"), evals.get("heatmap")
     ec = t1["config"]

@@ -24,9 +24,9 @@ TRAIN_FLAGS = ("--warmup_steps=10", "--eval_every=0", "--save_every=0", "--val_s
 def train_command(procs: int, dataset: Path, out: Path, preset: str, steps: int, batch: int,
                   device: str, threads: int) -> list[str]:
     """msta-train as a plain process (``procs`` = 0) or under torchrun with ``procs``."""
-    launch = [sys.executable, "-m", "train.offline"] if procs == 0 else [
+    launch = [sys.executable, "-m", "msta.train.offline"] if procs == 0 else [
         sys.executable, "-m", "torch.distributed.run", "--standalone",
-        f"--nproc_per_node={procs}", "-m", "train.offline"]
+        f"--nproc_per_node={procs}", "-m", "msta.train.offline"]
     return [*launch, f"--dataset={dataset}", f"--output_dir={out}", f"--policy.preset={preset}",
             f"--steps={steps}", f"--batch_size={batch}", f"--device={device}",
             f"--num_threads={threads}", f"--log_every={max(steps // 4, 1)}", *TRAIN_FLAGS]

@@ -1,6 +1,6 @@
 """Benchmark the data layer against lerobot's stock paths, measured in the same run.
 
-    python -m eval.bench.data [--episodes 20] [--frames 1000]
+    python -m msta.eval.bench.data [--episodes 20] [--frames 1000]
 
 Write: ``DatasetWriter`` (all registry columns, 20 x 1000 frames) vs lerobot's
 ``LeRobotDataset.create / add_frame / save_episode / finalize`` on a subset of the same
@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from msta_data import features as F
-from msta_data.derived import derive
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
-from msta_data.windows import WindowDataset
-from msta_data.writer import DatasetWriter
+from msta.data import features as F
+from msta.data.derived import derive
+from msta.data.sensors import SENSORS, STUDENT_SENSORS
+from msta.data.windows import WindowDataset
+from msta.data.writer import DatasetWriter
 
 WINDOW = 16
 PROVENANCE = {"terrain": "stairs_up", "terrain_level": 3, "source": "teacher", "round": 0,
@@ -141,9 +141,9 @@ class BenchDataConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    args = parse_config(BenchDataConfig, argv, prog="python -m eval.bench.data")
+    args = parse_config(BenchDataConfig, argv, prog="python -m msta.eval.bench.data")
     logging.disable(logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
         tmp = Path(tmp)

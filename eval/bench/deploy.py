@@ -1,4 +1,4 @@
-"""Deployment latency benchmark: ``make bench-deploy`` / ``python -m eval.bench.deploy``.
+"""Deployment latency benchmark: ``make bench-deploy`` / ``python -m msta.eval.bench.deploy``.
 
 How fast does the MSTA student answer one robot's control step on one CPU core? The
 ``paper`` preset (d = 128, 4 layers x 4 heads; random weights: latency does not depend on
@@ -19,9 +19,9 @@ The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): 
 best parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
 
 The sensor guard (docs/faults.md, "Deployment") at the full observation, batch 1,
-one core: ``guard``, :meth:`policies.guard.SensorGuard.update` alone (numpy; synthetic
+one core: ``guard``, :meth:`msta.policies.guard.SensorGuard.update` alone (numpy; synthetic
 arrays of the fitted shapes: its cost does not depend on their values), and ``guard +
-student``, one :meth:`policies.onnx_runtime.OnnxStudent.step` of an export with the guard
+student``, one :meth:`msta.policies.onnx_runtime.OnnxStudent.step` of an export with the guard
 and its removal inputs (the robot loop: readings checked, window shifted, guard, ONNX
 Runtime), each as a ratio to the plain ONNX Runtime student timed above in the same run.
 Bar: guard + student <= 20 ms a step.
@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from msta_data import sensors as registry
-from policies import guard as guard_mod
-from policies.export import (
+from msta.data import sensors as registry
+from msta.policies import guard as guard_mod
+from msta.policies.export import (
     MINIMIZED_HISTORY,
     MINIMIZED_SENSORS,
     DeployedStudent,
@@ -52,9 +52,9 @@ from policies.export import (
     random_windows,
     resolve_sensors,
 )
-from policies.factory import make_policy
-from policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
-from policies.msta import MSTAConfig
+from msta.policies.factory import make_policy
+from msta.policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
+from msta.policies.msta import MSTAConfig
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
 #: the bar for guard + student at the full observation, one core, batch 1
@@ -78,7 +78,7 @@ def synthetic_guard(seed: int = 0) -> SensorGuard:
 def bench_guard(policy, T: int, out: Path, seconds: float, student_ms: float) -> dict:
     """Guard alone and guard + student (OnnxStudent.step) per step at the full observation;
     printed with their ratios to ``student_ms`` (the plain ONNX Runtime student)."""
-    from policies.onnx_runtime import OnnxStudent
+    from msta.policies.onnx_runtime import OnnxStudent
 
     guard = synthetic_guard()
     guard.save(out / "guard")
@@ -223,9 +223,9 @@ class BenchDeployConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    a = parse_config(BenchDeployConfig, argv, prog="python -m eval.bench.deploy")
+    a = parse_config(BenchDeployConfig, argv, prog="python -m msta.eval.bench.deploy")
     torch.set_num_threads(1)
     torch.manual_seed(0)
     cfg = MSTAConfig.from_preset(a.preset, **({"history": a.history} if a.history else {}))

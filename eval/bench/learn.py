@@ -1,4 +1,4 @@
-"""Learning benchmark: ``make bench-learn`` / ``python -m eval.bench.learn``.
+"""Learning benchmark: ``make bench-learn`` / ``python -m msta.eval.bench.learn``.
 
 Does the MSTA student imitate the teacher as well as a GRU does? On one fixed, seeded
 teacher dataset recorded by the benchmark itself (48 gait-teacher episodes of 10 s, terrain
@@ -35,8 +35,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from msta_data import layout
-from train.config import LoopConfig, check_optimizer
+from msta.data import layout
+from msta.train.config import LoopConfig, check_optimizer
 
 SEED = 0
 #: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
@@ -48,7 +48,7 @@ def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
     """The benchmark's teacher dataset (seeded: the same frames on every machine)."""
     import shutil
 
-    from eval.apps.demo import easy_terrain_dataset
+    from msta.eval.apps.demo import easy_terrain_dataset
 
     if layout.is_dataset_root(root):
         shutil.rmtree(root)
@@ -81,9 +81,9 @@ class WindowMLP(nn.Module):
 
 def _mlp_learner(root: Path, train_eps: list[int], val_eps: list[int], T: int):
     """(step, validate) closures of the window MLP, on its own z-scoring."""
-    from msta_data import sensors
-    from msta_data.stats import load_stats
-    from msta_data.windows import WindowDataset
+    from msta.data import sensors
+    from msta.data.stats import load_stats
+    from msta.data.windows import WindowDataset
 
     names = sensors.STUDENT_SENSORS
     stats = load_stats(root)
@@ -117,11 +117,11 @@ def _mlp_learner(root: Path, train_eps: list[int], val_eps: list[int], T: int):
 def _student_learner(name: str, root: Path, train_eps: list[int], val_eps: list[int],
                      lr: float, optimizer: str):
     """(step, validate, training windows) of an msta / gru learner, as msta-train steps it."""
-    from msta_data.stats import load_stats
-    from msta_data.windows import WindowDataset
-    from policies.factory import make_policy
-    from train.optim import WarmupCosine, make_optimizer
-    from train.step import train_step, validate
+    from msta.data.stats import load_stats
+    from msta.data.windows import WindowDataset
+    from msta.policies.factory import make_policy
+    from msta.train.optim import WarmupCosine, make_optimizer
+    from msta.train.step import train_step, validate
 
     policy = make_policy(policy_config(name), load_stats(root))
     T = policy.config.history
@@ -146,8 +146,8 @@ def _student_learner(name: str, root: Path, train_eps: list[int], val_eps: list[
 def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
                 lr: float, batch_size: int, optimizer: str = "adamw") -> Curve:
     """Train one learner for ``budget_s`` seconds of optimizer steps; validate as it goes."""
-    from msta_data.windows import episode_split
-    from train.optim import make_optimizer
+    from msta.data.windows import episode_split
+    from msta.train.optim import make_optimizer
 
     train_eps, val_eps = episode_split(root, 0.1, SEED)
     curve = Curve(name)
@@ -194,10 +194,10 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
 def policy_config(name: str) -> Any:
     """The student config a learner name stands for (each at its own defaults)."""
     if name.startswith("msta"):
-        from policies.msta import MSTAConfig
+        from msta.policies.msta import MSTAConfig
 
         return MSTAConfig.from_preset(name.split("_", 1)[1])
-    from policies.baselines import GRUConfig
+    from msta.policies.baselines import GRUConfig
 
     return GRUConfig.from_preset("cpu")
 
@@ -265,9 +265,9 @@ class BenchLearnConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    args = parse_config(BenchLearnConfig, argv, prog="python -m eval.bench.learn")
+    args = parse_config(BenchLearnConfig, argv, prog="python -m msta.eval.bench.learn")
     learners = args.names()
     out = Path(args.output_dir)
     torch.set_num_threads(args.num_threads)

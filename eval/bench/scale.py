@@ -1,6 +1,6 @@
 """Benchmark: rollout throughput on Ray workers against today's single process, in one run.
 
-    python -m eval.bench.scale [--rounds 2] [--workers 1,2] [--output_dir outputs/bench_scale]
+    python -m msta.eval.bench.scale [--rounds 2] [--workers 1,2] [--output_dir outputs/bench_scale]
 
 Three stages, each through its real entry point with the commands' defaults but the sizes
 below: **collect** (msta-collect: the shipped PPO teacher records, the dataset is written;
@@ -35,18 +35,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from collect.distributed import RecordJob, record_block, teacher_factory
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from eval.evaluate import EvalConfig, evaluate
-from msta_data.cli import parse_config
-from msta_data.sensors import DEFAULT_RECORDED
-from msta_data.stats import load_stats
-from msta_data.writer import DatasetWriter
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.online import CorrectConfig, drive_and_label
+from msta.collect.distributed import RecordJob, record_block, teacher_factory
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.cli import parse_config
+from msta.data.sensors import DEFAULT_RECORDED
+from msta.data.stats import load_stats
+from msta.data.writer import DatasetWriter
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.online import CorrectConfig, drive_and_label
 
 #: What each stage's figure counts, per second of wall clock.
 UNITS = {"collect": "frames/s", "stage2": "frames/s", "eval": "trial steps/s"}
@@ -182,7 +182,7 @@ def measure(args: BenchScaleConfig, out: Path) -> dict[str, Any]:
     """Every configuration round-robin, after a warm-up of each; per-round rates."""
     import ray
 
-    from policies.factory import load_policy
+    from msta.policies.factory import load_policy
 
     if not ray.is_initialized():  # one local Ray, a CPU for every worker of every pool
         ray.init(num_cpus=sum(args.worker_list), include_dashboard=False,
@@ -224,7 +224,7 @@ def summarize(args: BenchScaleConfig, m: dict[str, Any], committer: float) -> di
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_config(BenchScaleConfig, argv, prog="python -m eval.bench.scale")
+    args = parse_config(BenchScaleConfig, argv, prog="python -m msta.eval.bench.scale")
     out = Path(args.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     m = measure(args, out)

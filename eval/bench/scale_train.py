@@ -1,13 +1,13 @@
-"""Training samples/s at 1 and 2 processes: ``python -m eval.bench.scale_train``.
+"""Training samples/s at 1 and 2 processes: ``python -m msta.eval.bench.scale_train``.
 
 msta-train on one dataset (synthetic frames in every recorded column, the MSTA ``cpu``
 preset, batch 64, mask 0.75) as it runs today (one process on every core), the same on one
-core, and under torchrun (:mod:`train.distributed`): 1 process, and 2 processes with half of
+core, and under torchrun (:mod:`msta.train.distributed`): 1 process, and 2 processes with half of
 the cores each. Every run is a fresh command of its own; runs go round-robin and each ratio
 is the median over rounds of the ratio within a round, so a neighbour's burst of CPU use
 hurts every configuration alike. Samples/s is for the global batch, from msta-train's own
 timing of its training steps after the first quarter of them
-(:mod:`eval.apps.train_scaling`).
+(:mod:`msta.eval.apps.train_scaling`).
 
 The last line is ``torchrun 2 x <t> threads vs 1 process: <ratio>`` (2-process samples/s
 over today's single process on the same cores). ``--device=cuda`` runs one process per GPU
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from eval.apps.train_scaling import measure
-from train.distributed import check_batch
+from msta.eval.apps.train_scaling import measure
+from msta.train.distributed import check_batch
 
 #: today's run: one plain process on every core (the reference of every ratio)
 TODAY = "1 process (today)"
@@ -71,8 +71,8 @@ class ScaleTrainConfig:
 def make_dataset(root: Path, episodes: int, frames: int) -> Path:
     """A dataset of synthetic frames (every recorded column; training speed does not depend
     on the values)."""
-    from eval.bench.data import PROVENANCE, make_episodes
-    from msta_data.writer import DatasetWriter
+    from msta.data.writer import DatasetWriter
+    from msta.eval.bench.data import PROVENANCE, make_episodes
 
     with DatasetWriter.create(root, "local/bench_scale") as w:
         for ep in make_episodes(episodes, frames):
@@ -145,9 +145,9 @@ def report(cfg: ScaleTrainConfig, figs: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    cfg = parse_config(ScaleTrainConfig, argv, prog="python -m eval.bench.scale_train")
+    cfg = parse_config(ScaleTrainConfig, argv, prog="python -m msta.eval.bench.scale_train")
     print(report(cfg, run(cfg)), flush=True)
 
 

@@ -4,7 +4,7 @@ Both run in the same process, interleaved in rounds, on the same states, thread 
 and environment count; the ratio is the median of per-round ratios, so it is robust to a
 busy machine (absolute figures are medians over rounds and follow the machine's speed).
 
-    python -m eval.bench.sim [--num_envs 1024] [--steps 50] [--rounds 5] [--collision fast]
+    python -m msta.eval.bench.sim [--num_envs 1024] [--steps 50] [--rounds 5] [--collision fast]
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from collect.sim import robot
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from msta_data.robot import DEFAULT_POSE, NUM_JOINTS
+from msta.collect.sim import robot
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.robot import DEFAULT_POSE, NUM_JOINTS
 
 
 def _raw_rate(env: QuadrupedEnv, actions: np.ndarray) -> float:
@@ -71,9 +71,9 @@ class BenchSimConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    args = parse_config(BenchSimConfig, argv, prog="python -m eval.bench.sim")
+    args = parse_config(BenchSimConfig, argv, prog="python -m msta.eval.bench.sim")
     env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0,
                                collision=args.collision))
     env.reset()

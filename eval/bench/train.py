@@ -1,4 +1,4 @@
-"""Training-speed benchmark of the MSTA student: ``python -m eval.bench.train``.
+"""Training-speed benchmark of the MSTA student: ``python -m msta.eval.bench.train``.
 
 Measures training samples/s (processor + forward + backward + fused AdamW step, batch 64) for
 the ``paper`` and ``cpu`` presets at mask ratios 0, 0.5 and 0.75, in fp32 and with bf16
@@ -22,10 +22,10 @@ from dataclasses import dataclass, field
 
 import torch
 
-from msta_data import sensors
-from policies.factory import make_policy
-from policies.msta import MSTAConfig, MSTAPolicy
-from policies.msta.modeling_msta import num_kept
+from msta.data import sensors
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig, MSTAPolicy
+from msta.policies.msta.modeling_msta import num_kept
 
 BATCH = 64
 ALPHAS = (0.0, 0.5, 0.75)
@@ -204,9 +204,9 @@ class BenchTrainConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
-    args = parse_config(BenchTrainConfig, argv, prog="python -m eval.bench.train")
+    args = parse_config(BenchTrainConfig, argv, prog="python -m msta.eval.bench.train")
     torch.set_num_threads(args.num_threads)
     gen = torch.Generator().manual_seed(0)
     cases = make_cases(gen)

@@ -9,11 +9,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from msta_data.hub_server import boundary, trees
-from msta_data.hub_server.boundary import field
-from msta_data.hub_server.cards import card_tags, front_matter
-from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
-from msta_data.hub_server.storage import (
+from msta.data.hub_server import boundary, trees
+from msta.data.hub_server.boundary import field
+from msta.data.hub_server.cards import card_tags, front_matter
+from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
+from msta.data.hub_server.storage import (
     CommitInfo,
     FileEntry,
     RepoMeta,
@@ -21,7 +21,7 @@ from msta_data.hub_server.storage import (
 )
 
 if TYPE_CHECKING:
-    from msta_data.hub_server.server import HubApp
+    from msta.data.hub_server.server import HubApp
 
 REPO = r"/api/(?P<type>models|datasets)/(?P<ns>[^/]+)/(?P<name>[^/]+)"
 REV = r"(?P<rev>[^/]+)"

@@ -11,14 +11,14 @@ import base64
 import binascii
 from typing import TYPE_CHECKING, Any
 
-from msta_data.hub_server import boundary
-from msta_data.hub_server.api import REPO, REV, read_repo, repo_url, write_repo
-from msta_data.hub_server.boundary import InputError, field
-from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
-from msta_data.hub_server.storage import FileEntry, RepoMeta, git_blob_sha1, lfs_pointer
+from msta.data.hub_server import boundary
+from msta.data.hub_server.api import REPO, REV, read_repo, repo_url, write_repo
+from msta.data.hub_server.boundary import InputError, field
+from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
+from msta.data.hub_server.storage import FileEntry, RepoMeta, git_blob_sha1, lfs_pointer
 
 if TYPE_CHECKING:
-    from msta_data.hub_server.server import HubApp
+    from msta.data.hub_server.server import HubApp
 
 
 def preupload(app: HubApp, req: Request) -> Response:

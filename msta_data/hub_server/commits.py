@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from msta_data.hub_server.fsio import read_json, write_json
+from msta.data.hub_server.fsio import read_json, write_json
 
 MIN_CHAIN = 64
 

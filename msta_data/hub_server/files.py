@@ -21,15 +21,15 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from msta_data.hub_server import boundary
-from msta_data.hub_server.api import read_repo, write_repo
-from msta_data.hub_server.boundary import InputError, field
-from msta_data.hub_server.cards import validate_card
-from msta_data.hub_server.protocol import HttpError, Request, Response, Route, route
+from msta.data.hub_server import boundary
+from msta.data.hub_server.api import read_repo, write_repo
+from msta.data.hub_server.boundary import InputError, field
+from msta.data.hub_server.cards import validate_card
+from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
 
 if TYPE_CHECKING:
-    from msta_data.hub_server.server import HubApp
-    from msta_data.hub_server.storage import RepoMeta
+    from msta.data.hub_server.server import HubApp
+    from msta.data.hub_server.storage import RepoMeta
 
 _RANGE_RE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
 TICKET_TTL_S = 3600.0

@@ -27,10 +27,10 @@ from http.server import BaseHTTPRequestHandler
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs, unquote, urlsplit
 
-from msta_data.hub_server import boundary
-from msta_data.hub_server.boundary import InputError
-from msta_data.hub_server.connections import MAX_HEADER_BYTES, HeadersTooLarge, SocketInput
-from msta_data.hub_server.protocol import (
+from msta.data.hub_server import boundary
+from msta.data.hub_server.boundary import InputError
+from msta.data.hub_server.connections import MAX_HEADER_BYTES, HeadersTooLarge, SocketInput
+from msta.data.hub_server.protocol import (
     CHUNK,
     BodyReader,
     HttpError,
@@ -40,12 +40,12 @@ from msta_data.hub_server.protocol import (
     http_error_from_input,
     http_error_from_store,
 )
-from msta_data.hub_server.storage import StoreError
+from msta.data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
-    from msta_data.hub_server.server import HubApp
+    from msta.data.hub_server.server import HubApp
 
-logger = logging.getLogger("msta_data.hub_server")
+logger = logging.getLogger("msta.data.hub_server")
 _TICKET_PATH = re.compile(r"^/lfs/(upload|verify)/[^/]*")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _BAD_HEADER_VALUE = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")  # CR, LF (folded lines), NUL ...

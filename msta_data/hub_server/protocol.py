@@ -12,13 +12,13 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs
 
-from msta_data.hub_server import boundary
-from msta_data.hub_server.boundary import InputError
-from msta_data.hub_server.storage import StoreError
+from msta.data.hub_server import boundary
+from msta.data.hub_server.boundary import InputError
+from msta.data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
-    from msta_data.hub_server.connections import SocketInput
-    from msta_data.hub_server.server import HubApp
+    from msta.data.hub_server.connections import SocketInput
+    from msta.data.hub_server.server import HubApp
 
 CHUNK = 1 << 20
 MIN_UPLOAD_RATE = 1024  # bytes/s a body must average once its first read_timeout_s is over

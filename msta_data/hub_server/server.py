@@ -10,14 +10,14 @@ from http.server import ThreadingHTTPServer
 from pathlib import Path
 from typing import Any, Self
 
-from msta_data.hub_server import api, commit_routes, files
-from msta_data.hub_server.auth import AuthConfig, read_token_file
-from msta_data.hub_server.connections import Admission
-from msta_data.hub_server.handler import HubHandler
-from msta_data.hub_server.protocol import Limits, Route
-from msta_data.hub_server.storage import Storage
+from msta.data.hub_server import api, commit_routes, files
+from msta.data.hub_server.auth import AuthConfig, read_token_file
+from msta.data.hub_server.connections import Admission
+from msta.data.hub_server.handler import HubHandler
+from msta.data.hub_server.protocol import Limits, Route
+from msta.data.hub_server.storage import Storage
 
-logger = logging.getLogger("msta_data.hub_server")
+logger = logging.getLogger("msta.data.hub_server")
 
 
 @dataclass

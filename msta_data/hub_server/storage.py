@@ -35,9 +35,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
-from msta_data.hub_server import boundary
-from msta_data.hub_server.commits import Commit, CommitInfo, CommitStore, FileEntry
-from msta_data.hub_server.fsio import append_line, atomic_write, read_json, write_json
+from msta.data.hub_server import boundary
+from msta.data.hub_server.commits import Commit, CommitInfo, CommitStore, FileEntry
+from msta.data.hub_server.fsio import append_line, atomic_write, read_json, write_json
 
 __all__ = ["Commit", "CommitInfo", "FileEntry", "RepoMeta", "Storage", "StoreError", "git_blob_sha1",
            "lfs_pointer"]

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import hashlib
 
-from msta_data.hub_server.commits import FileEntry
-from msta_data.hub_server.storage import StoreError, lfs_pointer
+from msta.data.hub_server.commits import FileEntry
+from msta.data.hub_server.storage import StoreError, lfs_pointer
 
 
 class _Dir:

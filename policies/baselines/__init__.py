@@ -4,21 +4,21 @@ MSTA's learnable-mask variant is ``msta`` with ``learnable_mask=True``. ``mlp`` 
 on the flattened window) is a reference learner, not one of the paper's baselines.
 
 ``BASELINES`` and ``REFERENCES`` are read from the registry
-(:func:`policies.factory.registered_policies`), so a policy registered with
+(:func:`msta.policies.factory.registered_policies`), so a policy registered with
 ``kind="baseline"`` or ``kind="reference"`` appears in them without being named here."""
 
 from typing import Any
 
-from policies.baselines.common import (
+from msta.policies.baselines.common import (
     TimestepConfig,
     TimestepInputs,
     TimestepPolicy,
     TimestepProcessor,
 )
-from policies.baselines.gru import GRUConfig, GRUPolicy
-from policies.baselines.mlp import MLPConfig, MLPPolicy
-from policies.baselines.tcn import TCNConfig, TCNPolicy
-from policies.baselines.tert import (
+from msta.policies.baselines.gru import GRUConfig, GRUPolicy
+from msta.policies.baselines.mlp import MLPConfig, MLPPolicy
+from msta.policies.baselines.tcn import TCNConfig, TCNPolicy
+from msta.policies.baselines.tert import (
     TERTConcatConfig,
     TERTConcatPolicy,
     TERTConfig,
@@ -28,7 +28,7 @@ from policies.baselines.tert import (
     TERTSeparateConfig,
     TERTSeparatePolicy,
 )
-from policies.factory import registered_policies
+from msta.policies.factory import registered_policies
 
 #: module attribute -> registry kind it lists
 _LISTS = {"BASELINES": "baseline", "REFERENCES": "reference"}

@@ -30,9 +30,9 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from msta_data import sensors
-from policies.base import Absent, Batch, Channels, PolicyConfig, StudentPolicy, uniform
-from policies.processor import StudentProcessor
+from msta.data import sensors
+from msta.policies.base import Absent, Batch, Channels, PolicyConfig, StudentPolicy, uniform
+from msta.policies.processor import StudentProcessor
 
 FORMAT = "timestep-processor/1"
 
@@ -40,7 +40,7 @@ FORMAT = "timestep-processor/1"
 @dataclass
 class TimestepConfig(PolicyConfig):
     """Base of the timestep-level baselines' configs (not registered itself); its fields
-    are :class:`policies.config.PolicyConfig`'s (``mask_ratio``: fraction of the input
+    are :class:`msta.policies.config.PolicyConfig`'s (``mask_ratio``: fraction of the input
     scalars replaced by their placeholder per sample during training; 0: placeholders are
     never trained)."""
 
@@ -64,7 +64,7 @@ class TimestepProcessor(StudentProcessor):
     """Statistics owner of the baselines: raw windows -> (B, T, C) normalized vectors.
 
     Validation (unknown / non-input sensors, channel declarations, NaN, pad) and action
-    normalization are the shared :class:`policies.processor.StudentProcessor`'s, so every
+    normalization are the shared :class:`msta.policies.processor.StudentProcessor`'s, so every
     student rejects bad input the same way.
 
     Args:

@@ -12,15 +12,20 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
-from policies.config import check_fraction
-from policies.factory import register_policy
+from msta.policies.baselines.common import (
+    TimestepConfig,
+    TimestepPolicy,
+    TimestepProcessor,
+    action_head,
+)
+from msta.policies.config import check_fraction
+from msta.policies.factory import register_policy
 
 
 @dataclass
 class GRUConfig(TimestepConfig):
     """GRU student (the paper's GRU baseline; sizes are not stated there, ours below;
-    shared fields: :class:`policies.config.PolicyConfig`'s).
+    shared fields: :class:`msta.policies.config.PolicyConfig`'s).
 
     Args:
         hidden_dim: GRU state width.

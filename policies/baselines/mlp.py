@@ -14,13 +14,13 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor
-from policies.factory import register_policy
+from msta.policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor
+from msta.policies.factory import register_policy
 
 
 @dataclass
 class MLPConfig(TimestepConfig):
-    """Window MLP student (shared fields: :class:`policies.config.PolicyConfig`'s;
+    """Window MLP student (shared fields: :class:`msta.policies.config.PolicyConfig`'s;
     ``head_hidden_dim`` is unused).
 
     Args:

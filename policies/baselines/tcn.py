@@ -17,8 +17,13 @@ from typing import Any, ClassVar
 
 from torch import Tensor, nn
 
-from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
-from policies.factory import register_policy
+from msta.policies.baselines.common import (
+    TimestepConfig,
+    TimestepPolicy,
+    TimestepProcessor,
+    action_head,
+)
+from msta.policies.factory import register_policy
 
 READOUTS = ("flatten", "mean")
 
@@ -26,7 +31,7 @@ READOUTS = ("flatten", "mean")
 @dataclass
 class TCNConfig(TimestepConfig):
     """RMA's TCN adaptation module as a student (shared fields:
-    :class:`policies.config.PolicyConfig`'s).
+    :class:`msta.policies.config.PolicyConfig`'s).
 
     Args:
         embed_hidden_dim: hidden width of the per-step embedding MLP.

@@ -22,10 +22,15 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor, nn
 
-from policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor, action_head
-from policies.config import check_fraction, check_positive
-from policies.factory import register_policy
-from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d
+from msta.policies.baselines.common import (
+    TimestepConfig,
+    TimestepPolicy,
+    TimestepProcessor,
+    action_head,
+)
+from msta.policies.config import check_fraction, check_positive
+from msta.policies.factory import register_policy
+from msta.policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d
 
 ACTION_SENSOR = "last_action"
 
@@ -33,7 +38,7 @@ ACTION_SENSOR = "last_action"
 @dataclass
 class TERTConfig(TimestepConfig):
     """Transformer over timestep tokens (base of the TERT configs; not registered itself;
-    shared fields: :class:`policies.config.PolicyConfig`'s).
+    shared fields: :class:`msta.policies.config.PolicyConfig`'s).
 
     Args:
         dim: token width d.

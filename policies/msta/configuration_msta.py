@@ -1,10 +1,10 @@
 """MSTA config: a draccus dataclass registered as ``msta`` (``--policy.type=msta``) by
-:func:`policies.factory.register_policy` on :class:`~policies.msta.modeling_msta.MSTAPolicy`.
+:func:`msta.policies.factory.register_policy` on :class:`~msta.policies.msta.modeling_msta.MSTAPolicy`.
 
 Defaults are the ``paper`` preset. The paper fixes d = 128, 256 bins, T = 15 and MLP
 ratio 2.0; it does not state layer or head counts: we use 4 layers and 4 heads
 (see docs/msta_model.md). The fields every student has (sensors, history, mask ratio,
-action target, presets) are :class:`policies.config.PolicyConfig`'s.
+action target, presets) are :class:`msta.policies.config.PolicyConfig`'s.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from policies.config import PolicyConfig, check_fraction, check_positive
+from msta.policies.config import PolicyConfig, check_fraction, check_positive
 
 #: Choices of ``value_embedding``.
 VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
@@ -37,7 +37,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 @dataclass
 class MSTAConfig(PolicyConfig):
     """Masked Sensory-Temporal Attention student (registered as ``msta`` with its policy).
-    Fields every student has are :class:`policies.config.PolicyConfig`'s.
+    Fields every student has are :class:`msta.policies.config.PolicyConfig`'s.
 
     Args:
         history: window length T used in training (inference accepts any T).

@@ -7,12 +7,9 @@ Every scalar (channel i of sensor a at step t) is one token:
 The value embedding is a 256-row table per sensor channel by default (``value_embedding``:
 ``channel``; ``sensor`` or ``shared`` tables are the ablations), initialised as a
 constant-norm arc ``cos(z/2) u + sin(z/2) v`` of the bin centre's z-score z with random
-directions u, v per table (``value_init``). With one shared table, values of different
-channels averaged by attention cannot be told apart, and a sin-cos code of the bin index
-is not linearly readable: the first design sat on a plateau (docs/msta_model.md, ablation).
-
-with age_t = T - 1 - t (0 = newest step), so a longer window (T = 20 after training at
-T = 15) only adds older ages and the recent steps keep their embeddings. Training removes a
+directions u, v per table (``value_init``); age_t = T - 1 - t (0 = newest step), so a
+longer window (T = 20 after training at T = 15) only adds older ages and the recent steps
+keep their embeddings. Training removes a
 random fraction α of the N tokens of every sample (kept count K = N - round(αN), equal
 within the batch), appends a learnable state token <S>, runs a pre-norm transformer and
 reads the 12 joint targets from <S>. Identity comes from the embeddings only, so sensors
@@ -20,9 +17,8 @@ may be supplied in any order, any subset of sensors / channels and any T work un
 
 Padded steps (before the episode start) are removed first; if some remain because other
 samples of the batch have fewer, they are hidden from attention with a key mask. Channels
-removed per sample (``absent``) are removed the same way (:mod:`policies.msta.removal`); a
-traced graph (msta-export) hides them from attention instead (a fixed token count, the same
-action up to rounding).
+removed per sample (``absent``) go the same way (:mod:`~msta.policies.msta.removal`); a traced
+graph (msta-export) hides them instead (a fixed token count, the same action up to rounding).
 
 Dummy tokens (the paper's test-time stress test, ``dummy_tokens`` = D): after masking, D
 random tokens are appended to every sample before the readout tokens; they attend and are
@@ -57,13 +53,19 @@ from typing import Any, Self
 import torch
 from torch import Tensor, nn
 
-from msta_data.sensors import get
-from policies.base import Absent, Batch, Channels, StudentPolicy, uniform
-from policies.factory import register_policy
-from policies.msta.configuration_msta import MSTAConfig
-from policies.msta.processor_msta import MSTAInputs, MSTAProcessor
-from policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
-from policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d, sincos_2d
+from msta.data.sensors import get
+from msta.policies.base import Absent, Batch, Channels, StudentPolicy, uniform
+from msta.policies.factory import register_policy
+from msta.policies.msta.configuration_msta import MSTAConfig
+from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
+from msta.policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
+from msta.policies.transformer import (
+    init_linears,
+    make_blocks,
+    scale_residuals,
+    sincos_1d,
+    sincos_2d,
+)
 
 __all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
 
@@ -358,7 +360,7 @@ class MSTATransformer(nn.Module):
 
     def _drop_scores(self, B: int, N: int, pad: Tensor | None,
                      generator: torch.Generator | None) -> Tensor:
-        """Random keep scores (B, N) in [0, 1) (:func:`policies.base.uniform`); padded tokens
+        """Random keep scores (B, N) in [0, 1) (:func:`msta.policies.base.uniform`); padded tokens
         get -1 so they are dropped first."""
         scores = uniform(B, N, generator, self.bin_embed.weight.device)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
@@ -431,7 +433,7 @@ class MSTAPolicy(StudentPolicy):
         training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
         every sample (the stress test, see the module docstring; a (B, D, 4) tensor of
         uniforms fixes their draws); ``absent`` (sensor -> (B, dim) bool over the full
-        channels) removes a sample's channels (:mod:`policies.msta.removal`)."""
+        channels) removes a sample's channels (:mod:`msta.policies.msta.removal`)."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         if absent is not None:

@@ -18,8 +18,8 @@ from typing import Any
 
 from torch import Tensor
 
-from msta_data import sensors
-from policies.processor import Batch, Channels, StudentProcessor
+from msta.data import sensors
+from msta.policies.processor import Batch, Channels, StudentProcessor
 
 FORMAT = "msta-processor/1"
 __all__ = ["FORMAT", "MSTAInputs", "MSTAProcessor"]
@@ -36,7 +36,7 @@ class MSTAInputs:
         encoded: sensor name -> clipped z-scores (B, T, dim) of the sensors an MLP encodes
             into tokens (``SensorSpec.encoder_tokens`` > 0), all channels; not in ``bins``.
         absent: sensor name -> (B, dim) bool over the sensor's full channels, True = removed
-            for that sample at every step (:mod:`policies.msta.removal`); or None.
+            for that sample at every step (:mod:`msta.policies.msta.removal`); or None.
     """
 
     bins: dict[str, Tensor]

@@ -19,9 +19,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from msta_data.sensors import get
-from policies.base import uniform
-from policies.msta.processor_msta import MSTAInputs
+from msta.data.sensors import get
+from msta.policies.base import uniform
+from msta.policies.msta.processor_msta import MSTAInputs
 
 __all__ = ["absent_tokens", "additive_mask", "encoded_keys", "keep_per_sample"]
 
@@ -76,7 +76,7 @@ def keep_per_sample(gone: Tensor, pad: Tensor | None, mask_ratio: float,
     """Which tokens each sample keeps when ``gone`` (B, N) are absent for it.
 
     Sample b keeps r_b of its present tokens: N_b - max(N_b - num_kept(N_b, α), padded_b)
-    (:func:`policies.msta.modeling_msta.num_kept`), chosen at random (``generator``) when
+    (:func:`msta.policies.msta.modeling_msta.num_kept`), chosen at random (``generator``) when
     α > 0, all of them in layout order when α = 0 (no random draw).
 
     Returns:

@@ -4,7 +4,7 @@ A teacher maps a batch of observations (student sensors plus privileged signals,
 registry name, each (N, dim) float32) to actions in the simulator's convention: (N, 12)
 offsets from the default pose in units of the simulator's ``control.action_scale``
 (joint target = DEFAULT_POSE + action_scale * action; default
-``msta_data.robot.ACTION_SCALE``). Teachers are deterministic and
+``msta.data.robot.ACTION_SCALE``). Teachers are deterministic and
 batched over environments; stateful ones (e.g. a gait phase) are told about episode
 starts through ``reset``.
 """
@@ -16,7 +16,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from msta_data.sensors import get
+from msta.data.sensors import get
 
 
 @runtime_checkable
@@ -25,7 +25,7 @@ class Teacher(Protocol):
 
     #: registry name, e.g. "gait", "rma", "imported"
     name: str
-    #: registry sensor names read by ``act`` (validated against msta_data.sensors)
+    #: registry sensor names read by ``act`` (validated against msta.data.sensors)
     sensors: tuple[str, ...]
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:

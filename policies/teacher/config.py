@@ -8,9 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
-from msta_data.revision import content_revision, file_parts
-from msta_data.robot import NUM_JOINTS
-from policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
+from msta.data.revision import content_revision, file_parts
+from msta.data.robot import NUM_JOINTS
+from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
 
 
 @register_teacher("zero")
@@ -57,7 +57,7 @@ class TeacherConfig:
     path: str = ""
 
     def __post_init__(self) -> None:
-        import policies.teacher  # noqa: F401  (registers the built-in teachers)
+        import msta.policies.teacher  # noqa: F401  (registers the built-in teachers)
 
         if not self.type:
             self.type, self.path = "rma", self.path or str(SHIPPED_RMA_PPO)
@@ -85,7 +85,7 @@ def build_teacher(cfg: TeacherConfig) -> Teacher:
 
 
 def teacher_revision(cfg: TeacherConfig) -> str:
-    """``<type>-<12 hex>`` (:func:`msta_data.revision.content_revision`): the type, then the
+    """``<type>-<12 hex>`` (:func:`msta.data.revision.content_revision`): the type, then the
     teacher's files (names and bytes) or, for a teacher without files, its config as JSON."""
     parts: list[bytes | str] = [cfg.type]
     if cfg.path:

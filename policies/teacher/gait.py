@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from msta_data.math3d import quat_to_mat, yaw_of
-from msta_data.robot import (
+from msta.data.math3d import quat_to_mat, yaw_of
+from msta.data.robot import (
     ACTION_SCALE,
     CONTROL_DT,
     DEFAULT_POSE,
@@ -45,10 +45,10 @@ from msta_data.robot import (
     THIGH_OFFSET_Y,
     foot_positions_body,
 )
-from msta_data.sensors import DYNAMICS_NAMES
-from policies.teacher.base import check_obs, register_teacher
-from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import (
+from msta.data.sensors import DYNAMICS_NAMES
+from msta.policies.teacher.base import check_obs, register_teacher
+from msta.policies.teacher.gait_kinematics import foot_jacobian, leg_ik
+from msta.policies.teacher.gait_terrain import (
     body_reference,
     dilate,
     ground_at,

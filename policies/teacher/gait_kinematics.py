@@ -1,7 +1,7 @@
 """Leg kinematics of the A1-class robot for the gait teacher: batched analytic inverse
-kinematics and the foot Jacobian (forward kinematics is ``msta_data.robot``).
+kinematics and the foot Jacobian (forward kinematics is ``msta.data.robot``).
 
-Conventions follow ``msta_data.robot.foot_positions_body``: per leg, the hip joint
+Conventions follow ``msta.data.robot.foot_positions_body``: per leg, the hip joint
 rotates about the body x axis, thigh and calf about the (hip-rotated) y axis; a positive
 thigh angle swings the foot backward; the calf is bent with negative angles.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from msta_data.robot import (
+from msta.data.robot import (
     CALF_LENGTH,
     HIP_OFFSETS,
     NUM_JOINTS,

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y
+from msta.data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y
 
 NX, NY = len(HEIGHT_SCAN_X), len(HEIGHT_SCAN_Y)
 X0, Y0, STEP = HEIGHT_SCAN_X[0], HEIGHT_SCAN_Y[0], 0.1

@@ -28,9 +28,9 @@ import draccus
 import numpy as np
 import torch
 
-from msta_data.robot import ACTION_SCALE, DEFAULT_POSE
-from msta_data.sensors import ACTION_DIM, FOOT_NAMES, JOINT_NAMES, LEGS, get
-from policies.teacher.base import check_obs, register_teacher
+from msta.data.robot import ACTION_SCALE, DEFAULT_POSE
+from msta.data.sensors import ACTION_DIM, FOOT_NAMES, JOINT_NAMES, LEGS, get
+from msta.policies.teacher.base import check_obs, register_teacher
 
 Scalar = float | list[float]
 

@@ -28,10 +28,10 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from msta_data.robot import DEFAULT_POSE
-from msta_data.sensors import ACTION_DIM
-from policies.teacher.base import check_obs, register_teacher
-from policies.teacher.imported import InputScaler, SignalSpec
+from msta.data.robot import DEFAULT_POSE
+from msta.data.sensors import ACTION_DIM
+from msta.policies.teacher.base import check_obs, register_teacher
+from msta.policies.teacher.imported import InputScaler, SignalSpec
 
 CONFIG_NAME = "config.json"
 WEIGHTS_NAME = "model.safetensors"

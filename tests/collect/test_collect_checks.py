@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import pytest
 
-from collect.record import main
-from msta_data.windows import load_episode_table
-from msta_data.writer import DatasetWriter
+from msta.collect.record import main
+from msta.data.windows import load_episode_table
+from msta.data.writer import DatasetWriter
 
 SMALL = ["--teacher.type=zero", "--num_envs=2", "--episode_length_s=0.2", "--progress=false",
          "--env.nthread=1", "--env.terrain.types=[flat]", "--env.terrain.num_levels=1",

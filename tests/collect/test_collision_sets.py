@@ -4,9 +4,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from collect.sim import robot
-from collect.sim.env import EnvConfig
-from msta_data.robot import CALF_COLLISION_FULL
+from msta.collect.sim import robot
+from msta.collect.sim.env import EnvConfig
+from msta.data.robot import CALF_COLLISION_FULL
 
 
 def _colliding(model: mujoco.MjModel) -> set[str]:

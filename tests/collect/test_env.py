@@ -7,11 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from collect.sim import robot
-from collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from msta_data.sensors import SENSORS
+from msta.collect.sim import robot
+from msta.collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from msta.data.sensors import SENSORS
 
 
 def flat_cfg(n: int = 4, **kw) -> EnvConfig:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from collect.faults import (
+from msta.collect.faults import (
     FAULT_TYPES,
     FaultInjector,
     FaultSpec,
@@ -13,7 +13,7 @@ from collect.faults import (
     split_faults,
     std_from_stats,
 )
-from msta_data.sensors import get
+from msta.data.sensors import get
 
 N, STEPS, DT = 6, 200, 0.02
 SENSORS = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact", "command")

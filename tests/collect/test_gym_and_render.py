@@ -15,11 +15,11 @@ from gymnasium.vector import AutoresetMode
 from gymnasium.wrappers import FlattenObservation, RecordEpisodeStatistics
 from gymnasium.wrappers import vector as vector_wrappers
 
-import collect.sim  # noqa: F401  (registers msta/A1-v0)
-from collect.sim.env import REASONS, EnvConfig
-from collect.sim.gym_env import MstaEnv, MstaVectorEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
+import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
+from msta.collect.sim.env import REASONS, EnvConfig
+from msta.collect.sim.gym_env import MstaEnv, MstaVectorEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
                      curriculum=False)
@@ -63,7 +63,7 @@ def test_unknown_sensor_is_rejected():
 
 
 def test_importing_the_package_registers_the_id_without_loading_mujoco():
-    code = ("import sys, gymnasium as gym, collect.sim; "
+    code = ("import sys, gymnasium as gym, msta.collect.sim; "
             "assert 'msta/A1-v0' in gym.registry and 'mujoco' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)
 
@@ -135,7 +135,7 @@ def test_next_step_autoreset_resets_on_the_step_after_the_end():
 
 def test_next_step_restart_does_not_count_the_ignored_step():
     """1-step episodes: the ignored step ends the new episode too; that end is undone."""
-    from collect.sim.commands import CommandConfig
+    from msta.collect.sim.commands import CommandConfig
 
     terrain = TerrainConfig(types=("flat",), num_levels=3, max_init_level=2, border=2.0)
     cmd = CommandConfig(lin_vel_x=(1.0, 1.0), lin_vel_y=(0.0, 0.0), use_heading=False)
@@ -221,9 +221,9 @@ def test_render_returns_an_rgb_frame():
 
 def test_image_strip_and_video_are_written(tmp_path):
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from collect.rollout import film
-    from collect.sim.env import QuadrupedEnv
-    from collect.sim.render import save_strip, save_video
+    from msta.collect.rollout import film
+    from msta.collect.sim.env import QuadrupedEnv
+    from msta.collect.sim.render import save_strip, save_video
 
     env = QuadrupedEnv(EnvConfig(num_envs=2, nthread=1,
                                  randomization=RandomizationConfig(enabled=False)))

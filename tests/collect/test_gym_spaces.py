@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from gymnasium.wrappers import FlattenObservation
 
-import collect.sim  # noqa: F401  (registers msta/A1-v0)
-from collect.sim.env import EnvConfig
-from collect.sim.gym_env import MstaEnv, MstaVectorEnv
-from collect.sim.robot import joint_limits
-from collect.sim.spaces import JOINT_POS_MARGIN, ActionMap
-from collect.sim.terrain import TerrainConfig
-from msta_data.robot import ACTION_SCALE, DEFAULT_POSE
-from msta_data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS
+import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.gym_env import MstaEnv, MstaVectorEnv
+from msta.collect.sim.robot import joint_limits
+from msta.collect.sim.spaces import JOINT_POS_MARGIN, ActionMap
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.robot import ACTION_SCALE, DEFAULT_POSE
+from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
                      curriculum=False)
@@ -143,16 +143,16 @@ def test_gym_make_steps_without_warnings():
 
 
 def test_headless_render_goes_through_egl_and_draws_the_robot():
-    """Without MUJOCO_GL, ``import collect.sim`` picks EGL on Linux; an rgb_array frame
+    """Without MUJOCO_GL, ``import msta.collect.sim`` picks EGL on Linux; an rgb_array frame
     shows the scene (not one flat colour) and the robot in it (moving it changes the frame).
     msta's suite runs on Linux with EGL (the Makefile sets MUJOCO_GL=egl), so this always
     runs."""
     code = (
-        "import json, os, numpy as np, collect.sim\n"
-        "from collect.sim.env import EnvConfig\n"
-        "from collect.sim.gym_env import MstaEnv\n"
-        "from collect.sim.randomization import RandomizationConfig\n"
-        "from collect.sim.terrain import TerrainConfig\n"
+        "import json, os, numpy as np, msta.collect.sim\n"
+        "from msta.collect.sim.env import EnvConfig\n"
+        "from msta.collect.sim.gym_env import MstaEnv\n"
+        "from msta.collect.sim.randomization import RandomizationConfig\n"
+        "from msta.collect.sim.terrain import TerrainConfig\n"
         "assert os.environ['MUJOCO_GL'] == 'egl'\n"
         "t = TerrainConfig(types=('flat',), num_levels=1, border=2.0, curriculum=False)\n"
         "env = MstaEnv(EnvConfig(terrain=t, randomization=RandomizationConfig(enabled=False)),\n"
@@ -180,7 +180,7 @@ def test_glfw_without_a_display_is_a_one_line_error():
     """MUJOCO_GL=glfw (MuJoCo's default off Linux) needs a window: headless, the renderer
     says so and names EGL."""
     code = ("import mujoco\n"
-            "from collect.sim.render import make_renderer\n"
+            "from msta.collect.sim.render import make_renderer\n"
             "try:\n"
             "    make_renderer(mujoco.MjModel.from_xml_string('<mujoco/>'), 16, 16)\n"
             "except RuntimeError as e:\n"

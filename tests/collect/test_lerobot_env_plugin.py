@@ -20,11 +20,11 @@ from lerobot.envs.utils import (
     env_to_policy_features,
     preprocess_observation,
 )
+
 from lerobot_env_msta import MstaA1EnvConfig  # installed by the Makefile's venv step
 from lerobot_env_msta.vector_env import VIDEO_OFF_WARNING, A1VectorEnv
-
-from msta_data import derived
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
+from msta.data import derived
+from msta.data.sensors import SENSORS, STUDENT_SENSORS
 
 LEROBOT_EVAL = Path(sys.executable).with_name("lerobot-eval")
 

@@ -6,11 +6,16 @@ import mujoco
 import numpy as np
 import pytest
 
-from collect.sim import robot
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig, apply_params, build_pool, nominal_params
-from collect.sim.terrain import TerrainConfig
-from msta_data.sensors import DYNAMICS_NAMES
+from msta.collect.sim import robot
+from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import (
+    RandomizationConfig,
+    apply_params,
+    build_pool,
+    nominal_params,
+)
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.sensors import DYNAMICS_NAMES
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
                      curriculum=False)

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.windows import WindowDataset, load_episode_table
-from policies.teacher.config import TeacherConfig
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.windows import WindowDataset, load_episode_table
+from msta.policies.teacher.config import TeacherConfig
 
 SMALL_TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                               border=2.0)
@@ -84,7 +84,7 @@ def test_a_collect_with_nothing_to_do_releases_the_dataset(tmp_path):
 
 def test_sigkill_mid_run_then_resume_reaches_the_count(tmp_path):
     root = tmp_path / "ds"
-    args = [sys.executable, "-m", "collect.record", "--teacher.type=zero", "--episodes=400",
+    args = [sys.executable, "-m", "msta.collect.record", "--teacher.type=zero", "--episodes=400",
             "--num_envs=4", f"--root={root}", "--episode_length_s=0.2", "--progress=false",
             "--flush_every_frames=20", "--env.nthread=1", "--env.terrain.types=[flat]",
             "--env.terrain.num_levels=1", "--env.terrain.max_init_level=0",

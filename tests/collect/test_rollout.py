@@ -1,4 +1,4 @@
-"""The one rollout loop (collect.rollout.rollout), its per-step figures and the labelling
+"""The one rollout loop (msta.collect.rollout.rollout), its per-step figures and the labelling
 actor that recording and stage 2 drive it with."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ import os
 import numpy as np
 import pytest
 
-from collect.record import LabelledActor, record_rollouts
-from collect.rollout import fell, film, rollout, run, step_quantities
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
+from msta.collect.record import LabelledActor, record_rollouts
+from msta.collect.rollout import fell, film, rollout, run, step_quantities
+from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
 
 
 def env_cfg(n: int = 3, seconds: float = 0.2) -> EnvConfig:
@@ -74,7 +74,7 @@ def test_msta_sim_summary_counts_every_step_and_episode():
 
 
 def test_survival_counts_falls_and_blowups_not_time_limits():
-    """collect.rollout.fell, the one survival definition: an episode that ends by a fall (or
+    """msta.collect.rollout.fell, the one survival definition: an episode that ends by a fall (or
     a physics blow-up) is not survived, one that ends by the time limit is; msta-sim's table
     counts exactly these."""
     env = QuadrupedEnv(env_cfg(n=4, seconds=1.0))
@@ -104,7 +104,7 @@ def test_a_film_is_the_rollout_loop_filmed_before_its_steps():
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
-    from collect.sim.render import make_renderer, render_state, tracking_camera
+    from msta.collect.sim.render import make_renderer, render_state, tracking_camera
 
     env = QuadrupedEnv(env_cfg(n=2, seconds=0.1))  # 5-step episodes: the loop resets
     env.reset()

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from collect.sim.terrain import (
+from msta.collect.sim.terrain import (
     LEGGED_GYM_TYPE_WEIGHTS,
     TERRAIN_TYPES,
     TILE_GENERATORS,
@@ -18,8 +18,8 @@ from collect.sim.terrain import (
     stair_step_height,
     update_levels,
 )
-from collect.sim.terrain_docs import main as docs_main
-from collect.sim.terrain_docs import write_docs
+from msta.collect.sim.terrain_docs import main as docs_main
+from msta.collect.sim.terrain_docs import write_docs
 
 Q = 0.005  # vertical quantization
 
@@ -344,7 +344,7 @@ def test_docs_cli_options(capsys):
     --help lists its options with defaults; a misspelled option is one line, exit 2."""
     from pathlib import Path
 
-    from collect.sim import terrain
+    from msta.collect.sim import terrain
 
     assert "terrain_docs" not in Path(terrain.__file__).read_text() and not hasattr(terrain, "main")
     with pytest.raises(SystemExit) as e:

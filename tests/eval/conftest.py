@@ -8,14 +8,14 @@ from pathlib import Path
 import pytest
 import torch
 
-import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.stats import load_stats
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
+import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.stats import load_stats
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
 
 
 @pytest.fixture(scope="session")

@@ -7,11 +7,11 @@ import json
 
 import torch
 
-from eval.evaluate import main
-from eval.scenarios import SUITES, build_conditions
-from msta_data.stats import load_stats
-from policies.baselines.gru import GRUConfig
-from policies.factory import make_policy
+from msta.data.stats import load_stats
+from msta.eval.evaluate import main
+from msta.eval.scenarios import SUITES, build_conditions
+from msta.policies.baselines.gru import GRUConfig
+from msta.policies.factory import make_policy
 
 
 def test_suites_sweep_dummy_tokens() -> None:

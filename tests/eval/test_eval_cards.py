@@ -1,6 +1,6 @@
 """``msta-hub push --eval_json`` with msta-eval's own metrics.json: the card shows the
 student's headline figures per scenario and condition with their 95 % intervals and trial
-counts, equal to :func:`eval.metrics.headline` of the same runs; an eval file msta cannot
+counts, equal to :func:`msta.eval.metrics.headline` of the same runs; an eval file msta cannot
 read is one line and exit status 1. Against the real hub server on 127.0.0.1."""
 
 from __future__ import annotations
@@ -13,13 +13,13 @@ from pathlib import Path
 import pytest
 from msta_test_helpers import hub_as
 
-from eval.evaluate import EvalConfig, evaluate
-from eval.metrics import HEADLINE_FIGURES, headline
-from msta_data.cli import parse_config
-from msta_data.figures import fmt_ci
-from msta_data.hub_cards import card_metadata
-from msta_data.hub_cli import main as hub
-from msta_data.hub_ids import hub_api
+from msta.data.cli import parse_config
+from msta.data.figures import fmt_ci
+from msta.data.hub_cards import card_metadata
+from msta.data.hub_cli import main as hub
+from msta.data.hub_ids import hub_api
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.metrics import HEADLINE_FIGURES, headline
 
 
 @pytest.fixture(scope="module")

@@ -8,12 +8,12 @@ import matplotlib.image
 import numpy as np
 import pytest
 
-from eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
-from eval.metrics import RETURNS
-from eval.scenarios import Condition
-from msta_data.budget import EXIT_STOPPED
-from policies.actor import InputSpec
-from policies.teacher.config import TeacherConfig
+from msta.data.budget import EXIT_STOPPED
+from msta.eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
+from msta.eval.metrics import RETURNS
+from msta.eval.scenarios import Condition
+from msta.policies.actor import InputSpec
+from msta.policies.teacher.config import TeacherConfig
 
 FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progress": False}
 
@@ -53,8 +53,8 @@ def _token_counts(ev: Evaluator, entry, spec: InputSpec) -> int:
     The evaluation run itself must succeed with the spec; the count is then taken by
     feeding the same actor class the evaluator uses (StudentActor) 20 consecutive
     observations, so it does not depend on whether a random student falls early."""
-    from collect.sim.env import EnvConfig, QuadrupedEnv
-    from policies.actor import StudentActor
+    from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+    from msta.policies.actor import StudentActor
 
     rec = ev.condition(entry, Condition("test", repr(spec), 0, spec))
     assert rec["status"] == "ok"
@@ -159,7 +159,7 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
     test masks 0/25/50 % are flagged; the random-weight student's figures differ: no flag."""
     import torch
 
-    from policies.factory import load_policy
+    from msta.policies.factory import load_policy
 
     deaf = load_policy(tiny_ckpt)
     with torch.no_grad():
@@ -174,7 +174,7 @@ def test_report_warns_when_a_student_ignores_its_inputs(tiny_ckpt, tmp_path, cap
     assert line in (tmp_path / "out" / "report.md").read_text()
     printed = capsys.readouterr().out
     assert line in printed and tiny_ckpt.name not in printed.split("warning")[-1]
-    from eval.report import identical_warnings
+    from msta.eval.report import identical_warnings
     assert identical_warnings(metrics) == [line]
 
 
@@ -214,7 +214,7 @@ def test_eval_settings_are_restored_and_cuda_only_warns():
     failing (cuBLAS), and the caller's settings come back afterwards."""
     import torch
 
-    from eval.evaluator import torch_eval_settings
+    from msta.eval.evaluator import torch_eval_settings
 
     def state():
         return (torch.are_deterministic_algorithms_enabled(),
@@ -239,7 +239,7 @@ def test_eval_settings_are_restored_and_cuda_only_warns():
     ("mps", "unknown device 'mps'"), ("cuda:99", "cuda:99"),
 ])
 def test_select_device_accepts_only_the_devices_msta_runs_on(name, message):
-    from policies.factory import select_device
+    from msta.policies.factory import select_device
 
     assert select_device("cpu").type == "cpu"
     assert select_device("auto").type in ("cpu", "cuda")

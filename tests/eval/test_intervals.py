@@ -1,11 +1,11 @@
-"""95 % confidence intervals (eval.intervals) on distributions whose answer is known."""
+"""95 % confidence intervals (msta.eval.intervals) on distributions whose answer is known."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from eval.intervals import (
+from msta.eval.intervals import (
     mean_interval,
     proportion_interval,
     ratio_interval,

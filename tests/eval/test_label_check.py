@@ -1,12 +1,12 @@
-"""eval.label_check: the teacher-takeover check of stage 2's labels."""
+"""msta.eval.label_check: the teacher-takeover check of stage 2's labels."""
 
 from __future__ import annotations
 
 import pytest
 
-from eval.label_check import LabelCheckConfig, label_check, main, render
-from policies.checkpoint import PolicyPath
-from policies.teacher.config import TeacherConfig
+from msta.eval.label_check import LabelCheckConfig, label_check, main, render
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.teacher.config import TeacherConfig
 
 
 def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):

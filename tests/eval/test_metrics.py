@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.terrain import TerrainConfig
-from eval.intervals import wilson_interval
-from eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials, survival
-from policies.teacher.config import ZeroTeacher
+from msta.collect.sim.commands import CommandConfig
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.terrain import TerrainConfig
+from msta.eval.intervals import wilson_interval
+from msta.eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials, survival
+from msta.policies.teacher.config import ZeroTeacher
 
 TYPES = ("flat", "smooth_slope")
 
@@ -89,7 +89,7 @@ def test_a_trial_is_the_same_in_any_batch_position():
 
 
 def test_aggregate_and_normalize_by_hand():
-    from eval.metrics import TrialResults
+    from msta.eval.metrics import TrialResults
 
     lay = TrialLayout(("a", "b"), (0,), trials=4)   # trials 0, 2 on a; 1, 3 on b
     r = TrialResults.zeros(4, max_steps=10)

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eval.metrics import RETURNS
-from eval.plots import heatmap_figure, sweep_figure, write_plots
+from msta.eval.metrics import RETURNS
+from msta.eval.plots import heatmap_figure, sweep_figure, write_plots
 
 REFERENCE = Path(__file__).resolve().parents[2] / "docs" / "reference"
 

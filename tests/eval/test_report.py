@@ -6,7 +6,7 @@ import copy
 import json
 from pathlib import Path
 
-from eval.report import fmt_ci, identical_groups, identical_warnings, markdown, raw_table
+from msta.eval.report import fmt_ci, identical_groups, identical_warnings, markdown, raw_table
 
 #: a metrics.json written before the window was named ``history`` (its runs' spec has "T"):
 #: the 2026-12-04 reference study's MSTA sweeps, three conditions of them

@@ -6,7 +6,8 @@ import itertools
 
 import pytest
 
-from eval.scenarios import (
+from msta.data.sensors import STUDENT_SENSORS
+from msta.eval.scenarios import (
     SCENARIOS,
     SUITES,
     build_conditions,
@@ -14,7 +15,6 @@ from eval.scenarios import (
     get_scenario,
     get_suite,
 )
-from msta_data.sensors import STUDENT_SENSORS
 
 
 def test_dead_joint_sets_are_seeded_and_nested():

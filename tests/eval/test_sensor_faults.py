@@ -8,15 +8,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
-from collect.rollout import rollout
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from eval.evaluate import EvalConfig, evaluate, load_entries, main
-from eval.scenarios import DEFAULT_FAULTS, FAULT_JOINT, build_conditions, get_suite
-from msta_data.sensors import STUDENT_SENSORS
-from policies.actor import StudentActor
-from policies.factory import load_policy
-from policies.teacher.config import TeacherConfig
+from msta.collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
+from msta.collect.rollout import rollout
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.sensors import STUDENT_SENSORS
+from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
+from msta.eval.scenarios import DEFAULT_FAULTS, FAULT_JOINT, build_conditions, get_suite
+from msta.policies.actor import StudentActor
+from msta.policies.factory import load_policy
+from msta.policies.teacher.config import TeacherConfig
 
 FAST = {"suite": "quick", "terrains": "flat", "levels": "0", "progress": False}
 STUCK = "stuck:0:encoder:2/onset=0.1-0.3"
@@ -133,7 +133,7 @@ def test_fault_options_are_one_line_errors(tiny_ckpt, tmp_path, capsys):
 def test_false_removals_count_only_each_trials_live_steps():
     """A trial whose episode ended after 2 steps counts its first 2 steps only: what a
     guard flags after the robot restarted elsewhere is not a false alarm of that trial."""
-    from eval.sensor_faults import live_false_removals
+    from msta.eval.sensor_faults import live_false_removals
 
     by_step = np.array([[0, 1], [1, 1], [3, 1], [5, 1]])  # (steps, envs) false removals
     det = {"onset": np.zeros(2, dtype=int), "false_by_step": by_step,

@@ -1,4 +1,4 @@
-"""eval.teacher_curve: a teacher run's snapshots evaluated on fixed tiles, cached."""
+"""msta.eval.teacher_curve: a teacher run's snapshots evaluated on fixed tiles, cached."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ import shutil
 import pytest
 import torch
 
-import eval.teacher_curve as tc
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
-from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
-from train.teacher.warmstart import WarmStartConfig
+import msta.eval.teacher_curve as tc
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
+from msta.train.teacher.warmstart import WarmStartConfig
 
 
 @pytest.fixture(scope="module", autouse=True)

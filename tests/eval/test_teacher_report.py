@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from collect.rollout import rollout, step_quantities
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.terrain import TerrainConfig
-from eval import teacher_report as tr
-from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
+from msta.collect.rollout import rollout, step_quantities
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.terrain import TerrainConfig
+from msta.eval import teacher_report as tr
+from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
 
 
 def tiny(**kw) -> tr.TeacherReportConfig:
@@ -57,16 +57,16 @@ def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, c
     tr.main(argv)
     md = out.read_text()
     # the options as parsed (envs_per_tile capped at episodes), progress left out
-    assert (f"Regenerate: `python -m eval.teacher_report --teacher.type=zero --episodes=2 "
+    assert (f"Regenerate: `python -m msta.eval.teacher_report --teacher.type=zero --episodes=2 "
             f"--envs_per_tile=2 --terrains=flat --levels=0-1 --episode_length_s=0.1 "
             f"--nthread=1 --columns=1 --report={out} --image=''`") in md
     assert "| 1 | 2 | 100.0% |" in md and f"wrote {out}" in capsys.readouterr().out
     gait = tr.TeacherReportConfig(teacher=TeacherConfig(type="gait"))
     assert tr.command_line(gait) == (
-        "python -m eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
+        "python -m msta.eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
     # the default teacher (the shipped PPO one) needs its path: --teacher.type=rma is rma_dart
     assert tr.command_line(tr.TeacherReportConfig()) == (
-        f"python -m eval.teacher_report --teacher.type=rma --teacher.path={SHIPPED_RMA_PPO} "
+        f"python -m msta.eval.teacher_report --teacher.type=rma --teacher.path={SHIPPED_RMA_PPO} "
         "--episodes=100 --envs_per_tile=10")
 
 
@@ -86,7 +86,7 @@ def test_clear_errors(arg, message, capsys):
 
 
 def test_the_stairs_strip_is_a_film_of_the_rollout_loop(tmp_path):
-    """render_stairs films through collect.rollout.film: ``frames`` pictures side by side,
+    """render_stairs films through msta.collect.rollout.film: ``frames`` pictures side by side,
     one every ``steps // frames`` steps."""
     import os
 

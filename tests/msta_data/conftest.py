@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from msta_test_helpers import random_episode  # registered by tests/conftest.py
 
-from msta_data.writer import DatasetWriter
+from msta.data.writer import DatasetWriter
 
 TERRAINS = ("smooth_slope", "rough_slope", "stairs_up", "stairs_down", "discrete")
 

@@ -15,7 +15,7 @@ import socket
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from msta_data.hub_server import HubServer, Limits, ServerConfig
+from msta.data.hub_server import HubServer, Limits, ServerConfig
 
 __test__ = False  # nothing to collect here
 

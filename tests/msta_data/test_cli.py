@@ -7,27 +7,27 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from collect.record import main as collect_main
-from collect.simulate import main as sim_main
-from eval.apps.compare import main as compare_main
-from eval.apps.demo import main as demo_main
-from eval.bench.data import main as bench_data_main
-from eval.bench.deploy import main as bench_deploy_main
-from eval.bench.learn import main as bench_learn_main
-from eval.bench.sim import main as bench_sim_main
-from eval.bench.train import main as bench_train_main
-from eval.evaluate import main as eval_main
-from eval.label_check import main as label_check_main
-from eval.report import main as report_main
-from eval.teacher_report import main as teacher_report_main
-from msta_data.cli import args_doc, field_help, parse_config
-from msta_data.hub_cli import COMMANDS as HUB_COMMANDS
-from msta_data.hub_cli import main as hub_main
-from policies.export import main as export_main
-from train.finetune import main as finetune_main
-from train.offline import main as train_main
-from train.online import main as correct_main
-from train.teacher.cli import main as train_teacher_main
+from msta.collect.record import main as collect_main
+from msta.collect.simulate import main as sim_main
+from msta.data.cli import args_doc, field_help, parse_config
+from msta.data.hub_cli import COMMANDS as HUB_COMMANDS
+from msta.data.hub_cli import main as hub_main
+from msta.eval.apps.compare import main as compare_main
+from msta.eval.apps.demo import main as demo_main
+from msta.eval.bench.data import main as bench_data_main
+from msta.eval.bench.deploy import main as bench_deploy_main
+from msta.eval.bench.learn import main as bench_learn_main
+from msta.eval.bench.sim import main as bench_sim_main
+from msta.eval.bench.train import main as bench_train_main
+from msta.eval.evaluate import main as eval_main
+from msta.eval.label_check import main as label_check_main
+from msta.eval.report import main as report_main
+from msta.eval.teacher_report import main as teacher_report_main
+from msta.policies.export import main as export_main
+from msta.train.finetune import main as finetune_main
+from msta.train.offline import main as train_main
+from msta.train.online import main as correct_main
+from msta.train.teacher.cli import main as train_teacher_main
 
 #: console script -> (entry point, an option it has, a bad value for an option)
 SCRIPTS = {
@@ -39,16 +39,16 @@ SCRIPTS = {
     "msta-eval": (eval_main, "--trials", "--terrains=lava"),
     "msta-compare": (compare_main, "--preset", "--collect_num_envs=x"),
     "msta-sim": (sim_main, "--seconds", "--env.num_envs=-1"),
-    "python -m eval.apps.demo": (demo_main, "--rounds", "--rounds=-1"),
-    "python -m eval.bench.learn": (bench_learn_main, "--learners", "--learners=gpt"),
-    "python -m eval.bench.train": (bench_train_main, "--rounds", "--seconds=0"),
-    "python -m eval.bench.sim": (bench_sim_main, "--nthread", "--collision=fastt"),
-    "python -m eval.bench.data": (bench_data_main, "--frames", "--frames=0"),
-    "python -m eval.bench.deploy": (bench_deploy_main, "--preset", "--preset=huge"),
+    "python -m msta.eval.apps.demo": (demo_main, "--rounds", "--rounds=-1"),
+    "python -m msta.eval.bench.learn": (bench_learn_main, "--learners", "--learners=gpt"),
+    "python -m msta.eval.bench.train": (bench_train_main, "--rounds", "--seconds=0"),
+    "python -m msta.eval.bench.sim": (bench_sim_main, "--nthread", "--collision=fastt"),
+    "python -m msta.eval.bench.data": (bench_data_main, "--frames", "--frames=0"),
+    "python -m msta.eval.bench.deploy": (bench_deploy_main, "--preset", "--preset=huge"),
     "msta-export": (export_main, "--sensors", "--tolerance=0"),
-    "python -m eval.label_check": (label_check_main, "--robots", "--robots=0"),
-    "python -m eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),
-    "python -m eval.teacher_report": (teacher_report_main, "--envs_per_tile", "--levels=3-12"),
+    "python -m msta.eval.label_check": (label_check_main, "--robots", "--robots=0"),
+    "python -m msta.eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),
+    "python -m msta.eval.teacher_report": (teacher_report_main, "--envs_per_tile", "--levels=3-12"),
 }
 
 
@@ -202,7 +202,7 @@ def test_help_shows_the_default_a_factory_builds_not_the_nested_class_default(ca
 def test_a_nested_option_the_command_sets_itself_is_read_not_overridden():
     """msta-collect sets env.episode_length_s / env.seed / env.num_envs from its own
     top-level options: the nested flags mean the same, and both at once is an error."""
-    from collect.record import parse_config as collect_config
+    from msta.collect.record import parse_config as collect_config
 
     cfg = collect_config(["--env.episode_length_s=0.2", "--env.seed=7", "--env.num_envs=3"])
     assert (cfg.episode_length_s, cfg.seed, cfg.num_envs) == (0.2, 7, 3)

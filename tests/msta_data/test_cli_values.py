@@ -1,6 +1,6 @@
 """Issue 41 (14): a value no run can use (NaN, infinity, a size no memory holds, a negative
 thread count) is refused when the command line is parsed: exit 2, one line naming the
-option, never a traceback. The bounds come from one helper, ``msta_data.cli.check_number``."""
+option, never a traceback. The bounds come from one helper, ``msta.data.cli.check_number``."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from pathlib import Path
 
 import pytest
 
-from collect.record import main as collect_main
-from eval.evaluate import main as eval_main
-from train.finetune import main as finetune_main
-from train.finetune_ppo import main as finetune_ppo_main
-from train.offline import main as train_main
-from train.online import main as correct_main
-from train.teacher.cli import main as train_teacher_main
+from msta.collect.record import main as collect_main
+from msta.eval.evaluate import main as eval_main
+from msta.train.finetune import main as finetune_main
+from msta.train.finetune_ppo import main as finetune_ppo_main
+from msta.train.offline import main as train_main
+from msta.train.online import main as correct_main
+from msta.train.teacher.cli import main as train_teacher_main
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -70,7 +70,7 @@ def test_unusable_values_are_one_line_errors_at_parse_time(prog, main, option, n
 
 def test_the_real_command_line_says_it_in_one_line():
     """The console script itself (a subprocess): exit 2, one line on stderr, no traceback."""
-    proc = subprocess.run([sys.executable, "-m", "train.offline", "--lr=inf", "--dataset=x"],
+    proc = subprocess.run([sys.executable, "-m", "msta.train.offline", "--lr=inf", "--dataset=x"],
                           check=False, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     err = proc.stderr.strip()

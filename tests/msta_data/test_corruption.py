@@ -22,11 +22,11 @@ import pyarrow.parquet as pq
 import pytest
 from msta_test_helpers import running_hub  # registered by tests/conftest.py
 
-from msta_data.errors import DatasetFormatError
-from msta_data.integrity import Manifest
-from msta_data.layout import LOCK_NAME, MANIFEST_PATH
-from msta_data.windows import WindowDataset
-from msta_data.writer import DatasetWriter
+from msta.data.errors import DatasetFormatError
+from msta.data.integrity import Manifest
+from msta.data.layout import LOCK_NAME, MANIFEST_PATH
+from msta.data.windows import WindowDataset
+from msta.data.writer import DatasetWriter
 
 FILE = "data/chunk-000/file-001.parquet"  # the second of four data files
 COL = "observation.joint_pos"
@@ -119,9 +119,9 @@ def damaged(request, template, tmp_path) -> tuple[Path, str, dict[str, bytes]]:
 
 @pytest.fixture(scope="module")
 def checkpoint(template, tmp_path_factory) -> Path:
-    from msta_data.stats import load_stats
-    from policies.factory import make_policy
-    from policies.msta import MSTAConfig
+    from msta.data.stats import load_stats
+    from msta.policies.factory import make_policy
+    from msta.policies.msta import MSTAConfig
 
     cfg = MSTAConfig.from_preset("tiny", input_sensors=("command", "joint_pos", "gravity"))
     path = tmp_path_factory.mktemp("ckpt") / "final"
@@ -155,7 +155,7 @@ def test_window_dataset_refuses(damaged):
 
 
 def test_msta_train_refuses(damaged, tmp_path):
-    from train.offline import main
+    from msta.train.offline import main
 
     root, name, before = damaged
     out = tmp_path / "run"
@@ -169,7 +169,7 @@ def test_msta_train_refuses(damaged, tmp_path):
 
 
 def test_msta_collect_resume_refuses_and_deletes_nothing(damaged):
-    from collect.record import main
+    from msta.collect.record import main
 
     root, name, before = damaged
     with pytest.raises(SystemExit) as err:
@@ -182,7 +182,7 @@ def test_msta_collect_resume_refuses_and_deletes_nothing(damaged):
 
 
 def test_msta_correct_refuses(damaged, checkpoint, tmp_path):
-    from train.online import main
+    from msta.train.online import main
 
     root, name, before = damaged
     out = tmp_path / "correct"
@@ -196,8 +196,8 @@ def test_msta_correct_refuses(damaged, checkpoint, tmp_path):
 
 
 def test_msta_hub_push_dataset_refuses(damaged, hub_server, monkeypatch, capsys):
-    from msta_data.hub_cli import main
-    from msta_data.hub_ids import hub_api
+    from msta.data.hub_cli import main
+    from msta.data.hub_ids import hub_api
 
     monkeypatch.setenv("HF_ENDPOINT", hub_server.url)
     monkeypatch.setenv("HF_TOKEN", SECRET)
@@ -210,7 +210,7 @@ def test_msta_hub_push_dataset_refuses(damaged, hub_server, monkeypatch, capsys)
 
 
 def test_push_dataset_waits_for_no_writer(template, tmp_path, hub_server, monkeypatch, capsys):
-    from msta_data.hub_cli import main
+    from msta.data.hub_cli import main
 
     monkeypatch.setenv("HF_ENDPOINT", hub_server.url)
     monkeypatch.setenv("HF_TOKEN", SECRET)

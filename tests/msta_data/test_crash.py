@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from msta_data import stats as S
-from msta_data.integrity import Manifest
-from msta_data.layout import MANIFEST_PATH
-from msta_data.windows import WindowDataset, load_episode_table
-from msta_data.writer import DatasetWriter
+from msta.data import stats as S
+from msta.data.integrity import Manifest
+from msta.data.layout import MANIFEST_PATH
+from msta.data.windows import WindowDataset, load_episode_table
+from msta.data.writer import DatasetWriter
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -24,8 +24,8 @@ REPO = Path(__file__).resolve().parents[2]
 WRITER_SCRIPT = r"""
 import sys
 import numpy as np
-from msta_data import features as F
-from msta_data.writer import DatasetWriter
+from msta.data import features as F
+from msta.data.writer import DatasetWriter
 
 feats = F.build_features()
 rng = np.random.default_rng(0)

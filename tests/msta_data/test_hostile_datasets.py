@@ -26,11 +26,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from msta_data.errors import DatasetFormatError, DatasetIntegrityError
-from msta_data.integrity import Generation, Manifest, digest_bytes, digest_file, verify_dataset
-from msta_data.layout import LOCK_NAME, MANIFEST_PATH
-from msta_data.windows import WindowDataset
-from msta_data.writer import DatasetWriter
+from msta.data.errors import DatasetFormatError, DatasetIntegrityError
+from msta.data.integrity import Generation, Manifest, digest_bytes, digest_file, verify_dataset
+from msta.data.layout import LOCK_NAME, MANIFEST_PATH
+from msta.data.windows import WindowDataset
+from msta.data.writer import DatasetWriter
 
 REPO = Path(__file__).resolve().parents[2]
 TRAIN = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos]",
@@ -61,7 +61,7 @@ def edit_info(root: Path, **values) -> None:
 
 def train(root: Path, out: Path, *extra: str) -> str:
     """msta-train in this process; returns its one-line error."""
-    from train.offline import main
+    from msta.train.offline import main
 
     with pytest.raises(SystemExit) as err:
         main([f"--dataset={root}", f"--output_dir={out}", *TRAIN, *extra])
@@ -101,11 +101,11 @@ def test_manifest_entries_outside_the_dataset_are_refused(ds, entry):
 def test_dev_zero_in_the_manifest_is_one_line_from_every_command(ds, cli, tmp_path):
     consistent(ds, {"/dev/zero": (0, "0" * 64)})
     before = snapshot(ds)
-    args = {"msta-train": ["train.offline", f"--dataset={ds}",
+    args = {"msta-train": ["msta.train.offline", f"--dataset={ds}",
                            f"--output_dir={tmp_path / 'run'}", *TRAIN],
-            "msta-collect": ["collect.record", f"--root={ds}", "--resume=true",
+            "msta-collect": ["msta.collect.record", f"--root={ds}", "--resume=true",
                              "--episodes=12", "--num_envs=2", "--progress=false"],
-            "msta-hub push-dataset": ["msta_data.hub_cli", "push-dataset", str(ds), "a/b"]}[cli]
+            "msta-hub push-dataset": ["msta.data.hub_cli", "push-dataset", str(ds), "a/b"]}[cli]
     env = {**os.environ, "HF_ENDPOINT": "http://127.0.0.1:9", "HF_TOKEN": "unused"}
     proc = subprocess.run([sys.executable, "-m", *args], cwd=REPO, env=env, timeout=120,
                           capture_output=True, text=True, check=False)
@@ -151,7 +151,7 @@ def test_absurd_info_json_values_are_one_line_errors(ds, tmp_path, values, says)
 
 
 def test_chunks_size_0_stops_msta_collect_resume_in_one_line(ds):
-    from collect.record import main
+    from msta.collect.record import main
 
     edit_info(ds, chunks_size=0)
     consistent(ds)
@@ -202,10 +202,10 @@ def test_a_lowered_episode_count_is_refused_not_trained_on(ds, tmp_path, manifes
 def test_a_zero_std_statistic_trains_with_a_finite_loss(ds, tmp_path, capsys):
     """std 0 in meta/stats.json (a constant channel, or statistics that say so) while the
     data varies: the action targets were z-scored with std 1e-6 (loss ~1e12)."""
-    from msta_data.stats import load_stats
-    from policies.factory import make_policy
-    from policies.msta import MSTAConfig
-    from train.offline import main
+    from msta.data.stats import load_stats
+    from msta.policies.factory import make_policy
+    from msta.policies.msta import MSTAConfig
+    from msta.train.offline import main
 
     stats = json.loads((ds / "meta/stats.json").read_text())
     for col in ("action", "observation.joint_pos"):

@@ -12,18 +12,18 @@ import pandas as pd
 import pytest
 import torch
 
-from eval.evaluate import EvalConfig
-from msta_data import features as F
-from msta_data.cli import parse_config
-from msta_data.hub_cards import CardInfo, card_metadata
-from msta_data.hub_cli import main as cli_main
-from msta_data.hub_ids import hub_api
-from msta_data.hub_pull import pull
-from msta_data.hub_push import push, push_dataset
-from msta_data.hub_server import HubServer, ServerConfig
-from msta_data.hub_versions import RepoVersions, Version
-from train.cli import parse_cli
-from train.offline import TrainConfig
+from msta.data import features as F
+from msta.data.cli import parse_config
+from msta.data.hub_cards import CardInfo, card_metadata
+from msta.data.hub_cli import main as cli_main
+from msta.data.hub_ids import hub_api
+from msta.data.hub_pull import pull
+from msta.data.hub_push import push, push_dataset
+from msta.data.hub_server import HubServer, ServerConfig
+from msta.data.hub_versions import RepoVersions, Version
+from msta.eval.evaluate import EvalConfig
+from msta.train.cli import parse_cli
+from msta.train.offline import TrainConfig
 
 SECRET = "alice-secret-0001"
 
@@ -68,7 +68,7 @@ def student_episodes(synth, n: int, round_: int, seed0: int) -> list:
 def test_the_writer_keeps_the_dataset_card_true_on_every_append(tmp_path, write_dataset, synth):
     from lerobot.datasets.utils import create_lerobot_dataset_card
 
-    from train.online import append_episodes  # msta-correct's own append
+    from msta.train.online import append_episodes  # msta-correct's own append
 
     root = tmp_path / "ds"
     write_dataset(root, [4, 5, 6, 7, 3], flush_every_frames=9)  # several commits
@@ -125,7 +125,7 @@ def test_a_readme_of_the_users_own_survives_appends(tmp_path, write_dataset):
 def test_pushed_dataset_cards_say_the_true_counts(server, tmp_path, write_dataset, synth, capsys):
     """Pushed, pulled, appended to by stage 2 and pushed again: every pushed card counts what
     that commit holds; `msta-hub versions --dataset` lists the sizes of each commit."""
-    from train.online import append_episodes
+    from msta.train.online import append_episodes
 
     root = tmp_path / "ds"
     write_dataset(root, [5, 5, 5, 5])
@@ -157,10 +157,9 @@ def test_the_model_cards_usage_runs_as_written(server, tmp_path, write_dataset):
     stage and round, the eval table's trial count and the license, and no local path."""
     from lerobot_policy_msta.convert import PREPROCESSOR_FILE
     from lerobot_policy_msta.convert import main as convert_main
-
-    from msta_data.stats import load_stats
-    from policies.factory import make_policy
-    from policies.msta import MSTAConfig
+    from msta.data.stats import load_stats
+    from msta.policies.factory import make_policy
+    from msta.policies.msta import MSTAConfig
 
     data = tmp_path / "ds"
     write_dataset(data, [6, 6])
@@ -251,7 +250,7 @@ def test_versions_text_cuts_only_what_does_not_fit():
 
 def test_features_table_covers_a_schema_1_dataset():
     """A dataset written before the derived columns has its own feature set: every row."""
-    from msta_data.hub_cards import features_table
+    from msta.data.hub_cards import features_table
 
     feats = F.build_features(("joint_pos", "command"), derived=False)
     table = features_table(feats)
@@ -266,7 +265,7 @@ def test_features_table_covers_a_schema_1_dataset():
 
 
 def test_card_tables_print_counts_whole_and_figures_short():
-    from msta_data.hub_cards import _markdown_table
+    from msta.data.hub_cards import _markdown_table
 
     text = _markdown_table({"teacher": {"episodes": 96, "frames": 46653, "loss": 0.0840239}})
     assert text.splitlines()[-1] == "| teacher | 96 | 46653 | 0.08402 |"

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from msta_data.hub_cli import PullConfig, PushConfig, ServeConfig, main, parse_command
-from msta_data.hub_versions import RepoVersions, Version
+from msta.data.hub_cli import PullConfig, PushConfig, ServeConfig, main, parse_command
+from msta.data.hub_versions import RepoVersions, Version
 
 
 def test_bare_words_dashes_and_bare_flags_parse_as_before():

@@ -1,4 +1,4 @@
-"""The hub client (msta_data.hub_push / hub_pull / hub_versions / hub_cards) and the msta-hub CLI against the real server."""
+"""The hub client (msta.data.hub_push / hub_pull / hub_versions / hub_cards) and the msta-hub CLI against the real server."""
 
 from __future__ import annotations
 
@@ -15,13 +15,13 @@ import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError, RepositoryNotFoundError
 
-from msta_data.hub_cards import CardInfo, card_metadata
-from msta_data.hub_cli import main as cli_main
-from msta_data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, is_hub_id, parse_hub_id
-from msta_data.hub_pull import materialize, pull, resolve
-from msta_data.hub_push import push, push_dataset
-from msta_data.hub_server import HubServer, ServerConfig
-from msta_data.hub_versions import versions
+from msta.data.hub_cards import CardInfo, card_metadata
+from msta.data.hub_cli import main as cli_main
+from msta.data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, is_hub_id, parse_hub_id
+from msta.data.hub_pull import materialize, pull, resolve
+from msta.data.hub_push import push, push_dataset
+from msta.data.hub_server import HubServer, ServerConfig
+from msta.data.hub_versions import versions
 
 SECRET = "alice-secret-0001"
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -168,7 +168,7 @@ def test_large_file_through_lfs(tmp_path):
     with HubServer(cfg) as srv:
         env = {**os.environ, "HF_ENDPOINT": srv.url, "HF_TOKEN": SECRET, "HF_HUB_DISABLE_XET": "1",
                "HF_HOME": str(tmp_path / "hf")}
-        code = f"from msta_data.hub_push import push; print(push({str(ckpt)!r}, 'alice/lfs', tag='v1'))"
+        code = f"from msta.data.hub_push import push; print(push({str(ckpt)!r}, 'alice/lfs', tag='v1'))"
         out = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=120)
         assert out.returncode == 0, out.stderr
         files = {f.path: f for f in HfApi(endpoint=srv.url, token=SECRET).list_repo_tree("alice/lfs")}
@@ -240,7 +240,7 @@ def test_cli_serve_subprocess_restart(tmp_path):
 
     def start() -> tuple[subprocess.Popen, str]:
         port_file.unlink(missing_ok=True)
-        proc = subprocess.Popen([sys.executable, "-m", "msta_data.hub_cli", "serve", "--root", str(root),
+        proc = subprocess.Popen([sys.executable, "-m", "msta.data.hub_cli", "serve", "--root", str(root),
                                  "--token-file", str(tokens), "--port-file", str(port_file)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 30

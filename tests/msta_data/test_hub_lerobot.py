@@ -1,4 +1,4 @@
-"""A dataset pushed with msta_data.hub_push loads with LeRobotDataset(repo_id, revision="v3.0").
+"""A dataset pushed with msta.data.hub_push loads with LeRobotDataset(repo_id, revision="v3.0").
 
 lerobot's hub client reads HF_ENDPOINT when huggingface_hub is imported, so the LeRobot side
 runs in a fresh process started with HF_ENDPOINT pointing at the test server.
@@ -13,7 +13,7 @@ import textwrap
 
 import pytest
 
-from msta_data.hub_server import HubServer, ServerConfig
+from msta.data.hub_server import HubServer, ServerConfig
 
 SECRET = "alice-secret-0001"
 
@@ -22,7 +22,7 @@ SCRIPT = textwrap.dedent("""
     from pathlib import Path
     import numpy as np
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from msta_data.hub_push import push_dataset
+    from msta.data.hub_push import push_dataset
 
     tmp = Path(sys.argv[1])
     features = {"observation.state": {"dtype": "float32", "shape": (3,), "names": ["a", "b", "c"]},

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from msta_test_helpers import hub_as
 
-from msta_data import layout as L
-from msta_data.hub_ids import hub_api
-from msta_data.hub_pull import default_cache_dir, materialize
-from msta_data.hub_push import PUSH_IGNORE_PATTERNS, push, push_dataset
-from msta_data.locate import locate
+from msta.data import layout as L
+from msta.data.hub_ids import hub_api
+from msta.data.hub_pull import default_cache_dir, materialize
+from msta.data.hub_push import PUSH_IGNORE_PATTERNS, push, push_dataset
+from msta.data.locate import locate
 
 #: machine-local files planted in a directory before it is pushed
 LOCAL = (L.LOCK_NAME, f"sub/{L.LOCK_NAME}", "MUJOCO_LOG.TXT", "sub/MUJOCO_LOG.TXT",
@@ -147,6 +147,6 @@ def test_lerobot_and_hf_cli_pushes_leave_local_files_out_as_documented(hub, tmp_
 
 def _files_of(root: Path) -> set[str]:
     """What msta's push would publish of ``root`` (its own filter)."""
-    from msta_data.hub_push import _local_files
+    from msta.data.hub_push import _local_files
 
     return set(_local_files(root))

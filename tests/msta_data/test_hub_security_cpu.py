@@ -30,7 +30,7 @@ ANONYMOUS = 8  # the default --max_anonymous_per_client
 def port(tmp_path):
     """Port of `msta-hub serve` (default limits) holding alice/d, whose README has a card."""
     port_file = tmp_path / "port"
-    proc = subprocess.Popen([sys.executable, "-m", "msta_data.hub_cli", "serve", "--root",
+    proc = subprocess.Popen([sys.executable, "-m", "msta.data.hub_cli", "serve", "--root",
                              str(tmp_path / "hub"), "--port_file", str(port_file),
                              "--token", f"alice:{TOKEN}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

@@ -82,7 +82,7 @@ def test_lenient_framing_is_a_400(srv, name):
 
 def test_control_characters_are_escaped_in_headers_and_logs(srv, caplog):
     H.create_repo(srv, ALICE, "ctl")
-    with caplog.at_level(logging.INFO, logger="msta_data.hub_server"):
+    with caplog.at_level(logging.INFO, logger="msta.data.hub_server"):
         for path in (b"/api/models/alice/x%1b[31m%07", b"/api/models/alice/ctl/revision/a\x1b[31m\x07b"):
             answer = _raw(srv.port, b"GET " + path + b" HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
             head = answer.split(b"\r\n\r\n")[0]
@@ -130,7 +130,7 @@ def test_a_full_disk_is_507_and_leaves_no_temporary_files(tmp_path):
     EFBIG, as they fail with ENOSPC on a full disk)."""
     tokens, port_file, root = tmp_path / "tokens", tmp_path / "port", tmp_path / "hub"
     tokens.write_text(f"alice:{ALICE}\n")
-    proc = subprocess.Popen([sys.executable, "-m", "msta_data.hub_cli", "serve", "--root", str(root),
+    proc = subprocess.Popen([sys.executable, "-m", "msta.data.hub_cli", "serve", "--root", str(root),
                              "--token-file", str(tokens), "--port-file", str(port_file)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:

@@ -40,7 +40,7 @@ FUZZ = settings(max_examples=EXAMPLES, deadline=None, database=None,
 # ------------------------------------------------------------------ files opened by the server
 _OUTSIDE: list[str] = []
 _WATCH: dict[str, Path] = {}
-_SOURCE = Path(sys.modules["msta_data.hub_server"].__file__).parents[1]  # tracebacks read source lines
+_SOURCE = Path(sys.modules["msta.data.hub_server"].__file__).parents[1]  # tracebacks read source lines
 _ALLOWED = tuple({os.path.realpath(p) for p in (sys.prefix, sys.base_prefix, sys.exec_prefix, _SOURCE)})
 
 

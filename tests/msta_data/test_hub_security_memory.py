@@ -29,7 +29,7 @@ PARALLEL = 8
 def served(tmp_path):
     """(port, pid) of `msta-hub serve` with default limits."""
     port_file = tmp_path / "port"
-    proc = subprocess.Popen([sys.executable, "-m", "msta_data.hub_cli", "serve", "--root", str(tmp_path / "hub"),
+    proc = subprocess.Popen([sys.executable, "-m", "msta.data.hub_cli", "serve", "--root", str(tmp_path / "hub"),
                              "--port-file", str(port_file)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 60

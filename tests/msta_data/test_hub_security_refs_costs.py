@@ -25,7 +25,7 @@ import pytest
 from huggingface_hub import HfApi
 from huggingface_hub.errors import HfHubHTTPError
 
-from msta_data.hub_pull import pull
+from msta.data.hub_pull import pull
 
 ALICE = H.ALICE
 LINEAR_BOUND = 20.0

@@ -95,7 +95,7 @@ def test_trickled_body_is_cut_off(srv):
 
 
 def test_idle_connections_are_closed_and_connections_capped(tmp_path, caplog):
-    caplog.set_level(logging.DEBUG, logger="msta_data.hub_server")
+    caplog.set_level(logging.DEBUG, logger="msta.data.hub_server")
     srv = H.start_server(tmp_path / "hub", read_timeout_s=1.0, max_open_connections=2)
     try:
         idle = [socket.create_connection(("127.0.0.1", srv.port), timeout=5) for _ in range(2)]
@@ -133,7 +133,7 @@ def test_malformed_json_gets_4xx_never_500(srv, caplog):
               ("POST", "/api/models/alice/m/branch/b1"), ("POST", "/api/models/alice/m/preupload/main"),
               ("POST", "/api/models/alice/m/commit/main"), ("POST", "/api/models/alice/m/paths-info/main"),
               ("POST", "/alice/m.git/info/lfs/objects/batch"), ("POST", "/lfs/verify/" + "t" * 43)]
-    with caplog.at_level(logging.INFO, logger="msta_data.hub_server"):
+    with caplog.at_level(logging.INFO, logger="msta.data.hub_server"):
         for method, path in routes:
             for body in MALFORMED:
                 for token in (None, ALICE):
@@ -167,7 +167,7 @@ def test_lfs_upload_tickets_never_reach_the_log(srv, caplog):
     H.create_repo(srv, ALICE, "lfs")
     data = b"some model weights"
     oid = hashlib.sha256(data).hexdigest()
-    with caplog.at_level(logging.INFO, logger="msta_data.hub_server"):
+    with caplog.at_level(logging.INFO, logger="msta.data.hub_server"):
         obj = H.lfs_batch(srv, ALICE, "alice/lfs", oid, len(data))
         upload = urlsplit(obj["actions"]["upload"]["href"]).path
         assert H.call(srv, "PUT", upload, data)[0] == 200

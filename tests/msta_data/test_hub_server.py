@@ -18,7 +18,7 @@ from huggingface_hub.errors import (
     RevisionNotFoundError,
 )
 
-from msta_data.hub_server import HubServer, ServerConfig
+from msta.data.hub_server import HubServer, ServerConfig
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-00002"
 
@@ -181,7 +181,7 @@ def test_dataset_readme_goes_through_validate_yaml(server, tmp_path, caplog):
     api.create_repo("alice/ds", repo_type="dataset")
     good = _folder(tmp_path, "ds", {"README.md": b"---\ntags: [LeRobot]\n---\n# ds\n",
                                     "meta/info.json": b'{"codebase_version": "v3.0"}'})
-    with caplog.at_level(logging.INFO, logger="msta_data.hub_server"):
+    with caplog.at_level(logging.INFO, logger="msta.data.hub_server"):
         api.upload_folder(repo_id="alice/ds", repo_type="dataset", folder_path=good)
     assert "POST /api/validate-yaml -> 200" in caplog.text
     assert api.dataset_info("alice/ds").card_data.tags == ["LeRobot"]

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-from msta_data import features as F
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
-from msta_data.windows import WindowDataset
+from msta.data import features as F
+from msta.data.sensors import SENSORS, STUDENT_SENSORS
+from msta.data.windows import WindowDataset
 
 LENGTHS = (7, 12, 5, 9)
 
@@ -122,7 +122,7 @@ def test_schema_and_stats_aggregation_agree_with_lerobot(synth):
     from lerobot.datasets.compute_stats import aggregate_stats
     from lerobot.datasets.feature_utils import get_hf_features_from_features
 
-    from msta_data import stats as S
+    from msta.data import stats as S
 
     feats = F.build_features()
     assert F.data_schema(feats).equals(get_hf_features_from_features(feats).arrow_schema,

@@ -14,13 +14,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from msta_data import derived as D
-from msta_data import features as F
-from msta_data import stats as S
-from msta_data.errors import EpisodeValidationError
-from msta_data.sensors import DEFAULT_RECORDED, SENSORS, STUDENT_SENSORS
-from msta_data.windows import WindowDataset
-from msta_data.writer import DatasetWriter
+from msta.data import derived as D
+from msta.data import features as F
+from msta.data import stats as S
+from msta.data.errors import EpisodeValidationError
+from msta.data.sensors import DEFAULT_RECORDED, SENSORS, STUDENT_SENSORS
+from msta.data.windows import WindowDataset
+from msta.data.writer import DatasetWriter
 
 STATE, ENV = D.STATE_COLUMN, D.ENV_STATE_COLUMN
 STATE_SOURCES = [SENSORS[s].column for s in STUDENT_SENSORS]
@@ -138,11 +138,11 @@ def test_schema_1_dataset_loads_and_appends_in_its_own_layout(tmp_path, write_da
 @pytest.fixture(scope="module")
 def collected(tmp_path_factory) -> Path:
     """4 short episodes of the zero teacher, recorded by msta's own collector."""
-    from collect.record import CollectConfig, collect
-    from collect.sim.env import EnvConfig
-    from collect.sim.randomization import RandomizationConfig
-    from collect.sim.terrain import TerrainConfig
-    from policies.teacher.config import TeacherConfig
+    from msta.collect.record import CollectConfig, collect
+    from msta.collect.sim.env import EnvConfig
+    from msta.collect.sim.randomization import RandomizationConfig
+    from msta.collect.sim.terrain import TerrainConfig
+    from msta.policies.teacher.config import TeacherConfig
 
     root = tmp_path_factory.mktemp("collected") / "ds"
     terrain = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0)

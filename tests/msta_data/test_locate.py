@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from msta_data.locate import (
+from msta.data.locate import (
     locate,
     locate_checkpoint,
     locate_dataset,

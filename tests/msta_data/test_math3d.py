@@ -1,10 +1,10 @@
-"""msta_data.math3d: the quaternion helpers the simulator and the teachers share."""
+"""msta.data.math3d: the quaternion helpers the simulator and the teachers share."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from msta_data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
+from msta.data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
 
 
 def test_yaw_round_trip_and_rotation():

@@ -2,7 +2,7 @@
 
 import logging
 
-from msta_data.quiet import LOGGER, MARK, SHORT, ShortTorchcodecWarning, shorten_torchcodec_warning
+from msta.data.quiet import LOGGER, MARK, SHORT, ShortTorchcodecWarning, shorten_torchcodec_warning
 
 
 class _Keep(logging.Handler):

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 from msta_test_helpers import running_hub  # registered by tests/conftest.py
 
-from msta_data.layout import QUARANTINE_DIR
-from msta_data.windows import WindowDataset, load_episode_table
+from msta.data.layout import QUARANTINE_DIR
+from msta.data.windows import WindowDataset, load_episode_table
 
 REPO = Path(__file__).resolve().parents[2]
 SECRET = "alice-secret-0041"
@@ -37,7 +37,7 @@ def _quarantined(root: Path) -> dict[str, bytes]:
 
 def _resume(root: Path, episodes: int) -> subprocess.CompletedProcess:
     """``msta-collect --resume`` as a subprocess (what a user runs)."""
-    return subprocess.run([sys.executable, "-m", "collect.record", f"--root={root}",
+    return subprocess.run([sys.executable, "-m", "msta.collect.record", f"--root={root}",
                            "--resume=true", f"--episodes={episodes}", *SMALL], cwd=REPO,
                           capture_output=True, text=True, timeout=300, check=False)
 
@@ -71,8 +71,8 @@ def hub_server(tmp_path_factory):
 def test_resume_moves_unknown_files_aside_and_pushes_none_of_them(
         tmp_path, write_dataset, hub_server, monkeypatch):
     """A user's files in the chunk directories used to be deleted silently by --resume."""
-    from msta_data.hub_cli import main as hub_main
-    from msta_data.hub_ids import hub_api
+    from msta.data.hub_cli import main as hub_main
+    from msta.data.hub_ids import hub_api
 
     root = tmp_path / "ds"
     write_dataset(root, [5] * 3)
@@ -100,7 +100,7 @@ def test_resume_moves_unknown_files_aside_and_pushes_none_of_them(
 
 def test_a_second_resume_gets_its_own_quarantine_folder(tmp_path, write_dataset):
     """Two resumes within one second do not mix (or overwrite) what they set aside."""
-    from msta_data.writer import DatasetWriter
+    from msta.data.writer import DatasetWriter
 
     root = tmp_path / "ds"
     write_dataset(root, [5])

@@ -1,10 +1,10 @@
-"""msta_data.revision: the one content hash behind teacher, checkpoint and weight revisions."""
+"""msta.data.revision: the one content hash behind teacher, checkpoint and weight revisions."""
 
 from __future__ import annotations
 
 import hashlib
 
-from msta_data.revision import content_revision, file_parts
+from msta.data.revision import content_revision, file_parts
 
 
 def test_revision_is_a_short_sha256_of_the_parts_in_order():

@@ -10,9 +10,9 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from msta_data.errors import DatasetFormatError
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
-from msta_data.windows import WindowDataset, episode_split
+from msta.data.errors import DatasetFormatError
+from msta.data.sensors import SENSORS, STUDENT_SENSORS
+from msta.data.windows import WindowDataset, episode_split
 
 LENGTHS = (3, 20, 1, 8)
 

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from msta_data import stats as S
-from msta_data.errors import DatasetLockedError, EpisodeValidationError
-from msta_data.windows import WindowDataset, load_episode_table
-from msta_data.writer import DatasetWriter
+from msta.data import stats as S
+from msta.data.errors import DatasetLockedError, EpisodeValidationError
+from msta.data.windows import WindowDataset, load_episode_table
+from msta.data.writer import DatasetWriter
 
 
 def _digests(root):

@@ -8,11 +8,11 @@ import pytest
 import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
-from msta_data import sensors
-from policies.actor import InputSpec, SplitActor, StudentActor
-from policies.baselines import GRUPolicy
-from policies.factory import get_config_class, make_policy
-from policies.msta.modeling_msta import num_kept
+from msta.data import sensors
+from msta.policies.actor import InputSpec, SplitActor, StudentActor
+from msta.policies.baselines import GRUPolicy
+from msta.policies.factory import get_config_class, make_policy
+from msta.policies.msta.modeling_msta import num_kept
 
 T = 6
 NAMES = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact", "command",
@@ -271,8 +271,8 @@ def test_split_actor_splits_absent_per_group():
 @pytest.mark.parametrize("learnable_mask", [False, True])
 def test_an_absent_channel_of_an_encoded_sensor_removes_the_whole_sensor(learnable_mask):
     """height_map is read by an MLP as a whole: any absent channel removes all its tokens."""
-    from policies.msta import MSTAConfig, MSTAPolicy
-    from policies.msta.processor_msta import MSTAProcessor
+    from msta.policies.msta import MSTAConfig, MSTAPolicy
+    from msta.policies.msta.processor_msta import MSTAProcessor
 
     names = (*NAMES, "height_map")
     torch.manual_seed(0)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from policies.actor import InputSpec, StudentActor
+from msta.policies.actor import InputSpec, StudentActor
 
 
 class Recorder:
@@ -87,7 +87,7 @@ class Echo(Recorder):
 
 
 def test_mask_split_actor_groups_envs_by_ratio_and_keeps_their_histories():
-    from policies.actor import SplitActor, mask_split_actor
+    from msta.policies.actor import SplitActor, mask_split_actor
 
     pol = Echo()
     actor = mask_split_actor(pol, 5, InputSpec(), (0.0, 0.5))

@@ -13,9 +13,9 @@ import pytest
 import torch
 from msta_test_helpers import record_gait, tiny_student  # registered by tests/conftest.py
 
-import policies.teacher.gait  # noqa: F401  (registers "gait")
-from policies.baselines import BASELINES, REFERENCES
-from policies.export import (
+import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
+from msta.policies.baselines import BASELINES, REFERENCES
+from msta.policies.export import (
     MINIMIZED_SENSORS,
     ExportParityError,
     export_student,
@@ -108,7 +108,7 @@ def test_the_onnx_runtime_walks_a_window_without_torch(recorded, tmp_path):
 import sys
 import numpy as np
 sys.path.insert(0, {str(REPO)!r})
-from policies.onnx_runtime import OnnxStudent
+from msta.policies.onnx_runtime import OnnxStudent
 case = np.load({str(tmp_path / 'case.npz')!r})
 s = OnnxStudent({str(tmp_path / 'export')!r})
 s.reset()

@@ -16,18 +16,18 @@ import pytest
 import torch
 from msta_test_helpers import record_gait, tiny_student  # registered by tests/conftest.py
 
-import policies.teacher.gait  # noqa: F401  (registers "gait")
-from collect.faults import FaultInjector, FaultSpec, std_from_stats
-from msta_data.stats import load_stats
-from policies.export import (
+import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
+from msta.collect.faults import FaultInjector, FaultSpec, std_from_stats
+from msta.data.stats import load_stats
+from msta.policies.export import (
     absent_masks,
     export_student,
     main,
     random_windows,
     resolve_sensors,
 )
-from policies.guard import INPUT_SENSORS, GuardConfig, load_guard
-from train.guard import fit_guard, load_episodes
+from msta.policies.guard import INPUT_SENSORS, GuardConfig, load_guard
+from msta.train.guard import fit_guard, load_episodes
 
 REPO = Path(__file__).resolve().parents[2]
 CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),
@@ -181,7 +181,7 @@ def test_the_onnx_loop_runs_the_guard_as_python_does(fault, checkpoint, recorded
 import sys
 import numpy as np
 sys.path.insert(0, {str(REPO)!r})
-from policies.onnx_runtime import OnnxStudent
+from msta.policies.onnx_runtime import OnnxStudent
 stream = np.load({str(tmp_path / 'stream.npz')!r})
 s = OnnxStudent({str(out)!r})
 s.reset()

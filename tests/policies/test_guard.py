@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from msta_test_helpers import record_gait  # registered by tests/conftest.py
 
-import policies.teacher.gait  # noqa: F401  (registers "gait")
-from msta_data.stats import load_stats
-from policies.guard import INPUT_SENSORS, OFFSET, GuardConfig, SensorGuard, load_guard
-from train.guard import fit_guard, load_episodes
+import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
+from msta.data.stats import load_stats
+from msta.policies.guard import INPUT_SENSORS, OFFSET, GuardConfig, SensorGuard, load_guard
+from msta.train.guard import fit_guard, load_episodes
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 ONSET = 100

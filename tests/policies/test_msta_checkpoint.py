@@ -12,16 +12,16 @@ import pytest
 import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
-from msta_data import sensors
-from policies.base import Policy, PolicyConfig
-from policies.factory import (
+from msta.data import sensors
+from msta.policies.base import Policy, PolicyConfig
+from msta.policies.factory import (
     get_config_class,
     load_policy,
     make_config,
     make_policy,
     registered_policies,
 )
-from policies.msta import PRESETS, MSTAConfig, MSTAPolicy
+from msta.policies.msta import PRESETS, MSTAConfig, MSTAPolicy
 
 
 def stats_for(cfg: MSTAConfig) -> dict:

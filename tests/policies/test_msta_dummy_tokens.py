@@ -11,10 +11,10 @@ import pytest
 import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
-from msta_data import sensors
-from policies.actor import InputSpec, StudentActor
-from policies.factory import make_policy
-from policies.msta import MSTAConfig, MSTAPolicy
+from msta.data import sensors
+from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig, MSTAPolicy
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

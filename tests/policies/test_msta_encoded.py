@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data import derived, sensors
-from msta_data import features as F
-from policies.msta import MSTAConfig, MSTAPolicy
-from policies.msta.processor_msta import MSTAProcessor
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data import derived, sensors
+from msta.data import features as F
+from msta.policies.msta import MSTAConfig, MSTAPolicy
+from msta.policies.msta.processor_msta import MSTAProcessor
 
 T = 4
 FULL = (*sensors.STUDENT_SENSORS, "height_map")

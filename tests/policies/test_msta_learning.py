@@ -15,11 +15,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from msta_data import sensors
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from train.optim import make_optimizer
-from train.step import train_step
+from msta.data import sensors
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.train.optim import make_optimizer
+from msta.train.step import train_step
 
 SENSORS = ("joint_pos", "joint_vel", "last_action")
 T, LAG, CHANNEL, SOURCE = 8, 4, 5, "joint_vel"

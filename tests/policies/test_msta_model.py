@@ -8,9 +8,9 @@ import pytest
 import torch
 from msta_test_helpers import overfit, random_batch  # registered by tests/conftest.py
 
-from msta_data import sensors
-from policies.factory import make_policy
-from policies.msta import MSTAConfig, MSTAPolicy
+from msta.data import sensors
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig, MSTAPolicy
 
 T = 6
 

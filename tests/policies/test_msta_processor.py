@@ -8,8 +8,8 @@ import pytest
 import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
-from msta_data import sensors
-from policies.msta import MSTAConfig, MSTAProcessor
+from msta.data import sensors
+from msta.policies.msta import MSTAConfig, MSTAProcessor
 
 CFG = MSTAConfig.from_preset("tiny")
 

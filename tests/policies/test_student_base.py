@@ -13,14 +13,14 @@ import pytest
 import torch
 from torch import Tensor, nn
 
-import policies.baselines
-from msta_data import sensors
-from msta_data.cli import args_doc
-from msta_data.robot import NUM_JOINTS
-from policies.actor import InputSpec
-from policies.base import PolicyConfig, StudentProcessor
-from policies.baselines import TimestepPolicy, TimestepProcessor
-from policies.factory import (
+import msta.policies.baselines
+from msta.data import sensors
+from msta.data.cli import args_doc
+from msta.data.robot import NUM_JOINTS
+from msta.policies.actor import InputSpec
+from msta.policies.base import PolicyConfig, StudentProcessor
+from msta.policies.baselines import TimestepPolicy, TimestepProcessor
+from msta.policies.factory import (
     get_config_class,
     get_policy_class,
     load_policy,
@@ -31,7 +31,7 @@ from policies.factory import (
     registered_policies,
     unregister_policy,
 )
-from policies.transformer import Block
+from msta.policies.transformer import Block
 
 REPO = Path(__file__).resolve().parents[2]
 FIXTURES = Path(__file__).parent / "fixtures" / "before_student_base"
@@ -119,7 +119,7 @@ def test_no_baseline_imports_msta() -> None:
         for node in ast.walk(ast.parse(path.read_text())):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
-            bad += [f"{path.name}: {n}" for n in names if n.startswith("policies.msta")]
+            bad += [f"{path.name}: {n}" for n in names if n.startswith("msta.policies.msta")]
     assert bad == []
 
 
@@ -166,7 +166,7 @@ def test_one_registration_adds_a_policy_everywhere(registered_newest_step, tmp_p
     name = registered_newest_step
     assert name in registered_policies() and name in registered_policies("baseline")
     assert name not in registered_policies("reference") and policy_kind(name) == "baseline"
-    assert name in policies.baselines.BASELINES
+    assert name in msta.policies.baselines.BASELINES
     assert name in PolicyConfig.get_known_choices()
     cfg = make_config(name, gain=2.0, history=3)
     assert cfg.type == name and cfg.mask_ratio == 0.0
@@ -178,7 +178,7 @@ def test_one_registration_adds_a_policy_everywhere(registered_newest_step, tmp_p
     assert type(loaded) is NewestStepPolicy and loaded.config == cfg
     assert torch.equal(loaded.act(batch), policy.act(batch))
 
-    from train.offline import main
+    from msta.train.offline import main
 
     with pytest.raises(SystemExit):
         main([f"--policy.type={name}", "--help"])

@@ -10,27 +10,27 @@ from typing import Any
 
 import pytest
 
-from msta_data import cli
-from policies.teacher.config import SHIPPED_RMA, SHIPPED_RMA_PPO, TeacherConfig
+from msta.data import cli
+from msta.policies.teacher.config import SHIPPED_RMA, SHIPPED_RMA_PPO, TeacherConfig
 
 
 def _collect(argv: Sequence[str]) -> Any:
-    from collect.record import parse_config
+    from msta.collect.record import parse_config
     return parse_config(argv)
 
 
 def _correct(argv: Sequence[str]) -> Any:
-    from train.online import parse_args
+    from msta.train.online import parse_args
     return parse_args(argv)
 
 
 def _finetune(argv: Sequence[str]) -> Any:
-    from train.finetune import parse_args
+    from msta.train.finetune import parse_args
     return parse_args(argv)
 
 
 def _with(module: str, name: str, prog: str, *required: str) -> Callable[[Sequence[str]], Any]:
-    """The command's own parse: ``msta_data.cli.parse_config`` on its config class, as its
+    """The command's own parse: ``msta.data.cli.parse_config`` on its config class, as its
     ``main`` calls it (``required``: the options the command cannot run without)."""
     def parse(argv: Sequence[str]) -> Any:
         import importlib
@@ -44,14 +44,14 @@ COMMANDS = {
     "msta-collect": _collect,
     "msta-correct": _correct,
     "msta-finetune": _finetune,
-    "msta-sim": _with("collect.simulate", "SimRunConfig", "msta-sim"),
-    "msta-eval": _with("eval.evaluate", "EvalConfig", "msta-eval"),
-    "msta-compare": _with("eval.apps.compare", "CompareConfig", "msta-compare",
+    "msta-sim": _with("msta.collect.simulate", "SimRunConfig", "msta-sim"),
+    "msta-eval": _with("msta.eval.evaluate", "EvalConfig", "msta-eval"),
+    "msta-compare": _with("msta.eval.apps.compare", "CompareConfig", "msta-compare",
                           "--collect_episodes=2"),
-    "msta-repro": _with("eval.apps.repro", "ReproConfig", "msta-repro"),
-    "demo": _with("eval.apps.demo", "DemoConfig", "python -m eval.apps.demo"),
-    "label_check": _with("eval.label_check", "LabelCheckConfig", "label_check"),
-    "teacher_report": _with("eval.teacher_report", "TeacherReportConfig", "teacher_report"),
+    "msta-repro": _with("msta.eval.apps.repro", "ReproConfig", "msta-repro"),
+    "demo": _with("msta.eval.apps.demo", "DemoConfig", "python -m msta.eval.apps.demo"),
+    "label_check": _with("msta.eval.label_check", "LabelCheckConfig", "label_check"),
+    "teacher_report": _with("msta.eval.teacher_report", "TeacherReportConfig", "teacher_report"),
 }
 
 

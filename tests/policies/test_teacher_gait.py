@@ -7,17 +7,23 @@ import mujoco
 import numpy as np
 import pytest
 
-from collect.sim import robot
-from collect.sim.commands import CommandConfig
-from collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data import robot as robot_spec
-from msta_data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
-from policies.teacher.base import Teacher, make_teacher
-from policies.teacher.gait import GaitConfig, GaitTeacher
-from policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from policies.teacher.gait_terrain import dilate, ground_at, ground_max_along, roughness, scan_grid
+from msta.collect.sim import robot
+from msta.collect.sim.commands import CommandConfig
+from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data import robot as robot_spec
+from msta.data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
+from msta.policies.teacher.base import Teacher, make_teacher
+from msta.policies.teacher.gait import GaitConfig, GaitTeacher
+from msta.policies.teacher.gait_kinematics import foot_jacobian, leg_ik
+from msta.policies.teacher.gait_terrain import (
+    dilate,
+    ground_at,
+    ground_max_along,
+    roughness,
+    scan_grid,
+)
 
 
 def _env(n: int, seed: int = 0, terrain: str = "flat") -> QuadrupedEnv:
@@ -203,7 +209,7 @@ def test_follow_robot_plans_stance_feet_from_where_they_are():
     """Another policy drives (a slower, scaled-down copy of the teacher's gait); the teacher
     shadows it. Its own plan drifts away from the feet; following the robot, a stance foot's
     plan starts at most ``follow_gap`` from the measured foot (plus one step of sweep)."""
-    from policies.teacher.gait import _State
+    from msta.policies.teacher.gait import _State
 
     drift = {}
     for gap in (None, 0.0, 0.03):

@@ -12,11 +12,11 @@ import pytest
 import torch
 from torch import nn
 
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from msta_data.robot import DEFAULT_POSE
-from msta_data.sensors import JOINT_NAMES, SENSORS, STUDENT_SENSORS, get
-from policies.teacher.base import TEACHERS, Teacher, make_teacher
-from policies.teacher.imported import ActionConverter, ActionSpec, ImportedTeacher
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.robot import DEFAULT_POSE
+from msta.data.sensors import JOINT_NAMES, SENSORS, STUDENT_SENSORS, get
+from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher
+from msta.policies.teacher.imported import ActionConverter, ActionSpec, ImportedTeacher
 
 # torch 2.11 deprecates torch.jit; TorchScript files are still what other frameworks export
 pytestmark = pytest.mark.filterwarnings("ignore:`torch.jit:DeprecationWarning")

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from msta_data.robot import DEFAULT_POSE
-from msta_data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS, get
-from policies.teacher.base import TEACHERS, Teacher, make_teacher
-from policies.teacher.imported import SignalSpec
-from policies.teacher.rma import RMAConfig, RMATeacher
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.data.robot import DEFAULT_POSE
+from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS, get
+from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher
+from msta.policies.teacher.imported import SignalSpec
+from msta.policies.teacher.rma import RMAConfig, RMATeacher
 
 SMALL = {"encoder_hidden": (16, 8), "latent_dim": 4, "policy_hidden": (8,)}
 
@@ -166,7 +166,7 @@ def _walk(teacher, n: int = 40, seconds: float = 4.0, types=("flat", "smooth_slo
           level: int | None = None, seed: int = 3) -> tuple[float, float]:
     """(survival, mean per-step linear tracking) on two terrain types (robots alternate),
     at levels 0-1 (alternating) or all at ``level``."""
-    from collect.sim.terrain import TerrainConfig
+    from msta.collect.sim.terrain import TerrainConfig
 
     env = QuadrupedEnv(EnvConfig(num_envs=n, nthread=1, seed=seed, episode_length_s=seconds,
                                  terrain=TerrainConfig(types=types, curriculum=False)))
@@ -184,7 +184,7 @@ def _walk(teacher, n: int = 40, seconds: float = 4.0, types=("flat", "smooth_slo
 
 
 def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> None:
-    from policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
+    from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 
     cfg = TeacherConfig(type="rma")  # no path: the checkpoint shipped with msta
     assert cfg.path == str(SHIPPED_RMA)
@@ -198,7 +198,7 @@ def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> Non
 
 
 def test_the_shipped_ppo_teacher_climbs_stairs_the_gait_controller_falls_on() -> None:
-    from policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
+    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
 
     made = json.loads((SHIPPED_RMA_PPO / "produced_by.json").read_text())
     assert made["command"].startswith("msta-train-teacher") and made["iteration"] == 1900

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from msta_test_helpers import random_episode  # registered by tests/conftest.py
 
-from msta_data import sensors
-from msta_data.writer import DatasetWriter
+from msta.data import sensors
+from msta.data.writer import DatasetWriter
 
 #: action = command_vx * W (the same for every step of an episode): learnable even when
 #: 75 % of the tokens are removed, because the command repeats over the window.

@@ -11,9 +11,9 @@ import os
 import signal
 import sys
 
-from train.cli import parse_cli
-from train.loop import rank0_runs
-from train.offline import TrainConfig, train
+from msta.train.cli import parse_cli
+from msta.train.loop import rank0_runs
+from msta.train.offline import TrainConfig, train
 
 
 def main() -> None:

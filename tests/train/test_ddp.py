@@ -17,11 +17,11 @@ import torch
 from msta_test_helpers import tiny_student  # registered by tests/conftest.py
 from safetensors.torch import load_file
 
-from msta_data.windows import WindowDataset
-from policies.factory import registered_policies
-from train.cli import parse_cli
-from train.distributed import ShardedDraws
-from train.offline import TrainConfig, main, train
+from msta.data.windows import WindowDataset
+from msta.policies.factory import registered_policies
+from msta.train.cli import parse_cli
+from msta.train.distributed import ShardedDraws
+from msta.train.offline import TrainConfig, main, train
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 20
@@ -79,7 +79,7 @@ def one_process(synthetic_dataset, tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def two_processes(synthetic_dataset, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("ddp") / "two"
-    res = torchrun("-m", "train.offline", f"--dataset={synthetic_dataset}",
+    res = torchrun("-m", "msta.train.offline", f"--dataset={synthetic_dataset}",
                    f"--output_dir={out}", *FLAGS)
     assert res.returncode == 0, res.stderr[-3000:]
     return out
@@ -102,11 +102,11 @@ def test_resume_under_torchrun_after_a_kill_and_a_time_limit(synthetic_dataset, 
     assert (out / "checkpoints" / "last").resolve().name == "000010"
     assert not (out / "final").exists()
     # resumed with a time limit: every rank stops after the first step, rank 0 saves it
-    res = torchrun("-m", "train.offline", "--resume=true", "--max_minutes=0.0001", *args)
+    res = torchrun("-m", "msta.train.offline", "--resume=true", "--max_minutes=0.0001", *args)
     assert res.returncode != 0 and "--max_minutes reached" in res.stdout, res.stderr[-3000:]
     assert "(exitcode: 75)" in res.stderr
     assert (out / "checkpoints" / "last").resolve().name == "000011"
-    res = torchrun("-m", "train.offline", "--resume=true", *args)  # the same command, resumed
+    res = torchrun("-m", "msta.train.offline", "--resume=true", *args)  # the same command, resumed
     assert res.returncode == 0, res.stderr[-3000:]
     assert (out / "checkpoints" / "last").resolve().name == "000020"
     # resumed at step 10 and at 11, the job equals the uninterrupted ones

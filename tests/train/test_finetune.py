@@ -13,23 +13,23 @@ import numpy as np
 import pytest
 import torch
 
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data import sensors
-from msta_data.budget import TimeLimitReached
-from msta_data.stats import load_stats
-from msta_data.windows import WindowDataset, load_episode_table
-from policies.actor import InputSpec, StudentActor
-from policies.baselines.gru import GRUConfig
-from policies.checkpoint import PolicyPath
-from policies.export import MINIMIZED_SENSORS
-from policies.factory import load_policy, make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.evaluation import RoundEvalConfig
-from train.finetune import (
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data import sensors
+from msta.data.budget import TimeLimitReached
+from msta.data.stats import load_stats
+from msta.data.windows import WindowDataset, load_episode_table
+from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.baselines.gru import GRUConfig
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.export import MINIMIZED_SENSORS
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.evaluation import RoundEvalConfig
+from msta.train.finetune import (
     RECORD,
     FinetuneConfig,
     Preparation,
@@ -38,7 +38,7 @@ from train.finetune import (
     main,
     trainable_modules,
 )
-from train.optim import make_optimizer
+from msta.train.optim import make_optimizer
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)

@@ -14,19 +14,19 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 from safetensors.torch import load_file
 
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.stats import load_stats
-from policies.actor import StudentActor
-from policies.baselines.gru import GRUConfig
-from policies.checkpoint import PolicyPath
-from policies.export import MINIMIZED_SENSORS
-from policies.factory import load_policy, make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.finetune_ppo import (
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.stats import load_stats
+from msta.policies.actor import StudentActor
+from msta.policies.baselines.gru import GRUConfig
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.export import MINIMIZED_SENSORS
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.finetune_ppo import (
     DUMMY,
     RECORD,
     STUDENT,
@@ -154,7 +154,7 @@ def test_ppo_trains_only_the_embeddings_and_the_noise_then_resumes(base, tmp_pat
 
 
 def test_a_run_resumed_mid_chunk_realigns_its_chunks_and_replaces_its_curve(base, tmp_path):
-    """The chunk loop msta-train-teacher runs too (train.ppo.ChunkLoop): after a resume
+    """The chunk loop msta-train-teacher runs too (msta.train.ppo.ChunkLoop): after a resume
     from mid-chunk the chunks end at multiples of save_interval again, curve.json is
     replaced atomically, and snapshots (also one lost to a kill) are kept."""
     def cfg(iterations: int) -> FinetunePPOConfig:

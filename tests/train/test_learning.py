@@ -22,14 +22,20 @@ import numpy as np
 import pytest
 import torch
 
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
-from eval.apps.demo import easy_terrain_dataset
-from policies.factory import load_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.offline import TrainConfig, train
-from train.online import CorrectConfig, RoundEvalConfig, append_episodes, correct, drive_and_label
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.eval.apps.demo import easy_terrain_dataset
+from msta.policies.factory import load_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.offline import TrainConfig, train
+from msta.train.online import (
+    CorrectConfig,
+    RoundEvalConfig,
+    append_episodes,
+    correct,
+    drive_and_label,
+)
 
 pytestmark = pytest.mark.slow
 
@@ -67,7 +73,7 @@ def test_msta_cpu_preset_imitates_the_teacher(stage1) -> None:
 
 def student_state_loss(policy, root: Path, episodes: list[int]) -> float:
     """Mean unmasked loss of ``policy`` over every window of ``episodes`` at ``root``."""
-    from msta_data.windows import WindowDataset
+    from msta.data.windows import WindowDataset
 
     ds = WindowDataset(root, policy.required_sensors, policy.config.history,
                        extra_columns=("action",), episodes=episodes)
@@ -98,7 +104,7 @@ def test_a_stage2_round_fits_the_teacher_on_the_students_own_states(
     # held-out student states: the stage-1 student drives on other seeds, the teacher labels
     held = tmp_path / "held_out"
     shutil.copytree(teacher_data, held)
-    from msta_data.windows import load_episode_table
+    from msta.data.windows import load_episode_table
 
     n_teacher = len(load_episode_table(held))
     episodes, _ = drive_and_label(replace(cfg, episodes_per_round=12, num_envs=12), before,

@@ -17,22 +17,22 @@ import pytest
 import torch
 from lerobot.configs import PreTrainedConfig
 from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
 from lerobot_policy_msta import MSTAConfig  # installed by the Makefile's venv step
 from lerobot_policy_msta.configuration_msta import PRESET_FIELDS, state_layout
 from lerobot_policy_msta.convert import checkpoint_format, lerobot_to_msta, main, msta_to_lerobot
 from lerobot_policy_msta.history import STATE_PAD
 from lerobot_policy_msta.modeling_msta import MSTAPolicy
 from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
-
-from msta_data import derived
-from msta_data.sensors import SENSORS, STUDENT_SENSORS
-from msta_data.stats import load_stats
-from msta_data.windows import WindowDataset
-from policies.factory import load_policy, make_config, make_policy
-from policies.msta import PRESETS
-from policies.msta import MSTAConfig as NativeMSTAConfig
-from policies.msta import MSTAPolicy as NativeMSTAPolicy
-from train.optim import WarmupCosine, make_optimizer
+from msta.data import derived
+from msta.data.sensors import SENSORS, STUDENT_SENSORS
+from msta.data.stats import load_stats
+from msta.data.windows import WindowDataset
+from msta.policies.factory import load_policy, make_config, make_policy
+from msta.policies.msta import PRESETS
+from msta.policies.msta import MSTAConfig as NativeMSTAConfig
+from msta.policies.msta import MSTAPolicy as NativeMSTAPolicy
+from msta.train.optim import WarmupCosine, make_optimizer
 
 BIN = Path(sys.executable).parent
 TINY = {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32, "history": 4}
@@ -158,6 +158,7 @@ def test_history_step_gives_lerobots_own_windows(synthetic_dataset):
 
 def test_history_step_refuses_what_it_cannot_window(synthetic_dataset, monkeypatch):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+
     from lerobot_policy_msta import history
 
     meta = LeRobotDatasetMetadata("local/train_test", root=synthetic_dataset)
@@ -237,7 +238,7 @@ def test_native_checkpoint_loads_through_lerobots_api(native_ckpt):
 
 def test_select_action_keeps_msta_actors_history(synthetic_dataset, native_ckpt, tmp_path):
     """Step by step, LeRobot's select_action sees what msta's StudentActor sees."""
-    from policies.actor import StudentActor
+    from msta.policies.actor import StudentActor
 
     lr = msta_to_lerobot(native_ckpt, tmp_path / "lerobot")
     cfg = PreTrainedConfig.from_pretrained(lr)
@@ -353,8 +354,7 @@ def test_documented_plugin_commands_parse():
 
     from lerobot_policy_msta.compare_trainers import CompareTrainersConfig
     from lerobot_policy_msta.convert import ConvertConfig
-
-    from msta_data.cli import parse_config
+    from msta.data.cli import parse_config
 
     repo = Path(__file__).resolve().parents[2]
     configs = {"convert": ConvertConfig, "compare_trainers": CompareTrainersConfig}

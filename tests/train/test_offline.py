@@ -11,11 +11,11 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from msta_data.budget import EXIT_STOPPED
-from policies.factory import get_config_class, load_policy, registered_policies
-from policies.msta import MSTAPolicy
-from train.cli import parse_cli
-from train.offline import TrainConfig, main, train
+from msta.data.budget import EXIT_STOPPED
+from msta.policies.factory import get_config_class, load_policy, registered_policies
+from msta.policies.msta import MSTAPolicy
+from msta.train.cli import parse_cli
+from msta.train.offline import TrainConfig, main, train
 
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",
         "--policy.history=5", "--batch_size=16", "--warmup_steps=2", "--progress=false",
@@ -48,7 +48,7 @@ def test_every_policy_type_parses_in_a_fresh_process(tmp_path):
     from pathlib import Path
 
     repo = Path(__file__).resolve().parents[2]
-    code = ("from train.cli import parse_cli; from train.offline import TrainConfig; "
+    code = ("from msta.train.cli import parse_cli; from msta.train.offline import TrainConfig; "
             "import sys; cfgs = [parse_cli(TrainConfig, ['--dataset=x', '--policy.type=' + t], "
             "'msta-train').policy for t in sys.argv[1:]]; "
             "print(' '.join(f'{c.type}:{type(c).__name__}' for c in cfgs))")
@@ -161,7 +161,7 @@ def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, extr
 def test_ema_makes_the_final_weights_the_running_average(synthetic_dataset, tmp_path):
     """--ema_decay: the final checkpoint holds the running average of the weights after
     every step (decay min(d, (1+t)/(10+t)), from the initial weights), not the last step's."""
-    from train import offline
+    from msta.train import offline
 
     init: dict[str, torch.Tensor] = {}
     seen: list[dict[str, torch.Tensor]] = []
@@ -234,7 +234,7 @@ def test_bad_inputs_give_clear_errors(synthetic_dataset, tmp_path, capsys):
 
 
 def test_warns_when_the_student_has_not_learned(synthetic_dataset, tmp_path, capsys):
-    from train.loop import warn_if_not_learned
+    from msta.train.loop import warn_if_not_learned
 
     # six steps leave the tiny student near the mean: the warning says so
     train(cfg_for(synthetic_dataset, tmp_path / "short", "--steps=6", "--eval_every=0"))
@@ -286,7 +286,7 @@ def test_dummy_tokens_take_part_in_training_and_only_token_students_take_them(
 def test_sensor_dropout_removes_one_whole_physical_sensor_per_sample(synthetic_dataset, tmp_path):
     """--sensor_dropout=1: every training sample loses all tokens of one physical sensor
     (joint_pos or gravity here; the command is software and stays); the weights change."""
-    from train import loop
+    from msta.train import loop
 
     seen: list[dict] = []
     real = loop.train_step
@@ -318,7 +318,7 @@ def test_sensor_dropout_removes_one_whole_physical_sensor_per_sample(synthetic_d
                          "--policy.type=gru", f"--sensor_dropout={r}")) for r in (0, 1)]
     a, b = (load_file(g / "model.safetensors") for g in gru)
     assert any(not torch.equal(a[k], b[k]) for k in a)
-    from msta_data.cli import UsageError
+    from msta.data.cli import UsageError
 
     with pytest.raises(UsageError, match=r"sensor_dropout=1.5 must be in \[0, 1\]"):
         cfg_for(synthetic_dataset, tmp_path / "d", "--sensor_dropout=1.5")
@@ -327,8 +327,8 @@ def test_sensor_dropout_removes_one_whole_physical_sensor_per_sample(synthetic_d
 def test_sensor_dropout_draws_the_rate_evenly_over_the_physical_sensors():
     from types import SimpleNamespace
 
-    from msta_data.sensors import PHYSICAL_SENSORS, STUDENT_SENSORS
-    from train.step import draw_sensor_dropout
+    from msta.data.sensors import PHYSICAL_SENSORS, STUDENT_SENSORS
+    from msta.train.step import draw_sensor_dropout
 
     student = SimpleNamespace(required_sensors=STUDENT_SENSORS, device=torch.device("cpu"))
     B = 20000
@@ -349,7 +349,7 @@ def test_unmasked_share_trains_that_share_of_the_steps_with_every_token(syntheti
     """--unmasked_share=p: each step trains at mask 0 with probability p, else at the
     training mask; the draws are seeded (two runs see the same steps unmasked; a resumed
     run draws the same: test_resume_after_a_crash_is_bit_identical)."""
-    from train import loop
+    from msta.train import loop
 
     seen: list[float] = []
     real = loop.train_step
@@ -369,7 +369,7 @@ def test_unmasked_share_trains_that_share_of_the_steps_with_every_token(syntheti
     assert runs["none"] == [0.5] * 12 and runs["all"] == [0.0] * 12
     assert set(runs["half"]) == {0.0, 0.5}  # 12 draws at p = 0.5 (seed 0): both kinds
     assert runs["again"] == runs["half"]
-    from msta_data.cli import UsageError
+    from msta.data.cli import UsageError
 
     with pytest.raises(UsageError, match=r"unmasked_share=2.0 must be in \[0, 1\]"):
         cfg_for(synthetic_dataset, tmp_path / "d", "--unmasked_share=2")

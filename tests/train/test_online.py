@@ -11,19 +11,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from collect.record import CollectConfig, collect, record_rollouts
-from collect.sim.env import EnvConfig, QuadrupedEnv
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.budget import TimeLimitReached
-from msta_data.stats import load_stats
-from msta_data.windows import WindowDataset, load_episode_table
-from policies.checkpoint import PolicyPath
-from policies.factory import make_policy
-from policies.msta import MSTAConfig, MSTAPolicy
-from policies.teacher.config import TeacherConfig, build_teacher
-from train.online import CorrectConfig, RoundEvalConfig, correct, main, policy_revision
-from train.progress import Progress
+from msta.collect.record import CollectConfig, collect, record_rollouts
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.budget import TimeLimitReached
+from msta.data.stats import load_stats
+from msta.data.windows import WindowDataset, load_episode_table
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig, MSTAPolicy
+from msta.policies.teacher.config import TeacherConfig, build_teacher
+from msta.train.online import CorrectConfig, RoundEvalConfig, correct, main, policy_revision
+from msta.train.progress import Progress
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)
@@ -140,10 +140,10 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
 def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys):
     """One metric: msta-eval on round 2's checkpoint, over the trials msta-correct evaluated
     it on, reports the figures of msta-correct's round table and of its model card."""
-    from eval.evaluate import main as msta_eval
-    from eval.report import fmt_cell
-    from train.online import print_table
-    from train.push import round_eval
+    from msta.eval.evaluate import main as msta_eval
+    from msta.eval.report import fmt_cell
+    from msta.train.online import print_table
+    from msta.train.push import round_eval
 
     cfg, prog, _ = two_rounds
     ckpt = Path(cfg.output_dir) / "round_2"
@@ -322,7 +322,7 @@ def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys
 def test_a_labeller_other_than_the_recording_teacher_is_named(base, tmp_path):
     """The dataset was recorded by the gait teacher: labels from the gait teacher pass
     silently, labels from the RMA teacher are named in a warning (with both revisions)."""
-    from train.progress import check_labeller
+    from msta.train.progress import check_labeller
 
     same = make_cfg(base, tmp_path)
     assert check_labeller(same, Path(same.dataset)) is None
@@ -356,8 +356,8 @@ def test_keep_unfinished_appends_every_simulated_frame_and_resumes(base, tmp_pat
 def test_rollout_mask_ratios_split_the_envs_and_are_part_of_the_run(base, tmp_path):
     """Half the envs drive at test mask 0.5: the round runs, progress.json records the
     ratios, and a resume with other ratios is refused (they define the data)."""
-    from policies.actor import SplitActor
-    from train.online import student_actor
+    from msta.policies.actor import SplitActor
+    from msta.train.online import student_actor
 
     cfg = make_cfg(base, tmp_path, rounds=1, rollout_mask_ratios=(0.0, 0.5))
     prog = correct(cfg)

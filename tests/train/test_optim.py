@@ -6,15 +6,15 @@ from __future__ import annotations
 import pytest
 import torch
 
-from policies.baselines import GRUConfig
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from train.config import LoopConfig
-from train.optim import MuonAdamW, make_optimizer
+from msta.policies.baselines import GRUConfig
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.train.config import LoopConfig
+from msta.train.optim import MuonAdamW, make_optimizer
 
 
 def stats() -> dict:
-    from msta_data import features as F
+    from msta.data import features as F
 
     feats = F.build_features(None)
     out = {}

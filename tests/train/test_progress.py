@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from train.config import STAGE2_MASK_RATIO, training_mask_ratio
-from train.progress import PROGRESS_FORMAT, Progress, RoundRecord
+from msta.train.config import STAGE2_MASK_RATIO, training_mask_ratio
+from msta.train.progress import PROGRESS_FORMAT, Progress, RoundRecord
 
 #: progress.json as msta-correct wrote it before the typed records (a run killed in round 2,
 #: with a key this version does not know at both levels).

@@ -1,5 +1,5 @@
 """--push_to: msta-train and msta-correct push tagged checkpoints with model cards to a real
-hub server (msta_data.hub_server on 127.0.0.1) through the real huggingface_hub client."""
+hub server (msta.data.hub_server on 127.0.0.1) through the real huggingface_hub client."""
 
 from __future__ import annotations
 
@@ -9,22 +9,22 @@ from pathlib import Path
 import pytest
 from huggingface_hub.errors import HfHubHTTPError
 
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from msta_data.hub_cards import card_metadata
-from msta_data.hub_ids import hub_api
-from msta_data.hub_pull import pull
-from msta_data.hub_push import push_dataset
-from msta_data.hub_server import HubServer, ServerConfig
-from msta_data.hub_versions import versions
-from policies.checkpoint import PolicyPath
-from policies.msta import MSTAPolicy
-from policies.teacher.config import TeacherConfig
-from train.cli import parse_cli
-from train.offline import TrainConfig, main, train
-from train.online import PROGRESS, CorrectConfig, RoundEvalConfig, correct
-from train.push import PushError, dataset_source
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data.hub_cards import card_metadata
+from msta.data.hub_ids import hub_api
+from msta.data.hub_pull import pull
+from msta.data.hub_push import push_dataset
+from msta.data.hub_server import HubServer, ServerConfig
+from msta.data.hub_versions import versions
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.msta import MSTAPolicy
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.cli import parse_cli
+from msta.train.offline import TrainConfig, main, train
+from msta.train.online import PROGRESS, CorrectConfig, RoundEvalConfig, correct
+from msta.train.push import PushError, dataset_source
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-0002"
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",

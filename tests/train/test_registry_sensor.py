@@ -13,25 +13,25 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from collect.record import CollectConfig, collect
-from collect.sim.env import EnvConfig
-from collect.sim.randomization import RandomizationConfig
-from collect.sim.terrain import TerrainConfig
-from eval.evaluate import EvalConfig as MstaEvalConfig
-from eval.evaluate import evaluate
-from msta_data import sensors
-from msta_data.sensors import SensorSpec
-from msta_data.stats import load_stats
-from msta_data.windows import load_episode_table
-from policies.checkpoint import PolicyPath
-from policies.factory import load_policy, make_policy
-from policies.msta import MSTAConfig
-from policies.teacher.config import TeacherConfig
-from train.evaluation import RoundEvalConfig
-from train.loop import load_windows
-from train.online import CorrectConfig, correct
-from train.optim import make_optimizer
-from train.step import train_step
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.data import sensors
+from msta.data.sensors import SensorSpec
+from msta.data.stats import load_stats
+from msta.data.windows import load_episode_table
+from msta.eval.evaluate import EvalConfig as MstaEvalConfig
+from msta.eval.evaluate import evaluate
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.evaluation import RoundEvalConfig
+from msta.train.loop import load_windows
+from msta.train.online import CorrectConfig, correct
+from msta.train.optim import make_optimizer
+from msta.train.step import train_step
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)

@@ -19,8 +19,8 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from train.cli import parse_cli
-from train.offline import TrainConfig, main, train
+from msta.train.cli import parse_cli
+from msta.train.offline import TrainConfig, main, train
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",
@@ -44,7 +44,7 @@ def _wait_for(path: Path, proc: subprocess.Popen, timeout: float = 120.0) -> Non
 def test_a_second_run_on_the_same_output_dir_is_refused(synthetic_dataset, tmp_path):
     out = tmp_path / "run"
     first = subprocess.Popen(
-        [sys.executable, "-m", "train.offline", f"--dataset={synthetic_dataset}",
+        [sys.executable, "-m", "msta.train.offline", f"--dataset={synthetic_dataset}",
          f"--output_dir={out}", *FAST, "--steps=100000", "--save_every=5", "--eval_every=0"],
         cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
         env={**os.environ, "OMP_NUM_THREADS": "1"})

@@ -1,5 +1,5 @@
 """Issue 41 (11): every command that writes a run directory locks it for the whole run
-(``msta_data.locking.hold_directory``); a second process on the same ``--output_dir`` fails
+(``msta.data.locking.hold_directory``); a second process on the same ``--output_dir`` fails
 at once with one line naming the holder's pid, and changes nothing there."""
 
 from __future__ import annotations
@@ -13,24 +13,24 @@ from pathlib import Path
 
 import pytest
 
-from eval.apps.compare import main as compare_main
-from eval.apps.repro import main as repro_main
-from eval.evaluate import main as eval_main
-from msta_data.layout import LOCK_NAME
-from msta_data.stats import load_stats
-from msta_data.windows import load_episode_table
-from policies.factory import make_policy
-from policies.msta import MSTAConfig
-from train.finetune import main as finetune_main
-from train.finetune_ppo import main as finetune_ppo_main
-from train.offline import main as train_main
-from train.online import PROGRESS
-from train.online import main as correct_main
-from train.teacher.cli import main as train_teacher_main
+from msta.data.layout import LOCK_NAME
+from msta.data.stats import load_stats
+from msta.data.windows import load_episode_table
+from msta.eval.apps.compare import main as compare_main
+from msta.eval.apps.repro import main as repro_main
+from msta.eval.evaluate import main as eval_main
+from msta.policies.factory import make_policy
+from msta.policies.msta import MSTAConfig
+from msta.train.finetune import main as finetune_main
+from msta.train.finetune_ppo import main as finetune_ppo_main
+from msta.train.offline import main as train_main
+from msta.train.online import PROGRESS
+from msta.train.online import main as correct_main
+from msta.train.teacher.cli import main as train_teacher_main
 
 REPO = Path(__file__).resolve().parents[2]
 #: holds the locks of the directories it is given, the way every command takes them
-HOLDER = ("import sys, time\nfrom msta_data.locking import lock_directory\n"
+HOLDER = ("import sys, time\nfrom msta.data.locking import lock_directory\n"
           "fds = [lock_directory(d) for d in sys.argv[1:]]\nprint('held', flush=True)\n"
           "time.sleep(300)\n")
 #: the simulator of the stage-2 commands, as small as it gets
@@ -132,7 +132,7 @@ def test_msta_correct_resumed_twice_retrains_once(synthetic_dataset, student, tm
     first = hold(out)
     try:
         second = subprocess.run(
-            [sys.executable, "-m", "train.online", *args, "--resume=true", "--rounds=2"],
+            [sys.executable, "-m", "msta.train.online", *args, "--resume=true", "--rounds=2"],
             check=False, cwd=REPO, capture_output=True, text=True, timeout=300)
     finally:
         first.kill()

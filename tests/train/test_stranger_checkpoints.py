@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from msta_data.stats import load_stats
-from policies.base import CheckpointError
-from policies.factory import load_policy, make_policy
-from policies.msta import MSTAConfig
+from msta.data.stats import load_stats
+from msta.policies.base import CheckpointError
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.msta import MSTAConfig
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +86,7 @@ def test_the_limit_is_overridable(ckpt, monkeypatch):
 
 
 def test_resume_from_a_damaged_checkpoint_is_one_line(synthetic_dataset, tmp_path):
-    from train.offline import main
+    from msta.train.offline import main
 
     args = [f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'run'}",
             "--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",

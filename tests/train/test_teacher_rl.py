@@ -14,16 +14,16 @@ import torch
 from rsl_rl.env import VecEnv
 from rsl_rl.runners import OnPolicyRunner
 
-from collect.sim.env import EnvConfig
-from collect.sim.terrain import TerrainConfig
-from policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
-from policies.teacher.imported import InputScaler
-from policies.teacher.rma import RMAConfig, RMATeacher
-from train.ppo import latest_checkpoint
-from train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
-from train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
-from train.teacher.model import RMAActor, load_from_teacher, to_teacher
-from train.teacher.warmstart import WarmStartConfig, warm_start
+from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.terrain import TerrainConfig
+from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
+from msta.policies.teacher.imported import InputScaler
+from msta.policies.teacher.rma import RMAConfig, RMATeacher
+from msta.train.ppo import latest_checkpoint
+from msta.train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
+from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
+from msta.train.teacher.model import RMAActor, load_from_teacher, to_teacher
+from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 
 
 def small_env(n: int = 8, seconds: float = 1.0, **kw) -> EnvConfig:
@@ -198,7 +198,7 @@ def test_a_run_resumed_mid_chunk_realigns_its_chunks_and_replaces_its_curve(tmp_
 
     train_teacher(cfg(4), log=lambda s: None)     # chunks end at 3 and 4 (the total)
     # a reader holding the old curve.json keeps it whole: each row is a new file renamed
-    # over the old one (train.state.atomic_json), never the old file rewritten in place
+    # over the old one (msta.train.state.atomic_json), never the old file rewritten in place
     os.link(tmp_path / "curve.json", tmp_path / "held_curve.json")
     train_teacher(cfg(9), log=lambda s: None)     # resumes at 4: the next chunk ends at 6
     curve = json.loads((tmp_path / "curve.json").read_text())

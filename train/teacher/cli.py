@@ -3,7 +3,7 @@
 Two resumable stages under ``--output_dir``:
 
 1. ``warmstart/``: imitation of the gait controller (DART by default) by the RMA MLP with
-   privileged inputs (``train.teacher.warmstart``), so PPO starts from a walking policy,
+   privileged inputs (``msta.train.teacher.warmstart``), so PPO starts from a walking policy,
    not from noise.
 2. ``ppo/``: rsl_rl's ``OnPolicyRunner`` with rsl_rl's PPO on ``RslVecEnv`` (the paper's
    legged_gym rewards and randomization, the terrain curriculum), in chunks of
@@ -27,16 +27,16 @@ from pathlib import Path
 
 import torch
 
-from collect.sim.env import EnvConfig
-from msta_data.cli import check_at_least, parse_config
-from msta_data.errors import DirectoryLockedError
-from msta_data.locking import hold_directory
-from policies.teacher.rma import RMAConfig, RMATeacher
-from train.optim import select_device
-from train.ppo import ChunkLoop, PPOConfig, latest_checkpoint
-from train.teacher.env import RslVecEnv
-from train.teacher.model import load_from_teacher, to_teacher
-from train.teacher.warmstart import WarmStartConfig, warm_start
+from msta.collect.sim.env import EnvConfig
+from msta.data.cli import check_at_least, parse_config
+from msta.data.errors import DirectoryLockedError
+from msta.data.locking import hold_directory
+from msta.policies.teacher.rma import RMAConfig, RMATeacher
+from msta.train.optim import select_device
+from msta.train.ppo import ChunkLoop, PPOConfig, latest_checkpoint
+from msta.train.teacher.env import RslVecEnv
+from msta.train.teacher.model import load_from_teacher, to_teacher
+from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 
 PROG = "msta-train-teacher"
 
@@ -149,7 +149,7 @@ def _start_net(cfg: TrainTeacherConfig, out: Path, rma: RMAConfig, init_from: st
 
 def _run_ppo(cfg: TrainTeacherConfig, out: Path, rma: RMAConfig,
              start_net: RMATeacher | None, warm: bool, log) -> None:
-    """Stage 2: rsl_rl's PPO in chunks (:class:`train.ppo.ChunkLoop`), started from
+    """Stage 2: rsl_rl's PPO in chunks (:class:`msta.train.ppo.ChunkLoop`), started from
     ``start_net`` or resumed; the critic warm-up only when PPO starts from a walking
     policy (``warm``), not from rsl_rl's random actor."""
     from rsl_rl.runners import OnPolicyRunner

@@ -1,7 +1,7 @@
 """msta's batched simulator behind rsl_rl's ``VecEnv`` interface.
 
 Observations are a TensorDict with two groups, scaled exactly as the RMA teacher scales
-its inputs (``policies.teacher.rma.RMAConfig``): ``privileged`` (e_t: base velocity,
+its inputs (``msta.policies.teacher.rma.RMAConfig``): ``privileged`` (e_t: base velocity,
 orientation, height scan, dynamics) and ``proprio`` (o_t: the student's 49 scalars).
 rsl_rl's runners pick groups per model through ``obs_groups`` (actor and critic both read
 both here). ``step`` returns rsl_rl's (obs, rewards, dones, extras) with
@@ -21,10 +21,10 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from collect.sim.env import REASONS, EnvConfig, QuadrupedEnv
-from msta_data.robot import NUM_JOINTS
-from policies.teacher.imported import InputScaler
-from policies.teacher.rma import RMAConfig
+from msta.collect.sim.env import REASONS, EnvConfig, QuadrupedEnv
+from msta.data.robot import NUM_JOINTS
+from msta.policies.teacher.imported import InputScaler
+from msta.policies.teacher.rma import RMAConfig
 
 #: observation group names (rsl_rl ``obs_groups`` values)
 PRIVILEGED, PROPRIO = "privileged", "proprio"

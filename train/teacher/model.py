@@ -5,7 +5,7 @@ teacher checkpoint.
 encoder mu runs on the ``privileged`` group, its output joins the ``proprio`` group, and
 rsl_rl's MLP (the policy pi) maps that to the action mean; rsl_rl's Gaussian distribution
 adds the exploration noise. Its ``encoder`` and ``mlp`` hold exactly the weights of
-``policies.teacher.rma.RMATeacher``'s ``encoder`` and ``policy`` (same layer indices), so
+``msta.policies.teacher.rma.RMATeacher``'s ``encoder`` and ``policy`` (same layer indices), so
 :func:`to_teacher` and :func:`load_from_teacher` copy them one to one.
 """
 
@@ -15,8 +15,8 @@ import torch
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
-from policies.teacher.rma import RMAConfig, RMATeacher, mlp
-from train.teacher.env import PRIVILEGED, PROPRIO
+from msta.policies.teacher.rma import RMAConfig, RMATeacher, mlp
+from msta.train.teacher.env import PRIVILEGED, PROPRIO
 
 
 class RMAActor(MLPModel):
@@ -59,7 +59,7 @@ class RMAActor(MLPModel):
             p.requires_grad_(not frozen)
 
     def as_jit(self):  # rsl_rl's exports copy only ``mlp``; export the msta checkpoint instead
-        raise NotImplementedError("export the teacher with train.teacher.model.to_teacher")
+        raise NotImplementedError("export the teacher with msta.train.teacher.model.to_teacher")
 
     as_onnx = as_jit
 

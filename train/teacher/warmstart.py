@@ -32,14 +32,14 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 
-from collect.record import LabelledActor
-from collect.rollout import Step, rollout
-from collect.sim.env import REASONS, EnvConfig
-from msta_data.cli import check_at_least, check_number
-from policies.teacher.config import TeacherConfig, build_teacher
-from policies.teacher.rma import RMAConfig, RMATeacher
-from train.state import flatten_optimizer_state, unflatten_optimizer_state
-from train.teacher.env import RslVecEnv
+from msta.collect.record import LabelledActor
+from msta.collect.rollout import Step, rollout
+from msta.collect.sim.env import REASONS, EnvConfig
+from msta.data.cli import check_at_least, check_number
+from msta.policies.teacher.config import TeacherConfig, build_teacher
+from msta.policies.teacher.rma import RMAConfig, RMATeacher
+from msta.train.state import flatten_optimizer_state, unflatten_optimizer_state
+from msta.train.teacher.env import RslVecEnv
 
 _FALL = REASONS.index("fall")
 

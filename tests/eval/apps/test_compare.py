@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from eval.apps.compare import CompareConfig, main
-from msta_data.features import load_info
+from msta.data.features import load_info
+from msta.eval.apps.compare import CompareConfig, main
 
 TINY = ["--preset=tiny", "--stage1_steps=3", "--stage2_rounds=1", "--stage2_steps=2",
         "--episodes_per_round=2", "--stage2_episode_length_s=0.3", "--stage2_num_envs=2",
@@ -101,7 +101,7 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
 
 
 def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishes_it(tmp_path):
-    from eval.apps.compare import Progress
+    from msta.eval.apps.compare import Progress
 
     first = Progress(tmp_path, deadline=None)
     first.start("msta stage 1")
@@ -119,8 +119,8 @@ def test_a_policys_copy_leaves_the_quarantine_and_the_lock_behind(tmp_path) -> N
     """Each policy appends to its own copy of the teacher dataset: what a resume set aside
     (``.msta-quarantine/``: up to 100 MB per file of an interrupted flush) stays with the
     original, where the user checks it, instead of being copied once per policy."""
-    from eval.apps.compare import copy_dataset
-    from msta_data.layout import LOCK_NAME, QUARANTINE_DIR
+    from msta.data.layout import LOCK_NAME, QUARANTINE_DIR
+    from msta.eval.apps.compare import copy_dataset
 
     root = tmp_path / "teacher"
     files = {"data/chunk-000/file-000.parquet": b"episodes", "meta/info.json": b"{}",
@@ -138,7 +138,7 @@ def test_a_policys_copy_leaves_the_quarantine_and_the_lock_behind(tmp_path) -> N
 def test_a_run_saved_under_the_rollout_masks_old_name_continues(tmp_path) -> None:
     """compare_config.json written when the option was ``stage2_rollout_masks`` still matches
     the same budgets under ``stage2_rollout_mask_ratios``; another value is still refused."""
-    from eval.apps.compare import check_run_config
+    from msta.eval.apps.compare import check_run_config
 
     cfg = CompareConfig(dataset=str(tmp_path / "ds"), policies="msta",
                         stage2_rollout_mask_ratios=(0.0, 0.5))

@@ -15,8 +15,8 @@ import torch
 from msta_test_helpers import record_gait  # registered by tests/conftest.py
 from safetensors.torch import load_file
 
-from eval.apps.compare import main
-from msta_data.features import load_info
+from msta.data.features import load_info
+from msta.eval.apps.compare import main
 
 REPO = Path(__file__).resolve().parents[3]
 TINY = ["--policies=msta", "--preset=tiny", "--stage1_steps=10", "--stage2_rounds=1",
@@ -31,7 +31,7 @@ def test_compare_under_torchrun_trains_the_single_process_student(tmp_path):
     main([f"--dataset={root}", f"--output_dir={tmp_path / 'one'}", *TINY])
     res = subprocess.run(
         [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
-         "-m", "eval.apps.compare", f"--dataset={root}", f"--output_dir={tmp_path / 'two'}",
+         "-m", "msta.eval.apps.compare", f"--dataset={root}", f"--output_dir={tmp_path / 'two'}",
          *TINY], cwd=REPO, capture_output=True, text=True, timeout=300, check=False,
         env={**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"})
     assert res.returncode == 0, res.stderr[-3000:]

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from eval.apps.demo import main
+from msta.eval.apps.demo import main
 
 
 @pytest.mark.parametrize("teacher,select", [("gait", 5), ("rma", 0)])
@@ -95,7 +95,7 @@ def _metrics(lin0: float, lin50: float, surv: float) -> dict:
 
 
 def test_verdict_applies_the_walking_bar():
-    from eval.apps.demo import verdict
+    from msta.eval.apps.demo import verdict
 
     walks, line = verdict(_metrics(0.85, 0.78, 0.95))
     assert walks and line.startswith("VERDICT: the student WALKS")

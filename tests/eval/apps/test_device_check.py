@@ -2,7 +2,7 @@
 
 import json
 
-from eval.apps.device_check import DeviceCheckConfig, run
+from msta.eval.apps.device_check import DeviceCheckConfig, run
 
 
 def test_device_check_runs_every_stage_on_the_cpu_and_says_so(tmp_path):

@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
-import eval.apps.repro as repro_mod
-from eval.apps.repro import SCALES, ReproConfig, main, repro
-from msta_data.budget import EXIT_STOPPED
-from policies.teacher.config import TeacherConfig
+import msta.eval.apps.repro as repro_mod
+from msta.data.budget import EXIT_STOPPED
+from msta.eval.apps.repro import SCALES, ReproConfig, main, repro
+from msta.policies.teacher.config import TeacherConfig
 
 POLICIES = "msta,gru,msta_mask"
 
@@ -172,7 +172,7 @@ def test_without_the_heatmap_the_report_says_finding_a_was_not_measured(study) -
 
 
 def test_the_study_defaults_to_the_demos_teacher_and_names_it() -> None:
-    from eval.apps.demo import DemoConfig
+    from msta.eval.apps.demo import DemoConfig
 
     cfg = ReproConfig(scale="tiny")
     assert cfg.teacher == DemoConfig().teacher

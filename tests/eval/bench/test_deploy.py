@@ -9,8 +9,8 @@ import re
 import pytest
 import torch
 
-from eval.bench.deploy import main, model_flops
-from policies.msta import MSTAConfig
+from msta.eval.bench.deploy import main, model_flops
+from msta.policies.msta import MSTAConfig
 
 
 def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path, capsys):

@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from eval.bench.scale_train import TODAY, ScaleTrainConfig, report, run
+from msta.eval.bench.scale_train import TODAY, ScaleTrainConfig, report, run
 
 
 def test_bench_scale_train_times_one_and_two_processes(tmp_path):

@@ -18,13 +18,13 @@ from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
-from collect.sim.terrain import LEGGED_GYM_TYPE_WEIGHTS, TERRAIN_TYPES, TerrainConfig
-from msta_data import derived
-from msta_data.robot import DECIMATION, SIM_DT
-from msta_data.sensors import ACTION_DIM, SENSORS
+from msta.collect.sim.terrain import LEGGED_GYM_TYPE_WEIGHTS, TERRAIN_TYPES, TerrainConfig
+from msta.data import derived
+from msta.data.robot import DECIMATION, SIM_DT
+from msta.data.sensors import ACTION_DIM, SENSORS
 
 if TYPE_CHECKING:
-    from collect.sim.env import EnvConfig as SimConfig
+    from msta.collect.sim.env import EnvConfig as SimConfig
 
 #: The paper's five terrain types (the default task groups).
 PAPER_TERRAINS: tuple[str, ...] = tuple(LEGGED_GYM_TYPE_WEIGHTS)
@@ -36,7 +36,7 @@ OBS_KEYS: dict[str, str] = {"agent_pos": OBS_STATE, "environment_state": OBS_ENV
 
 def observation_features() -> dict[str, PolicyFeature]:
     """``agent_pos`` / ``environment_state`` features: the derived columns of a dataset that
-    records every sensor (:mod:`msta_data.derived`, the same order and sizes)."""
+    records every sensor (:mod:`msta.data.derived`, the same order and sizes)."""
     columns = [s.column for s in SENSORS.values()]
     feats = derived.features(columns)
     kinds = {OBS_STATE: FeatureType.STATE, OBS_ENV_STATE: FeatureType.ENV}
@@ -138,10 +138,10 @@ class MstaA1EnvConfig(EnvConfig):
                 ``platform_size`` at each tile's centre).
             num_envs: robots simulated together (lerobot-eval's ``--eval.batch_size``).
         """
-        from collect.sim.commands import CommandConfig
-        from collect.sim.env import EnvConfig as SimConfig
-        from collect.sim.env import NoiseConfig
-        from collect.sim.randomization import RandomizationConfig
+        from msta.collect.sim.commands import CommandConfig
+        from msta.collect.sim.env import EnvConfig as SimConfig
+        from msta.collect.sim.env import NoiseConfig
+        from msta.collect.sim.randomization import RandomizationConfig
 
         return SimConfig(
             num_envs=num_envs, episode_length_s=self.episode_length_s, nthread=self.nthread,

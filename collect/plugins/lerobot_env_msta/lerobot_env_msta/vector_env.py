@@ -1,11 +1,11 @@
 """The vector env lerobot-eval steps: msta's batched simulator with LeRobot's observation keys.
 
-:class:`A1VectorEnv` wraps :class:`collect.sim.gym_env.MstaVectorEnv` (one simulator, all
+:class:`A1VectorEnv` wraps :class:`msta.collect.sim.gym_env.MstaVectorEnv` (one simulator, all
 robots of a batch, NEXT_STEP autoreset) and changes only what LeRobot reads:
 
 - observations ``{"agent_pos": (N, 49), "environment_state": (N, 3)}``, which lerobot's
   ``preprocess_observation`` turns into ``observation.state`` / ``observation.environment_state``;
-  built by :func:`msta_data.derived.derive`, the function that writes those columns into
+  built by :func:`msta.data.derived.derive`, the function that writes those columns into
   msta datasets, so a policy sees here what it was trained on;
 - ``infos["is_success"]``: True for the robots whose episode ends this step at the time limit
   (still standing), which lerobot-eval counts as ``pc_success``;
@@ -25,10 +25,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from collect.sim.env import EnvConfig as SimConfig
-from collect.sim.gym_env import MstaVectorEnv
-from msta_data import derived
-from msta_data.sensors import STUDENT_SENSORS, get
+from msta.collect.sim.env import EnvConfig as SimConfig
+from msta.collect.sim.gym_env import MstaVectorEnv
+from msta.data import derived
+from msta.data.sensors import STUDENT_SENSORS, get
 
 #: Env observation key -> the msta dataset column it equals.
 OBS_COLUMNS: dict[str, str] = {"agent_pos": derived.STATE_COLUMN,

@@ -1,12 +1,12 @@
 """msta-train vs lerobot-train on the same data, steps and seeds: does LeRobot's trainer
 train the MSTA student as msta's own does?
 
-For every seed: ``msta-train`` (in this process, :func:`train.offline.train`) and
+For every seed: ``msta-train`` (in this process, :func:`msta.train.offline.train`) and
 ``lerobot-train --policy.type=msta`` (a subprocess, the real command) train the same student
 (the ``--preset``'s fields) for the same steps and batch size on the same training episodes
 (msta-train's episode split for that seed; lerobot-train gets them as ``--dataset.episodes``).
 Both checkpoints are then scored by msta-train's own validation
-(:func:`train.step.validate`) on that seed's held-out episodes, the LeRobot one after
+(:func:`msta.train.step.validate`) on that seed's held-out episodes, the LeRobot one after
 :func:`lerobot_policy_msta.convert.lerobot_to_msta` (bit-exact), next to the untrained
 student's score. What differs between the two runs: the order of the samples, the random
 token removal (msta: its own generator; LeRobot: the global one) and the initial weights'
@@ -39,16 +39,16 @@ from typing import Any
 import numpy as np
 
 from lerobot_policy_msta.convert import lerobot_to_msta
-from msta_data.cli import check_at_least, parse_config
-from msta_data.locate import locate_dataset
-from msta_data.stats import load_stats
-from msta_data.windows import episode_split
-from policies.factory import load_policy, make_policy
-from policies.msta import PRESETS, MSTAConfig
-from train.loop import load_windows
-from train.offline import TrainConfig, train
-from train.optim import seed_everything
-from train.step import validate
+from msta.data.cli import check_at_least, parse_config
+from msta.data.locate import locate_dataset
+from msta.data.stats import load_stats
+from msta.data.windows import episode_split
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.msta import PRESETS, MSTAConfig
+from msta.train.loop import load_windows
+from msta.train.offline import TrainConfig, train
+from msta.train.optim import seed_everything
+from msta.train.step import validate
 
 FIGURES = ("loss_unmasked", "action_mse", "loss")
 

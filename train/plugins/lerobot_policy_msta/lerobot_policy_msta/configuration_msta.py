@@ -1,7 +1,7 @@
 """``--policy.type=msta`` for LeRobot: msta's MSTA config as a LeRobot ``PreTrainedConfig``.
 
 :class:`MSTAConfig` is LeRobot's ``PreTrainedConfig`` *and* msta's own
-:class:`policies.msta.MSTAConfig` (it inherits every msta field, default and check), plus
+:class:`msta.policies.msta.MSTAConfig` (it inherits every msta field, default and check), plus
 what LeRobot's trainer needs: msta's presets (``--policy.preset=cpu``), the layout of
 ``observation.state`` (``state_sensors``, read from the dataset's feature names), msta-train's
 training recipe as the optimizer and scheduler presets (AdamW with msta-train's decay groups,
@@ -24,15 +24,15 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from torch.optim import Optimizer
 from torch.optim.lr_scheduler import LambdaLR
 
-from msta_data import sensors
-from policies.msta import PRESETS
-from policies.msta import MSTAConfig as NativeMSTAConfig
-from train.config import LoopConfig
-from train.optim import WarmupCosine
+from msta.data import sensors
+from msta.policies.msta import PRESETS
+from msta.policies.msta import MSTAConfig as NativeMSTAConfig
+from msta.train.config import LoopConfig
+from msta.train.optim import WarmupCosine
 
-#: msta-train's defaults (``train.config.LoopConfig``), the presets below.
+#: msta-train's defaults (``msta.train.config.LoopConfig``), the presets below.
 _LOOP = LoopConfig()
-#: The fields msta's presets set (``policies.msta.PRESETS``): declared ``None`` here, which
+#: The fields msta's presets set (``msta.policies.msta.PRESETS``): declared ``None`` here, which
 #: means "the preset's value, else msta's default" (a value given on the command line wins).
 PRESET_FIELDS: tuple[str, ...] = tuple(sorted({k for p in PRESETS.values() for k in p}))
 _NATIVE_DEFAULTS = {f.name: f.default for f in fields(NativeMSTAConfig)}
@@ -41,7 +41,7 @@ _NATIVE_DEFAULTS = {f.name: f.default for f in fields(NativeMSTAConfig)}
 @LRSchedulerConfig.register_subclass("msta_warmup_cosine")
 @dataclass
 class WarmupCosineSchedulerConfig(LRSchedulerConfig):
-    """msta-train's schedule (``train.optim.WarmupCosine``): linear warm-up from 0 to the
+    """msta-train's schedule (``msta.train.optim.WarmupCosine``): linear warm-up from 0 to the
     optimizer's lr over ``num_warmup_steps``, then a cosine down to ``lr * min_lr_ratio`` at
     the last training step."""
 
@@ -57,7 +57,7 @@ def state_layout(names: list[str]) -> tuple[str, ...]:
     """Sensors concatenated in ``observation.state``, from its channel names.
 
     Args:
-        names: the feature's names, ``<sensor>.<channel>`` (``msta_data.derived``).
+        names: the feature's names, ``<sensor>.<channel>`` (``msta.data.derived``).
 
     Raises:
         ValueError: a name is not a registered sensor channel, or the channels of a sensor

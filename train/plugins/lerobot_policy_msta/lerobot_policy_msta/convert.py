@@ -12,7 +12,7 @@ so a conversion copies the weights and moves the statistics:
 
 Actions are bit-identical across a conversion (msta computes in float32, LeRobot stores
 float32; ``tests/train/test_lerobot_policy_plugin.py`` round-trips both ways). msta's own
-loaders read a LeRobot MSTA checkpoint directly (:mod:`policies.lerobot_checkpoint`, which
+loaders read a LeRobot MSTA checkpoint directly (:mod:`msta.policies.lerobot_checkpoint`, which
 the LeRobot -> msta direction calls), so this command only writes that conversion down::
 
     python -m lerobot_policy_msta.convert --policy.path=outputs/stage1/final --output_dir=outputs/lerobot/msta_stage1
@@ -35,13 +35,13 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from lerobot_policy_msta.modeling_msta import MSTAPolicy
 from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
-from msta_data import sensors
-from msta_data.cli import parse_config
-from msta_data.locate import locate_checkpoint
-from policies.checkpoint import PROCESSOR_NAME, PolicyPath
-from policies.factory import load_policy
-from policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, is_lerobot_checkpoint
-from policies.msta import MSTAPolicy as NativeMSTAPolicy
+from msta.data import sensors
+from msta.data.cli import parse_config
+from msta.data.locate import locate_checkpoint
+from msta.policies.checkpoint import PROCESSOR_NAME, PolicyPath
+from msta.policies.factory import load_policy
+from msta.policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, is_lerobot_checkpoint
+from msta.policies.msta import MSTAPolicy as NativeMSTAPolicy
 
 PREPROCESSOR_FILE = LEROBOT_PREPROCESSOR  # lerobot's POLICY_PREPROCESSOR_DEFAULT_NAME + .json
 
@@ -112,7 +112,7 @@ def lerobot_stats(native: NativeMSTAPolicy, cfg: MSTAConfig) -> dict[str, dict[s
 def lerobot_to_msta(src: str | Path, dst: str | Path) -> Path:
     """Write LeRobot MSTA checkpoint ``src`` (e.g. lerobot-train's ``pretrained_model/``) as an
     msta checkpoint in ``dst``. msta's loaders read such a checkpoint directly
-    (:mod:`policies.lerobot_checkpoint`, which this calls), so msta's commands need no
+    (:mod:`msta.policies.lerobot_checkpoint`, which this calls), so msta's commands need no
     conversion; this writes the result down.
 
     Args:

@@ -37,8 +37,8 @@ from lerobot.processor import EnvTransition, ProcessorStep, ProcessorStepRegistr
 from lerobot.utils.constants import OBS_STATE
 from torch import Tensor
 
-from msta_data import sensors
-from msta_data.windows import WindowDataset, load_episode_table
+from msta.data import sensors
+from msta.data.windows import WindowDataset, load_episode_table
 
 #: lerobot's pad flags of a windowed feature (``LeRobotDataset`` with delta timestamps).
 STATE_PAD = f"{OBS_STATE}_is_pad"

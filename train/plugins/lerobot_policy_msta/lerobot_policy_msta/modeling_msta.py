@@ -1,7 +1,7 @@
 """The MSTA student as a LeRobot policy: msta's own transformer behind LeRobot's interface.
 
 :class:`MSTAPolicy` holds exactly one module, ``model``: a
-:class:`policies.msta.MSTATransformer`, the module msta's own ``MSTAPolicy`` holds under the
+:class:`msta.policies.msta.MSTATransformer`, the module msta's own ``MSTAPolicy`` holds under the
 same name, so both write the same ``model.*`` tensors to ``model.safetensors`` (the
 converters in :mod:`lerobot_policy_msta.convert` only move files' statistics around).
 
@@ -11,10 +11,10 @@ its first frame, as msta's ``WindowDataset`` does: :mod:`lerobot_policy_msta.his
 the dataset lerobot-train builds the policy for) and z-scores ``observation.state``
 (``processor_msta``). The policy cuts the state into its sensors
 and turns the z-scores into bin indices with msta's own binning
-(``policies.msta.MSTAProcessor`` on statistics mean 0, std 1, i.e. on values already
+(``msta.policies.msta.MSTAProcessor`` on statistics mean 0, std 1, i.e. on values already
 z-scored), then runs the transformer with msta's token removal (``mask_ratio``) in training.
 At inference ``select_action`` keeps the last T states per robot, padded with the first
-one after ``reset()``, as msta's ``policies.actor.StudentActor`` does.
+one after ``reset()``, as msta's ``msta.policies.actor.StudentActor`` does.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ from torch import Tensor
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from lerobot_policy_msta.history import STATE_PAD, attach
-from msta_data import sensors
-from policies.msta import MSTAInputs, MSTAProcessor, MSTATransformer
-from train.optim import parameter_groups
+from msta.data import sensors
+from msta.policies.msta import MSTAInputs, MSTAProcessor, MSTATransformer
+from msta.train.optim import parameter_groups
 
 
 def identity_binner(config: MSTAConfig) -> MSTAProcessor:
@@ -164,6 +164,6 @@ class MSTAPolicy(PreTrainedPolicy):
         self._window = self._pad = None
 
     def get_optim_params(self) -> list[dict[str, Any]]:
-        """msta-train's parameter groups (``train.optim.parameter_groups``): weight decay on
+        """msta-train's parameter groups (``msta.train.optim.parameter_groups``): weight decay on
         matrices, none on biases, norms, embedding tables and tokens."""
         return parameter_groups(self, self.config.optimizer_weight_decay)

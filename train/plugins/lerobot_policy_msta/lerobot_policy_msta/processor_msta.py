@@ -6,7 +6,7 @@ Pre: rename (none) -> add batch dim -> device -> ``msta_history_processor`` (a d
 batch's T-step windows, :mod:`lerobot_policy_msta.history`) -> ``NormalizerProcessorStep``
 (z-scores of ``observation.state`` and of the action target). Post: ``UnnormalizerProcessorStep`` (the
 action back to raw units) -> cpu. The statistics are msta's processor's, bit for bit
-(:func:`msta_stats`): std through ``policies.processor.effective_std``, ``eps=0`` (msta divides
+(:func:`msta_stats`): std through ``msta.policies.processor.effective_std``, ``eps=0`` (msta divides
 by the std itself), and the binary channels (foot contacts) pass through unchanged (mean 0,
 std 1), because msta thresholds their raw values at 0.5. Binning the z-scores into tokens is
 the model's input layer (``modeling_msta``), not a normalization.
@@ -33,8 +33,8 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from lerobot_policy_msta.history import HistoryProcessorStep
-from msta_data import sensors
-from policies.processor import effective_std, read_stats
+from msta.data import sensors
+from msta.policies.processor import effective_std, read_stats
 
 Stats = dict[str, dict[str, torch.Tensor]]
 
