@@ -42,15 +42,7 @@ from msta.data.locate import locate, reads_as_hub_id
 from msta.data.locking import hold_directory
 from msta.data.sensors import STUDENT_SENSORS
 from msta.eval import report
-from msta.eval.evaluator import (
-    METRICS_VERSION,
-    RUNS,
-    Evaluator,
-    PolicyEntry,
-    make_env,
-    student_entry,
-    torch_eval_settings,
-)
+from msta.eval.evaluator import METRICS_VERSION, RUNS, Evaluator, PolicyEntry, student_entry
 from msta.eval.metrics import start_trials
 from msta.eval.scenarios import (
     Condition,
@@ -61,6 +53,7 @@ from msta.eval.scenarios import (
     split_csv,
 )
 from msta.eval.sensor_faults import is_fault_run, load_guard
+from msta.eval.trial_env import make_env, torch_eval_settings
 from msta.policies.actor import StudentActor
 from msta.policies.factory import select_device
 from msta.policies.teacher.base import TEACHERS

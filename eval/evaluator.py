@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
@@ -23,10 +21,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta.collect.sim.commands import CommandConfig
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
-from msta.collect.sim.randomization import RandomizationConfig
-from msta.collect.sim.terrain import TerrainConfig
 from msta.data.budget import check_deadline
 from msta.data.revision import content_revision, file_parts
 from msta.eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
@@ -38,6 +32,8 @@ from msta.eval.sensor_faults import (
     faulty_factory,
     is_fault_run,
 )
+from msta.eval.trial_env import make_env
+from msta.eval.trials_pool import run_trials_on_workers
 from msta.policies.actor import InputSpec, StudentActor
 from msta.policies.factory import load_policy
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
@@ -97,17 +93,6 @@ def student_entry(path: Path, name: str, source: str,
                        load_policy(path, device=device), train_masks)
 
 
-def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
-    """The evaluation simulator: tiles pinned (curriculum off), only the evaluated terrain
-    columns built; :func:`msta.eval.metrics.start_trials` gives every trial its random stream."""
-    return QuadrupedEnv(EnvConfig(
-        num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
-        terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
-        commands=CommandConfig(use_heading=cfg.heading_commands),
-        noise=NoiseConfig(enabled=cfg.noise),
-        randomization=RandomizationConfig(enabled=cfg.randomization)))
-
-
 def spec_dict(spec: InputSpec) -> dict[str, Any]:
     """JSON-ready InputSpec (metrics.json's ``spec``; files written before the window was
     named ``history`` have the key ``T``, :func:`msta.eval.report.spec_history` reads both)."""
@@ -122,32 +107,6 @@ def spec_dict(spec: InputSpec) -> dict[str, Any]:
 def _is_null(spec: InputSpec) -> bool:
     return spec.history is None and not spec.drop_sensors and not spec.dead_joints \
         and spec.mask_ratio == 0 and spec.dummy_tokens == 0
-
-
-@contextmanager
-def torch_eval_settings(threads: int, cuda: bool = False) -> Iterator[None]:
-    """torch as an evaluation needs it (``threads`` threads, deterministic algorithms), and
-    afterwards as it was, global RNG state included (evaluation seeds it per run).
-
-    ``cuda``: students run on CUDA. TF32 is off (full fp32 matrix products and convolutions)
-    and deterministic algorithms only warn where an op has none: cuBLAS is deterministic
-    only with ``CUBLAS_WORKSPACE_CONFIG`` set before its first use (msta-eval sets it at
-    start; a process that trained on the GPU first, msta-correct or msta-repro, has passed
-    that point)."""
-    tf32 = (torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32)
-    before = (torch.get_num_threads(), torch.are_deterministic_algorithms_enabled(),
-              torch.is_deterministic_algorithms_warn_only_enabled(), torch.get_rng_state())
-    torch.set_num_threads(threads)
-    torch.use_deterministic_algorithms(True, warn_only=cuda)
-    if cuda:
-        torch.backends.cuda.matmul.allow_tf32 = torch.backends.cudnn.allow_tf32 = False
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before[0])
-        torch.use_deterministic_algorithms(before[1], warn_only=before[2])
-        torch.set_rng_state(before[3])
-        torch.backends.cuda.matmul.allow_tf32, torch.backends.cudnn.allow_tf32 = tf32
 
 
 def _digest(key: tuple) -> str:
@@ -257,7 +216,6 @@ class Evaluator:
 
         t0 = time.perf_counter()
         if self.pool is not None and not here:
-            from msta.eval.trials_pool import run_trials_on_workers
 
             res = run_trials_on_workers(self.pool, self.cfg, make_actor, self.layout,
                                         self.env.max_steps, done, on_round)

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from msta.data.figures import fmt as _fmt
-from msta.eval.report import _norm_cell, fmt_cell
+from msta.eval.report_cells import fmt_cell, norm_cell
 from msta.eval.scenarios import REMOVALS
 
 _HEAD = ("| policy | removal | lin tracking vs teacher | total vs teacher | survival | "
@@ -30,7 +30,7 @@ def _detection_cells(det: dict[str, Any] | None) -> list[str]:
 def _row(run: dict[str, Any]) -> str:
     if run["status"] != "ok":
         return f"| {run['policy']} | {run['removal']} | n/a: {run['reason']} |||||||"
-    norm, raw = _norm_cell(run), run["raw"]["per_terrain"]["average"]
+    norm, raw = norm_cell(run), run["raw"]["per_terrain"]["average"]
     cells = [fmt_cell(norm, "lin_tracking"), fmt_cell(norm, "total"),
              fmt_cell(raw, "survival")] + _detection_cells(run.get("detection"))
     return f"| {run['policy']} | {run['removal']} | " + " | ".join(cells) + " |"

@@ -14,13 +14,13 @@ import math
 from pathlib import Path
 
 from msta.eval.metrics import RETURNS
-from msta.eval.report import (
+from msta.eval.report_cells import (
     METRIC_TITLES,
-    _conditions,
-    _lookup,
-    _norm_cell,
-    _policy_names,
-    _runs,
+    conditions,
+    lookup,
+    norm_cell,
+    policy_names,
+    scenario_runs,
 )
 from msta.eval.scenarios import SCENARIOS
 
@@ -77,10 +77,10 @@ def sweep_figure(metrics: dict, scenario: str, bars: bool):
         bars: bar groups (categorical conditions) instead of lines.
     """
     plt = _pyplot()
-    runs = _runs(metrics, scenario)
-    conds = _conditions(runs)
-    look = _lookup(runs)
-    cells = {p: [_norm_cell(look.get((p, c))) for c, _ in conds] for p in _policy_names(metrics)}
+    runs = scenario_runs(metrics, scenario)
+    conds = conditions(runs)
+    look = lookup(runs)
+    cells = {p: [norm_cell(look.get((p, c))) for c, _ in conds] for p in policy_names(metrics)}
     drawn = [p for p, row in cells.items() if any(c is not None for c in row)]
     counts = {c["trials"] for p in drawn for c in cells[p] if c is not None}
     fig, axes = plt.subplots(1, len(RETURNS), figsize=(5 * len(RETURNS), 4.0), squeeze=False)
@@ -121,13 +121,13 @@ def heatmap_figure(metrics: dict):
               if p.get("train_masks")}
     if not ratios:
         return None
-    runs = _runs(metrics, "token_removal")
-    conds = _conditions(runs)
-    look = _lookup(runs)
+    runs = scenario_runs(metrics, "token_removal")
+    conds = conditions(runs)
+    look = lookup(runs)
     a1s = sorted({a for a, _ in ratios.values()})
     a2s = sorted({b for _, b in ratios.values()})
     counts = {c["trials"] for name in ratios for cond, _ in conds
-              if (c := _norm_cell(look.get((name, cond)))) is not None}
+              if (c := norm_cell(look.get((name, cond)))) is not None}
     fig, axes = plt.subplots(len(RETURNS), len(conds), squeeze=False,
                              figsize=(3.4 * len(conds), 3.0 * len(RETURNS) + 0.4))
     for i, metric in enumerate(RETURNS):
@@ -135,7 +135,7 @@ def heatmap_figure(metrics: dict):
             grid = [[(math.nan, math.nan, math.nan)] * len(a2s) for _ in a1s]
             for name, (a1, a2) in ratios.items():
                 grid[a1s.index(a1)][a2s.index(a2)] = _value_and_error(
-                    _norm_cell(look.get((name, cond))), metric)
+                    norm_cell(look.get((name, cond))), metric)
             ax = axes[i][j]
             im = ax.imshow([[v for v, _, _ in row] for row in grid], cmap="viridis",
                            origin="lower", aspect="auto")
@@ -159,7 +159,7 @@ def write_plots(metrics: dict, out: Path) -> list[Path]:
     written = []
     for name, bars in (("sensor_removal", True), ("dead_joints", False), ("history", False),
                        ("dummy_tokens", False)):
-        if _runs(metrics, name):
+        if scenario_runs(metrics, name):
             written.append(_save(sweep_figure(metrics, name, bars), out / f"{name}.png"))
     if "mask_matrix" in metrics["config"]["scenarios"]:
         fig = heatmap_figure(metrics)

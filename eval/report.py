@@ -27,23 +27,20 @@ from typing import Any
 import numpy as np
 
 from msta.data.cli import parse_config
-from msta.data.figures import fmt_ci
+from msta.eval.fault_report import section
 from msta.eval.metrics import RETURNS
+from msta.eval.plots import write_plots
+from msta.eval.report_cells import (
+    METRIC_TITLES,
+    SHORT_TERRAIN,
+    conditions,
+    fmt_cell,
+    lookup,
+    norm_cell,
+    policy_names,
+    scenario_runs,
+)
 from msta.eval.scenarios import SCENARIOS
-
-METRIC_TITLES = {"lin_tracking": "linear-velocity tracking", "ang_tracking":
-                 "angular-velocity tracking", "total": "total reward"}
-SHORT_TERRAIN = {"smooth_slope": "smooth", "rough_slope": "rough", "stairs_up": "stairs up",
-                 "stairs_down": "stairs down", "discrete": "discrete", "flat": "flat",
-                 "average": "avg"}
-
-
-def fmt_cell(cell: dict | None, metric: str, digits: int = 2) -> str:
-    """One figure of an msta.eval.metrics cell (``{metric: value, "ci": {metric: [lo, hi]}}``)
-    with its interval."""
-    if cell is None:
-        return "n/a"
-    return fmt_ci(cell.get(metric), (cell.get("ci") or {}).get(metric), digits)
 
 
 def trials_note(metrics: dict) -> str:
@@ -145,28 +142,6 @@ def identical_warnings(metrics: dict) -> list[str]:
             for labels in identical_groups(runs)]
 
 
-def _runs(metrics: dict, scenario: str) -> list[dict]:
-    return [r for r in metrics["runs"] if r["scenario"] == scenario]
-
-
-def _policy_names(metrics: dict) -> list[str]:
-    return [p["name"] for p in metrics["policies"]]
-
-
-def _conditions(runs: list[dict]) -> list[tuple[str, Any]]:
-    """(label, value) in first-seen order."""
-    seen: dict[str, Any] = {}
-    for r in runs:
-        seen.setdefault(r["condition"], r["value"])
-    return list(seen.items())
-
-
-def _norm_cell(run: dict | None, terrain: str = "average") -> dict | None:
-    if run is None or run["status"] != "ok":
-        return None
-    return run["normalized"]["per_terrain"].get(terrain)  # absent: no trial on that terrain
-
-
 def _trials_row(label: str, counts: list[int | None]) -> str:
     return f"| *{label}* | " + " | ".join("-" if n is None else str(n) for n in counts) + " |"
 
@@ -176,10 +151,6 @@ def _ref_trials(metrics: dict, terrain: str) -> int | None:
     return None if cell is None else cell.get("trials")
 
 
-def _lookup(runs: list[dict]) -> dict[tuple[str, str], dict]:
-    return {(r["policy"], r["condition"]): r for r in runs}
-
-
 def table_one(metrics: dict, metric: str = "total") -> str:
     """The paper's Table I layout: rows policies, columns terrains x test masks.
 
@@ -187,19 +158,19 @@ def table_one(metrics: dict, metric: str = "total") -> str:
         metrics: metrics.json content.
         metric: lin_tracking, ang_tracking or total (normalized to the teacher).
     """
-    runs = _runs(metrics, "token_removal")
+    runs = scenario_runs(metrics, "token_removal")
     title = f"**{METRIC_TITLES[metric]}, normalized to the teacher** (test masks " \
-            f"{', '.join(c for c, _ in _conditions(runs))})"
+            f"{', '.join(c for c, _ in conditions(runs))})"
     if not runs:
         return f"{title}: the token_removal scenario was not run."
-    conds = _conditions(runs)
-    look = _lookup(runs)
+    conds = conditions(runs)
+    look = lookup(runs)
     terrains = metrics["terrains"] + ["average"]
     head = ["policy"] + [f"{SHORT_TERRAIN.get(t, t)} {c.split()[-1]}"
                          for t in terrains for c, _ in conds]
     lines = [title, "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for p in _policy_names(metrics):
-        cells = [fmt_cell(_norm_cell(look.get((p, c)), t), metric)
+    for p in policy_names(metrics):
+        cells = [fmt_cell(norm_cell(look.get((p, c)), t), metric)
                  for t in terrains for c, _ in conds]
         lines.append(f"| {p} | " + " | ".join(cells) + " |")
     lines.append(_trials_row("trials per cell", [_ref_trials(metrics, t) for t in terrains
@@ -209,13 +180,13 @@ def table_one(metrics: dict, metric: str = "total") -> str:
 
 def scenario_table(metrics: dict, scenario: str, metric: str = "total") -> str:
     """Rows policies, columns the scenario's conditions; terrain-averaged normalized metric."""
-    runs = _runs(metrics, scenario)
-    conds = _conditions(runs)
-    look = _lookup(runs)
+    runs = scenario_runs(metrics, scenario)
+    conds = conditions(runs)
+    look = lookup(runs)
     head = ["policy"] + [c for c, _ in conds]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for p in _policy_names(metrics):
-        lines.append(f"| {p} | " + " | ".join(fmt_cell(_norm_cell(look.get((p, c))), metric)
+    for p in policy_names(metrics):
+        lines.append(f"| {p} | " + " | ".join(fmt_cell(norm_cell(look.get((p, c))), metric)
                                                for c, _ in conds) + " |")
     lines.append(_trials_row("trials per cell", [_ref_trials(metrics, "average")] * len(conds)))
     return "\n".join(lines)
@@ -248,7 +219,7 @@ def raw_table(metrics: dict) -> str:
                          for k in ("surv", "|v-cmd|", "|w-cmd|")]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     rows = [("reference teacher", metrics["reference"])] + [
-        (p, base[p]["raw"]) for p in _policy_names(metrics) if p in base]
+        (p, base[p]["raw"]) for p in policy_names(metrics) if p in base]
     for name, agg in rows:
         cells = []
         for t in terrains:
@@ -267,7 +238,7 @@ def level_table(metrics: dict, metric: str = "total") -> str:
     levels = [str(lv) for lv in metrics["levels"]]
     lines = ["| policy | " + " | ".join(f"level {lv}" for lv in levels) + " |",
              "|" + "---|" * (len(levels) + 1)]
-    for p in _policy_names(metrics):
+    for p in policy_names(metrics):
         if p not in base:
             continue
         per = base[p]["normalized"]["per_level"]["average"]
@@ -294,7 +265,7 @@ def markdown(metrics: dict) -> str:
     parts += [f"| {p['name']} | {p['kind']} | `{p['source']}` | {p['revision']} |"
               for p in metrics["policies"]]
     parts.append("")
-    if _runs(metrics, "token_removal"):
+    if scenario_runs(metrics, "token_removal"):
         parts += ["## Table I: random token removal at test time", ""]
         parts += [table_one(metrics, m) + "\n" for m in ("total", "lin_tracking", "ang_tracking")]
     parts += ["## Survival and velocity errors (no input changes)", "", raw_table(metrics), ""]
@@ -302,14 +273,13 @@ def markdown(metrics: dict) -> str:
         parts += ["## Total reward per level (normalized, terrain average)", "",
                   level_table(metrics), ""]
     for name in ("sensor_removal", "dead_joints", "history", "dummy_tokens"):
-        if not _runs(metrics, name):
+        if not scenario_runs(metrics, name):
             continue
         parts += [f"## {SCENARIOS[name].title}", "", f"![{name}]({name}.png)", ""]
         for m in RETURNS:
             parts += [f"{METRIC_TITLES[m]} (normalized, mean over terrains):", "",
                       scenario_table(metrics, name, m), ""]
-    if _runs(metrics, "sensor_faults"):
-        from msta.eval.fault_report import section  # (it formats with this module's cells)
+    if scenario_runs(metrics, "sensor_faults"):
         parts += [section(metrics)]
     if "mask_matrix" in cfg["scenarios"]:
         parts += ["## Train mask ratios (stage 1 x stage 2)", ""]
@@ -332,8 +302,6 @@ def write_report(metrics: dict, out: str | Path) -> list[Path]:
         metrics: metrics.json content.
         out: output directory.
     """
-    from msta.eval.plots import write_plots  # (the plots read this module's lookups)
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "report.md"

@@ -21,6 +21,7 @@ from msta.collect.ray_pool import RayPool, cached
 from msta.collect.sim.env import QuadrupedEnv
 from msta.eval.metrics import ActorFactory, TrialLayout, TrialResults, play_round
 from msta.eval.scenarios import TrialConfig
+from msta.eval.trial_env import make_env, torch_eval_settings
 
 
 def trial_config(cfg: TrialConfig) -> TrialConfig:
@@ -44,8 +45,6 @@ class TrialsJob:
     layout: TrialLayout
 
     def setup(self) -> QuadrupedEnv:
-        from msta.eval.evaluator import make_env
-
         # one MuJoCo thread: a worker is one CPU (the thread count changes no figure); one
         # simulator per worker for every run on the same trials, as Evaluator keeps one
         cfg, n = replace(self.cfg, nthread=1), len(self.layout.rounds(self.cfg.envs)[0])
@@ -53,7 +52,6 @@ class TrialsJob:
 
     def run(self, env: QuadrupedEnv, r: int) -> TrialResults:
         """The sums of round ``r``'s trials."""
-        from msta.eval.evaluator import torch_eval_settings
 
         ids = self.layout.rounds(env.num_envs)[r]
         out = TrialResults.zeros(int(ids[-1]) + 1, env.max_steps)

@@ -486,3 +486,5 @@ def validate_episode(frames: dict[str, np.ndarray],
         out[col] = arr.copy()
     assert length is not None
     return length, out
+
+

@@ -37,6 +37,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
 from msta.data import layout as L
 from msta.data.errors import DatasetFormatError, DatasetIntegrityError
 
@@ -385,7 +389,6 @@ def check_structure(root: str | Path) -> None:
     import pyarrow as pa
 
     from msta.data import features as F
-    from msta.data.lerobot_edits import fixed_size
 
     info = F.load_info(root)
     table = F.read_episode_table(root, info).to_pandas()
@@ -418,3 +421,27 @@ def verify_for_publish(root: str | Path) -> None:
     """
     if verify_dataset(root, "full", for_publish=True) is None:
         check_structure(root)
+
+
+def fixed_size(arr: pa.Array, size: int, where: str) -> pa.Array:
+    """A ``list<value>`` column (LeRobot's merge writes these) as ``fixed_size_list<value>[size]``
+    after checking that no row is null and every row holds ``size`` values; any other array
+    is returned unchanged.
+
+    Args:
+        arr: one column (chunks combined).
+        size: the feature's length.
+        where: ``"<file>: column 'x'"`` for the error.
+
+    Raises:
+        DatasetFormatError: a null row or a row of another length (row named).
+    """
+    if not (pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type)):
+        return arr
+    lengths = pc.list_value_length(arr).fill_null(-1).to_numpy(zero_copy_only=False)
+    bad = np.flatnonzero(lengths != size)
+    if len(bad):
+        row = int(bad[0])
+        got = "null" if lengths[row] < 0 else f"{lengths[row]} values"
+        raise DatasetFormatError(f"{where}: row {row} holds {got}, expected {size} values")
+    return pa.FixedSizeListArray.from_arrays(arr.flatten(), size)

@@ -26,7 +26,7 @@ the structural checks every dataset without a manifest gets, re-derives:
   statistics, the manifest and the card.
 
 Readers accept the variable-length vectors of a merge where every row holds the feature's
-length (:func:`fixed_size`).
+length (:func:`~msta.data.integrity.fixed_size`).
 """
 
 from __future__ import annotations
@@ -38,9 +38,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from msta.data import derived as D
@@ -54,30 +52,6 @@ logger = logging.getLogger(__name__)
 
 #: Provenance a LeRobot edit dropped: text fields say this, number fields -1.
 UNKNOWN = "unknown"
-
-
-def fixed_size(arr: pa.Array, size: int, where: str) -> pa.Array:
-    """A ``list<value>`` column (LeRobot's merge writes these) as ``fixed_size_list<value>[size]``
-    after checking that no row is null and every row holds ``size`` values; any other array
-    is returned unchanged.
-
-    Args:
-        arr: one column (chunks combined).
-        size: the feature's length.
-        where: ``"<file>: column 'x'"`` for the error.
-
-    Raises:
-        DatasetFormatError: a null row or a row of another length (row named).
-    """
-    if not (pa.types.is_list(arr.type) or pa.types.is_large_list(arr.type)):
-        return arr
-    lengths = pc.list_value_length(arr).fill_null(-1).to_numpy(zero_copy_only=False)
-    bad = np.flatnonzero(lengths != size)
-    if len(bad):
-        row = int(bad[0])
-        got = "null" if lengths[row] < 0 else f"{lengths[row]} values"
-        raise DatasetFormatError(f"{where}: row {row} holds {got}, expected {size} values")
-    return pa.FixedSizeListArray.from_arrays(arr.flatten(), size)
 
 
 def is_rewritten(root: str | Path) -> bool:

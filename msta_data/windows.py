@@ -31,7 +31,7 @@ from msta.data import integrity as I
 from msta.data import layout as L
 from msta.data import sensors as registry
 from msta.data.errors import DatasetFormatError
-from msta.data.lerobot_edits import fixed_size
+from msta.data.integrity import fixed_size
 
 _INDEX_COLUMNS = ("index", "episode_index", "frame_index", "timestamp")
 

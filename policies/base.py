@@ -39,10 +39,10 @@ from msta.policies.checkpoint import (
     load_weights,
     param_limit,
     read_json_file,
-    resolve_pretrained,
 )
 from msta.policies.config import PolicyConfig, check_fraction
 from msta.policies.processor import Batch, Channels, StudentProcessor
+from msta.policies.resolve import resolve_pretrained
 
 #: Per-sample channel removal: sensor name -> (B, dim) bool over the sensor's full channels
 #: (tensor or numpy), True = removed at every step of that sample's window.
@@ -51,7 +51,7 @@ Absent = Mapping[str, Any]
 __all__ = [
     "CONFIG_NAME", "PROCESSOR_NAME", "WEIGHTS_NAME", "Absent", "Batch", "Channels", "CheckpointError",
     "Policy", "PolicyConfig", "Processor", "StudentPolicy", "StudentProcessor", "load_weights",
-    "resolve_pretrained", "uniform",
+    "uniform",
 ]
 
 
@@ -297,7 +297,7 @@ class StudentPolicy(nn.Module):
         Raises:
             CheckpointError: a malformed, oversized or mismatched file (named).
         """
-        directory = resolve_pretrained(path_or_repo_id, revision)
+        directory = resolve_pretrained(path_or_repo_id, revision, policy_class=lambda _: cls)
         config = PolicyConfig.load(directory)
         if not isinstance(config, cls.config_class):
             raise TypeError(f"{directory} holds a {config.type!r} policy, not {cls.__name__}")

@@ -9,8 +9,8 @@ must match that model (:func:`check_safetensors`). Every failure is a one-line
 
 A LeRobot checkpoint of ``--policy.type=msta`` (lerobot-train's ``pretrained_model/``, or
 ``python -m lerobot_policy_msta.convert``'s output) loads wherever an msta checkpoint does:
-its ``config.json`` reads as the msta config it holds (:func:`read_json_file`), and
-:func:`resolve_pretrained` gives an msta checkpoint made from it (:mod:`msta.policies.lerobot_checkpoint`).
+:func:`msta.policies.resolve.resolve_pretrained` gives an msta checkpoint made from it
+(:mod:`msta.policies.lerobot_checkpoint`).
 """
 
 from __future__ import annotations
@@ -55,14 +55,12 @@ class CheckpointError(ValueError):
     """A checkpoint file is missing, unreadable, malformed or too large (file named)."""
 
 
-def read_json_file(path: Path, limit: int | None = None, raw: bool = False) -> Any:
+def read_json_file(path: Path, limit: int | None = None) -> Any:
     """Parse a checkpoint JSON file with a size limit; errors name the file.
 
     Args:
         path: the file.
         limit: largest accepted size in bytes (default: ``MAX_JSON_BYTES`` by file name).
-        raw: the file as it is; otherwise the ``config.json`` of a LeRobot checkpoint reads
-            as the msta config it holds (:func:`msta.policies.lerobot_checkpoint.msta_config_dict`).
     """
     limit = limit or MAX_JSON_BYTES.get(path.name, 1 << 20)
     if not path.is_file():
@@ -74,11 +72,6 @@ def read_json_file(path: Path, limit: int | None = None, raw: bool = False) -> A
         data = json.loads(path.read_bytes())
     except (ValueError, UnicodeDecodeError) as e:
         raise CheckpointError(f"{path}: not valid JSON ({e})") from None
-    if not raw and path.name == CONFIG_NAME and isinstance(data, dict):
-        from msta.policies.lerobot_checkpoint import is_lerobot_checkpoint, msta_config_dict
-
-        if is_lerobot_checkpoint(path.parent):
-            return msta_config_dict(data, path)
     return data
 
 
@@ -149,25 +142,13 @@ def load_weights(module: nn.Module, path: Path) -> None:
                               f"{str(e).splitlines()[0] if str(e) else ''})") from None
 
 
-def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None) -> Path:
-    """A local checkpoint directory for ``path_or_repo_id`` (``msta.data.locate``, the one
-    path-or-hub-id resolver).
+LEROBOT_PREPROCESSOR = "policy_preprocessor.json"
 
-    Args:
-        path_or_repo_id: a local directory, or a hub id ``user/name[@revision]`` pulled
-            (once per commit, hash-verified) through ``msta.data.hub_pull.materialize`` from
-            ``HF_ENDPOINT``.
-        revision: hub revision (branch, tag or commit) when the id carries none.
 
-    Returns:
-        the directory; for a LeRobot msta checkpoint, an msta checkpoint made from it
-        (:func:`msta.policies.lerobot_checkpoint.as_msta_checkpoint`).
+LEROBOT_POSTPROCESSOR = "policy_postprocessor.json"
 
-    Raises:
-        FileNotFoundError: no such directory, or a file (path named).
-        CheckpointError: a LeRobot checkpoint of another policy type, or a malformed one.
-    """
-    from msta.data.locate import locate_checkpoint  # the hub client loads only when used
-    from msta.policies.lerobot_checkpoint import as_msta_checkpoint
 
-    return as_msta_checkpoint(locate_checkpoint(str(path_or_repo_id), "checkpoint", revision))
+def is_lerobot_checkpoint(directory: Path) -> bool:
+    """Whether ``directory`` holds a LeRobot policy checkpoint (and not msta's files)."""
+    return (directory / LEROBOT_PREPROCESSOR).is_file() and \
+        not (directory / PROCESSOR_NAME).is_file()

@@ -18,7 +18,12 @@ from typing import Any, ClassVar, Self
 import draccus
 
 from msta.data import sensors
-from msta.policies.checkpoint import CONFIG_NAME, CheckpointError, read_json_file
+from msta.policies.checkpoint import (
+    CONFIG_NAME,
+    CheckpointError,
+    is_lerobot_checkpoint,
+    read_json_file,
+)
 
 
 def check_positive(**values: float) -> None:
@@ -146,6 +151,9 @@ class PolicyConfig(draccus.ChoiceRegistry):
         path = Path(directory) / CONFIG_NAME
         if not path.is_file():
             raise FileNotFoundError(f"no {CONFIG_NAME} in {directory}")
+        if is_lerobot_checkpoint(path.parent):
+            raise CheckpointError(f"{directory} is a LeRobot checkpoint: read its config with "
+                                  "msta.policies.factory.load_config")
         data = read_json_file(path)
         if not isinstance(data, dict):
             raise CheckpointError(f"{path}: expected a JSON object, got {type(data).__name__}")

@@ -63,6 +63,8 @@ from msta.policies.export_removal import (
     removal_spec,
     trace_masks,
 )
+from msta.policies.factory import get_policy_class, load_policy
+from msta.policies.resolve import resolve_pretrained
 
 __all__ = [
     "ABSENT_PREFIX", "DEFAULT_TOLERANCE", "FORMAT", "MINIMIZED_HISTORY", "MINIMIZED_SENSORS", "DeployedStudent",
@@ -402,10 +404,7 @@ def training_dataset(checkpoint: Path) -> str | None:
 
 
 def run(cfg: ExportConfig) -> dict[str, Any]:
-    from msta.policies.checkpoint import resolve_pretrained
-    from msta.policies.factory import load_policy
-
-    directory = Path(resolve_pretrained(cfg.policy, cfg.revision))
+    directory = Path(resolve_pretrained(cfg.policy, cfg.revision, policy_class=get_policy_class))
     policy = load_policy(directory)
     names = resolve_sensors(policy, cfg.sensors)
     T = cfg.history or (MINIMIZED_HISTORY if cfg.sensors == "minimized" else policy.config.history)

@@ -21,7 +21,8 @@ from typing import Any
 
 import torch
 
-from msta.policies.base import PolicyConfig, StudentPolicy, resolve_pretrained
+from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.resolve import resolve_pretrained
 
 #: Packages whose modules hold the built-in students (imported, recursively, on first use).
 BUILTIN_PACKAGES: tuple[str, ...] = ("msta.policies.msta", "msta.policies.baselines")
@@ -180,8 +181,14 @@ def load_policy(
     Raises:
         CheckpointError: a malformed, oversized or mismatched file (named).
     """
-    directory = resolve_pretrained(path_or_repo_id, revision)
+    directory = resolve_pretrained(path_or_repo_id, revision, policy_class=get_policy_class)
     _import_builtins()
     cfg = PolicyConfig.load(directory)
     return get_policy_class(cfg.type).from_pretrained(directory, device=device,
                                                       max_params=max_params)
+
+
+def load_config(directory: str | Path) -> PolicyConfig:
+    """The student config a local checkpoint directory holds, a LeRobot msta checkpoint's
+    included (its msta fields); every error names the file."""
+    return PolicyConfig.load(resolve_pretrained(directory, policy_class=get_policy_class))

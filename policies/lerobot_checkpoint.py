@@ -29,6 +29,7 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
@@ -39,15 +40,17 @@ from safetensors.torch import load_file
 from msta.data import sensors
 from msta.policies.checkpoint import (
     CONFIG_NAME,
+    LEROBOT_POSTPROCESSOR,
+    LEROBOT_PREPROCESSOR,
     MAX_JSON_BYTES,
     PROCESSOR_NAME,
     WEIGHTS_NAME,
     CheckpointError,
+    is_lerobot_checkpoint,
     read_json_file,
 )
+from msta.policies.config import PolicyConfig
 
-LEROBOT_PREPROCESSOR = "policy_preprocessor.json"
-LEROBOT_POSTPROCESSOR = "policy_postprocessor.json"
 #: lerobot-train's run directory keeps the last checkpoint here.
 LEROBOT_LAST = Path("checkpoints") / "last" / "pretrained_model"
 #: Files of a LeRobot checkpoint the msta checkpoint made from it does not take over.
@@ -56,18 +59,13 @@ _NOT_LINKED = {CONFIG_NAME, PROCESSOR_NAME, "train_config.json"}
 _MADE: dict[tuple[str, tuple[tuple[str, int, int], ...]], Path] = {}
 
 
-def is_lerobot_checkpoint(directory: Path) -> bool:
-    """Whether ``directory`` holds a LeRobot policy checkpoint (and not msta's files)."""
-    return (directory / LEROBOT_PREPROCESSOR).is_file() and \
-        not (directory / PROCESSOR_NAME).is_file()
-
-
-def msta_config_dict(data: dict[str, Any], path: Path) -> dict[str, Any]:
+def msta_config_dict(data: dict[str, Any], path: Path, config_class: type) -> dict[str, Any]:
     """The msta config a LeRobot checkpoint's ``config.json`` holds: its msta fields.
 
     Args:
         data: the parsed file.
         path: the file (for messages).
+        config_class: msta's config class of the student (its fields are kept).
 
     Raises:
         CheckpointError: the checkpoint is of another LeRobot policy type.
@@ -77,9 +75,7 @@ def msta_config_dict(data: dict[str, Any], path: Path) -> dict[str, Any]:
         raise CheckpointError(f"{path.parent} is a LeRobot {kind!r} policy checkpoint; msta's "
                               "tools load msta students (LeRobot checkpoints of "
                               "--policy.type=msta load as they are)")
-    from msta.policies.factory import get_config_class
-
-    names = {f.name for f in fields(get_config_class("msta"))}
+    names = {f.name for f in fields(config_class)}
     return {"type": "msta", **{k: v for k, v in data.items() if k in names}}
 
 
@@ -114,11 +110,12 @@ def _step_stats(directory: Path, pipeline: str, step_name: str, key: str, dim: i
     return out
 
 
-def msta_stats(directory: Path) -> dict[str, dict[str, list[float]]]:
+def msta_stats(directory: Path, config_class: type) -> dict[str, dict[str, list[float]]]:
     """msta's per-sensor (and action) statistics of a LeRobot msta checkpoint: the input
-    sensors' slices of the ``observation.state`` normalizer, the action unnormalizer's."""
-    raw = read_json_file(directory / CONFIG_NAME, raw=True)
-    config = msta_config_dict(raw, directory / CONFIG_NAME)
+    sensors' slices of the ``observation.state`` normalizer, the action unnormalizer's
+    (``config_class``: as :func:`msta_config_dict`'s)."""
+    raw = read_json_file(directory / CONFIG_NAME)
+    config = msta_config_dict(raw, directory / CONFIG_NAME, config_class)
     layout = raw.get("state_sensors", sensors.STUDENT_SENSORS)
     try:
         dims = {name: sensors.get(name).dim for name in layout}
@@ -148,9 +145,15 @@ def _signature(directory: Path) -> tuple[tuple[str, int, int], ...]:
                  for f in sorted(directory.iterdir()) if f.is_file())
 
 
-def as_msta_checkpoint(directory: Path) -> Path:
+def as_msta_checkpoint(directory: Path, policy_class: Callable[[str], Any]) -> Path:
     """``directory`` itself, or for a LeRobot msta checkpoint the msta checkpoint made from
     it (module docstring; made once per process, deleted at exit).
+
+    Args:
+        directory: a checkpoint directory.
+        policy_class: policy name -> the registered student class (its ``config_class`` and
+            ``processor_class`` read a LeRobot checkpoint; :func:`msta.policies.factory
+            .get_policy_class`).
 
     Raises:
         CheckpointError: a LeRobot checkpoint of another policy type or with missing or
@@ -165,12 +168,16 @@ def as_msta_checkpoint(directory: Path) -> Path:
     key = (str(directory.resolve()), _signature(directory))
     if key in _MADE and _MADE[key].is_dir():
         return _MADE[key]
-    from msta.policies.base import PolicyConfig
-    from msta.policies.factory import get_policy_class
-
-    config = PolicyConfig.load(directory)  # its msta fields (msta_config_dict)
-    processor = get_policy_class(config.type).processor_class.from_stats(
-        config, msta_stats(directory))
+    path = directory / CONFIG_NAME
+    raw = read_json_file(path)
+    if not isinstance(raw, dict):
+        raise CheckpointError(f"{path}: expected a JSON object, got {type(raw).__name__}")
+    cls = policy_class("msta")  # msta_config_dict refuses the other types
+    try:
+        config = PolicyConfig.from_dict(msta_config_dict(raw, path, cls.config_class))
+    except (ValueError, TypeError, KeyError) as e:
+        raise CheckpointError(f"{path}: {e}") from None
+    processor = cls.processor_class.from_stats(config, msta_stats(directory, cls.config_class))
     parent = Path(tempfile.mkdtemp(prefix="msta-lerobot-"))
     atexit.register(shutil.rmtree, parent, ignore_errors=True)
     out = parent / directory.name

@@ -20,10 +20,10 @@ from msta.data.windows import WindowDataset
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.eval.evaluate import main as eval_main
 from msta.policies.base import PolicyConfig
-from msta.policies.checkpoint import CheckpointError
+from msta.policies.checkpoint import LEROBOT_PREPROCESSOR, CheckpointError
 from msta.policies.export import main as export_main
-from msta.policies.factory import get_policy_class, load_policy
-from msta.policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, as_msta_checkpoint
+from msta.policies.factory import get_policy_class, load_config, load_policy
+from msta.policies.lerobot_checkpoint import as_msta_checkpoint
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.guard import main as guard_main
 
@@ -50,15 +50,17 @@ def ckpts(recorded, tmp_path_factory) -> tuple[Path, Path]:
 def test_msta_loaders_read_a_lerobot_checkpoint(ckpts, recorded):
     native, lerobot = ckpts
     assert LEROBOT_PREPROCESSOR == f"{POLICY_PREPROCESSOR_DEFAULT_NAME}.json"
-    assert PolicyConfig.load(lerobot) == PolicyConfig.load(native)  # msta's fields only
+    assert load_config(lerobot) == PolicyConfig.load(native)  # msta's fields only
+    with pytest.raises(CheckpointError, match="is a LeRobot checkpoint: read its config with"):
+        PolicyConfig.load(lerobot)
     batch = WindowDataset(recorded, STUDENT_SENSORS, T=4).get_batch(np.arange(0, 200, 3))
     torch.manual_seed(0)
     want = load_policy(native).act(batch)
     for policy in (load_policy(lerobot), get_policy_class("msta").from_pretrained(lerobot)):
         torch.manual_seed(0)
         assert torch.equal(policy.act(batch), want)
-    made = as_msta_checkpoint(lerobot)
-    assert as_msta_checkpoint(lerobot) == made and made != lerobot  # made once per process
+    made = as_msta_checkpoint(lerobot, get_policy_class)
+    assert as_msta_checkpoint(lerobot, get_policy_class) == made and made != lerobot  # made once per process
     assert (made / "model.safetensors").resolve() == (lerobot / "model.safetensors").resolve()
     assert (made / "guard.json").is_file() and (made / "processor.json").is_file()
 
@@ -144,4 +146,4 @@ def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.startswith("msta-eval: error: ") and "\n" not in err and message in err
     with pytest.raises(CheckpointError, match="LeRobot 'act' policy"):
-        PolicyConfig.load(tmp_path / "act")  # msta-correct / msta-finetune read it first
+        load_config(tmp_path / "act")  # msta-correct / msta-finetune read it first

@@ -16,7 +16,7 @@ import pytest
 import ray
 
 from msta.collect import ray_pool
-from msta.collect.distributed import slot_tiles
+from msta.collect.ray_record import slot_tiles
 from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig

@@ -17,6 +17,10 @@ OPTIMIZERS = ("adamw", "muon")
 #: The stage-2 training mask ratio when ``--mask_ratio`` is not given (the paper's; stage 1
 #: trains at the policy config's ratio, 0.75 for MSTA).
 STAGE2_MASK_RATIO = 0.5
+#: The test-time mask ratios a masked student's stage-2 rollouts drive at, spread over its
+#: robots: half with every token, half at the stage-2 ratio, so the rounds label the states
+#: a test at 50 % reaches (the recipe of the demo, the study and the device check).
+STAGE2_ROLLOUT_MASK_RATIOS: tuple[float, ...] = (0.0, STAGE2_MASK_RATIO)
 
 
 def training_mask_ratio(requested: float | None, policy_ratio: float, stage: int = 1) -> float:

@@ -18,10 +18,12 @@ from typing import TYPE_CHECKING, Any
 
 import torch
 
-from msta.eval.evaluator import Evaluator, student_entry, torch_eval_settings
+from msta.eval.evaluator import Evaluator, student_entry
 from msta.eval.metrics import HEADLINE_FIGURES, headline
-from msta.eval.report import CI_NOTE, SHORT_TERRAIN, fmt_cell, identical_groups, identical_line
+from msta.eval.report import CI_NOTE, identical_groups, identical_line
+from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
 from msta.eval.scenarios import ScenarioContext, TrialConfig, get_scenario
+from msta.eval.trial_env import torch_eval_settings
 from msta.policies.teacher.config import TeacherConfig
 
 if TYPE_CHECKING:

@@ -46,8 +46,9 @@ from msta.data.cli import check_at_least
 from msta.data.features import load_info
 from msta.data.locate import locate_checkpoint
 from msta.data.stats import load_stats
-from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.base import StudentPolicy
 from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
+from msta.policies.factory import load_config
 from msta.policies.msta import MSTAPolicy
 from msta.train import online
 from msta.train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, Progress, correct
@@ -166,7 +167,7 @@ def check_source(cfg: FinetuneConfig) -> tuple[Path, tuple[str, ...]]:
     """(starting checkpoint, the fine-tuned student's inputs): the one-line errors about the
     checkpoint come before output_dir is touched."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")
-    config = PolicyConfig.load(ckpt)
+    config = load_config(ckpt)
     if config.type != "msta":  # the baselines have no transformer to freeze
         raise ValueError(f"{ckpt} holds a {config.type!r} student; msta-finetune trains the "
                          "token embeddings of a frozen MSTA transformer, which the baselines "
@@ -199,7 +200,7 @@ class Preparation:
 
     def __init__(self, cfg: FinetuneConfig, source: Path, sensors: tuple[str, ...]) -> None:
         self.cfg, self.source, self.sensors = cfg, source, sensors
-        self.added = [s for s in sensors if s not in PolicyConfig.load(source).input_sensors]
+        self.added = [s for s in sensors if s not in load_config(source).input_sensors]
         self.record: dict[str, Any] | None = None
 
     def __call__(self, policy: StudentPolicy, root: Path) -> StudentPolicy:

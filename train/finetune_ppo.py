@@ -54,10 +54,10 @@ from msta.data.locate import locate_checkpoint
 from msta.data.locking import hold_directory
 from msta.data.stats import load_stats
 from msta.policies.actor import StudentActor
-from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.base import StudentPolicy
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
-from msta.policies.factory import load_policy
+from msta.policies.factory import load_config, load_policy
 from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.rma import RMAConfig
 from msta.train.finetune import freeze, module_of, sensor_names, trainable_modules
@@ -342,7 +342,7 @@ def prepare_start(cfg: FinetunePPOConfig, out: Path) -> tuple[Path, dict[str, An
     """``out/start/``: the source restricted to the chosen inputs and T (written once;
     a resumed run reuses it); returns it and the finetune.json record."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")
-    config = PolicyConfig.load(ckpt)
+    config = load_config(ckpt)
     if config.type != "msta":
         raise ValueError(f"{ckpt} holds a {config.type!r} student; msta-finetune-ppo trains the "
                          "token embeddings of a frozen MSTA transformer, which the baselines "

@@ -17,7 +17,7 @@ from tqdm import tqdm
 from msta.data.budget import TimeLimitReached, passed
 from msta.data.windows import WindowDataset
 from msta.policies.base import CheckpointError, StudentPolicy
-from msta.train.config import LoopConfig, training_mask_ratio
+from msta.train.config import LoopConfig
 from msta.train.distributed import FitJob, Group, current, join, launched, leave
 from msta.train.optim import make_optimizer, make_scheduler
 from msta.train.sampling import WindowSampler
@@ -168,7 +168,10 @@ def _start(policy: StudentPolicy, n: int, cfg: LoopConfig, out: Path, resume: bo
            weights: np.ndarray | None, group: Group | None = None) -> _Run:
     """Optimizer, schedule, sampler, mask generator and weight average, restored from
     ``out/checkpoints/last`` when resuming (by every rank of a torchrun job)."""
-    mask_ratio = training_mask_ratio(cfg.mask_ratio, policy.config.mask_ratio)
+    if cfg.mask_ratio is None:
+        raise ValueError("fit needs the mask ratio it trains at: resolve it with "
+                         "msta.train.config.training_mask_ratio first")
+    mask_ratio = cfg.mask_ratio
     if cfg.sensor_dropout and not policy.supports_absent:
         raise ValueError(f"--sensor_dropout needs a student that removes channels per sample; "
                          f"{policy.config.type} cannot")
@@ -236,11 +239,11 @@ def fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConfi
 
     Args:
         policy: the student, already on its device (trained in place; its config is left
-            as it is: the mask ratio trained at is :func:`msta.train.config.training_mask_ratio`
-            of ``cfg.mask_ratio`` and the config's).
+            as it is).
         train_ds: a ``WindowDataset`` whose batches carry the action target.
         val_ds: validation windows, or None.
-        cfg: optimizer, schedule, logging and checkpoint settings.
+        cfg: optimizer, schedule, logging and checkpoint settings; ``mask_ratio`` resolved
+            (:func:`msta.train.config.training_mask_ratio`, by the stage that calls).
         out: run directory (metrics, TensorBoard, checkpoints).
         resume: continue from ``out/checkpoints/last`` when it exists.
         weights: optional per-window sampling weights (stage 2 favours recent rounds).

@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import draccus
@@ -181,8 +181,8 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     print(f"dataset {root}: {len(train_eps)} train episodes ({len(train_ds):,} windows), "
           f"{len(val_eps)} validation; {cfg.policy.type} policy with {n_params:,} parameters "
           f"on {device}, {torch.get_num_threads()} threads")
-    res = fit(policy, train_ds, val_ds, cfg.loop_part(), out, resuming, on_step=on_step,
-              deadline=deadline)
+    res = fit(policy, train_ds, val_ds, replace(cfg.loop_part(), mask_ratio=policy.config.mask_ratio),
+              out, resuming, on_step=on_step, deadline=deadline)
     final = policy.save_pretrained(out / "final")
     shutil.copy(out / "train_config.json", final / "train_config.json")
     val = ", ".join(f"val {k} {v:.4g}" for k, v in res.val.items())

@@ -45,7 +45,7 @@ import numpy as np
 import torch
 
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
-from msta.collect.record import LabelledActor, record_rollouts
+from msta.collect.recorder import LabelledActor, record_rollouts
 from msta.collect.sim.env import EnvConfig, QuadrupedEnv
 from msta.collect.sim.env_config import check_sizes
 from msta.data.budget import TimeLimitReached, check_deadline, deadline_after, stop

@@ -1,7 +1,7 @@
 """Stage 2's rollouts on Ray workers (msta-correct / msta-finetune ``--workers``).
 
 A round's student episodes are recorded in blocks of ``--num_envs`` slots
-(:mod:`msta.collect.distributed`): slot k of round r draws everything random from its own stream
+(:mod:`msta.collect.ray_record`): slot k of round r draws everything random from its own stream
 keyed by (``env.seed + 1000 r``, k) on its own tile; the block's student masks, DAgger coin
 flips and teacher are seeded by (round, block). Workers drive with the student (on their CPU)
 and label with the teacher; this process gathers the episodes in slot order, and
@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from msta.collect.distributed import RecordJob, record_on_workers
 from msta.collect.ray_pool import RayOptions, block_seed, check_ray_options, shared_pool
-from msta.collect.record import LabelledActor
+from msta.collect.ray_record import RecordJob, record_on_workers
+from msta.collect.recorder import LabelledActor
 from msta.policies.actor import InputSpec, mask_split_actor
 from msta.policies.base import StudentPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher

@@ -35,7 +35,7 @@ import draccus
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_checkpoint, locate_dataset
 from msta.data.windows import load_episode_table
-from msta.policies.base import PolicyConfig
+from msta.policies.factory import load_config
 from msta.policies.teacher.config import teacher_revision
 from msta.train.state import atomic_json
 
@@ -202,7 +202,7 @@ def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, dataset root), both checked before output_dir is touched; a
     hub dataset is appended to through a copy in output_dir (:func:`own_dataset`)."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
-    PolicyConfig.load(ckpt)  # fails early, naming the directory, before output_dir is touched
+    load_config(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
     if local.is_dir():  # a hub dataset copied by an earlier run
         return ckpt, local

@@ -42,7 +42,7 @@ from msta.eval.apps.phases import Progress
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import get_config_class, registered_policies
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.config import check_optimizer
+from msta.train.config import STAGE2_MASK_RATIO, check_optimizer
 from msta.train.loop import rank0_runs
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
@@ -126,7 +126,7 @@ class CompareConfig:
     episodes_per_round: int = 16
     stage2_episode_length_s: float = 10.0
     stage2_num_envs: int = 0
-    stage2_mask_ratio: float = 0.5
+    stage2_mask_ratio: float = STAGE2_MASK_RATIO
     stage2_rollout_mask_ratios: tuple[float, ...] = ()
     optimizer: str = "adamw"
     batch_size: int = 64

@@ -39,7 +39,9 @@ from pathlib import Path
 from msta.collect.sim.env import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.cli import check_at_least
-from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
@@ -93,7 +95,7 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
-               mask: float = 0.75, **loop: float) -> Path:
+               mask: float = MSTAConfig.mask_ratio, **loop: float) -> Path:
     from msta.policies.msta import MSTAConfig
     from msta.train.offline import TrainConfig, train
 
@@ -108,7 +110,8 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
 
 
 def start_hub(out: Path):
-    from msta.data.hub_server.server import HubServer, ServerConfig
+    from msta.data.hub_server.app import ServerConfig
+    from msta.data.hub_server.server import HubServer
 
     server = HubServer(ServerConfig(root=str(out / "hub"), host="127.0.0.1", port=0,
                                     tokens=[f"{HUB_USER}:{HUB_SECRET}"]))
@@ -303,12 +306,12 @@ class DemoConfig:
     action_noise: float = 0.5
     history: int = 4
     train_steps: int = 4000
-    train_mask_ratio: float = 0.75
+    train_mask_ratio: float = MSTAConfig.mask_ratio
     rounds: int = 7
     correct_steps: int = 1300
     correct_episodes: int = 32
-    correct_mask_ratio: float = 0.5
-    rollout_mask_ratios: tuple[float, ...] = (0.0, 0.5)
+    correct_mask_ratio: float = STAGE2_MASK_RATIO
+    rollout_mask_ratios: tuple[float, ...] = STAGE2_ROLLOUT_MASK_RATIOS
     sensor_dropout: float = 0.0
     unmasked_share: float = 0.0
     select_trials: int = 0
@@ -318,8 +321,7 @@ class DemoConfig:
     eval_trials: int = 100
     eval_episode_length_s: float = 5.0
     num_threads: int = 2
-    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(
-        type="rma", path=str(SHIPPED_RMA_PPO)))
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
 
     def __post_init__(self) -> None:
         check_at_least(self, 1, "episodes", "history", "train_steps", "correct_steps", "correct_episodes",

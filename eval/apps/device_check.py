@@ -37,6 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
+
 #: scale -> (episodes, episode s, gpu steps, cpu steps, batch, round episodes, round steps,
 #: eval trials, eval episode s, preset)
 SCALES: dict[str, tuple[int, float, int, int, int, int, int, int, float, str]] = {
@@ -122,7 +124,7 @@ def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
 
 def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps: int,
            batch: int, seconds: float) -> tuple[Path, dict[str, Any]]:
-    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.policies.teacher.config import TeacherConfig
     from msta.train.online import CorrectConfig, PolicyPath, RoundEvalConfig, correct
 
     copy = out.parent / "stage2_dataset"
@@ -130,8 +132,8 @@ def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps:
     correct(CorrectConfig(
         policy=PolicyPath(str(ckpt)), dataset=str(copy), output_dir=str(out), rounds=1,
         episodes_per_round=episodes, num_envs=min(episodes, 64), episode_length_s=seconds,
-        steps=steps, batch_size=batch, lr=1e-3, beta=0.0, mask_ratio=0.5,
-        teacher=TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO)), rollout_mask_ratios=(0.0, 0.5),
+        steps=steps, batch_size=batch, lr=1e-3, beta=0.0, mask_ratio=STAGE2_MASK_RATIO,
+        teacher=TeacherConfig(), rollout_mask_ratios=STAGE2_ROLLOUT_MASK_RATIOS,
         warmup_steps=min(20, max(steps // 5, 1)), eval_every=steps, save_every=steps,
         eval=RoundEvalConfig(enabled=False), device=device, progress=False))
     rounds = json.loads((out / "progress.json").read_text())["rounds"]
@@ -142,12 +144,12 @@ def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps:
 def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
                      seconds: float) -> dict[str, Any]:
     from msta.eval.evaluate import EvalConfig, evaluate
-    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.policies.teacher.config import TeacherConfig
 
     metrics = evaluate(EvalConfig(
         policies=f"teacher,{ckpt}", suite="quick", scenarios="token_removal", output_dir=str(out),
         trials=trials, levels="0,1,2", episode_length_s=seconds, device=device,
-        teacher=TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO)), progress=False))
+        teacher=TeacherConfig(), progress=False))
     rows = {}
     for run in metrics["runs"]:
         if run["policy"] == "teacher" or run.get("status") != "ok":
@@ -192,7 +194,7 @@ def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     """Every stage; returns (and writes) the figures."""
     from msta.eval.apps.demo import easy_terrain_dataset
     from msta.policies.factory import select_device
-    from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
+    from msta.policies.teacher.config import TeacherConfig
 
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
@@ -204,7 +206,7 @@ def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     figs: dict[str, Any] = {"machine": machine(), "device": main, "scale": cfg.scale,
                             "threads": torch.get_num_threads()}
     print(f"[device-check] {json.dumps(figs['machine'])}; main device {main}", flush=True)
-    teacher = TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))
+    teacher = TeacherConfig()
     root = timed(figs, "dataset", easy_terrain_dataset, out / "dataset", eps, ep_s,
                  "check/a1_teacher", teacher, 0.5)
     ckpt = timed(figs, f"stage 1 on {main}", stage1, root, out / "stage1", main, steps, batch,

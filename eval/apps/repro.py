@@ -68,8 +68,8 @@ from msta.eval.apps.compare import (
     train_policy,
 )
 from msta.policies.factory import select_device
-from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig
-from msta.train.config import check_optimizer
+from msta.policies.teacher.config import TeacherConfig
+from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS, check_optimizer
 
 PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).
@@ -122,9 +122,6 @@ SCALES: dict[str, Scale] = {
 }
 #: Fields that must match output_dir/repro_config.json when a run is continued.
 RUN_FIELDS = ("scale", "policies", "teacher", "optimizer", "seed")
-#: Test-time masks of the stage-2 rollouts of students trained with masking (the demo's
-#: recipe: half of the robots drive with half of their tokens removed).
-ROLLOUT_MASKS = (0.0, 0.5)
 #: The harder levels the main students (and the teacher) are also evaluated at.
 HARD_LEVELS = "3,4"
 
@@ -161,8 +158,7 @@ class ReproConfig:
     output_dir: str = "outputs/repro"
     report_dir: str = ""
     policies: str = ""
-    teacher: TeacherConfig = field(default_factory=lambda: TeacherConfig(
-        type="rma", path=str(SHIPPED_RMA_PPO)))
+    teacher: TeacherConfig = field(default_factory=TeacherConfig)
     optimizer: str = "adamw"
     heatmap: bool = True
     seed: int = 0
@@ -203,7 +199,7 @@ def compare_config(cfg: ReproConfig, root: Path) -> CompareConfig:
         stage2_steps=s.stage2_steps, episodes_per_round=s.episodes_per_round,
         stage2_episode_length_s=s.stage2_episode_length_s,
         stage2_num_envs=min(s.episodes_per_round, 32), batch_size=s.batch_size,
-        stage2_rollout_mask_ratios=ROLLOUT_MASKS, optimizer=cfg.optimizer,
+        stage2_rollout_mask_ratios=STAGE2_ROLLOUT_MASK_RATIOS, optimizer=cfg.optimizer,
         output_dir=str(Path(cfg.output_dir) / "compare"), seed=cfg.seed,
         num_threads=cfg.num_threads, progress=cfg.progress)
 

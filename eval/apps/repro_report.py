@@ -14,7 +14,9 @@ from typing import Any
 from msta.data.figures import fmt as _fmt
 from msta.eval.apps.compare import paper_table
 from msta.eval.metrics import headline
-from msta.eval.report import fmt_cell, table_one
+from msta.eval.report import table_one
+from msta.eval.report_cells import fmt_cell
+from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS
 
 #: (figure name in msta.eval.metrics.headline, column title)
 FIGURES = (("lin_tracking_vs_teacher", "lin. tracking vs teacher"), ("survival", "survival"),
@@ -155,8 +157,6 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
                  machine: str, out: Path) -> Path:
     """``out/report.md`` from the evaluations (``table1``, and ``msta`` / ``heatmap`` when
     MSTA was in the study)."""
-    from msta.eval.apps.repro import ROLLOUT_MASKS
-
     t1, msta, heat = evals["table1"], evals.get("msta"), evals.get("heatmap")
     ec = t1["config"]
     students = [p["name"] for p in t1["policies"] if p["kind"] == "student"]
@@ -170,7 +170,7 @@ def write_report(cfg: Any, evals: dict[str, dict], command: str, timing: dict[st
         f"{cfg.msta_window}; stage 1 {s.stage1_steps} steps x "
         f"{s.batch_size}; stage 2 {s.stage2_rounds} rounds x {s.episodes_per_round} episodes "
         f"+ {s.stage2_steps} steps (MSTA's masks 0.75 / 0.5; rollouts of masked students at "
-        f"test masks {' / '.join(f'{m:g}' for m in ROLLOUT_MASKS)}); optimizer "
+        f"test masks {' / '.join(f'{m:g}' for m in STAGE2_ROLLOUT_MASK_RATIOS)}); optimizer "
         f"`{cfg.optimizer}`. Evaluation: {ec['trials']} "
         f"trials of {ec['episode_length_s']:g} s per (policy, condition) over "
         f"{', '.join(ec['terrains'])} at levels {ec['levels']}, seed {ec['seed']}; every "

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta.collect.distributed import RecordJob, record_block, teacher_factory
+from msta.collect.ray_record import RecordJob, record_block, teacher_factory
 from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env import EnvConfig, QuadrupedEnv
 from msta.data.cli import parse_config

@@ -21,7 +21,7 @@ from msta.data.hub_server.storage import (
 )
 
 if TYPE_CHECKING:
-    from msta.data.hub_server.server import HubApp
+    from msta.data.hub_server.app import HubApp
 
 REPO = r"/api/(?P<type>models|datasets)/(?P<ns>[^/]+)/(?P<name>[^/]+)"
 REV = r"(?P<rev>[^/]+)"

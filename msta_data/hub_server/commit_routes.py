@@ -18,7 +18,7 @@ from msta.data.hub_server.protocol import HttpError, Request, Response, Route, r
 from msta.data.hub_server.storage import FileEntry, RepoMeta, git_blob_sha1, lfs_pointer
 
 if TYPE_CHECKING:
-    from msta.data.hub_server.server import HubApp
+    from msta.data.hub_server.app import HubApp
 
 
 def preupload(app: HubApp, req: Request) -> Response:

@@ -43,7 +43,7 @@ from msta.data.hub_server.protocol import (
 from msta.data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
-    from msta.data.hub_server.server import HubApp
+    from msta.data.hub_server.app import HubApp
 
 logger = logging.getLogger("msta.data.hub_server")
 _TICKET_PATH = re.compile(r"^/lfs/(upload|verify)/[^/]*")

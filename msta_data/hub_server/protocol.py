@@ -18,7 +18,6 @@ from msta.data.hub_server.storage import StoreError
 
 if TYPE_CHECKING:
     from msta.data.hub_server.connections import SocketInput
-    from msta.data.hub_server.server import HubApp
 
 CHUNK = 1 << 20
 MIN_UPLOAD_RATE = 1024  # bytes/s a body must average once its first read_timeout_s is over
@@ -290,7 +289,8 @@ class Response:
     content_type: str = "application/json"
 
 
-Endpoint = Callable[["HubApp", Request], Response]
+#: an endpoint: (the server's HubApp, the request) -> the answer
+Endpoint = Callable[[Any, Request], Response]
 BODY_KINDS = ("json", "commit", "upload")
 
 

@@ -5,78 +5,16 @@ from __future__ import annotations
 import logging
 import sys
 import threading
-from dataclasses import dataclass, field
 from http.server import ThreadingHTTPServer
-from pathlib import Path
 from typing import Any, Self
 
 from msta.data.hub_server import api, commit_routes, files
-from msta.data.hub_server.auth import AuthConfig, read_token_file
+from msta.data.hub_server.app import HubApp, ServerConfig
 from msta.data.hub_server.connections import Admission
 from msta.data.hub_server.handler import HubHandler
-from msta.data.hub_server.protocol import Limits, Route
-from msta.data.hub_server.storage import Storage
+from msta.data.hub_server.protocol import Limits
 
 logger = logging.getLogger("msta.data.hub_server")
-
-
-@dataclass
-class ServerConfig:
-    """Settings of ``msta-hub serve``.
-
-    Args:
-        root: directory holding all repos, commits and blobs (created when missing).
-        host: interface to bind; loopback unless you mean to serve a network.
-        port: TCP port; 0 picks a free one.
-        tokens: ``NAME:SECRET`` entries; each secret authenticates user NAME.
-        token_file: file with one ``NAME:SECRET`` a line (keeps secrets out of the process list).
-        orgs: ``ORG:USER1,USER2`` entries; members may write in the ORG namespace.
-        lfs_threshold: files of at least this many bytes are uploaded through Git LFS; None
-            keeps every upload inline ("regular"), which works with every huggingface_hub
-            setting. LFS needs clients started with HF_HUB_DISABLE_XET=1.
-        public_url: base URL written into links (repo URLs, LFS upload URLs); by default the
-            Host header of each request.
-        limits: request size, time and connection limits (see ``Limits``; docs/security.md).
-    """
-
-    root: Path
-    host: str = "127.0.0.1"
-    port: int = 0
-    tokens: list[str] = field(default_factory=list)
-    token_file: Path | None = None
-    orgs: list[str] = field(default_factory=list)
-    lfs_threshold: int | None = None
-    public_url: str | None = None
-    limits: Limits = field(default_factory=Limits)
-
-    def __post_init__(self) -> None:
-        self.root = Path(self.root)
-        if not 0 <= self.port < 65536:
-            raise ValueError(f"port must be in [0, 65535], got {self.port}")
-        if self.lfs_threshold is not None and self.lfs_threshold < 1:
-            raise ValueError(f"lfs_threshold must be a positive byte count, got {self.lfs_threshold}")
-
-
-class HubApp:
-    """Everything a request handler needs: storage, users, LFS tickets and routes."""
-
-    def __init__(self, config: ServerConfig):
-        specs = list(config.tokens)
-        if config.token_file is not None:
-            specs += read_token_file(config.token_file)
-        self.auth = AuthConfig.from_specs(specs, config.orgs)
-        self.storage = Storage(config.root)
-        self.tickets = files.TicketBook()
-        self.limits = config.limits
-        self.lfs_threshold = config.lfs_threshold
-        self.public_url = config.public_url.rstrip("/") if config.public_url else None
-        self.routes: list[Route] = api.ROUTES + commit_routes.ROUTES + files.ROUTES
-        self.fallback_url = f"http://{config.host}:{config.port}"
-
-    def base_url(self, host_header: str | None) -> str:
-        if self.public_url:
-            return self.public_url
-        return f"http://{host_header}" if host_header else self.fallback_url
 
 
 _BUSY = (b"HTTP/1.1 503 Service Unavailable\r\nContent-Type: application/json\r\n"
@@ -130,7 +68,7 @@ class HubServer:
 
     def __init__(self, config: ServerConfig):
         self.config = config
-        self.app = HubApp(config)
+        self.app = HubApp(config, api.ROUTES + commit_routes.ROUTES + files.ROUTES)
         handler = type("BoundHubHandler", (HubHandler,),
                        {"app": self.app, "timeout": config.limits.read_timeout_s})
         try:

@@ -1,3 +1,3 @@
 """Teachers: the protocol (base.py) and the built-in implementations, registered by name."""
 
-from msta.policies.teacher import config, gait, imported, rma  # noqa: F401  (registration)
+from msta.policies.teacher import gait, imported, rma  # noqa: F401  (registration)

@@ -10,6 +10,7 @@ import numpy as np
 
 from msta.data.revision import content_revision, file_parts
 from msta.data.robot import NUM_JOINTS
+from msta.policies.teacher import gait, imported, rma  # noqa: F401  (registers them)
 from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
 
 
@@ -57,8 +58,6 @@ class TeacherConfig:
     path: str = ""
 
     def __post_init__(self) -> None:
-        import msta.policies.teacher  # noqa: F401  (registers the built-in teachers)
-
         if not self.type:
             self.type, self.path = "rma", self.path or str(SHIPPED_RMA_PPO)
         if self.type not in TEACHERS:

@@ -8,7 +8,7 @@ import os
 import numpy as np
 import pytest
 
-from msta.collect.record import LabelledActor, record_rollouts
+from msta.collect.recorder import LabelledActor, record_rollouts
 from msta.collect.rollout import fell, film, rollout, run, step_quantities
 from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
 from msta.collect.sim.randomization import RandomizationConfig

@@ -214,7 +214,7 @@ def test_eval_settings_are_restored_and_cuda_only_warns():
     failing (cuBLAS), and the caller's settings come back afterwards."""
     import torch
 
-    from msta.eval.evaluator import torch_eval_settings
+    from msta.eval.trial_env import torch_eval_settings
 
     def state():
         return (torch.are_deterministic_algorithms_enabled(),

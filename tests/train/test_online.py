@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from msta.collect.record import CollectConfig, collect, record_rollouts
+from msta.collect.record import CollectConfig, collect
+from msta.collect.recorder import record_rollouts
 from msta.collect.sim.env import EnvConfig, QuadrupedEnv
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
@@ -141,7 +142,7 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
     """One metric: msta-eval on round 2's checkpoint, over the trials msta-correct evaluated
     it on, reports the figures of msta-correct's round table and of its model card."""
     from msta.eval.evaluate import main as msta_eval
-    from msta.eval.report import fmt_cell
+    from msta.eval.report_cells import fmt_cell
     from msta.train.online import print_table
     from msta.train.push import round_eval
 

@@ -32,7 +32,7 @@ import torch
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import save_file
 
-from msta.collect.record import LabelledActor
+from msta.collect.recorder import LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import REASONS, EnvConfig
 from msta.data.cli import check_at_least, check_number

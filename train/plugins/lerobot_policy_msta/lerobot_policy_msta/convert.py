@@ -38,9 +38,13 @@ from lerobot_policy_msta.processor_msta import make_msta_pre_post_processors
 from msta.data import sensors
 from msta.data.cli import parse_config
 from msta.data.locate import locate_checkpoint
-from msta.policies.checkpoint import PROCESSOR_NAME, PolicyPath
+from msta.policies.checkpoint import (
+    LEROBOT_PREPROCESSOR,
+    PROCESSOR_NAME,
+    PolicyPath,
+    is_lerobot_checkpoint,
+)
 from msta.policies.factory import load_policy
-from msta.policies.lerobot_checkpoint import LEROBOT_PREPROCESSOR, is_lerobot_checkpoint
 from msta.policies.msta import MSTAPolicy as NativeMSTAPolicy
 
 PREPROCESSOR_FILE = LEROBOT_PREPROCESSOR  # lerobot's POLICY_PREPROCESSOR_DEFAULT_NAME + .json

@@ -32,9 +32,10 @@ from msta.collect.ray_pool import (
     plan_blocks,
     shared_pool,
 )
-from msta.collect.record import EpisodeRecorder, LabelledActor
+from msta.collect.recorder import EpisodeRecorder, LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.policies.teacher.config import build_teacher
 
 #: Salt of the per-slot tile generators (apart from the simulator's stream salts).
 TILE_SALT = 0x711E
@@ -170,7 +171,6 @@ def teacher_factory(teacher_cfg: Any, noise: float, seed: int) -> ActorFactory:
     """msta-collect's block actor: a fresh teacher (stateful ones are sized per batch)
     that drives and labels, with ``noise`` on what it executes (DART), seeded per block."""
     def make(block: int, n: int) -> LabelledActor:
-        from msta.policies.teacher.config import build_teacher
 
         return LabelledActor(build_teacher(teacher_cfg), noise=noise,
                              seed=block_seed(seed, block))
