@@ -68,7 +68,7 @@ def record_block(env: QuadrupedEnv, actor: Any, block: int, keys: np.ndarray,
 
     Args:
         env: a simulator of ``len(keys)`` environments, curriculum off, seeded by the run.
-        actor: drives and labels (a :class:`~msta.collect.record.LabelledActor`, or any policy,
+        actor: drives and labels (a :class:`~msta.collect.recorder.LabelledActor`, or any policy,
             which then labels itself).
         block: the block's index (the test hook's key).
         keys: (n,) slot indices.

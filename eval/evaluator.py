@@ -2,7 +2,7 @@
 normalizes every figure by the reference teacher on the same trials.
 
 msta-eval (:mod:`msta.eval.evaluate`) and msta-correct's per-round evaluation
-(``msta.train.evaluation``) both use it, so the same checkpoint on the same trials (and device
+(``msta.train.round_eval``) both use it, so the same checkpoint on the same trials (and device
 type) gets the same figures in both. Also here: the rows (:class:`PolicyEntry`), the
 evaluation simulator (:func:`make_env`), torch as an evaluation needs it
 (:func:`torch_eval_settings`), and the store of finished runs that ``--resume`` reuses
@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from msta.data.budget import check_deadline
-from msta.data.revision import content_revision, file_parts
+from msta.data.revision import checkpoint_revision, content_revision
 from msta.eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
 from msta.eval.scenarios import Condition, TrialConfig
 from msta.eval.sensor_faults import (
@@ -72,11 +72,6 @@ class PolicyEntry:
         return d
 
 
-def dir_revision(path: Path) -> str:
-    """Short sha256 over a checkpoint directory's file names and bytes."""
-    return content_revision(file_parts(path))
-
-
 def student_entry(path: Path, name: str, source: str,
                   train_masks: tuple[float, float] | None = None,
                   device: str = "cpu") -> PolicyEntry:
@@ -89,7 +84,7 @@ def student_entry(path: Path, name: str, source: str,
         train_masks: (stage-1, stage-2) mask ratios for the heatmaps, if known.
         device: where the student runs (msta-eval's ``--device``, resolved).
     """
-    return PolicyEntry(name, source, "student", str(Path(path).resolve()), dir_revision(path),
+    return PolicyEntry(name, source, "student", str(Path(path).resolve()), checkpoint_revision(path),
                        load_policy(path, device=device), train_masks)
 
 

@@ -397,7 +397,7 @@ def headline(run: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """The :data:`HEADLINE_FIGURES` of one run record (``msta.eval.evaluator.Evaluator.condition``
     with status ok) per terrain and ``average``, as cells keyed by figure name:
     ``{terrain: {name: value, ..., "trials": n, "ci": {name: [low, high] or None}}}``
-    (``msta.eval.report.fmt_cell`` formats them). msta-correct's round table and the stage-2 model
+    (``msta.eval.report_cells.fmt_cell`` formats them). msta-correct's round table and the stage-2 model
     card read their figures here, so both show msta-eval's numbers."""
     out: dict[str, dict[str, Any]] = {}
     for name, figure, key in HEADLINE_FIGURES:

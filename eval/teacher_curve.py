@@ -12,8 +12,8 @@ noise on, seed 0; 95 % Wilson intervals). Results are cached in ``<run>/curve_ev
 one cache per setting, each entry with the evaluated checkpoint's content revision:
 re-running evaluates only snapshots that are new or whose files changed. The image has two
 panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
-controller as dashed lines), and the curriculum's survival per episode and mean level from
-``curve.json``. The last line names the snapshot whose worst margin to the gait controller
+controller as dashed lines), and from ``curve.json`` the curriculum's mean level and the
+chance of a full episode at its fall rate. The last line names the snapshot whose worst margin to the gait controller
 over the terrain types is highest.
 """
 
@@ -211,11 +211,12 @@ def render(cache: dict, run: Path, image: Path) -> None:
     ax.legend(fontsize=8)
     rows = json.loads((run / "curve.json").read_text())
     x = [r["env_steps"] / 1e6 for r in rows]
-    bx.plot(x, [r["survival_per_episode"] for r in rows], color="C0", lw=1,
-            label="survival per episode (curriculum)")
+    # curve.json rows written before the figure was renamed call it survival_per_episode
+    bx.plot(x, [r.get("full_episode_at_fall_rate", r.get("survival_per_episode")) for r in rows],
+            color="C0", lw=1, label="full episode at the fall rate (curriculum)")
     bx.set_ylim(0, 1)
     bx.set_xlabel("environment steps (millions)")
-    bx.set_ylabel("survival per episode")
+    bx.set_ylabel("full episode at the fall rate")
     lx = bx.twinx()
     lx.plot(x, [r["mean_level_at_end"] for r in rows], color="C3", lw=1,
             label="mean level at episode end")

@@ -3,7 +3,7 @@
 A round of trials (``msta.eval.metrics.TrialLayout.rounds``) is already independent of every other:
 a fresh actor, every trial on its own tile with its own random stream. A worker runs a round
 exactly as :func:`msta.eval.metrics.run_trials` does in one process (same simulator, same torch
-settings, :func:`msta.eval.evaluator.torch_eval_settings`), and this process puts the rounds
+settings, :func:`msta.eval.trial_env.torch_eval_settings`), and this process puts the rounds
 together in order, storing each finished round as the single-process run does, so the figures
 are those of ``--workers=0`` for any worker count, and ``--resume`` reuses rounds across them.
 """
@@ -35,7 +35,7 @@ class TrialsJob:
     """A pool job (:class:`msta.collect.ray_pool.Job`): rounds of one run's trials.
 
     Args:
-        cfg: the trials (:func:`msta.eval.evaluator.make_env` builds the simulator from it).
+        cfg: the trials (:func:`msta.eval.trial_env.make_env` builds the simulator from it).
         make_actor: (round, num_envs) -> a fresh actor, as for ``run_trials``.
         layout: the trials and their tiles.
     """

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from msta.data.revision import content_revision, file_parts
+from msta.data.revision import checkpoint_revision
 
 #: metrics.json formats this module reads (msta-eval's ``msta_eval_version``).
 READABLE_VERSIONS = (2,)
@@ -131,7 +131,7 @@ def _pick_policy(data: dict, path: Path, checkpoint: str | Path | None, policy: 
         raise EvalJsonError(f"--eval_json {path}: no student was evaluated (policies: "
                             f"{', '.join(names)})")
     if checkpoint is not None and Path(checkpoint).is_dir():
-        rev = content_revision(file_parts(checkpoint))
+        rev = checkpoint_revision(checkpoint)
         same = [p for p in students if p.get("revision") == rev]
         if same:
             return same[0], []

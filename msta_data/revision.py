@@ -1,5 +1,11 @@
 """One content hash for "which version is this": teachers, checkpoints and student weights.
 
+A checkpoint *directory* is named by :func:`checkpoint_revision` (its files: msta-eval's
+entries, the model card's eval match); a student's *weights* in memory by
+:func:`msta.policies.checkpoint.weights_revision` (stage 2's provenance of the episodes a
+student drove, before any checkpoint is written); a teacher by
+:func:`msta.policies.teacher.config.teacher_revision`.
+
 A revision is the first 12 hex digits of a sha256 over a sequence of parts, with an
 optional ``<prefix>-`` (the policy or teacher type). Datasets record it per episode
 (``provenance/policy_revision``) and msta-eval per entry, so equal content gives an equal
@@ -47,3 +53,9 @@ def content_revision(parts: Iterable[bytes | str], prefix: str = "") -> str:
         h.update(part.encode() if isinstance(part, str) else part)
     digest = h.hexdigest()[:REVISION_LENGTH]
     return f"{prefix}-{digest}" if prefix else digest
+
+
+def checkpoint_revision(path: str | Path) -> str:
+    """The revision of a checkpoint directory (or file): :func:`content_revision` over its
+    :func:`file_parts`."""
+    return content_revision(file_parts(path))

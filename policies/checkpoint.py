@@ -23,9 +23,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file
 from torch import Tensor, nn
+
+from msta.data.revision import content_revision
 
 CONFIG_NAME = "config.json"
 WEIGHTS_NAME = "model.safetensors"
@@ -152,3 +155,16 @@ def is_lerobot_checkpoint(directory: Path) -> bool:
     """Whether ``directory`` holds a LeRobot policy checkpoint (and not msta's files)."""
     return (directory / LEROBOT_PREPROCESSOR).is_file() and \
         not (directory / PROCESSOR_NAME).is_file()
+
+
+def weights_revision(policy: nn.Module) -> str:
+    """``<type>-<12 hex>``: a hash of a student's weights in memory (names, dtypes, shapes,
+    bytes; ``<type>`` its ``config.type``), the revision stage 2 records for the episodes a
+    student drove. A checkpoint directory's is :func:`msta.data.revision.checkpoint_revision`
+    (its files)."""
+    parts: list[bytes | str] = []
+    for name, t in sorted(policy.state_dict().items()):
+        t = t.detach().cpu().contiguous()
+        parts += [f"{name}:{t.dtype}:{tuple(t.shape)}",
+                  t.view(torch.uint8).numpy().tobytes() if t.numel() else b""]
+    return content_revision(parts, prefix=policy.config.type)

@@ -449,7 +449,7 @@ def _print_parity(spec_path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-export``)."""
     from msta.data.cli import parse_config
-    from msta.data.quiet import shorten_torchcodec_warning
+    from msta.data.torchcodec_warning import shorten_torchcodec_warning
 
     shorten_torchcodec_warning()
     cfg = parse_config(ExportConfig, argv, "msta-export")  # bad flags: one line, exit 2

@@ -46,7 +46,7 @@ spawn point settles first; the calibration sees the same zeros).
 
 Thresholds are the largest value each statistic takes on fault-free calibration episodes
 times ``margin`` (``margin2`` for ``z2_sq``, ``contact_margin`` for ``contact``)
-(``train/guard.py`` fits and calibrates: ``msta-guard fit``). A joint encoder's q and q-dot
+(``train/guard_fit.py`` fits and calibrates: ``msta-guard fit``). A joint encoder's q and q-dot
 are flagged together.
 """
 

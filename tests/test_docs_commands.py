@@ -34,7 +34,7 @@ from msta.eval.report import EvalReportConfig
 from msta.eval.teacher_report import TeacherReportConfig
 from msta.policies.export import ExportConfig
 from msta.train.cli import parse_cli
-from msta.train.guard import GuardCommand
+from msta.train.guard_fit import GuardCommand
 from msta.train.offline import TrainConfig
 from msta.train.online import parse_args as correct_args
 from msta.train.teacher.cli import TrainTeacherConfig

@@ -25,7 +25,7 @@ from msta.policies.export import main as export_main
 from msta.policies.factory import get_policy_class, load_config, load_policy
 from msta.policies.lerobot_checkpoint import as_msta_checkpoint
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.guard import main as guard_main
+from msta.train.guard_fit import main as guard_main
 
 
 @pytest.fixture(scope="module")

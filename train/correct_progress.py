@@ -1,7 +1,7 @@
 """``msta-correct``'s run directory: ``progress.json`` as typed records, and the checks made
 before a run touches its output directory.
 
-``progress.json`` (written atomically after every phase) is a :class:`Progress`: the run's
+``progress.json`` (written atomically after every phase) is a :class:`CorrectProgress`: the run's
 configuration, the dataset it appends to, run-wide decisions (the rollouts' terrain level
 cap, the labelling teacher's revision, the reference teacher's figures) and one
 :class:`RoundRecord` per round saying which phases are done and what they measured. On disk
@@ -28,30 +28,23 @@ import json
 import shutil
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import draccus
 
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_checkpoint, locate_dataset
 from msta.data.windows import load_episode_table
+from msta.eval.metrics import HEADLINE_FIGURES, headline
+from msta.eval.report import CI_NOTE, identical_groups, identical_line
+from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
 from msta.policies.factory import load_config
 from msta.policies.teacher.config import teacher_revision
+from msta.train.correct_config import RESUME_LEGACY, CorrectConfig
 from msta.train.state import atomic_json
-
-if TYPE_CHECKING:
-    from msta.train.online import CorrectConfig
 
 PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
-#: Fields that must match progress.json when resuming (they define the data).
-RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
-                 "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
-                 "levels_from_dataset", "teacher_follows_robot", "keep_unfinished",
-                 "rollout_mask_ratios")
-#: Values of RESUME_FIELDS in progress.json files written before the field existed.
-RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False,
-                 "keep_unfinished": False, "rollout_mask_ratios": []}
 
 
 def _known(cls: type, data: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -106,7 +99,7 @@ class RoundRecord:
 
 
 @dataclass
-class Progress:
+class CorrectProgress:
     """progress.json of one msta-correct (or msta-finetune) run.
 
     Args:
@@ -150,7 +143,7 @@ class Progress:
         return {**out, **self.extra}
 
     @classmethod
-    def from_json(cls, data: dict[str, Any], path: Path | None = None) -> Progress:
+    def from_json(cls, data: dict[str, Any], path: Path | None = None) -> CorrectProgress:
         known, extra = _known(cls, data)
         rounds = {int(k): RoundRecord.from_json(v) for k, v in known.pop("rounds").items()}
         return cls(**known, rounds=rounds, extra=extra, path=path)
@@ -158,24 +151,24 @@ class Progress:
     def save(self) -> None:
         """Write the file atomically (:func:`msta.train.state.atomic_json`)."""
         if self.path is None:
-            raise ValueError("this Progress has no path to be saved to")
+            raise ValueError("this CorrectProgress has no path to be saved to")
         atomic_json(self.path, self.to_json())
 
 
-def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> Progress:
+def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> CorrectProgress:
     """``output_dir/progress.json``: a new one (written at once) for a new run, the saved
     one for ``--resume`` after checking that the fields that define the data agree."""
     path = out / PROGRESS
     encoded = draccus.encode(cfg)
     if not path.exists():  # a new run (check_output has refused a resume without it)
         out.mkdir(parents=True, exist_ok=True)
-        prog = Progress(config=encoded, dataset=str(root), path=path)
+        prog = CorrectProgress(config=encoded, dataset=str(root), path=path)
         prog.save()
         return prog
     if not cfg.resume:
         raise FileExistsError(f"{path} exists; pass --resume=true to continue that run or "
                               "choose another --output_dir")
-    prog = Progress.from_json(json.loads(path.read_text()), path)
+    prog = CorrectProgress.from_json(json.loads(path.read_text()), path)
     saved = dict(prog.config)
     if isinstance(saved.get("policy"), str):  # before --policy.path
         saved["policy"] = {"path": saved["policy"]}
@@ -219,7 +212,7 @@ def own_dataset(cfg: CorrectConfig, out: Path, root: Path) -> Path:
     return local
 
 
-def rollout_levels(cfg: CorrectConfig, root: Path, prog: Progress) -> CorrectConfig:
+def rollout_levels(cfg: CorrectConfig, root: Path, prog: CorrectProgress) -> CorrectConfig:
     """``cfg`` with the rollouts' ``max_init_level`` capped at the highest terrain level of the
     dataset's teacher episodes (``--levels_from_dataset``); the cap is decided once and kept
     in progress.json, so a resumed run rolls out where the first one did."""
@@ -258,3 +251,55 @@ def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
             f"{cfg.teacher.type}), but the dataset's teacher episodes were recorded by "
             f"{', '.join(recorded)}: the student will be corrected towards another policy than "
             "the one it imitated (give the recording teacher with --teacher.type/--teacher.path)")
+
+
+def print_table(prog: CorrectProgress) -> None:
+    """Per-round table: speeds, then per test mask the trials and msta-eval's figures
+    (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
+    total reward normalized by the teacher on the same trials, and survival
+    (:func:`msta.eval.metrics.headline`, the model card's figures too)."""
+    lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
+             "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
+             "tracking vs teacher / survival |", "|" + "---|" * 11]
+    warnings = []
+    for k in sorted(prog.rounds):
+        rec = prog.rounds[k]
+        ro, tr = rec.rollout or {}, rec.train or {}
+        after = "-" if rec.episodes_after is None else rec.episodes_after
+        head = (f"| {k} | {after} | "
+                f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
+                f"{_fmt(tr.get('val_loss'), '.4f')}")
+        runs = rec.eval or {}
+        for m, run in runs.items():
+            if run.get("status") != "ok":
+                reason = run.get("reason", "evaluated by an older msta-correct")
+                lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
+                continue
+            cells = headline(run)
+            avg = [fmt_cell(cells["average"], name) for name, _, _ in HEADLINE_FIGURES]
+            terr = " ".join(
+                f"{SHORT_TERRAIN.get(t, t)} {_fmt(row['lin_tracking_vs_teacher'], '.2f')}"
+                f"/{row['survival']:.2f}" for t, row in cells.items() if t != "average")
+            lines.append(f"{head} | {float(m):.0%} | {cells['average']['trials']} | "
+                         + " | ".join(avg) + f" | {terr} |")
+        warnings += [identical_line(f"round {k}", "test masks", labels)
+                     for labels in identical_groups(list(runs.values()))]
+        if not runs:
+            lines.append(f"{head} | - | - | - | - | - | - |")
+    ref = prog.teacher_eval
+    if ref:
+        c, a = ref["config"], ref["per_terrain"]["average"]
+        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_length_s']:g} s "
+              f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
+              f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
+              f"{a['survival']:.2f}, total {a['total']:.3f}/step")
+    print("\n".join(lines), flush=True)
+    if ref:
+        print(CI_NOTE)
+    for w in warnings:
+        print(f"msta-correct: warning: {w}", flush=True)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)

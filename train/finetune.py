@@ -51,7 +51,8 @@ from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from msta.policies.factory import load_config
 from msta.policies.msta import MSTAPolicy
 from msta.train import online
-from msta.train.online import RESUME_FIELDS, CorrectConfig, PhaseHook, Progress, correct
+from msta.train.correct_config import CorrectConfig
+from msta.train.online import RESUME_FIELDS, CorrectProgress, PhaseHook, correct
 from msta.train.state import atomic_json
 
 RECORD = "finetune.json"
@@ -235,7 +236,7 @@ class Preparation:
                 atomic_json(d / RECORD, self.record)
 
 
-def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> Progress:
+def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> CorrectProgress:
     """Run (or resume) msta-finetune; returns its progress.json record.
 
     Args:

@@ -63,8 +63,8 @@ from msta.policies.teacher.rma import RMAConfig
 from msta.train.finetune import freeze, module_of, sensor_names, trainable_modules
 from msta.train.optim import select_device
 from msta.train.ppo import ChunkLoop, PPOConfig
+from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.state import atomic_json
-from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 
 PROG = "msta-finetune-ppo"
 RECORD = "finetune.json"
@@ -76,7 +76,7 @@ DUMMY = "dummy"
 
 
 class StudentVecEnv(RslVecEnv):
-    """:class:`~msta.train.teacher.env.RslVecEnv` plus the group ``student``: every robot's last
+    """:class:`~msta.train.rsl_env.RslVecEnv` plus the group ``student``: every robot's last
     T steps of the student's sensors in the registry's raw units, concatenated over the
     sensors in the student's order, with a last column that is 1 on steps before the
     episode start (filled with the episode's first frame, the datasets' window rule,
@@ -271,14 +271,12 @@ class StudentPPOConfig(PPOConfig):
 
     def student_runner_cfg(self, start: Path, trainable: str, dummy_tokens: int = 0) -> dict:
         """rsl_rl ``OnPolicyRunner`` train_cfg with the student as the actor."""
-        cfg = self.runner_cfg(RMAConfig())
-        actor = [STUDENT, DUMMY] if dummy_tokens else [STUDENT]
-        cfg["obs_groups"] = {"actor": actor, "critic": [PRIVILEGED, PROPRIO]}
-        cfg["actor"] = {"class_name": f"{MSTAActor.__module__}:{MSTAActor.__name__}",
-                        "policy_path": str(start), "trainable": trainable,
-                        "distribution_cfg": {"class_name": "GaussianDistribution",
-                                             "init_std": self.init_std, "std_type": "scalar"}}
-        return cfg
+        groups = [STUDENT, DUMMY] if dummy_tokens else [STUDENT]
+        actor = {"class_name": f"{MSTAActor.__module__}:{MSTAActor.__name__}",
+                 "policy_path": str(start), "trainable": trainable,
+                 "distribution_cfg": {"class_name": "GaussianDistribution",
+                                      "init_std": self.init_std, "std_type": "scalar"}}
+        return self.runner_cfg(actor, {"actor": groups, "critic": [PRIVILEGED, PROPRIO]})
 
 
 def _default_env() -> EnvConfig:

@@ -24,7 +24,7 @@ from msta.collect.faults import BINARY_FAULTS, FaultInjector, FaultSpec, std_fro
 from msta.data.sensors import get
 from msta.data.stats import load_stats
 from msta.policies.guard import NJ, OFFSET, PHYSICAL_SENSORS, P, SensorGuard, encoder_partner
-from msta.train.guard import load_episodes, stream
+from msta.train.guard_data import load_episodes, stream
 
 WITHIN = 10
 #: (type, severity) with a detection minimum (docs/faults.md), then the subtle ones (reported).

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from msta.data.windows import WindowDataset, episode_split, load_episode_table
+from msta.data.windows import episode_split
 from msta.policies.guard import (
     CONTACT_INPUTS,
     CONTACTS,
@@ -30,27 +30,8 @@ from msta.policies.guard import (
     encoder_partner,
     statistic_layout,
 )
-
-Episodes = dict[str, np.ndarray]  # {sensor: (E, T, dim)}, plus "length" (E,)
-
-
-def load_episodes(root: str | Path, episodes: list[int] | None = None) -> Episodes:
-    """The guard's inputs of ``episodes`` (None: all) as ``{sensor: (E, Tmax, dim)}``
-    float64, each episode padded by repeating its last frame, plus ``length`` (E,) and
-    ``terrain`` (E,) (the dataset's ``provenance/terrain``; "" when not recorded)."""
-    ds = WindowDataset(root, INPUT_SENSORS, T=1, extra_columns=(), episodes=episodes,
-                       verify="sizes")
-    batch = ds.get_batch(np.arange(len(ds)))
-    lengths = ds.lengths
-    tmax = int(lengths.max())
-    rows = np.minimum(np.arange(tmax)[None], lengths[:, None] - 1) + ds.starts[:, None]
-    out = {s: batch[s][:, 0].astype(np.float64)[rows] for s in INPUT_SENSORS}
-    table = load_episode_table(root).set_index("episode_index").loc[ds.episodes]
-    col = "provenance/terrain"
-    out["terrain"] = (table[col].astype(str).to_numpy() if col in table
-                      else np.full(len(lengths), "", dtype=object))
-    out["length"] = lengths
-    return out
+from msta.train.guard_data import Episodes, load_episodes, stream
+from msta.train.guard_eval import evaluate_guard, format_table
 
 
 def _rows(data: Episodes) -> np.ndarray:
@@ -159,33 +140,6 @@ def _ridge(f: np.ndarray, gram: np.ndarray, target: np.ndarray, drop: np.ndarray
     return weight, bias, target - f @ weight - bias
 
 
-def stream(guard: SensorGuard, data: Episodes, injector=None) -> dict[str, np.ndarray]:
-    """Run ``guard`` (num_envs = episodes) over ``data`` step by step, faults from
-    ``injector`` (a ``msta.collect.faults.FaultInjector`` or None). Returns ``max_stat`` (S,)
-    over valid steps, ``flags`` (E, T, P) bool latched flags, ``active`` (E, T) bool and
-    ``changed`` (E, T) bool: the fault changed a reading at that step."""
-    e, tmax = data["length"].shape[0], int(data["length"].max())
-    guard.reset()
-    if injector is not None:
-        injector.reset(np.arange(e))
-    max_stat = np.zeros(len(guard.names))
-    flags = np.zeros((e, tmax, P), bool)
-    active = np.zeros((e, tmax), bool)
-    changed = np.zeros((e, tmax), bool)
-    for t in range(tmax):
-        obs = {s: data[s][:, t] for s in INPUT_SENSORS}
-        if injector is not None:
-            clean, obs = obs, injector.apply(obs)
-            active[:, t] = injector.active
-            changed[:, t] = np.any([(obs[s] != clean[s]).any(1) for s in injector.channels], 0)
-        stat = guard.statistics(obs)
-        alive = t < data["length"]
-        max_stat = np.maximum(max_stat, stat[alive].max(0, initial=0.0))
-        guard.flags |= guard.accused(stat)
-        flags[:, t] = guard.flags
-    return {"max_stat": max_stat, "flags": flags, "active": active, "changed": changed}
-
-
 def calibrate(cfg: GuardConfig, arrays: dict[str, np.ndarray], data: Episodes,
               dt: float = 0.02) -> np.ndarray:
     """Thresholds: margin x each statistic's largest value on ``data`` (fault-free; margin2
@@ -271,7 +225,6 @@ def run(cmd: GuardCommand) -> dict:
         path = guard.save(cmd.output_dir)
         print(f"msta-guard: saved {path}")
         return {"path": str(path)}
-    from msta.train.guard_eval import evaluate_guard, format_table
 
     train_eps, held = episode_split(cmd.dataset, cmd.val_fraction, cmd.seed)
     guard = fit_guard(cmd.dataset, train_eps, cfg=cfg)
@@ -293,7 +246,6 @@ def main(argv: list[str] | None = None) -> None:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else e
         print(f"msta-guard: error: {msg}", file=sys.stderr)
         raise SystemExit(2) from None
-
 
 
 if __name__ == "__main__":

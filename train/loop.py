@@ -16,10 +16,10 @@ from tqdm import tqdm
 
 from msta.data.budget import TimeLimitReached, passed
 from msta.data.windows import WindowDataset
-from msta.policies.base import CheckpointError, StudentPolicy
+from msta.policies.base import StudentPolicy
 from msta.train.config import LoopConfig
-from msta.train.distributed import FitJob, Group, current, join, launched, leave
-from msta.train.optim import make_optimizer, make_scheduler
+from msta.train.ddp import FitJob, Group, current, join, launched, leave
+from msta.train.optim import WeightEMA, make_optimizer, make_scheduler
 from msta.train.sampling import WindowSampler
 from msta.train.state import restore_checkpoint, save_checkpoint
 from msta.train.step import draw_sensor_dropout, draw_step_mask, train_step, validate
@@ -75,63 +75,6 @@ class MetricsLogger:
         self.tb.close()
 
 
-# ----- weight averaging ------------------------------------------------------------------
-class WeightEMA:
-    """Exponential moving average of a policy's parameters (``LoopConfig.ema_decay``).
-
-    After step t the average moves towards the weights by ``1 - min(decay, (1+t)/(10+t))``
-    (the usual warm-up, so early steps do not freeze the start weights in). Its state is
-    one safetensors file in the checkpoint's training state, so a resumed run averages on
-    exactly as an uninterrupted one.
-
-    Args:
-        policy: the trained policy.
-        decay: per-step decay in (0, 1).
-    """
-
-    FILE = "ema.safetensors"
-
-    def __init__(self, policy: StudentPolicy, decay: float) -> None:
-        self.decay = decay
-        self.params = dict(policy.named_parameters())
-        self.avg = {n: p.detach().clone() for n, p in self.params.items()}
-        self.t = 0
-
-    @torch.no_grad()
-    def update(self) -> None:
-        self.t += 1
-        w = 1.0 - min(self.decay, (1.0 + self.t) / (10.0 + self.t))
-        for n, p in self.params.items():
-            self.avg[n].lerp_(p.detach(), w)
-
-    @torch.no_grad()
-    def apply(self) -> None:
-        """Copy the averaged weights into the policy."""
-        for n, p in self.params.items():
-            p.copy_(self.avg[n])
-
-    def save(self, directory: Path) -> None:
-        from safetensors.torch import save_file
-
-        save_file({n: v.contiguous() for n, v in self.avg.items()}, str(directory / self.FILE),
-                  metadata={"t": str(self.t), "decay": repr(self.decay)})
-
-    def load(self, directory: Path) -> None:
-        from safetensors import safe_open
-
-        path = directory / self.FILE
-        if not path.is_file():
-            raise CheckpointError(f"{directory}: no {self.FILE}, but this run averages weights "
-                                  "(--ema_decay); resume with the --ema_decay it was started with")
-        with safe_open(str(path), "pt", device="cpu") as f:
-            meta = f.metadata() or {}
-            if set(f.keys()) != set(self.avg):
-                raise CheckpointError(f"{path}: its tensors are not this policy's parameters")
-            for n in self.avg:
-                self.avg[n].copy_(f.get_tensor(n))
-        self.t = int(meta.get("t", 0))
-
-
 # ----- the loop --------------------------------------------------------------------------
 @dataclass
 class _Run:
@@ -147,7 +90,7 @@ class _Run:
     step: int = 0
     train_time: float = 0.0
     samples: int = 0
-    group: Group | None = None  # under torchrun (msta.train.distributed)
+    group: Group | None = None  # under torchrun (msta.train.ddp)
     loss_fn: Any = None  # policy.loss inside DDP, under torchrun
 
     @property
@@ -319,7 +262,7 @@ def follow(group: Group) -> None:
 
 def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
     """Run a training command in a plain process, or as a torchrun job
-    (:mod:`msta.train.distributed`).
+    (:mod:`msta.train.ddp`).
 
     A plain process: ``run()``. Under torchrun: rank 0 returns ``run()`` (then tells the
     other ranks to stop); every other rank trains each :func:`fit` rank 0 starts

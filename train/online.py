@@ -20,7 +20,7 @@ Each round r = 1..R:
    recent rounds), with :func:`msta.train.loop.fit` (mask ratio: the paper's 0.5, capped at
    the one the student was trained with, unless ``--mask_ratio`` says otherwise);
 5. **save** ``output_dir/round_<r>/`` and **evaluate** it with msta-eval's code
-   (:mod:`msta.train.evaluation`: ``msta.eval.evaluator.Evaluator`` on the trials of ``--eval.*``, the
+   (:mod:`msta.train.round_eval`: ``msta.eval.evaluator.Evaluator`` on the trials of ``--eval.*``, the
    ``token_removal`` conditions at ``--eval.mask_ratios``): linear-velocity tracking and
    total reward normalized by the teacher's on the same trials, and survival, with 95 %
    intervals; a table is printed per round. ``msta-eval --policies teacher,<round_r>
@@ -29,16 +29,16 @@ Each round r = 1..R:
    model card (``--push_to``).
 
 Resume and crash windows (``progress.json``, written after every phase): see
-:mod:`msta.train.progress`.
+:mod:`msta.train.correct_progress`.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
 
 import draccus
 import numpy as np
@@ -46,165 +46,41 @@ import torch
 
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from msta.collect.recorder import LabelledActor, record_rollouts
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
-from msta.collect.sim.env_config import check_sizes
+from msta.collect.sim.env import QuadrupedEnv
 from msta.data.budget import TimeLimitReached, check_deadline, deadline_after, stop
-from msta.data.cli import check_at_least
 from msta.data.features import load_info, sensor_column_to_name
 from msta.data.locking import hold_directory
-from msta.data.revision import content_revision
 from msta.data.windows import episode_split, load_episode_table
 from msta.data.writer import DatasetWriter
 from msta.policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
 from msta.policies.base import StudentPolicy
-from msta.policies.checkpoint import PolicyPath
+from msta.policies.checkpoint import weights_revision
 from msta.policies.factory import load_policy
-from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.policies.teacher.config import build_teacher, teacher_revision
 from msta.train.cli import USER_ERRORS, parse_cli
 from msta.train.config import LoopConfig, training_mask_ratio
-from msta.train.evaluation import RoundEvalConfig, RoundEvaluator, print_table
-from msta.train.loop import fit, load_windows, rank0_runs
-from msta.train.online_workers import RayOptions, check_ray_options, drive_and_label_on_workers
-from msta.train.optim import seed_everything, select_device
-from msta.train.progress import (
+from msta.train.correct_config import CorrectConfig
+from msta.train.correct_progress import (
     PROGRESS,
-    RESUME_FIELDS,
-    Progress,
+    CorrectProgress,
     RoundRecord,
     check_labeller,
     check_output,
     load_progress,
     own_dataset,
+    print_table,
     resolve_inputs,
     rollout_levels,
 )
-from msta.train.push import check_push_to, dataset_source, push_round
+from msta.train.loop import fit, load_windows, rank0_runs
+from msta.train.online_workers import drive_and_label_on_workers
+from msta.train.optim import seed_everything, select_device
+from msta.train.push import dataset_source, push_round
+from msta.train.round_eval import RoundEvaluator
 from msta.train.state import atomic_json
 
 #: A round checkpoint's record of how it was retrained (beside config.json).
 TRAINING_RECORD = "training.json"
-
-
-@dataclass
-class CorrectConfig(LoopConfig, RayOptions):
-    """Args:
-        steps: optimizer steps of each round's retraining.
-        lr: peak learning rate of each round's retraining.
-        mask_ratio: retraining token-removal ratio; null = 0.5 capped at the ratio the
-            student was trained with (:func:`msta.train.config.training_mask_ratio`: a student
-            trained without masking keeps 0). Each round checkpoint's training.json records
-            it; its config.json keeps the student's stage-1 ratio.
-        policy: the starting student: ``--policy.path=<checkpoint directory or hub id>``
-            (stage 1's ``final/``; in Python a plain path is accepted too).
-        dataset: dataset root to append to (a hub id is pulled and copied into output_dir).
-        output_dir: round checkpoints, training runs and progress.json.
-        rounds: correction rounds (raise it on ``--resume`` to run more).
-        episodes_per_round: student episodes per round: with ``keep_unfinished`` the round
-            runs ``ceil(episodes_per_round / num_envs)`` episode lengths of control steps
-            and appends every episode in them (at least this many); otherwise exactly this
-            many, the first to finish.
-        num_envs: environments rolled out together.
-        episode_length_s: time limit of the student episodes (s).
-        keep_unfinished: keep every simulated frame of a round: the episodes still running
-            when the round's steps are up are appended too, cut there (like a time limit).
-            false: the first ``episodes_per_round`` episodes to finish (this over-samples
-            short episodes, falls, and drops the steps of the unfinished ones).
-        env: simulator options of the rollouts (its seed is shifted by the round).
-        teacher: the labelling teacher (``--teacher.type``, ``--teacher.path``).
-        beta: DAgger mixing: probability that an environment executes the teacher's action
-            in a step; 0 = the student alone drives, so its data holds the states it reaches.
-        beta_decay: beta of round r is ``beta * beta_decay**(r-1)``.
-        rollout: student inputs during rollouts (mask_ratio, drop_sensors, dead_joints, history).
-        rollout_mask_ratios: test-time token-removal ratios the rounds' student drives at,
-            spread over the environments (environment i at ratio ``i % len``), e.g.
-            ``[0,0.5]``: half drive with every token, half with half of them removed, so the
-            rounds also hold (and the teacher labels) the states a masked student reaches;
-            empty = every environment at ``rollout.mask_ratio``.
-        levels_from_dataset: cap the rollouts' starting terrain level
-            (``env.terrain.max_init_level``) at the highest level of the dataset's teacher
-            episodes, so stage 2 corrects the student on the ground stage 1 taught it;
-            false = ``env.terrain`` as given.
-        teacher_follows_robot: a teacher with a plan of its own (the gait teacher's foot
-            plan) keeps that plan near the robot's measured stance feet while it labels
-            (``GaitTeacher.follow_robot``) instead of assuming its plan was executed;
-            false = the teacher as it records its own data.
-        recent_weight: sampling weight of an episode from round k in round r is
-            ``recent_weight**(r-k)`` (teacher data is round 0); 1 = uniform over all frames.
-        val_fraction: share of episodes held out for the validation loss (by episode).
-        eval: the per-round evaluation.
-        resume: continue the run in output_dir.
-        device: auto (CUDA when available), cpu, cuda, ...: training, rollouts and the
-            per-round evaluation.
-        num_threads: torch threads (0 = torch's default).
-        push_to: hub model repo ``user/name``: push each ``round_<r>`` with tag
-            ``stage2-r<r>`` and a model card after its evaluation; empty = no push.
-        push_private: create that repo as private.
-
-    Why these defaults, with the runs that chose them: docs/results/2026-12-04-stage2-settings.md.
-    """
-
-    steps: int = 1000
-    lr: float = 1e-3
-    mask_ratio: float | None = None
-    policy: PolicyPath = field(default_factory=PolicyPath)
-    dataset: str = ""
-    output_dir: str = "outputs/correct/msta"
-    rounds: int = 4
-    episodes_per_round: int = 64
-    num_envs: int = 32
-    episode_length_s: float = 10.0
-    keep_unfinished: bool = True
-    env: EnvConfig = field(default_factory=EnvConfig)
-    teacher: TeacherConfig = field(default_factory=TeacherConfig)
-    beta: float = 0.0
-    beta_decay: float = 1.0
-    rollout: InputSpec = field(default_factory=InputSpec)
-    rollout_mask_ratios: tuple[float, ...] = ()
-    levels_from_dataset: bool = True
-    teacher_follows_robot: bool = True
-    recent_weight: float = 1.0
-    val_fraction: float = 0.05
-    eval: RoundEvalConfig = field(default_factory=RoundEvalConfig)
-    resume: bool = False
-    device: str = "auto"
-    num_threads: int = 0
-    push_to: str = ""
-    push_private: bool = False
-
-    #: Fields that must match progress.json when resuming (a subclass may add its own).
-    RESUME_FIELDS: ClassVar[tuple[str, ...]] = RESUME_FIELDS
-    #: The command, as named in the lock error another run on the same output_dir gets.
-    PROG: ClassVar[str] = "msta-correct"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
-            self.policy = PolicyPath(str(self.policy))
-        check_push_to(self.push_to)
-        check_ray_options(self.workers, self.ray_address)
-        check_at_least(self, 1, "rounds", "episodes_per_round")
-        check_sizes(self.num_envs, self.episode_length_s)
-        if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
-            raise ValueError(f"beta={self.beta} and beta_decay={self.beta_decay} must be in [0, 1]")
-        if not 0.0 < self.recent_weight <= 1.0:
-            raise ValueError(f"recent_weight={self.recent_weight} must be in (0, 1]")
-        if not 0.0 <= self.val_fraction < 1.0:
-            raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
-        self.rollout_mask_ratios = tuple(float(r) for r in self.rollout_mask_ratios)
-        bad = [r for r in self.rollout_mask_ratios if not 0.0 <= r < 1.0]
-        if bad:
-            raise ValueError(f"rollout_mask_ratios: {bad[0]} must be in [0, 1)")
-
-
-# ----- the student and its revision ------------------------------------------------------
-def policy_revision(policy: StudentPolicy) -> str:
-    """``<type>-<12 hex>``: a hash of the weights (names, dtypes, shapes, bytes)."""
-    parts: list[bytes | str] = []
-    for name, t in sorted(policy.state_dict().items()):
-        t = t.detach().cpu().contiguous()
-        parts += [f"{name}:{t.dtype}:{tuple(t.shape)}",
-                  t.view(torch.uint8).numpy().tobytes() if t.numel() else b""]
-    return content_revision(parts, prefix=policy.config.type)
 
 
 def student_actor(policy: StudentPolicy, n: int, spec: InputSpec,
@@ -219,7 +95,7 @@ Episode = tuple[dict[str, np.ndarray], dict[str, Any]]
 def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision: str,
              sensors: tuple[str, ...] | None = None) -> tuple[list[Episode], dict[str, float]]:
     """Phase 1-2: the round's student episodes with teacher labels, in memory (the shared
-    rollout loop through :func:`msta.collect.record.record_rollouts`; the student drives, the
+    rollout loop through :func:`msta.collect.recorder.record_rollouts`; the student drives, the
     teacher labels every step and executes with probability beta: ``LabelledActor``).
     ``sensors``: the ones to record (the dataset's; None: the default recorded set)."""
     if cfg.workers:  # on Ray workers, seeded per slot (msta.train.online_workers)
@@ -268,7 +144,7 @@ def append_episodes(root: Path, episodes: list[Episode]) -> int:
 
 
 def check_tail(root: Path, before: int, expected: int, r: int, revision: str) -> bool:
-    """Did a killed run already commit this round's episodes? (:mod:`msta.train.progress`)"""
+    """Did a killed run already commit this round's episodes? (:mod:`msta.train.correct_progress`)"""
     table = load_episode_table(root)
     if len(table) == before:
         return False
@@ -329,7 +205,7 @@ Prepare = Callable[[StudentPolicy, Path], StudentPolicy]
 
 
 def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
-            prepare: Prepare | None = None) -> Progress:
+            prepare: Prepare | None = None) -> CorrectProgress:
     """Run (or resume) stage 2; returns its progress.json record.
 
     Args:
@@ -356,7 +232,7 @@ def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
 
 
 def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook: PhaseHook,
-                    prepare: Prepare | None, deadline: float | None) -> Progress:
+                    prepare: Prepare | None, deadline: float | None) -> CorrectProgress:
     """:func:`correct` once output_dir is locked."""
     prog = load_progress(out, cfg, root)
     cfg = rollout_levels(cfg, root, prog)
@@ -397,11 +273,11 @@ def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook:
 
 
 def evaluate_start(cfg: CorrectConfig, policy: StudentPolicy, ckpt: Path, root: Path,
-                   prog: Progress, evaluator: RoundEvaluator) -> None:
+                   prog: CorrectProgress, evaluator: RoundEvaluator) -> None:
     """Round 0: the starting checkpoint's evaluation, and the reference teacher's."""
     prog.rounds[0] = RoundRecord(evaluated=True, checkpoint=str(ckpt),
                                  episodes_after=int(load_info(root)["total_episodes"]),
-                                 policy_revision=policy_revision(policy),
+                                 policy_revision=weights_revision(policy),
                                  eval=evaluator.student(ckpt),
                                  eval_config=cfg.eval.resolved())
     prog.teacher_eval = evaluator.teacher()
@@ -410,9 +286,9 @@ def evaluate_start(cfg: CorrectConfig, policy: StudentPolicy, ckpt: Path, root: 
 
 
 def append_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int,
-                 rec: RoundRecord, prog: Progress, hook: PhaseHook) -> None:
-    """Phases 1-3, or the recovery of an append a killed run committed (:mod:`msta.train.progress`)."""
-    revision = policy_revision(policy)
+                 rec: RoundRecord, prog: CorrectProgress, hook: PhaseHook) -> None:
+    """Phases 1-3, or the recovery of an append a killed run committed (:mod:`msta.train.correct_progress`)."""
+    revision = weights_revision(policy)
     # how many the round appends (recorded before the append; older files: exactly
     # episodes_per_round)
     expected = (cfg.episodes_per_round if rec.episodes_rolled_out is None
@@ -438,7 +314,7 @@ def append_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int,
 
 
 def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path, r: int,
-              prog: Progress, hook: PhaseHook, evaluator: RoundEvaluator | None,
+              prog: CorrectProgress, hook: PhaseHook, evaluator: RoundEvaluator | None,
               deadline: float | None = None) -> None:
     """One round's phases, each skipped when progress.json marks it done; past
     ``deadline`` (``--max_minutes``) it stops after the phase that is running."""
@@ -452,7 +328,7 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path, 
         print(f"round {r}: trained {cfg.steps} steps on {rec.train['windows']:,} windows "
               f"({rec.train['train_samples_per_s']:.0f} samples/s)")
         rec.checkpoint = str(save_round(cfg, policy, r, out))
-        rec.trained, rec.trained_revision = True, policy_revision(policy)
+        rec.trained, rec.trained_revision = True, weights_revision(policy)
         prog.save()
         hook("trained", r)
         check_deadline(deadline, f"round {r}: trained")
@@ -478,7 +354,7 @@ def parse_args(argv: Sequence[str] | None = None, cls: type[CorrectConfig] = Cor
 
 
 def run_cli(argv: Sequence[str] | None, cls: type[CorrectConfig],
-            run: Callable[[Any], Progress], prog: str) -> None:
+            run: Callable[[Any], CorrectProgress], prog: str) -> None:
     """Parse, ``run`` the rounds, one-line errors; prints where progress and the last
     checkpoint are (msta-correct, msta-finetune)."""
     cfg = parse_args(argv, cls, prog)

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import math
 import random
+from pathlib import Path
 
 import numpy as np
 import torch
 
+from msta.policies.base import CheckpointError, StudentPolicy
 from msta.policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
 from msta.train.config import LoopConfig, check_optimizer
 
@@ -28,8 +30,8 @@ def parameter_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
 
 def make_adamw(model: torch.nn.Module, lr: float, weight_decay: float) -> torch.optim.AdamW:
     """AdamW on :func:`parameter_groups` (weight decay on matrices only), fused: one kernel
-    for every parameter instead of a loop over them (a cpu-preset step's optimizer update
-    8.3 -> 1.5 ms on 2 threads, the MSTA value tables being ~0.8 M of its ~0.9 M weights)."""
+    for every parameter instead of a loop over them (most of the cpu preset's weights are its
+    value tables; ``make bench-train`` times a step)."""
     return torch.optim.AdamW(parameter_groups(model, weight_decay), lr=lr, betas=(0.9, 0.999),
                              eps=1e-8, fused=True)
 
@@ -131,3 +133,60 @@ def seed_everything(seed: int) -> None:
     random.seed(seed)
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
+
+
+# ----- weight averaging ------------------------------------------------------------------
+class WeightEMA:
+    """Exponential moving average of a policy's parameters (``LoopConfig.ema_decay``).
+
+    After step t the average moves towards the weights by ``1 - min(decay, (1+t)/(10+t))``
+    (the usual warm-up, so early steps do not freeze the start weights in). Its state is
+    one safetensors file in the checkpoint's training state, so a resumed run averages on
+    exactly as an uninterrupted one.
+
+    Args:
+        policy: the trained policy.
+        decay: per-step decay in (0, 1).
+    """
+
+    FILE = "ema.safetensors"
+
+    def __init__(self, policy: StudentPolicy, decay: float) -> None:
+        self.decay = decay
+        self.params = dict(policy.named_parameters())
+        self.avg = {n: p.detach().clone() for n, p in self.params.items()}
+        self.t = 0
+
+    @torch.no_grad()
+    def update(self) -> None:
+        self.t += 1
+        w = 1.0 - min(self.decay, (1.0 + self.t) / (10.0 + self.t))
+        for n, p in self.params.items():
+            self.avg[n].lerp_(p.detach(), w)
+
+    @torch.no_grad()
+    def apply(self) -> None:
+        """Copy the averaged weights into the policy."""
+        for n, p in self.params.items():
+            p.copy_(self.avg[n])
+
+    def save(self, directory: Path) -> None:
+        from safetensors.torch import save_file
+
+        save_file({n: v.contiguous() for n, v in self.avg.items()}, str(directory / self.FILE),
+                  metadata={"t": str(self.t), "decay": repr(self.decay)})
+
+    def load(self, directory: Path) -> None:
+        from safetensors import safe_open
+
+        path = directory / self.FILE
+        if not path.is_file():
+            raise CheckpointError(f"{directory}: no {self.FILE}, but this run averages weights "
+                                  "(--ema_decay); resume with the --ema_decay it was started with")
+        with safe_open(str(path), "pt", device="cpu") as f:
+            meta = f.metadata() or {}
+            if set(f.keys()) != set(self.avg):
+                raise CheckpointError(f"{path}: its tensors are not this policy's parameters")
+            for n in self.avg:
+                self.avg[n].copy_(f.get_tensor(n))
+        self.t = int(meta.get("t", 0))

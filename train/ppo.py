@@ -25,10 +25,8 @@ from typing import Any
 import torch
 
 from msta.data.cli import check_at_least, check_number
-from msta.policies.teacher.rma import RMAConfig
+from msta.train.rsl_env import RslVecEnv
 from msta.train.state import atomic_json
-from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
-from msta.train.teacher.model import actor_cfg
 
 _MODEL = re.compile(r"^model_(\d+)\.pt$")
 
@@ -95,13 +93,14 @@ class PPOConfig:
         check_number("ppo.gamma", self.gamma, 0, 1)
         check_number("ppo.lam", self.lam, 0, 1)
 
-    def runner_cfg(self, rma: RMAConfig) -> dict:
-        """rsl_rl ``OnPolicyRunner`` train_cfg (the actor: an RMA teacher)."""
-        both = [PRIVILEGED, PROPRIO]
+    def runner_cfg(self, actor: dict, obs_groups: dict[str, list[str]]) -> dict:
+        """rsl_rl ``OnPolicyRunner`` train_cfg: these PPO settings, legged_gym's critic and
+        the caller's ``actor`` (rsl_rl's actor config: the RMA teacher's, msta-train-teacher;
+        the student's, msta-finetune-ppo) reading ``obs_groups``."""
         return {
             "num_steps_per_env": self.num_steps_per_env, "save_interval": self.save_interval,
-            "obs_groups": {"actor": both, "critic": both},
-            "actor": actor_cfg(rma, self.init_std),
+            "obs_groups": obs_groups,
+            "actor": actor,
             "critic": {"class_name": "MLPModel", "hidden_dims": [512, 256, 128],
                        "activation": "elu", "obs_normalization": True},
             "algorithm": {"class_name": "PPO", "learning_rate": self.learning_rate,
@@ -264,8 +263,8 @@ class ChunkLoop:
             curve.append(row)
             atomic_json(curve_path, curve)
             self._end_chunk(done, chunk)
-            self.log(f"PPO {done}/{self.ppo.iterations}: {steps_so_far:,} env steps, survival "
-                     f"{row['survival_per_episode']:.3f} per "
+            self.log(f"PPO {done}/{self.ppo.iterations}: {steps_so_far:,} env steps, full "
+                     f"episode at the fall rate {row['full_episode_at_fall_rate']:.3f} per "
                      f"{self.env.cfg['episode_length_s']:g} s episode ({st['falls']} falls), "
                      + self.detail(row) + (" (critic only)" if frozen else ""))
         actor.set_actor_frozen(False)

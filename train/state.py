@@ -19,7 +19,7 @@ from msta.policies.base import WEIGHTS_NAME, CheckpointError, StudentPolicy, loa
 from msta.train.sampling import WindowSampler
 
 if TYPE_CHECKING:
-    from msta.train.loop import WeightEMA
+    from msta.train.optim import WeightEMA
 
 
 def atomic_json(path: Path, obj: Any) -> None:

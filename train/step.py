@@ -36,7 +36,7 @@ def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
         channels: per-sensor channel subsets present in the batch.
         dummy_tokens: random dummy tokens appended to every sample (token students only).
         loss_fn: called instead of ``policy.loss`` with the same arguments (under torchrun:
-            the policy's loss inside DistributedDataParallel, :mod:`msta.train.distributed`).
+            the policy's loss inside DistributedDataParallel, :mod:`msta.train.ddp`).
         absent: per-sample channel removal (:func:`draw_sensor_dropout`; students with
             ``supports_absent`` only).
 

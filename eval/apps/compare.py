@@ -38,7 +38,7 @@ from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.locking import hold_directory
-from msta.eval.apps.phases import Progress
+from msta.eval.apps.phases import PhaseLog
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import get_config_class, registered_policies
 from msta.policies.teacher.config import TeacherConfig
@@ -218,7 +218,7 @@ def check_run_config(cfg: CompareConfig, out: Path) -> None:
         path.write_text(json.dumps(encoded, indent=1) + "\n")
 
 
-def ensure_dataset(cfg: CompareConfig, prog: Progress) -> Path:
+def ensure_dataset(cfg: CompareConfig, prog: PhaseLog) -> Path:
     """The teacher dataset, recorded (or extended) first when ``collect_episodes`` > 0."""
     root = cfg.dataset_root
     have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
@@ -243,7 +243,7 @@ def check_dataset(root: Path) -> None:
                                 "missing (not a dataset; use --collect_episodes=N to record one)")
 
 
-def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: Progress,
+def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: PhaseLog,
            config: Any = None) -> Path:
     """Stage 1 of one policy (resumed when killed); returns its final checkpoint.
 
@@ -287,7 +287,7 @@ def copy_dataset(root: Path, dest: Path) -> Path:
 
 
 def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
-           prog: Progress, mask: float | None = None) -> Path:
+           prog: PhaseLog, mask: float | None = None) -> Path:
     """Stage 2 of one policy on its own dataset copy; returns the last round's checkpoint.
 
     Args:
@@ -296,7 +296,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
             one and rolls out at ``cfg.stage2_rollout_mask_ratios``.
     """
     from msta.train.config import training_mask_ratio
-    from msta.train.online import CorrectConfig, RoundEvalConfig, correct
+    from msta.train.correct_config import CorrectConfig
+    from msta.train.online import RoundEvalConfig, correct
 
     out = run / "stage2"
     last = out / f"round_{cfg.stage2_rounds}"
@@ -328,7 +329,7 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     return last
 
 
-def train_policy(cfg: CompareConfig, name: str, root: Path, prog: Progress) -> Path:
+def train_policy(cfg: CompareConfig, name: str, root: Path, prog: PhaseLog) -> Path:
     """Both stages of one policy; the result is copied to ``out/checkpoints/<name>``."""
     out = Path(cfg.output_dir)
     ckpt = out / "checkpoints" / name
@@ -347,7 +348,7 @@ def train_policy(cfg: CompareConfig, name: str, root: Path, prog: Progress) -> P
     return ckpt
 
 
-def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: Progress) -> dict[str, Any]:
+def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: PhaseLog) -> dict[str, Any]:
     """One msta-eval run over the teacher and every final checkpoint (same trials)."""
     from msta.eval.evaluate import EvalConfig, evaluate
 
@@ -432,7 +433,7 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
         check_dataset(cfg.dataset_root)  # before anything is written
     with hold_directory(out, "another msta-compare run"):  # one run per output_dir
         check_run_config(cfg, out)
-        prog = Progress(out, deadline=deadline_after(cfg.max_minutes))
+        prog = PhaseLog(out, deadline=deadline_after(cfg.max_minutes))
         try:
             root = ensure_dataset(cfg, prog)
             ckpts = []

@@ -160,8 +160,9 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     import json
 
     from msta.policies.checkpoint import PolicyPath
-    from msta.train.evaluation import RoundEvalConfig
-    from msta.train.online import CorrectConfig, correct
+    from msta.train.correct_config import CorrectConfig
+    from msta.train.online import correct
+    from msta.train.round_eval import RoundEvalConfig
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
           "student drives alone (DAgger beta 0) at test-time mask "

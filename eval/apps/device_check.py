@@ -12,7 +12,7 @@ torchrun stage, which adds two CPU runs of 20 steps and two CUDA runs of 300; no
    mask 0.5, the teacher labels, retraining) on the main device: env steps/s and samples/s;
 5. **eval**: msta-eval of the teacher and the round's student on the main device (test
    masks 0 / 25 / 50 %): normalized linear tracking and survival, and the time it took;
-6. **torchrun**: msta-train on the same dataset under torchrun (train/distributed.py) beside
+6. **torchrun**: msta-train on the same dataset under torchrun (train/ddp.py) beside
    today's single process: on CUDA one process per GPU (NCCL), on the CPU 2 processes
    sharing the cores (gloo); samples/s in all, per process / GPU, and the ratio.
 
@@ -125,7 +125,8 @@ def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
 def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps: int,
            batch: int, seconds: float) -> tuple[Path, dict[str, Any]]:
     from msta.policies.teacher.config import TeacherConfig
-    from msta.train.online import CorrectConfig, PolicyPath, RoundEvalConfig, correct
+    from msta.train.correct_config import CorrectConfig
+    from msta.train.online import PolicyPath, RoundEvalConfig, correct
 
     copy = out.parent / "stage2_dataset"
     shutil.copytree(root, copy)

@@ -10,7 +10,7 @@ from pathlib import Path
 from msta.data.budget import check_deadline, minutes_left
 
 
-class Progress:
+class PhaseLog:
     """One line per phase with the elapsed time; phase durations go to ``output_dir/timing.json``."""
 
     def __init__(self, out: Path, prog: str = "msta-compare",

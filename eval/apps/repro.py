@@ -61,7 +61,7 @@ from msta.data.locking import hold_directory
 from msta.eval.apps.compare import (
     PAPER_TABLE_I,
     CompareConfig,
-    Progress,
+    PhaseLog,
     paper_table,
     stage1,
     stage2,
@@ -235,7 +235,7 @@ def print_sizes(cfg: ReproConfig) -> None:
           f"students train and are evaluated on {select_device('auto')}", flush=True)
 
 
-def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:
+def ensure_dataset(cfg: ReproConfig, prog: PhaseLog) -> Path:
     from msta.eval.apps.demo import easy_terrain_dataset
 
     root = Path(cfg.output_dir) / "teacher_dataset"
@@ -250,7 +250,7 @@ def ensure_dataset(cfg: ReproConfig, prog: Progress) -> Path:
 
 
 def heatmap_students(cfg: ReproConfig, ccfg: CompareConfig, root: Path,
-                     prog: Progress) -> dict[Path, tuple[float, float]]:
+                     prog: PhaseLog) -> dict[Path, tuple[float, float]]:
     """One MSTA student per (stage-1, stage-2) training mask of the grid."""
     s, base = cfg.sizes, Path(cfg.output_dir) / "heatmap"
     hcfg = replace(ccfg, stage2_rounds=s.heatmap_rounds)
@@ -277,7 +277,7 @@ def heatmap_students(cfg: ReproConfig, ccfg: CompareConfig, root: Path,
 
 
 def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
-             prog: Progress, matrix: str = "", levels: str = "",
+             prog: PhaseLog, matrix: str = "", levels: str = "",
              windows: tuple[int, ...] = ()) -> dict[str, Any]:
     """One msta-eval run (skipped when its metrics.json exists); ``levels``: other terrain
     levels than the scale's; ``windows``: the history scenario's."""
@@ -309,7 +309,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
     with hold_directory(cfg.output_dir, f"another {PROG} run") as out:
         check_run(cfg, out)
         print_sizes(cfg)
-        prog = Progress(out, PROG, deadline_after(cfg.max_minutes))
+        prog = PhaseLog(out, PROG, deadline_after(cfg.max_minutes))
         try:
             return _study(cfg, command, out, prog)
         except TimeLimitReached:
@@ -317,7 +317,7 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
             raise
 
 
-def _study(cfg: ReproConfig, command: str, out: Path, prog: Progress) -> Path:
+def _study(cfg: ReproConfig, command: str, out: Path, prog: PhaseLog) -> Path:
     """:func:`repro`'s phases."""
     from msta.eval.apps.repro_report import write_report
 

@@ -46,7 +46,8 @@ from msta.eval.evaluate import EvalConfig, evaluate
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.online import CorrectConfig, drive_and_label
+from msta.train.correct_config import CorrectConfig
+from msta.train.online import drive_and_label
 
 #: What each stage's figure counts, per second of wall clock.
 UNITS = {"collect": "frames/s", "stage2": "frames/s", "eval": "trial steps/s"}

@@ -2,7 +2,7 @@
 
 msta-train on one dataset (synthetic frames in every recorded column, the MSTA ``cpu``
 preset, batch 64, mask 0.75) as it runs today (one process on every core), the same on one
-core, and under torchrun (:mod:`msta.train.distributed`): 1 process, and 2 processes with half of
+core, and under torchrun (:mod:`msta.train.ddp`): 1 process, and 2 processes with half of
 the cores each. Every run is a fresh command of its own; runs go round-robin and each ratio
 is the median over rounds of the ratio within a round, so a neighbour's burst of CPU use
 hurts every configuration alike. Samples/s is for the global batch, from msta-train's own
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from msta.eval.apps.train_scaling import measure
-from msta.train.distributed import check_batch
+from msta.train.ddp import check_batch
 
 #: today's run: one plain process on every core (the reference of every ratio)
 TODAY = "1 process (today)"

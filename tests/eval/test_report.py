@@ -6,7 +6,8 @@ import copy
 import json
 from pathlib import Path
 
-from msta.eval.report import fmt_ci, identical_groups, identical_warnings, markdown, raw_table
+from msta.data.figures import fmt_ci
+from msta.eval.report import identical_groups, identical_warnings, markdown, raw_table
 
 #: a metrics.json written before the window was named ``history`` (its runs' spec has "T"):
 #: the 2026-12-04 reference study's MSTA sweeps, three conditions of them

@@ -27,7 +27,8 @@ from msta.policies.export import (
     resolve_sensors,
 )
 from msta.policies.guard import INPUT_SENSORS, GuardConfig, load_guard
-from msta.train.guard import fit_guard, load_episodes
+from msta.train.guard_data import load_episodes
+from msta.train.guard_fit import fit_guard
 
 REPO = Path(__file__).resolve().parents[2]
 CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),

@@ -15,7 +15,8 @@ from msta_test_helpers import record_gait  # registered by tests/conftest.py
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
 from msta.data.stats import load_stats
 from msta.policies.guard import INPUT_SENSORS, OFFSET, GuardConfig, SensorGuard, load_guard
-from msta.train.guard import fit_guard, load_episodes
+from msta.train.guard_data import load_episodes
+from msta.train.guard_fit import fit_guard
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 ONSET = 100

@@ -1,4 +1,4 @@
-"""Training on several processes (train/distributed.py): real torchrun jobs of 2 CPU
+"""Training on several processes (train/ddp.py): real torchrun jobs of 2 CPU
 processes (gloo) on a tiny MSTA student reach the single process's weights with the same
 global batch, and resume after rank 0 is killed and after --max_minutes stops them; the
 token-removal draws give every window its single-process mask for every student type."""
@@ -20,7 +20,7 @@ from safetensors.torch import load_file
 from msta.data.windows import WindowDataset
 from msta.policies.factory import registered_policies
 from msta.train.cli import parse_cli
-from msta.train.distributed import ShardedDraws
+from msta.train.ddp import ShardedDraws
 from msta.train.offline import TrainConfig, main, train
 
 REPO = Path(__file__).resolve().parents[2]

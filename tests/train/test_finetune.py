@@ -28,7 +28,6 @@ from msta.policies.export import MINIMIZED_SENSORS
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.evaluation import RoundEvalConfig
 from msta.train.finetune import (
     RECORD,
     FinetuneConfig,
@@ -39,6 +38,7 @@ from msta.train.finetune import (
     trainable_modules,
 )
 from msta.train.optim import make_optimizer
+from msta.train.round_eval import RoundEvalConfig
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)

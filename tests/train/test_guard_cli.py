@@ -1,4 +1,4 @@
-"""msta-guard (train/guard.py): fit saves a guard a checkpoint folder loads back, evaluate
+"""msta-guard (train/guard_fit.py): fit saves a guard a checkpoint folder loads back, evaluate
 measures detection and false alarms with msta.collect.faults injected, bad options are
 one-line errors."""
 
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from msta.policies.guard import GuardConfig, load_guard
-from msta.train.guard import main
 from msta.train.guard_eval import evaluate_guard, format_table
+from msta.train.guard_fit import main
 
 
 def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys):
@@ -29,7 +29,7 @@ def test_fit_writes_a_guard_the_folder_loads(synthetic_dataset, tmp_path, capsys
 
 
 def test_evaluate_reports_detection_and_false_alarms(synthetic_dataset, tmp_path):
-    from msta.train.guard import fit_guard
+    from msta.train.guard_fit import fit_guard
 
     guard = fit_guard(synthetic_dataset, list(range(8)), cfg=GuardConfig(warmup=0))
     report = evaluate_guard(guard, synthetic_dataset, [8, 9, 10, 11], min_length=40,
@@ -62,8 +62,9 @@ def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_data
     from msta.collect.faults import FaultSpec, std_from_stats
     from msta.data.stats import load_stats
     from msta.policies.guard import PHYSICAL_SENSORS, SensorGuard
-    from msta.train.guard import fit_guard, load_episodes
+    from msta.train.guard_data import load_episodes
     from msta.train.guard_eval import run_fault, summarize
+    from msta.train.guard_fit import fit_guard
 
     guard = fit_guard(synthetic_dataset, list(range(8)), cfg=GuardConfig(warmup=0))
     data = load_episodes(synthetic_dataset, [8, 9, 10, 11])

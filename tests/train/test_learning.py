@@ -28,14 +28,9 @@ from msta.eval.apps.demo import easy_terrain_dataset
 from msta.policies.factory import load_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
+from msta.train.correct_config import CorrectConfig
 from msta.train.offline import TrainConfig, train
-from msta.train.online import (
-    CorrectConfig,
-    RoundEvalConfig,
-    append_episodes,
-    correct,
-    drive_and_label,
-)
+from msta.train.online import RoundEvalConfig, append_episodes, correct, drive_and_label
 
 pytestmark = pytest.mark.slow
 

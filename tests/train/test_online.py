@@ -19,12 +19,13 @@ from msta.collect.sim.terrain import TerrainConfig
 from msta.data.budget import TimeLimitReached
 from msta.data.stats import load_stats
 from msta.data.windows import WindowDataset, load_episode_table
-from msta.policies.checkpoint import PolicyPath
+from msta.policies.checkpoint import PolicyPath, weights_revision
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig, MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
-from msta.train.online import CorrectConfig, RoundEvalConfig, correct, main, policy_revision
-from msta.train.progress import Progress
+from msta.train.correct_config import CorrectConfig
+from msta.train.correct_progress import CorrectProgress
+from msta.train.online import RoundEvalConfig, correct, main
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)
@@ -72,7 +73,7 @@ def file_hashes(root: Path) -> dict[str, str]:
 
 
 @pytest.fixture(scope="module")
-def two_rounds(base, tmp_path_factory) -> tuple[CorrectConfig, Progress, dict[str, str]]:
+def two_rounds(base, tmp_path_factory) -> tuple[CorrectConfig, CorrectProgress, dict[str, str]]:
     """An uninterrupted two-round run: (config, progress, teacher data file hashes)."""
     tmp = tmp_path_factory.mktemp("two_rounds")
     cfg = make_cfg(base, tmp, eval=EVAL)
@@ -88,8 +89,8 @@ def test_two_rounds_append_with_provenance_and_teacher_labels(base, two_rounds):
     old = load_episode_table(base[0])
     assert eps.iloc[:4].drop(columns=[]).equals(old)  # earlier episodes untouched
     assert all(file_hashes(root)[k] == v for k, v in before.items())
-    start_rev = policy_revision(MSTAPolicy.from_pretrained(base[1]))
-    round1_rev = policy_revision(MSTAPolicy.from_pretrained(out / "round_1"))
+    start_rev = weights_revision(MSTAPolicy.from_pretrained(base[1]))
+    round1_rev = weights_revision(MSTAPolicy.from_pretrained(out / "round_1"))
     assert round1_rev != start_rev
     for r, rev in ((1, start_rev), (2, round1_rev)):
         tail = eps.iloc[4 + (r - 1) * E: 4 + r * E]
@@ -323,7 +324,7 @@ def test_rollouts_start_on_the_levels_of_the_teacher_data(base, tmp_path, capsys
 def test_a_labeller_other_than_the_recording_teacher_is_named(base, tmp_path):
     """The dataset was recorded by the gait teacher: labels from the gait teacher pass
     silently, labels from the RMA teacher are named in a warning (with both revisions)."""
-    from msta.train.progress import check_labeller
+    from msta.train.correct_progress import check_labeller
 
     same = make_cfg(base, tmp_path)
     assert check_labeller(same, Path(same.dataset)) is None

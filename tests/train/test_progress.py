@@ -1,4 +1,4 @@
-"""progress.json as typed records (train/progress.py) and the one training mask-ratio rule
+"""progress.json as typed records (train/correct_progress.py) and the one training mask-ratio rule
 (train/config.py): files of the earlier dict layout read back and write out unchanged."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import json
 import pytest
 
 from msta.train.config import STAGE2_MASK_RATIO, training_mask_ratio
-from msta.train.progress import PROGRESS_FORMAT, Progress, RoundRecord
+from msta.train.correct_progress import PROGRESS_FORMAT, CorrectProgress, RoundRecord
 
 #: progress.json as msta-correct wrote it before the typed records (a run killed in round 2,
 #: with a key this version does not know at both levels).
@@ -35,7 +35,7 @@ OLD = {
 
 
 def test_an_old_progress_file_reads_as_records_and_writes_back_the_same(tmp_path):
-    prog = Progress.from_json(json.loads(json.dumps(OLD)), tmp_path / "progress.json")
+    prog = CorrectProgress.from_json(json.loads(json.dumps(OLD)), tmp_path / "progress.json")
     assert sorted(prog.rounds) == [0, 1, 2]
     r1, r2 = prog.rounds[1], prog.rounds[2]
     assert r1.appended and r1.trained and r1.train["windows"] == 90
@@ -51,7 +51,7 @@ def test_a_record_leaves_out_what_is_still_at_its_default():
     assert rec.to_json() == {"episodes_before": 0, "policy_revision": "x"}  # 0 is kept
     rec.appended, rec.recovered_after_commit = True, False
     assert "recovered_after_commit" not in rec.to_json() and rec.to_json()["appended"] is True
-    prog = Progress(config={}, dataset="d")
+    prog = CorrectProgress(config={}, dataset="d")
     assert prog.round(3) is prog.round(3) and prog.to_json()["rounds"] == {"3": {}}
     with pytest.raises(ValueError, match="no path"):
         prog.save()

@@ -22,8 +22,9 @@ from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.cli import parse_cli
+from msta.train.correct_config import CorrectConfig
 from msta.train.offline import TrainConfig, main, train
-from msta.train.online import PROGRESS, CorrectConfig, RoundEvalConfig, correct
+from msta.train.online import PROGRESS, RoundEvalConfig, correct
 from msta.train.push import PushError, dataset_source
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-0002"

@@ -20,8 +20,8 @@ from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teach
 from msta.policies.teacher.imported import InputScaler
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.ppo import latest_checkpoint
+from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
-from msta.train.teacher.env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.teacher.model import RMAActor, load_from_teacher, to_teacher
 from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 

@@ -16,7 +16,7 @@ from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
 from msta.policies.teacher.rma import RMAConfig, RMATeacher, mlp
-from msta.train.teacher.env import PRIVILEGED, PROPRIO
+from msta.train.rsl_env import PRIVILEGED, PROPRIO
 
 
 class RMAActor(MLPModel):

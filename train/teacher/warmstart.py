@@ -38,8 +38,8 @@ from msta.collect.sim.env import REASONS, EnvConfig
 from msta.data.cli import check_at_least, check_number
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
+from msta.train.rsl_env import RslVecEnv
 from msta.train.state import flatten_optimizer_state, unflatten_optimizer_state
-from msta.train.teacher.env import RslVecEnv
 
 _FALL = REASONS.index("fall")
 

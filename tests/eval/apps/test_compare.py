@@ -101,13 +101,13 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
 
 
 def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishes_it(tmp_path):
-    from msta.eval.apps.compare import Progress
+    from msta.eval.apps.compare import PhaseLog
 
-    first = Progress(tmp_path, deadline=None)
+    first = PhaseLog(tmp_path, deadline=None)
     first.start("msta stage 1")
     time.sleep(0.2)
     first.stopped()  # what compare() / repro() do when --max_minutes stops a call
-    second = Progress(tmp_path)
+    second = PhaseLog(tmp_path)
     t = second.start("msta stage 1")
     second.done("msta stage 1", t)
     timing = json.loads((tmp_path / "timing.json").read_text())

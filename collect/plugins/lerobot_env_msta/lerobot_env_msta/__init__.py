@@ -7,7 +7,7 @@ docs/lerobot.md.
 """
 
 from lerobot_env_msta.config import PAPER_TERRAINS, MstaA1EnvConfig
-from msta.data.quiet import shorten_torchcodec_warning
+from msta.data.torchcodec_warning import shorten_torchcodec_warning
 
 __all__ = ["PAPER_TERRAINS", "MstaA1EnvConfig"]
 

@@ -13,7 +13,7 @@ LeRobot's. See docs/lerobot.md.
 
 from lerobot_policy_msta.configuration_msta import MSTAConfig, WarmupCosineSchedulerConfig
 from lerobot_policy_msta.history import HistoryProcessorStep
-from msta.data.quiet import shorten_torchcodec_warning
+from msta.data.torchcodec_warning import shorten_torchcodec_warning
 
 __all__ = ["HistoryProcessorStep", "MSTAConfig", "WarmupCosineSchedulerConfig"]
 

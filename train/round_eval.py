@@ -14,20 +14,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import torch
 
 from msta.eval.evaluator import Evaluator, student_entry
-from msta.eval.metrics import HEADLINE_FIGURES, headline
-from msta.eval.report import CI_NOTE, identical_groups, identical_line
-from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
 from msta.eval.scenarios import ScenarioContext, TrialConfig, get_scenario
 from msta.eval.trial_env import torch_eval_settings
 from msta.policies.teacher.config import TeacherConfig
-
-if TYPE_CHECKING:
-    from msta.train.progress import Progress
 
 
 @dataclass
@@ -94,53 +88,3 @@ class RoundEvaluator:
                     for c in get_scenario("token_removal").build(ctx)}
 
 
-def print_table(prog: Progress) -> None:
-    """Per-round table: speeds, then per test mask the trials and msta-eval's figures
-    (terrain average with 95 % intervals, and per terrain): linear-velocity tracking and
-    total reward normalized by the teacher on the same trials, and survival
-    (:func:`msta.eval.metrics.headline`, the model card's figures too)."""
-    lines = ["| round | episodes | env steps/s | train samples/s | val loss | test mask | trials "
-             "| lin. tracking vs teacher | survival | total vs teacher | per terrain: lin. "
-             "tracking vs teacher / survival |", "|" + "---|" * 11]
-    warnings = []
-    for k in sorted(prog.rounds):
-        rec = prog.rounds[k]
-        ro, tr = rec.rollout or {}, rec.train or {}
-        after = "-" if rec.episodes_after is None else rec.episodes_after
-        head = (f"| {k} | {after} | "
-                f"{_fmt(ro.get('env_steps_per_s'), '.0f')} | "
-                f"{_fmt(tr.get('train_samples_per_s'), '.0f')} | "
-                f"{_fmt(tr.get('val_loss'), '.4f')}")
-        runs = rec.eval or {}
-        for m, run in runs.items():
-            if run.get("status") != "ok":
-                reason = run.get("reason", "evaluated by an older msta-correct")
-                lines.append(f"{head} | {float(m):.0%} | n/a: {reason} | | | | |")
-                continue
-            cells = headline(run)
-            avg = [fmt_cell(cells["average"], name) for name, _, _ in HEADLINE_FIGURES]
-            terr = " ".join(
-                f"{SHORT_TERRAIN.get(t, t)} {_fmt(row['lin_tracking_vs_teacher'], '.2f')}"
-                f"/{row['survival']:.2f}" for t, row in cells.items() if t != "average")
-            lines.append(f"{head} | {float(m):.0%} | {cells['average']['trials']} | "
-                         + " | ".join(avg) + f" | {terr} |")
-        warnings += [identical_line(f"round {k}", "test masks", labels)
-                     for labels in identical_groups(list(runs.values()))]
-        if not runs:
-            lines.append(f"{head} | - | - | - | - | - | - |")
-    ref = prog.teacher_eval
-    if ref:
-        c, a = ref["config"], ref["per_terrain"]["average"]
-        print(f"evaluation (msta-eval's trials): {c['trials']} trials of {c['episode_length_s']:g} s "
-              f"over {', '.join(c['terrains'])} at levels {c['levels']}, seed {c['seed']}; "
-              f"teacher on them: lin. tracking {a['lin_tracking']:.3f}/step, survival "
-              f"{a['survival']:.2f}, total {a['total']:.3f}/step")
-    print("\n".join(lines), flush=True)
-    if ref:
-        print(CI_NOTE)
-    for w in warnings:
-        print(f"msta-correct: warning: {w}", flush=True)
-
-
-def _fmt(value: float | None, spec: str) -> str:
-    return "-" if value is None else format(value, spec)

@@ -21,14 +21,14 @@ import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from msta.collect.sim.env import REASONS, EnvConfig, QuadrupedEnv
+from msta.collect.rollout import fell
+from msta.collect.sim.env import EnvConfig, QuadrupedEnv
 from msta.data.robot import NUM_JOINTS
 from msta.policies.teacher.imported import InputScaler
 from msta.policies.teacher.rma import RMAConfig
 
 #: observation group names (rsl_rl ``obs_groups`` values)
 PRIVILEGED, PROPRIO = "privileged", "proprio"
-_FALL = REASONS.index("fall")
 
 
 class RslVecEnv(VecEnv):
@@ -59,22 +59,25 @@ class RslVecEnv(VecEnv):
                 "level": 0.0, "lin_vel_tracking": 0.0}
 
     def take_stats(self) -> dict[str, float]:
-        """Counters since the last call (env steps, episodes ended, falls, time-outs, summed
+        """Counters since the last call (env steps, episodes ended, falls: the episodes that
+        :func:`msta.collect.rollout.fell` marks, physics blow-ups included; time-outs, summed
         distance and level at the episode ends, summed linear tracking reward), then zeroed."""
         out, self.stats = self.stats, self._zero_stats()
         return out
 
     def curve_row(self, st: dict[str, float], **head) -> dict:
         """A ``curve.json`` row from one chunk's :meth:`take_stats`: ``head`` (iteration,
-        env steps so far, ...), then episodes, falls per 1000 robot steps and the survival of
-        a full episode at that rate (the share of ended episodes that timed out depends on
-        where the episodes' clocks stand), the mean level and distance at the episode ends
+        env steps so far, ...), then episodes, falls per 1000 robot steps and
+        ``full_episode_at_fall_rate``: the chance a robot lasts a whole episode if it falls at
+        that constant rate per step (a model, not a count: the share of ended episodes that
+        timed out depends on where the episodes' clocks stand; msta's survival is a count,
+        :func:`msta.eval.metrics.survival`), the mean level and distance at the episode ends
         and the linear tracking reward per robot step."""
         eps, robot_steps = max(st["episodes"], 1), max(st["env_steps"], 1)
         hazard = st["falls"] / robot_steps
         return {**head, "episodes": st["episodes"], "falls": st["falls"],
                 "falls_per_1000_steps": 1000.0 * hazard,
-                "survival_per_episode": float(np.exp(-hazard * self.max_episode_length)),
+                "full_episode_at_fall_rate": float(np.exp(-hazard * self.max_episode_length)),
                 "mean_level_at_end": st["level"] / eps, "distance_m": st["distance"] / eps,
                 "lin_vel_tracking_per_step": st["lin_vel_tracking"] / robot_steps}
 
@@ -110,7 +113,7 @@ class RslVecEnv(VecEnv):
         st["lin_vel_tracking"] += float(res.metrics["lin_vel_tracking"].sum())
         if len(ids):
             st["episodes"] += len(ids)
-            st["falls"] += int((res.reason[ids] == _FALL).sum())
+            st["falls"] += int(fell(res)[ids].sum())
             st["timeouts"] += int(res.truncated[ids].sum())
             st["distance"] += float(res.final["distance"][ids].sum())
             st["level"] += float(res.final["level"][ids].sum())
@@ -129,6 +132,6 @@ class RslVecEnv(VecEnv):
                "/lin_vel_tracking": float(res.metrics["lin_vel_tracking"].mean())}
         if done.any():
             ids = np.flatnonzero(done)
-            log["/episode_fall_rate"] = float((res.reason[ids] == _FALL).mean())
+            log["/episode_fall_rate"] = float(fell(res)[ids].mean())
             log["/episode_distance_m"] = float(res.final["distance"][ids].mean())
         return log

@@ -2,7 +2,13 @@
 
 import logging
 
-from msta.data.quiet import LOGGER, MARK, SHORT, ShortTorchcodecWarning, shorten_torchcodec_warning
+from msta.data.torchcodec_warning import (
+    LOGGER,
+    MARK,
+    SHORT,
+    ShortTorchcodecWarning,
+    shorten_torchcodec_warning,
+)
 
 
 class _Keep(logging.Handler):
