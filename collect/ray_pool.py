@@ -147,7 +147,7 @@ class _Worker:
         self.threads, self.key, self.job, self.state = threads, None, None, None
 
     def run(self, job_ref: list, block: Any) -> Any:
-        import ray
+        import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
         key = job_ref[0].hex()
         if key != self.key:  # a new job: fetch it once, build its state once
@@ -160,7 +160,7 @@ class _Worker:
 
 def _lost_errors() -> tuple[type[BaseException], ...]:
     """Ray's errors that mean "the worker (or its node) is gone", not "the block failed"."""
-    from ray import exceptions as E
+    from ray import exceptions as E  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
     return (E.RayActorError, E.WorkerCrashedError, E.NodeDiedError, E.ObjectLostError)
 
@@ -176,7 +176,7 @@ class RayPool:
     """
 
     def __init__(self, workers: int, address: str = "", threads: int = 1) -> None:
-        import ray
+        import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
         check_ray_options(workers, address)
         if workers < 1:
@@ -201,7 +201,7 @@ class RayPool:
         process, as soon as blocks 0..i are all done. A lost worker is replaced and its block
         run again; an exception raised by a block (or by ``on_result``) ends the run, with
         the workers still busy replaced so the pool stays usable."""
-        import ray
+        import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
         ref = [ray.put(job)]
         todo, running = deque(range(len(blocks))), {}
@@ -235,7 +235,7 @@ class RayPool:
                 self._replace(a)
 
     def _replace(self, a: int) -> None:
-        import ray
+        import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
         ray.kill(self.actors[a], no_restart=True)
         self.actors[a] = self._new()
@@ -243,7 +243,7 @@ class RayPool:
 
     def close(self) -> None:
         """Stop the workers, and the local Ray if this pool started it."""
-        import ray
+        import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
         for actor in self.actors:
             ray.kill(actor, no_restart=True)
@@ -266,7 +266,7 @@ def shared_pool(workers: int, address: str = "") -> RayPool:
     """The process's pool of ``workers`` workers on ``address``, started on first use and
     kept for later rounds and evaluation runs (a stage-2 run asks once per round); it ends
     with the process, or :func:`close_shared`."""
-    import ray
+    import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
     key = (workers, address)
     pool = _SHARED.get(key)

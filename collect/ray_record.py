@@ -34,7 +34,8 @@ from msta.collect.ray_pool import (
 )
 from msta.collect.recorder import EpisodeRecorder, LabelledActor
 from msta.collect.rollout import Step, rollout
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.policies.teacher.config import build_teacher
 
 #: Salt of the per-slot tile generators (apart from the simulator's stream salts).

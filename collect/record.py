@@ -29,8 +29,8 @@ import numpy as np
 from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from msta.collect.ray_record import collect_on_workers
 from msta.collect.recorder import LabelledActor, record_rollouts
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
-from msta.collect.sim.env_config import check_sizes
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data import cli, layout
 from msta.data.errors import DatasetError, DirectoryLockedError

@@ -17,10 +17,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import mujoco
 import numpy as np
 from tqdm import tqdm
 
 from msta.collect.sim.env import REASONS, QuadrupedEnv, StepResult
+from msta.collect.sim.render import make_renderer, render_state, tracking_camera
 
 
 def as_policy(policy: Any) -> tuple[Callable, Callable]:
@@ -153,9 +155,6 @@ def film(env: QuadrupedEnv, policy: Any, steps: int, every: int = 5, first: int 
     Returns:
         (height, width, 3) uint8 frames.
     """
-    import mujoco
-
-    from msta.collect.sim.render import make_renderer, render_state, tracking_camera
 
     renderer = make_renderer(env.model, *size)
     data = mujoco.MjData(env.model)

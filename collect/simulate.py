@@ -16,7 +16,9 @@ from pathlib import Path
 
 import msta.policies.teacher  # noqa: F401  (registers the built-in teachers)
 from msta.collect.rollout import film, run
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
+from msta.collect.sim.render import save_strip, save_video
 from msta.data.cli import parse_config
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 
@@ -57,7 +59,6 @@ def simulate(cfg: SimRunConfig) -> str:
     print(table)
     if cfg.image or cfg.video:
         os.environ.setdefault("MUJOCO_GL", "egl")
-        from msta.collect.sim.render import save_strip, save_video
 
         env.reset()
         frames = film(env, policy, min(steps, 150), every=5)

@@ -35,6 +35,7 @@ import msta.policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
 from msta.collect.faults import FaultSpec, split_faults
 from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from msta.collect.rollout import film
+from msta.collect.sim.render import save_video
 from msta.data.budget import TimeLimitReached, deadline_after, stop
 from msta.data.cli import parse_config
 from msta.data.errors import DirectoryLockedError
@@ -270,8 +271,6 @@ def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
 
 def save_policy_video(cfg: EvalConfig, entries: list[PolicyEntry], out: Path) -> Path:
     """Render ``cfg.video`` = ``POLICY:TERRAIN[:LEVEL]`` (one robot, ``cfg.video_s``) to MP4."""
-    from msta.collect.sim.render import save_video
-
     parts = cfg.video.rsplit(":", 2) if cfg.video.count(":") >= 2 else cfg.video.rsplit(":", 1)
     if len(parts) < 2:
         raise ValueError(f"--video {cfg.video!r} must look like POLICY:TERRAIN[:LEVEL]")

@@ -33,7 +33,8 @@ import numpy as np
 import torch
 
 from msta.collect.rollout import Step, fell, rollout, step_quantities
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.cli import check_at_least, parse_config, usage_error
 from msta.data.locate import locate_checkpoint

@@ -26,10 +26,10 @@ from msta.eval.scenarios import SCENARIOS
 
 
 def _pyplot():
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
 
     return plt
 

@@ -17,6 +17,7 @@ import numpy as np
 from msta.collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
 from msta.eval.scenarios import Condition
 from msta.policies.actor import StudentActor
+from msta.policies.guard import load_guard as load
 
 #: Mixed into every injector's seed (apart from the students' mask streams).
 FAULT_SEED_TAG = 0xFA17
@@ -30,8 +31,6 @@ def fault_seed(seed: int, round_: int) -> list[int]:
 def load_guard(path: str, num_envs: int) -> Any:
     """The guard saved with the checkpoint at ``path`` for ``num_envs`` environments, or
     None (no guard saved there)."""
-    from msta.policies.guard import load_guard as load
-
     return load(path, num_envs=num_envs) if path else None
 
 

@@ -178,10 +178,10 @@ def _interval(p: float, n: int) -> tuple[float, float]:
 
 
 def render(cache: dict, run: Path, image: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
 
     steps = env_steps_at(run)
     s = cache["settings"]

@@ -29,8 +29,10 @@ from tqdm import tqdm
 
 from msta.collect.rollout import Step, fell, film, rollout
 from msta.collect.sim.commands import CommandConfig
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.render import save_strip, tracking_camera
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.cli import check_at_least, parse_config
 from msta.eval.metrics import TrialResults, summarize
@@ -283,7 +285,6 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
         seed: simulator seed.
     """
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from msta.collect.sim.render import save_strip, tracking_camera
 
     cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),

@@ -11,7 +11,8 @@ from contextlib import contextmanager
 import torch
 
 from msta.collect.sim.commands import CommandConfig
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.eval.scenarios import TrialConfig

@@ -222,7 +222,7 @@ def data_schema(features: dict[str, dict[str, Any]]) -> pa.Schema:
     """Arrow schema of the data files, with the ``huggingface`` features metadata that
     lerobot's writer stores (built with ``datasets``, as lerobot does; lerobot itself is
     not imported because it takes ~15 s)."""
-    import datasets
+    import datasets  # lazy: datasets pulls in pandas and more (~1 s); only this path needs it
 
     def hf(ft: dict[str, Any]) -> Any:
         value = datasets.Value(ft["dtype"])

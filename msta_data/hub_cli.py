@@ -25,6 +25,7 @@ from msta.data.hub_eval import EvalFigures, EvalJsonError, read_eval_json
 from msta.data.hub_ids import HubError
 from msta.data.hub_pull import pull
 from msta.data.hub_push import push, push_dataset
+from msta.data.hub_server import HubServer, ServerConfig
 from msta.data.hub_server.protocol import Limits
 from msta.data.hub_versions import versions
 
@@ -232,8 +233,6 @@ class VersionsConfig(ClientConfig):
 
 
 def _serve(cfg: ServeConfig) -> int:
-    from msta.data.hub_server import HubServer, ServerConfig
-
     if not cfg.token and cfg.token_file is None:
         print("warning: no tokens given: the server is read-only (nobody can push)", file=sys.stderr)
     config = ServerConfig(root=cfg.root, host=cfg.host, port=cfg.port, tokens=cfg.token,

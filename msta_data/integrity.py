@@ -41,6 +41,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from msta.data import features as F
 from msta.data import layout as L
 from msta.data.errors import DatasetFormatError, DatasetIntegrityError
 
@@ -283,9 +284,6 @@ def check_counts(root: str | Path, gen: Generation | None) -> None:
         DatasetFormatError: one line naming the file (DatasetIntegrityError for counts that
             differ from the commit's).
     """
-    import numpy as np
-
-    from msta.data import features as F
 
     root = Path(root)
     info = F.load_info(root)
@@ -385,10 +383,6 @@ def check_structure(root: str | Path) -> None:
     Raises:
         DatasetFormatError: naming the file and column.
     """
-    import numpy as np
-    import pyarrow as pa
-
-    from msta.data import features as F
 
     info = F.load_info(root)
     table = F.read_episode_table(root, info).to_pandas()

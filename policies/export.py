@@ -55,6 +55,8 @@ from torch import Tensor, nn
 
 from msta.data import robot
 from msta.data import sensors as registry
+from msta.data.cli import parse_config
+from msta.data.torchcodec_warning import shorten_torchcodec_warning
 from msta.policies.base import StudentPolicy
 from msta.policies.export_removal import (
     ABSENT_PREFIX,
@@ -167,6 +169,7 @@ def recorded_windows(root: str | Path, sensors: Sequence[str], T: int, n: int
                      ) -> dict[str, np.ndarray]:
     """``n`` evenly spaced windows of a recorded dataset (padded steps repeat the episode's
     first reading, as a robot program fills its window). ``{sensor: (n, T, dim) float32}``."""
+    # lazy: pandas (~0.3 s) only when the parity windows come from a dataset
     from msta.data.windows import WindowDataset
 
     ds = WindowDataset(root, sensors, T, extra_columns=(), verify="sizes")
@@ -270,7 +273,7 @@ def _torchscript_runner(path: Path):
 
 
 def _onnx_runner(path: Path):
-    import onnxruntime as ort
+    import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
@@ -448,9 +451,6 @@ def _print_parity(spec_path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-export``)."""
-    from msta.data.cli import parse_config
-    from msta.data.torchcodec_warning import shorten_torchcodec_warning
-
     shorten_torchcodec_warning()
     cfg = parse_config(ExportConfig, argv, "msta-export")  # bad flags: one line, exit 2
     try:

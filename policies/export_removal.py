@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from msta.data import sensors as registry
+from msta.policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS, load_guard
 
 #: ONNX / TorchScript input name of a sensor's per-sample channel removal
 ABSENT_PREFIX = "absent_"
@@ -53,8 +54,6 @@ def removal_spec(absent: Sequence[str], guard_dir: str | Path | None, out: Path
 
 def copy_guard(src: Path, out: Path) -> dict[str, Any]:
     """Copy a saved guard's files into the export folder; its spec.json entry."""
-    from msta.policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS
-
     meta = json.loads((src / GUARD_JSON).read_text())
     for name in (GUARD_JSON, GUARD_ARRAYS):
         if (src / name).resolve() != (out / name).resolve():
@@ -69,8 +68,6 @@ def copy_guard(src: Path, out: Path) -> dict[str, Any]:
 def absent_inputs(option: str, checkpoint: Path, names: Sequence[str]
                    ) -> tuple[tuple[str, ...], Path | None]:
     """``--absent_inputs`` -> (sensors with a removal input, the guard's folder or None)."""
-    from msta.policies.guard import load_guard
-
     guard = load_guard(checkpoint)
     if option == "auto":
         if guard is None:

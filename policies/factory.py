@@ -21,7 +21,8 @@ from typing import Any
 
 import torch
 
-from msta.policies.base import PolicyConfig, StudentPolicy
+from msta.policies.base import StudentPolicy
+from msta.policies.config import PolicyConfig
 from msta.policies.resolve import resolve_pretrained
 
 #: Packages whose modules hold the built-in students (imported, recursively, on first use).

@@ -57,6 +57,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
+from safetensors.numpy import load_file, save_file
 
 from msta.data import sensors as registry
 from msta.data.sensors import PHYSICAL_SENSORS
@@ -435,8 +436,6 @@ class SensorGuard(ImuRules):
     def save(self, directory: str | Path) -> Path:
         """Write ``guard.json`` and ``guard.safetensors`` into ``directory`` (a checkpoint
         folder); returns the json's path."""
-        from safetensors.numpy import save_file
-
         out = Path(directory)
         out.mkdir(parents=True, exist_ok=True)
         save_file({k: np.ascontiguousarray(v) for k, v in self.stats.items()},
@@ -460,8 +459,6 @@ def contact_probability(s: dict[str, np.ndarray], feats: np.ndarray) -> np.ndarr
 
 def load_guard(directory: str | Path, num_envs: int = 1) -> SensorGuard | None:
     """The guard saved in a checkpoint folder, or None when the folder has none."""
-    from safetensors.numpy import load_file
-
     path = Path(directory) / GUARD_JSON
     if not path.is_file():
         return None

@@ -32,6 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from msta.data.sensors import get
+from msta.policies.guard import INPUT_SENSORS, load_guard
+
 FORMAT = "msta-export/1"
 
 
@@ -44,7 +47,7 @@ class OnnxStudent:
     """
 
     def __init__(self, export_dir: str | Path, num_threads: int = 1) -> None:
-        import onnxruntime as ort
+        import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
         d = Path(export_dir)
         spec_path = d / "spec.json"
@@ -67,8 +70,6 @@ class OnnxStudent:
         self.absent = {a["sensor"]: a["name"] for a in self.spec.get("absent_inputs", [])}
         self.guard = None
         if "guard" in self.spec:
-            from msta.policies.guard import load_guard
-
             self.guard = load_guard(d)
         #: the guard's latched flags after the last step, ``{sensor: (dim,) bool}``
         self.flags: dict[str, np.ndarray] = {}
@@ -101,9 +102,6 @@ class OnnxStudent:
         """
         needed = dict(self.dims)
         if self.guard is not None:
-            from msta.data.sensors import get
-            from msta.policies.guard import INPUT_SENSORS
-
             needed |= {s: get(s).dim for s in INPUT_SENSORS if s not in needed}
         current = {name: self._reading(readings, name, dim) for name, dim in needed.items()}
         removed = {s: np.zeros(self.dims[s], bool) for s in self.absent}

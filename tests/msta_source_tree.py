@@ -155,3 +155,39 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
                 if len(group) > 1:
                     found.append(sorted(group))
     return sorted(found)
+
+
+def defined_names(path: Path) -> set[str]:
+    """The names a module defines at its top level (functions, classes, assignments, also
+    inside top-level ``if`` / ``try``), not the names it imports."""
+    names: set[str] = set()
+    for node in ast.parse(path.read_text(), str(path)).body:
+        nodes = [node] if not isinstance(node, (ast.If, ast.Try)) else list(ast.walk(node))
+        for n in nodes:
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(n.name)
+            elif isinstance(n, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+                targets = n.targets if isinstance(n, ast.Assign) else [n.target]
+                names.update(x.id for t in targets for x in ast.walk(t)
+                             if isinstance(x, ast.Name))
+    return names
+
+
+def imports_not_from_home(root: Path = REPO, extra: tuple[Path, ...] = ()) -> list[str]:
+    """``file:line module . name`` for each ``from msta.X import name`` of the tree (and of
+    ``extra`` files) that takes ``name`` from a module which only imports it: a name is
+    imported from the module that defines it. A package's ``__init__`` (a facade such as
+    ``msta.policies.msta``) may re-export."""
+    known = modules(root)
+    defined = {name: defined_names(path) for name, path in known.items()}
+    bad = []
+    for path in [*known.values(), *extra]:
+        for imp in imports(path):
+            node = imp.statement
+            if not isinstance(node, ast.ImportFrom) or node.module not in known \
+                    or known[node.module].name == "__init__.py" or imp.target in known:
+                continue
+            name = imp.target.rpartition(".")[2]
+            if name not in defined[node.module]:
+                bad.append(f"{path.relative_to(root)}:{imp.line} {node.module} . {name}")
+    return bad

@@ -102,7 +102,7 @@ def record_gait(root: Path, episodes: int, seconds: float) -> Path:
     """``episodes`` gait-teacher episodes of ``seconds`` recorded together in the real
     simulator (terrain curriculum off) into the dataset ``root``."""
     from msta.collect.record import CollectConfig, collect
-    from msta.collect.sim.env import EnvConfig
+    from msta.collect.sim.env_config import EnvConfig
     from msta.collect.sim.terrain import TerrainConfig
     from msta.policies.teacher.config import TeacherConfig
 

@@ -19,8 +19,8 @@ from msta.data.sensors import STUDENT_SENSORS
 from msta.data.windows import WindowDataset
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.eval.evaluate import main as eval_main
-from msta.policies.base import PolicyConfig
 from msta.policies.checkpoint import LEROBOT_PREPROCESSOR, CheckpointError
+from msta.policies.config import PolicyConfig
 from msta.policies.export import main as export_main
 from msta.policies.factory import get_policy_class, load_config, load_policy
 from msta.policies.lerobot_checkpoint import as_msta_checkpoint

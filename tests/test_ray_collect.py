@@ -18,7 +18,7 @@ import ray
 from msta.collect import ray_pool
 from msta.collect.ray_record import slot_tiles
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.windows import load_episode_table

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.stats import load_stats
@@ -22,7 +22,8 @@ from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.correct_config import CorrectConfig
-from msta.train.online import RoundEvalConfig, correct
+from msta.train.online import correct
+from msta.train.round_eval import RoundEvalConfig
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
 ENV = EnvConfig(nthread=1, terrain=TERRAIN, randomization=RandomizationConfig(pool_size=2))

@@ -10,7 +10,8 @@ from dataclasses import replace
 
 from msta.data.cli import parse_config, usage_error
 from msta.data.errors import DatasetError, DirectoryLockedError
-from msta.policies.base import CheckpointError, PolicyConfig
+from msta.policies.checkpoint import CheckpointError
+from msta.policies.config import PolicyConfig
 from msta.policies.factory import registered_policies
 from msta.train.push import PushError
 

@@ -10,14 +10,13 @@ from pathlib import Path
 from typing import ClassVar
 
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
-from msta.collect.sim.env import EnvConfig
-from msta.collect.sim.env_config import check_sizes
+from msta.collect.ray_pool import RayOptions, check_ray_options
+from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.data.cli import check_at_least
 from msta.policies.actor import InputSpec
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import LoopConfig
-from msta.train.online_workers import RayOptions, check_ray_options
 from msta.train.push import check_push_to
 from msta.train.round_eval import RoundEvalConfig
 

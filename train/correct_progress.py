@@ -32,10 +32,11 @@ from typing import Any
 
 import draccus
 
+from msta.data.hub_eval import HEADLINE_FIGURES
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_checkpoint, locate_dataset
 from msta.data.windows import load_episode_table
-from msta.eval.metrics import HEADLINE_FIGURES, headline
+from msta.eval.metrics import headline
 from msta.eval.report import CI_NOTE, identical_groups, identical_line
 from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
 from msta.policies.factory import load_config

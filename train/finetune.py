@@ -51,8 +51,9 @@ from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from msta.policies.factory import load_config
 from msta.policies.msta import MSTAPolicy
 from msta.train import online
-from msta.train.correct_config import CorrectConfig
-from msta.train.online import RESUME_FIELDS, CorrectProgress, PhaseHook, correct
+from msta.train.correct_config import RESUME_FIELDS, CorrectConfig
+from msta.train.correct_progress import CorrectProgress
+from msta.train.online import PhaseHook, correct
 from msta.train.state import atomic_json
 
 RECORD = "finetune.json"

@@ -43,10 +43,11 @@ from typing import Any
 import numpy as np
 import torch
 from rsl_rl.modules.distribution import GaussianDistribution
+from rsl_rl.runners import OnPolicyRunner
 from tensordict import TensorDict
 from torch import nn
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.data import sensors as registry
 from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
@@ -57,11 +58,10 @@ from msta.policies.actor import StudentActor
 from msta.policies.base import StudentPolicy
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
-from msta.policies.factory import load_config, load_policy
+from msta.policies.factory import load_config, load_policy, select_device
 from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.rma import RMAConfig
 from msta.train.finetune import freeze, module_of, sensor_names, trainable_modules
-from msta.train.optim import select_device
 from msta.train.ppo import ChunkLoop, PPOConfig
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.state import atomic_json
@@ -404,8 +404,6 @@ def open_runner(cfg: FinetunePPOConfig, start: Path, record: dict[str, Any], out
     """rsl_rl's runner with the student as its actor on :class:`StudentVecEnv`, in the PPO
     chunk loop (:class:`msta.train.ppo.ChunkLoop`), resumed from the newest checkpoint in
     ``output_dir/ppo`` when there is one; returns the loop and the iterations done."""
-    from rsl_rl.runners import OnPolicyRunner
-
     device = str(select_device(cfg.device))
     env = StudentVecEnv(cfg.env, load_policy(start), device=device,
                         dummy_tokens=cfg.dummy_tokens)

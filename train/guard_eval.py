@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from msta.collect.faults import BINARY_FAULTS, FaultInjector, FaultSpec, std_from_stats
-from msta.data.sensors import get
+from msta.data.sensors import PHYSICAL_SENSORS, get
 from msta.data.stats import load_stats
-from msta.policies.guard import NJ, OFFSET, PHYSICAL_SENSORS, P, SensorGuard, encoder_partner
+from msta.policies.guard import NJ, OFFSET, P, SensorGuard, encoder_partner
 from msta.train.guard_data import load_episodes, stream
 
 WITHIN = 10

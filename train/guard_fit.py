@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from msta.data.cli import parse_config
 from msta.data.windows import episode_split
 from msta.policies.guard import (
     CONTACT_INPUTS,
@@ -93,7 +94,7 @@ def fit_contact_model(data: Episodes, cfg: GuardConfig, seed: int = 0,
     layers of ``cfg.contact_hidden``, logistic outputs, fitted by AdamW (lr 3e-3, cosine
     decay) on binary cross-entropy for ``cfg.contact_epochs`` passes (at least 200 steps);
     seeded."""
-    import torch
+    import torch  # lazy: torch (~1.3 s) only to fit the contact model; the guard itself is numpy
 
     feats, target = contact_rows(data, cfg.contact_lags)
     mean, std = feats.mean(0), feats.std(0) + 1e-6
@@ -237,8 +238,6 @@ def run(cmd: GuardCommand) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-guard``)."""
-    from msta.data.cli import parse_config
-
     cmd = parse_config(GuardCommand, argv, "msta-guard", positionals=("command",))
     try:
         run(cmd)

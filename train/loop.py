@@ -49,6 +49,7 @@ class MetricsLogger:
     """
 
     def __init__(self, out: Path, start_step: int) -> None:
+        # lazy: TensorBoard loads only when a run logs
         from torch.utils.tensorboard import SummaryWriter
 
         self.path = out / "metrics.csv"

@@ -36,13 +36,13 @@ from msta.data.locate import locate_dataset
 from msta.data.locking import hold_directory
 from msta.data.stats import load_stats
 from msta.data.windows import episode_split
-from msta.policies.base import PolicyConfig
-from msta.policies.factory import make_policy
+from msta.policies.config import PolicyConfig
+from msta.policies.factory import make_policy, select_device
 from msta.policies.msta import MSTAConfig
 from msta.train.cli import USER_ERRORS, parse_cli
 from msta.train.config import LoopConfig, training_mask_ratio
 from msta.train.loop import fit, load_windows, rank0_runs, warn_if_not_learned
-from msta.train.optim import seed_everything, select_device
+from msta.train.optim import seed_everything
 from msta.train.push import check_push_to, push_stage1
 from msta.train.state import atomic_json
 

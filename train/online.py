@@ -55,7 +55,7 @@ from msta.data.writer import DatasetWriter
 from msta.policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
 from msta.policies.base import StudentPolicy
 from msta.policies.checkpoint import weights_revision
-from msta.policies.factory import load_policy
+from msta.policies.factory import load_policy, select_device
 from msta.policies.teacher.config import build_teacher, teacher_revision
 from msta.train.cli import USER_ERRORS, parse_cli
 from msta.train.config import LoopConfig, training_mask_ratio
@@ -74,7 +74,7 @@ from msta.train.correct_progress import (
 )
 from msta.train.loop import fit, load_windows, rank0_runs
 from msta.train.online_workers import drive_and_label_on_workers
-from msta.train.optim import seed_everything, select_device
+from msta.train.optim import seed_everything
 from msta.train.push import dataset_source, push_round
 from msta.train.round_eval import RoundEvaluator
 from msta.train.state import atomic_json

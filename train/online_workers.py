@@ -28,6 +28,7 @@ import numpy as np
 from msta.collect.ray_pool import RayOptions, block_seed, check_ray_options, shared_pool
 from msta.collect.ray_record import RecordJob, record_on_workers
 from msta.collect.recorder import LabelledActor
+from msta.data.sensors import DEFAULT_RECORDED
 from msta.policies.actor import InputSpec, mask_split_actor
 from msta.policies.base import StudentPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
@@ -78,8 +79,6 @@ def drive_and_label_on_workers(cfg: Any, policy: StudentPolicy, r: int, revision
     """:func:`msta.train.online.drive_and_label` on ``cfg.workers`` Ray workers: the same
     arguments and return (episodes with provenance, rollout figures; the share of steps the
     teacher executed is counted over the recorded frames whose action is the label's)."""
-    from msta.data.sensors import DEFAULT_RECORDED
-
     seed = cfg.env.seed + 1000 * r
     env = replace(cfg.env, num_envs=cfg.num_envs, seed=seed,
                   episode_length_s=cfg.episode_length_s)

@@ -8,8 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from safetensors import safe_open
+from safetensors.torch import save_file
 
-from msta.policies.base import CheckpointError, StudentPolicy
+from msta.policies.base import StudentPolicy
+from msta.policies.checkpoint import CheckpointError
 from msta.policies.factory import select_device  # noqa: F401  (re-exported: train.optim.select_device)
 from msta.train.config import LoopConfig, check_optimizer
 
@@ -171,14 +174,10 @@ class WeightEMA:
             p.copy_(self.avg[n])
 
     def save(self, directory: Path) -> None:
-        from safetensors.torch import save_file
-
         save_file({n: v.contiguous() for n, v in self.avg.items()}, str(directory / self.FILE),
                   metadata={"t": str(self.t), "decay": repr(self.decay)})
 
     def load(self, directory: Path) -> None:
-        from safetensors import safe_open
-
         path = directory / self.FILE
         if not path.is_file():
             raise CheckpointError(f"{directory}: no {self.FILE}, but this run averages weights "

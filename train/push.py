@@ -38,10 +38,11 @@ import draccus
 
 from msta.data import layout
 from msta.data.hub_cards import CardInfo, portable
+from msta.data.hub_eval import HEADLINE_FIGURES
 from msta.data.hub_ids import parse_hub_id
 from msta.data.hub_pull import resolve
 from msta.data.hub_push import push
-from msta.eval.metrics import HEADLINE_FIGURES, headline
+from msta.eval.metrics import headline
 
 _SHA = re.compile(r"^[0-9a-f]{40}$")
 

@@ -22,7 +22,8 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from msta.collect.rollout import fell
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.robot import NUM_JOINTS
 from msta.policies.teacher.imported import InputScaler
 from msta.policies.teacher.rma import RMAConfig

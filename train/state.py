@@ -15,7 +15,8 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from msta.policies.base import WEIGHTS_NAME, CheckpointError, StudentPolicy, load_weights
+from msta.policies.base import StudentPolicy
+from msta.policies.checkpoint import WEIGHTS_NAME, CheckpointError, load_weights
 from msta.train.sampling import WindowSampler
 
 if TYPE_CHECKING:

@@ -13,7 +13,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta.policies.base import Channels, StudentPolicy
+from msta.data.sensors import PHYSICAL_SENSORS, get
+from msta.policies.base import StudentPolicy
+from msta.policies.processor import Channels
 
 
 def train_step(policy: StudentPolicy, optimizer: torch.optim.Optimizer,
@@ -81,8 +83,6 @@ def draw_sensor_dropout(policy: StudentPolicy, batch_size: int, rate: float,
     :meth:`StudentPolicy.loss` (sensor -> (B, dim) bool), or None when no sample lost one.
     The draws come from ``generator`` (the run's mask generator: seeded, and resumed with
     it)."""
-    from msta.data.sensors import PHYSICAL_SENSORS, get
-
     sensors = [s for s in policy.required_sensors if s in PHYSICAL_SENSORS]
     if rate <= 0 or not sensors:
         return None

@@ -80,7 +80,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from msta.collect.sim.env import REASONS, EnvConfig, QuadrupedEnv, StepResult
+from msta.collect.sim.env import REASONS, QuadrupedEnv, StepResult
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.render import make_renderer, render_state
 from msta.collect.sim.robot import joint_limits
 from msta.collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds

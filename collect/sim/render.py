@@ -66,7 +66,7 @@ def render_state(renderer: mujoco.Renderer, model: mujoco.MjModel, data: mujoco.
 
 def save_strip(frames: list[np.ndarray], path: str | Path, columns: int = 6) -> Path:
     """Tile up to ``columns`` evenly spaced frames side by side into one PNG."""
-    import matplotlib.image
+    import matplotlib.image  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
 
     if not frames:
         raise ValueError("no frames to save")
@@ -80,7 +80,7 @@ def save_strip(frames: list[np.ndarray], path: str | Path, columns: int = 6) -> 
 
 def save_video(frames: list[np.ndarray], path: str | Path, fps: int = 10) -> Path:
     """Encode frames as H.264 MP4 with PyAV (installed with lerobot)."""
-    import av
+    import av  # lazy: PyAV loads only when a video is written
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

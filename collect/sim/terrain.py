@@ -408,7 +408,7 @@ class Terrain:
                 (nrow, ncol, size) without elevation data.
             name: the hfield asset name.
         """
-        import mujoco
+        import mujoco  # lazy: the terrain is numpy; MuJoCo only when a model takes the heights
 
         spec = self.hfield_spec()
         hid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_HFIELD, name)

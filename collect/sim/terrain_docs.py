@@ -34,9 +34,11 @@ def plot_type(terrain: Terrain, name: str, path: Path, levels: Sequence[int] = D
         path: output PNG.
         levels: levels to show (those >= num_levels are skipped).
     """
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
+
+    # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
     from matplotlib.colors import LightSource
 
     cfg, t = terrain.cfg, terrain.level_type_index(name)
@@ -72,9 +74,11 @@ def plot_grid(terrain: Terrain, path: Path) -> None:
         terrain: the grid.
         path: output PNG.
     """
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
+
+    # lazy: matplotlib (~0.5 s) loads only when a picture is drawn
     from matplotlib.colors import LightSource
 
     cfg = terrain.cfg

@@ -32,18 +32,26 @@ from typing import Any
 
 import draccus
 
+from msta.collect.record import CollectConfig, collect
 from msta.data import layout
 from msta.data.budget import TimeLimitReached, deadline_after, stop
 from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.features import load_info
+from msta.data.figures import fmt as _fmt
 from msta.data.locking import hold_directory
 from msta.eval.apps.phases import PhaseLog
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.report import table_one
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import get_config_class, registered_policies
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.config import STAGE2_MASK_RATIO, check_optimizer
+from msta.train.config import STAGE2_MASK_RATIO, check_optimizer, training_mask_ratio
+from msta.train.correct_config import CorrectConfig
 from msta.train.loop import rank0_runs
+from msta.train.offline import TrainConfig, train
+from msta.train.online import correct
+from msta.train.round_eval import RoundEvalConfig
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
@@ -223,7 +231,6 @@ def ensure_dataset(cfg: CompareConfig, prog: PhaseLog) -> Path:
     root = cfg.dataset_root
     have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
     if cfg.collect_episodes and have < cfg.collect_episodes:  # recorded, or extended
-        from msta.collect.record import CollectConfig, collect
 
         t = prog.start("collect", f"{cfg.collect_episodes} {cfg.teacher.label} episodes of "
                        f"{cfg.collect_episode_length_s:g} s -> {root}")
@@ -251,8 +258,6 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: PhaseLog,
         config: the policy config to train (default: ``cfg.policy(name)``;
             msta-repro's mask heatmap passes other training masks).
     """
-    from msta.train.offline import TrainConfig, train
-
     out = run / "stage1"
     final = out / "final"
     if (final / "config.json").is_file():
@@ -295,10 +300,6 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
             trained with masking, else 0); given, the student is taken for a token-masking
             one and rolls out at ``cfg.stage2_rollout_mask_ratios``.
     """
-    from msta.train.config import training_mask_ratio
-    from msta.train.correct_config import CorrectConfig
-    from msta.train.online import RoundEvalConfig, correct
-
     out = run / "stage2"
     last = out / f"round_{cfg.stage2_rounds}"
     if (last / "config.json").is_file():
@@ -350,8 +351,6 @@ def train_policy(cfg: CompareConfig, name: str, root: Path, prog: PhaseLog) -> P
 
 def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: PhaseLog) -> dict[str, Any]:
     """One msta-eval run over the teacher and every final checkpoint (same trials)."""
-    from msta.eval.evaluate import EvalConfig, evaluate
-
     ecfg = EvalConfig(policies=",".join(["teacher", *map(str, ckpts)]), suite=cfg.eval_suite,
                       output_dir=str(Path(cfg.output_dir) / "eval"), trials=cfg.trials,
                       terrains=cfg.eval_terrains, scenarios=cfg.eval_scenarios,
@@ -379,8 +378,6 @@ def _average(metrics: dict[str, Any], policy: str, metric: str = "total") -> lis
 
 def paper_table(metrics: dict[str, Any]) -> str:
     """Average normalized total reward per test mask, beside the paper's Table I."""
-    from msta.data.figures import fmt as _fmt
-
     rows = ["| policy | ours 0 % | ours 25 % | ours 50 % | paper 0 % | paper 25 % | paper 50 % |",
             "|---|---|---|---|---|---|---|"]
     for p in metrics["policies"]:
@@ -396,8 +393,6 @@ def paper_table(metrics: dict[str, Any]) -> str:
 def comparison_markdown(cfg: CompareConfig, metrics: dict[str, Any], command: str,
                         timing: dict[str, float]) -> str:
     """``output_dir/comparison.md``: the command, the budgets, Table I (three returns), timings."""
-    from msta.eval.report import table_one
-
     ec = metrics["config"]
     setup = (
         f"Teacher `{cfg.teacher.label}`; dataset `{cfg.dataset_root}`; preset `{cfg.preset}`; "
@@ -426,8 +421,6 @@ def compare(cfg: CompareConfig, command: str = "") -> dict[str, Any]:
     Returns:
         the content of ``out/eval/metrics.json``.
     """
-    from msta.eval.report import table_one
-
     out = Path(cfg.output_dir)
     if not cfg.collect_episodes:
         check_dataset(cfg.dataset_root)  # before anything is written

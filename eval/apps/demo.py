@@ -29,6 +29,7 @@ Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun start
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import time
@@ -36,12 +37,24 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.record import CollectConfig, collect
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data.cli import check_at_least
+from msta.collect.simulate import SimRunConfig, simulate
+from msta.data.cli import check_at_least, parse_config
+from msta.data.hub_pull import pull
+from msta.data.hub_push import push_dataset
+from msta.data.hub_server.app import ServerConfig
+from msta.data.hub_server.server import HubServer
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
+from msta.train.correct_config import CorrectConfig
+from msta.train.offline import TrainConfig, train
+from msta.train.online import correct
+from msta.train.round_eval import RoundEvalConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 
@@ -49,7 +62,8 @@ HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
                          repo_id: str, teacher: TeacherConfig | None = None,
                          action_noise: float = 0.0, extra_sensors: str = "") -> Path:
-    """The demo's teacher dataset: a teacher (default: gait) on terrain levels 0-2, seed 0,
+    """The demo's teacher dataset: a teacher (default: msta's default teacher,
+    :class:`~msta.policies.teacher.config.TeacherConfig`'s) on terrain levels 0-2, seed 0,
     up to 64 robots at once (``make demo``, ``msta-repro``, ``make device-check``,
     ``make bench-learn`` and the learning tests share it).
 
@@ -58,22 +72,18 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
         episodes: episodes to record.
         episode_length_s: episode time limit (s).
         repo_id: the dataset's ``repo_id``.
-        teacher: the recording teacher (None: the gait controller).
+        teacher: the recording teacher (None: ``TeacherConfig()``).
         action_noise: ``CollectConfig.action_noise`` (DART).
         extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
     """
-    from msta.collect.record import CollectConfig, collect
-
     return collect(CollectConfig(
-        teacher=teacher or TeacherConfig(type="gait"), episodes=episodes, num_envs=min(episodes, 64),
+        teacher=teacher or TeacherConfig(), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
         extra_sensors=extra_sensors, progress=False))
 
 
 def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig) -> None:
-    from msta.collect.simulate import SimRunConfig, simulate
-
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
     cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
@@ -96,9 +106,6 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
                mask: float = MSTAConfig.mask_ratio, **loop: float) -> Path:
-    from msta.policies.msta import MSTAConfig
-    from msta.train.offline import TrainConfig, train
-
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
           f"ratio {mask:g} ==")
     return train(TrainConfig(
@@ -110,9 +117,6 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
 
 
 def start_hub(out: Path):
-    from msta.data.hub_server.app import ServerConfig
-    from msta.data.hub_server.server import HubServer
-
     server = HubServer(ServerConfig(root=str(out / "hub"), host="127.0.0.1", port=0,
                                     tokens=[f"{HUB_USER}:{HUB_SECRET}"]))
     server.start()
@@ -123,8 +127,6 @@ def start_hub(out: Path):
 
 
 def step_push(dataset: Path) -> str:
-    from msta.data.hub_push import push_dataset
-
     print("\n== 3. local hub: push the dataset ==")
     sha = push_dataset(dataset, f"{HUB_USER}/a1_teacher")
     print(f"dataset  {HUB_USER}/a1_teacher  commit {sha[:12]} (tag v3.0)")
@@ -157,12 +159,6 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
     best on the selection trials (DAgger promises a good policy among its iterates, not
     that the last is best). ``select_trials=0``: no round evaluation (it costs about as
     much as a round's rollouts), the last round is evaluated."""
-    import json
-
-    from msta.policies.checkpoint import PolicyPath
-    from msta.train.correct_config import CorrectConfig
-    from msta.train.online import correct
-    from msta.train.round_eval import RoundEvalConfig
 
     print(f"\n== 5. msta-correct: {rounds} stage-2 round(s) ({episodes} episodes each: the "
           "student drives alone (DAgger beta 0) at test-time mask "
@@ -196,9 +192,6 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
 
 def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int,
               teacher: TeacherConfig) -> dict:
-    from msta.data.hub_pull import pull
-    from msta.eval.evaluate import EvalConfig, evaluate
-
     tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
           f"0 / 25 / 50 %, {trials} trials of {episode_length_s:g} s over the five terrains at levels "
@@ -349,8 +342,6 @@ class DemoConfig:
 
 def main(argv: list[str] | None = None) -> None:
     """Run the msta pipeline demo on built-in defaults (``python -m msta.eval.apps.demo --help``)."""
-    from msta.data.cli import parse_config
-
     cfg = parse_config(DemoConfig, argv, prog="python -m msta.eval.apps.demo")
     out = Path(cfg.output_dir)
     os.environ.setdefault("MUJOCO_GL", "egl")

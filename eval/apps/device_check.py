@@ -37,7 +37,20 @@ from typing import Any
 import numpy as np
 import torch
 
+from msta.data.cli import parse_config
+from msta.data.windows import WindowDataset
+from msta.eval.apps.demo import easy_terrain_dataset
+from msta.eval.apps.train_scaling import measure
+from msta.eval.evaluate import EvalConfig, evaluate
+from msta.policies.checkpoint import PolicyPath
+from msta.policies.factory import load_policy, select_device
+from msta.policies.msta import MSTAConfig
+from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
+from msta.train.correct_config import CorrectConfig
+from msta.train.offline import TrainConfig, train
+from msta.train.online import correct
+from msta.train.round_eval import RoundEvalConfig
 
 #: scale -> (episodes, episode s, gpu steps, cpu steps, batch, round episodes, round steps,
 #: eval trials, eval episode s, preset)
@@ -92,9 +105,6 @@ def last_samples_per_s(run: Path) -> float:
 
 
 def stage1(root: Path, out: Path, device: str, steps: int, batch: int, preset: str) -> Path:
-    from msta.policies.msta import MSTAConfig
-    from msta.train.offline import TrainConfig, train
-
     return train(TrainConfig(
         dataset=str(root), policy=MSTAConfig.from_preset(preset), output_dir=str(out),
         device=device, steps=steps, batch_size=batch, warmup_steps=min(100, max(steps // 5, 1)),
@@ -103,9 +113,6 @@ def stage1(root: Path, out: Path, device: str, steps: int, batch: int, preset: s
 
 def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
     """The same checkpoint's actions on the CPU and on ``device`` for 512 windows."""
-    from msta.data.windows import WindowDataset
-    from msta.policies.factory import load_policy
-
     if torch.device(device).type != "cuda":
         return {"compared": False, "why": "no CUDA device: CPU only"}
     cpu = load_policy(ckpt, device="cpu")
@@ -124,10 +131,6 @@ def parity(ckpt: Path, root: Path, device: str) -> dict[str, Any]:
 
 def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps: int,
            batch: int, seconds: float) -> tuple[Path, dict[str, Any]]:
-    from msta.policies.teacher.config import TeacherConfig
-    from msta.train.correct_config import CorrectConfig
-    from msta.train.online import PolicyPath, RoundEvalConfig, correct
-
     copy = out.parent / "stage2_dataset"
     shutil.copytree(root, copy)
     correct(CorrectConfig(
@@ -144,9 +147,6 @@ def stage2(ckpt: Path, root: Path, out: Path, device: str, episodes: int, steps:
 
 def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
                      seconds: float) -> dict[str, Any]:
-    from msta.eval.evaluate import EvalConfig, evaluate
-    from msta.policies.teacher.config import TeacherConfig
-
     metrics = evaluate(EvalConfig(
         policies=f"teacher,{ckpt}", suite="quick", scenarios="token_removal", output_dir=str(out),
         trials=trials, levels="0,1,2", episode_length_s=seconds, device=device,
@@ -165,8 +165,6 @@ def evaluate_student(ckpt: Path, out: Path, device: str, trials: int,
 def torchrun_training(root: Path, work: Path, main: str, scale: str) -> dict[str, Any]:
     """msta-train under torchrun and as today's single process, same data and steps: on
     CUDA (when ``main`` is) one process per GPU, on the CPU 2 processes sharing the cores."""
-    from msta.eval.apps.train_scaling import measure
-
     gpu_steps, cpu_steps, batch, preset = TORCHRUN[scale]
     cores = os.cpu_count() or 1
     runs = [("cpu", 2, cpu_steps, "gloo")]
@@ -193,10 +191,6 @@ def timed(figures: dict[str, Any], name: str, fn, *args):
 
 def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     """Every stage; returns (and writes) the figures."""
-    from msta.eval.apps.demo import easy_terrain_dataset
-    from msta.policies.factory import select_device
-    from msta.policies.teacher.config import TeacherConfig
-
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
     main = str(select_device(cfg.device))
@@ -255,8 +249,6 @@ def print_summary(figs: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     run(parse_config(DeviceCheckConfig, argv, prog="python -m msta.eval.apps.device_check"))
 
 

@@ -61,12 +61,15 @@ from msta.data.locking import hold_directory
 from msta.eval.apps.compare import (
     PAPER_TABLE_I,
     CompareConfig,
-    PhaseLog,
     paper_table,
     stage1,
     stage2,
     train_policy,
 )
+from msta.eval.apps.demo import easy_terrain_dataset
+from msta.eval.apps.phases import PhaseLog
+from msta.eval.apps.repro_report import write_report
+from msta.eval.evaluate import EvalConfig, evaluate
 from msta.policies.factory import select_device
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS, check_optimizer
@@ -236,8 +239,6 @@ def print_sizes(cfg: ReproConfig) -> None:
 
 
 def ensure_dataset(cfg: ReproConfig, prog: PhaseLog) -> Path:
-    from msta.eval.apps.demo import easy_terrain_dataset
-
     root = Path(cfg.output_dir) / "teacher_dataset"
     s = cfg.sizes
     have = load_info(root)["total_episodes"] if layout.is_dataset_root(root) else 0
@@ -281,8 +282,6 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
              windows: tuple[int, ...] = ()) -> dict[str, Any]:
     """One msta-eval run (skipped when its metrics.json exists); ``levels``: other terrain
     levels than the scale's; ``windows``: the history scenario's."""
-    from msta.eval.evaluate import EvalConfig, evaluate
-
     out = Path(cfg.output_dir) / "eval" / name
     done = out / "metrics.json"
     if done.is_file():
@@ -319,8 +318,6 @@ def repro(cfg: ReproConfig, command: str = PROG) -> Path:
 
 def _study(cfg: ReproConfig, command: str, out: Path, prog: PhaseLog) -> Path:
     """:func:`repro`'s phases."""
-    from msta.eval.apps.repro_report import write_report
-
     root = ensure_dataset(cfg, prog)
     ccfg = compare_config(cfg, root)
     ckpts = {name: train_policy(ccfg, name, root, prog) for name in ccfg.policy_list}

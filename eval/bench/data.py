@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from msta.data import features as F
+from msta.data.cli import parse_config
 from msta.data.derived import derive
 from msta.data.sensors import SENSORS, STUDENT_SENSORS
 from msta.data.windows import WindowDataset
@@ -63,6 +64,7 @@ def bench_write_ours(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
 
 
 def bench_write_lerobot(root: Path, eps: list[dict[str, np.ndarray]]) -> float:
+    # lazy: lerobot (~3 s) only for the comparison with its writer
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     # the same columns msta's writer writes: the sensors and the derived state columns
@@ -101,6 +103,7 @@ def bench_read_ours(root: Path, batch: int, seconds: float = 2.0) -> tuple[float
 
 
 def bench_read_lerobot(root: Path, samples: int) -> float:
+    # lazy: lerobot (~3 s) only for the comparison with its writer
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     deltas = {SENSORS[s].column: [(k - WINDOW + 1) / F.DEFAULT_FPS for k in range(WINDOW)]
@@ -141,15 +144,13 @@ class BenchDataConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     args = parse_config(BenchDataConfig, argv, prog="python -m msta.eval.bench.data")
     logging.disable(logging.WARNING)
     with tempfile.TemporaryDirectory(prefix="msta_bench_") as tmp:
         tmp = Path(tmp)
         # lerobot's loader converts Parquet into an Arrow cache; keep it out of ~/.cache
         os.environ["HF_DATASETS_CACHE"] = str(tmp / "hf_datasets_cache")
-        import datasets
+        import datasets  # lazy: datasets pulls in pandas and more (~1 s); only this path needs it
 
         datasets.disable_progress_bars()
         F.data_schema(F.build_features())  # one-time imports (datasets) outside the timing

@@ -42,6 +42,7 @@ import numpy as np
 import torch
 
 from msta.data import sensors as registry
+from msta.data.cli import parse_config
 from msta.policies import guard as guard_mod
 from msta.policies.export import (
     MINIMIZED_HISTORY,
@@ -55,6 +56,7 @@ from msta.policies.export import (
 from msta.policies.factory import make_policy
 from msta.policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
 from msta.policies.msta import MSTAConfig
+from msta.policies.onnx_runtime import OnnxStudent
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
 #: the bar for guard + student at the full observation, one core, batch 1
@@ -78,8 +80,6 @@ def synthetic_guard(seed: int = 0) -> SensorGuard:
 def bench_guard(policy, T: int, out: Path, seconds: float, student_ms: float) -> dict:
     """Guard alone and guard + student (OnnxStudent.step) per step at the full observation;
     printed with their ratios to ``student_ms`` (the plain ONNX Runtime student)."""
-    from msta.policies.onnx_runtime import OnnxStudent
-
     guard = synthetic_guard()
     guard.save(out / "guard")
     names = resolve_sensors(policy, "all")
@@ -182,7 +182,7 @@ def runtimes(policy, names, T, out: Path) -> tuple[dict[str, Callable[[], object
         with torch.inference_mode():
             return ts(*eager_in)
 
-    import onnxruntime as ort
+    import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
@@ -223,8 +223,6 @@ class BenchDeployConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     a = parse_config(BenchDeployConfig, argv, prog="python -m msta.eval.bench.deploy")
     torch.set_num_threads(1)
     torch.manual_seed(0)

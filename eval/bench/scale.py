@@ -37,13 +37,14 @@ import torch
 
 from msta.collect.ray_record import RecordJob, record_block, teacher_factory
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.cli import parse_config
 from msta.data.sensors import DEFAULT_RECORDED
 from msta.data.stats import load_stats
 from msta.data.writer import DatasetWriter
 from msta.eval.evaluate import EvalConfig, evaluate
-from msta.policies.factory import make_policy
+from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.correct_config import CorrectConfig
@@ -181,9 +182,8 @@ def committer_rate(args: BenchScaleConfig, out: Path) -> float:
 
 def measure(args: BenchScaleConfig, out: Path) -> dict[str, Any]:
     """Every configuration round-robin, after a warm-up of each; per-round rates."""
-    import ray
+    import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
-    from msta.policies.factory import load_policy
 
     if not ray.is_initialized():  # one local Ray, a CPU for every worker of every pool
         ray.init(num_cpus=sum(args.worker_list), include_dashboard=False,

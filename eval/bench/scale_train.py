@@ -24,7 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from msta.data.cli import parse_config
+from msta.data.writer import DatasetWriter
 from msta.eval.apps.train_scaling import measure
+from msta.eval.bench.data import PROVENANCE, make_episodes
 from msta.train.ddp import check_batch
 
 #: today's run: one plain process on every core (the reference of every ratio)
@@ -71,9 +74,6 @@ class ScaleTrainConfig:
 def make_dataset(root: Path, episodes: int, frames: int) -> Path:
     """A dataset of synthetic frames (every recorded column; training speed does not depend
     on the values)."""
-    from msta.data.writer import DatasetWriter
-    from msta.eval.bench.data import PROVENANCE, make_episodes
-
     with DatasetWriter.create(root, "local/bench_scale") as w:
         for ep in make_episodes(episodes, frames):
             w.add_episode(ep, PROVENANCE)
@@ -145,8 +145,6 @@ def report(cfg: ScaleTrainConfig, figs: dict[str, Any]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     cfg = parse_config(ScaleTrainConfig, argv, prog="python -m msta.eval.bench.scale_train")
     print(report(cfg, run(cfg)), flush=True)
 

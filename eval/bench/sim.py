@@ -17,7 +17,9 @@ import numpy as np
 from mujoco import rollout
 
 from msta.collect.sim import robot
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
+from msta.data.cli import parse_config
 from msta.data.robot import DEFAULT_POSE, NUM_JOINTS
 
 
@@ -71,8 +73,6 @@ class BenchSimConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     args = parse_config(BenchSimConfig, argv, prog="python -m msta.eval.bench.sim")
     env = QuadrupedEnv(EnvConfig(num_envs=args.num_envs, nthread=args.nthread, seed=0,
                                collision=args.collision))

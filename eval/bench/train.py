@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import torch
 
 from msta.data import sensors
+from msta.data.cli import parse_config
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig, MSTAPolicy
 from msta.policies.msta.modeling_msta import num_kept
@@ -204,8 +205,6 @@ class BenchTrainConfig:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from msta.data.cli import parse_config
-
     args = parse_config(BenchTrainConfig, argv, prog="python -m msta.eval.bench.train")
     torch.set_num_threads(args.num_threads)
     gen = torch.Generator().manual_seed(0)

@@ -12,13 +12,9 @@ from typing import TYPE_CHECKING
 from msta.data.hub_server import boundary, trees
 from msta.data.hub_server.boundary import field
 from msta.data.hub_server.cards import card_tags, front_matter
+from msta.data.hub_server.commits import CommitInfo, FileEntry
 from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
-from msta.data.hub_server.storage import (
-    CommitInfo,
-    FileEntry,
-    RepoMeta,
-    lfs_pointer,
-)
+from msta.data.hub_server.storage import RepoMeta, lfs_pointer
 
 if TYPE_CHECKING:
     from msta.data.hub_server.app import HubApp

@@ -14,8 +14,9 @@ from typing import TYPE_CHECKING, Any
 from msta.data.hub_server import boundary
 from msta.data.hub_server.api import REPO, REV, read_repo, repo_url, write_repo
 from msta.data.hub_server.boundary import InputError, field
+from msta.data.hub_server.commits import FileEntry
 from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
-from msta.data.hub_server.storage import FileEntry, RepoMeta, git_blob_sha1, lfs_pointer
+from msta.data.hub_server.storage import RepoMeta, git_blob_sha1, lfs_pointer
 
 if TYPE_CHECKING:
     from msta.data.hub_server.app import HubApp

@@ -31,8 +31,9 @@ import torch
 from torch import Tensor, nn
 
 from msta.data import sensors
-from msta.policies.base import Absent, Batch, Channels, PolicyConfig, StudentPolicy, uniform
-from msta.policies.processor import StudentProcessor
+from msta.policies.base import Absent, StudentPolicy, uniform
+from msta.policies.config import PolicyConfig
+from msta.policies.processor import Batch, Channels, StudentProcessor
 
 FORMAT = "timestep-processor/1"
 

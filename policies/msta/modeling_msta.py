@@ -26,8 +26,7 @@ attended to in every block like real tokens and are never masked. Each is the su
 parts drawn independently from the ``generator``, so every part looks like a real token's
 but together they form no reading of any channel:
 
-    dummy = value_embed[random present table][random bin] + pos[random token slot]
-            + sensor_embed[random present sensor]                                 # (d,)
+    dummy = value_embed[table][bin] + pos[slot] + sensor_embed[sensor]   # (d,), random present ones
 
 Fresh ones are drawn for every sample and call; no parameter changes. ``dummy_tokens`` may
 instead be a (B, D, 4) tensor of uniform numbers in [0, 1) that fixes the four draws (table,
@@ -54,11 +53,12 @@ import torch
 from torch import Tensor, nn
 
 from msta.data.sensors import get
-from msta.policies.base import Absent, Batch, Channels, StudentPolicy, uniform
+from msta.policies.base import Absent, StudentPolicy, uniform
 from msta.policies.factory import register_policy
 from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
 from msta.policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
+from msta.policies.processor import Batch, Channels
 from msta.policies.transformer import (
     init_linears,
     make_blocks,

@@ -163,7 +163,7 @@ def load_spec(path: str | Path) -> ImportedSpec:
     if path.suffix == ".json":
         data = json.loads(text)
     elif path.suffix in (".yaml", ".yml"):
-        import yaml  # a draccus dependency
+        import yaml  # lazy: yaml only for a .yaml spec file
 
         data = yaml.safe_load(text)
     else:
@@ -209,7 +209,7 @@ class OnnxBackend:
 
     def __init__(self, path: Path, device: str) -> None:
         try:
-            import onnxruntime as ort
+            import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
         except ImportError as e:
             raise ImportError(f"running the ONNX teacher {str(path)!r} needs onnxruntime "
                               f"(pip install onnxruntime): {e}") from e

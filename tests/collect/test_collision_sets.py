@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from msta.collect.sim import robot
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.robot import CALF_COLLISION_FULL
 
 

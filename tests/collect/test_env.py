@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from msta.collect.sim import robot
-from msta.collect.sim.env import REASONS, EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import REASONS, QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.sensors import SENSORS

@@ -16,7 +16,8 @@ from gymnasium.wrappers import FlattenObservation, RecordEpisodeStatistics
 from gymnasium.wrappers import vector as vector_wrappers
 
 import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
-from msta.collect.sim.env import REASONS, EnvConfig
+from msta.collect.sim.env import REASONS
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.gym_env import MstaEnv, MstaVectorEnv
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig

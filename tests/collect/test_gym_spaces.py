@@ -15,7 +15,7 @@ import pytest
 from gymnasium.wrappers import FlattenObservation
 
 import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.gym_env import MstaEnv, MstaVectorEnv
 from msta.collect.sim.robot import joint_limits
 from msta.collect.sim.spaces import JOINT_POS_MARGIN, ActionMap

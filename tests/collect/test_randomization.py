@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from msta.collect.sim import robot
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import (
     RandomizationConfig,
     apply_params,

@@ -10,7 +10,8 @@ import pytest
 
 from msta.collect.recorder import LabelledActor, record_rollouts
 from msta.collect.rollout import fell, film, rollout, run, step_quantities
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 

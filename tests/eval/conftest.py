@@ -10,7 +10,7 @@ import torch
 
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.stats import load_stats
 from msta.policies.factory import make_policy

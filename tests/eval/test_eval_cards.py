@@ -17,9 +17,10 @@ from msta.data.cli import parse_config
 from msta.data.figures import fmt_ci
 from msta.data.hub_cards import card_metadata
 from msta.data.hub_cli import main as hub
+from msta.data.hub_eval import HEADLINE_FIGURES
 from msta.data.hub_ids import hub_api
 from msta.eval.evaluate import EvalConfig, evaluate
-from msta.eval.metrics import HEADLINE_FIGURES, headline
+from msta.eval.metrics import headline
 
 
 @pytest.fixture(scope="module")

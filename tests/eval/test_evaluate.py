@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from msta.data.budget import EXIT_STOPPED
-from msta.eval.evaluate import EvalConfig, Evaluator, evaluate, load_entries, main
+from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
+from msta.eval.evaluator import Evaluator
 from msta.eval.metrics import RETURNS
 from msta.eval.scenarios import Condition
 from msta.policies.actor import InputSpec
@@ -53,7 +54,8 @@ def _token_counts(ev: Evaluator, entry, spec: InputSpec) -> int:
     The evaluation run itself must succeed with the spec; the count is then taken by
     feeding the same actor class the evaluator uses (StudentActor) 20 consecutive
     observations, so it does not depend on whether a random student falls early."""
-    from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+    from msta.collect.sim.env import QuadrupedEnv
+    from msta.collect.sim.env_config import EnvConfig
     from msta.policies.actor import StudentActor
 
     rec = ev.condition(entry, Condition("test", repr(spec), 0, spec))

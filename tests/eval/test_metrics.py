@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from msta.collect.sim.commands import CommandConfig
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.eval.intervals import wilson_interval
 from msta.eval.metrics import TrialLayout, aggregate, normalize, run_trials, start_trials, survival

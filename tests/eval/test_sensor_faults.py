@@ -10,7 +10,8 @@ import pytest
 
 from msta.collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
 from msta.collect.rollout import rollout
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.sensors import STUDENT_SENSORS
 from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
 from msta.eval.scenarios import DEFAULT_FAULTS, FAULT_JOINT, build_conditions, get_suite

@@ -9,9 +9,10 @@ import pytest
 import torch
 
 import msta.eval.teacher_curve as tc
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
+from msta.train.ppo import PPOConfig
+from msta.train.teacher.cli import TrainTeacherConfig, train_teacher
 from msta.train.teacher.warmstart import WarmStartConfig
 
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from msta.collect.rollout import rollout, step_quantities
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.eval import teacher_report as tr
 from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher

@@ -139,7 +139,7 @@ def test_schema_1_dataset_loads_and_appends_in_its_own_layout(tmp_path, write_da
 def collected(tmp_path_factory) -> Path:
     """4 short episodes of the zero teacher, recorded by msta's own collector."""
     from msta.collect.record import CollectConfig, collect
-    from msta.collect.sim.env import EnvConfig
+    from msta.collect.sim.env_config import EnvConfig
     from msta.collect.sim.randomization import RandomizationConfig
     from msta.collect.sim.terrain import TerrainConfig
     from msta.policies.teacher.config import TeacherConfig

@@ -14,9 +14,9 @@ import torch
 from msta_test_helpers import overfit, random_batch  # registered by tests/conftest.py
 
 from msta.data import sensors
-from msta.policies.base import PolicyConfig
 from msta.policies.baselines import BASELINES, REFERENCES, TCNConfig, TERTMaskConfig, TimestepPolicy
 from msta.policies.baselines.common import random_input_mask
+from msta.policies.config import PolicyConfig
 from msta.policies.factory import (
     get_config_class,
     load_policy,

@@ -13,7 +13,8 @@ import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta.data import sensors
-from msta.policies.base import Policy, PolicyConfig
+from msta.policies.base import Policy
+from msta.policies.config import PolicyConfig
 from msta.policies.factory import (
     get_config_class,
     load_policy,

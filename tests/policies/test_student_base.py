@@ -18,8 +18,8 @@ from msta.data import sensors
 from msta.data.cli import args_doc
 from msta.data.robot import NUM_JOINTS
 from msta.policies.actor import InputSpec
-from msta.policies.base import PolicyConfig, StudentProcessor
 from msta.policies.baselines import TimestepPolicy, TimestepProcessor
+from msta.policies.config import PolicyConfig
 from msta.policies.factory import (
     get_config_class,
     get_policy_class,
@@ -31,6 +31,7 @@ from msta.policies.factory import (
     registered_policies,
     unregister_policy,
 )
+from msta.policies.processor import StudentProcessor
 from msta.policies.transformer import Block
 
 REPO = Path(__file__).resolve().parents[2]

@@ -9,7 +9,8 @@ import pytest
 
 from msta.collect.sim import robot
 from msta.collect.sim.commands import CommandConfig
-from msta.collect.sim.env import EnvConfig, NoiseConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data import robot as robot_spec

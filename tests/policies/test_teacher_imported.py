@@ -12,7 +12,8 @@ import pytest
 import torch
 from torch import nn
 
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.robot import DEFAULT_POSE
 from msta.data.sensors import JOINT_NAMES, SENSORS, STUDENT_SENSORS, get
 from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher

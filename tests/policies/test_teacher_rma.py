@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.robot import DEFAULT_POSE
 from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS, get
 from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher

@@ -15,7 +15,7 @@ from rsl_rl.runners import OnPolicyRunner
 from safetensors.torch import load_file
 
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.stats import load_stats

@@ -60,8 +60,9 @@ def test_bad_options_are_one_line_errors(argv, msg, capsys, synthetic_dataset, t
 
 def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_dataset):
     from msta.collect.faults import FaultSpec, std_from_stats
+    from msta.data.sensors import PHYSICAL_SENSORS
     from msta.data.stats import load_stats
-    from msta.policies.guard import PHYSICAL_SENSORS, SensorGuard
+    from msta.policies.guard import SensorGuard
     from msta.train.guard_data import load_episodes
     from msta.train.guard_eval import run_fault, summarize
     from msta.train.guard_fit import fit_guard

@@ -1,4 +1,4 @@
-"""Students that learn, on real teacher data (the gait teacher in the real simulator).
+"""Students that learn, on real teacher data (the default teacher in the real simulator).
 
 1. Stage 1: the MSTA cpu preset, at its defaults (mask ratio 0.75, lr 1e-3), reaches val
    loss_unmasked <= 0.3 on a 48-episode teacher dataset within 1000 steps (the mean action
@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import torch
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.eval.apps.demo import easy_terrain_dataset
 from msta.policies.factory import load_policy
@@ -30,7 +30,8 @@ from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.correct_config import CorrectConfig
 from msta.train.offline import TrainConfig, train
-from msta.train.online import RoundEvalConfig, append_episodes, correct, drive_and_label
+from msta.train.online import append_episodes, correct, drive_and_label
+from msta.train.round_eval import RoundEvalConfig
 
 pytestmark = pytest.mark.slow
 
@@ -45,7 +46,7 @@ def two_threads() -> Iterator[None]:
 
 @pytest.fixture(scope="module")
 def teacher_data(tmp_path_factory) -> Path:
-    """48 gait-teacher episodes of 10 s on terrain levels 0-2 (the demo's recipe)."""
+    """48 episodes of 10 s of the default teacher on terrain levels 0-2 (the demo's recipe)."""
     root = tmp_path_factory.mktemp("learn") / "teacher"
     return easy_terrain_dataset(root, 48, 10.0, "test/teacher")
 
@@ -92,7 +93,7 @@ def test_a_stage2_round_fits_the_teacher_on_the_students_own_states(
                         steps=400, warmup_steps=20, eval_every=0, save_every=0,
                         eval=RoundEvalConfig(enabled=False), progress=False,
                         env=EnvConfig(terrain=TerrainConfig(max_init_level=2)),
-                        teacher=TeacherConfig(type="gait"))  # the teacher of teacher_data
+                        teacher=TeacherConfig())  # the teacher of teacher_data
     correct(cfg)
     before = load_policy(ckpt)
     after = load_policy(tmp_path / "s2" / "round_1")

@@ -13,7 +13,8 @@ import pytest
 
 from msta.collect.record import CollectConfig, collect
 from msta.collect.recorder import record_rollouts
-from msta.collect.sim.env import EnvConfig, QuadrupedEnv
+from msta.collect.sim.env import QuadrupedEnv
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.budget import TimeLimitReached
@@ -25,7 +26,8 @@ from msta.policies.msta import MSTAConfig, MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 from msta.train.correct_config import CorrectConfig
 from msta.train.correct_progress import CorrectProgress
-from msta.train.online import RoundEvalConfig, correct, main
+from msta.train.online import correct, main
+from msta.train.round_eval import RoundEvalConfig
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)
@@ -144,7 +146,7 @@ def test_round_table_model_card_and_msta_eval_agree(two_rounds, tmp_path, capsys
     it on, reports the figures of msta-correct's round table and of its model card."""
     from msta.eval.evaluate import main as msta_eval
     from msta.eval.report_cells import fmt_cell
-    from msta.train.online import print_table
+    from msta.train.correct_progress import print_table
     from msta.train.push import round_eval
 
     cfg, prog, _ = two_rounds

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from huggingface_hub.errors import HfHubHTTPError
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.hub_cards import card_metadata
@@ -23,9 +23,11 @@ from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.cli import parse_cli
 from msta.train.correct_config import CorrectConfig
+from msta.train.correct_progress import PROGRESS
 from msta.train.offline import TrainConfig, main, train
-from msta.train.online import PROGRESS, RoundEvalConfig, correct
+from msta.train.online import correct
 from msta.train.push import PushError, dataset_source
+from msta.train.round_eval import RoundEvalConfig
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-0002"
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",

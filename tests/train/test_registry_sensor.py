@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data import sensors

@@ -21,10 +21,10 @@ from msta.eval.apps.repro import main as repro_main
 from msta.eval.evaluate import main as eval_main
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
+from msta.train.correct_progress import PROGRESS
 from msta.train.finetune import main as finetune_main
 from msta.train.finetune_ppo import main as finetune_ppo_main
 from msta.train.offline import main as train_main
-from msta.train.online import PROGRESS
 from msta.train.online import main as correct_main
 from msta.train.teacher.cli import main as train_teacher_main
 

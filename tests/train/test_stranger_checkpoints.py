@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from msta.data.stats import load_stats
-from msta.policies.base import CheckpointError
+from msta.policies.checkpoint import CheckpointError
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 

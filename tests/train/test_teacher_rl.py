@@ -14,14 +14,14 @@ import torch
 from rsl_rl.env import VecEnv
 from rsl_rl.runners import OnPolicyRunner
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 from msta.policies.teacher.imported import InputScaler
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
-from msta.train.ppo import latest_checkpoint
+from msta.train.ppo import PPOConfig, latest_checkpoint
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
-from msta.train.teacher.cli import PPOConfig, TrainTeacherConfig, train_teacher
+from msta.train.teacher.cli import TrainTeacherConfig, train_teacher
 from msta.train.teacher.model import RMAActor, load_from_teacher, to_teacher
 from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 

@@ -26,13 +26,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import torch
+from rsl_rl.runners import OnPolicyRunner
 
-from msta.collect.sim.env import EnvConfig
+from msta.collect.sim.env_config import EnvConfig
 from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.locking import hold_directory
+from msta.policies.factory import select_device
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
-from msta.train.optim import select_device
 from msta.train.ppo import ChunkLoop, PPOConfig, latest_checkpoint
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.teacher.model import actor_cfg, load_from_teacher, to_teacher
@@ -152,8 +153,6 @@ def _run_ppo(cfg: TrainTeacherConfig, out: Path, rma: RMAConfig,
     """Stage 2: rsl_rl's PPO in chunks (:class:`msta.train.ppo.ChunkLoop`), started from
     ``start_net`` or resumed; the critic warm-up only when PPO starts from a walking
     policy (``warm``), not from rsl_rl's random actor."""
-    from rsl_rl.runners import OnPolicyRunner
-
     device = str(select_device(cfg.device))
     env = RslVecEnv(cfg.env, rma, device=device)
     both = [PRIVILEGED, PROPRIO]

@@ -101,7 +101,7 @@ def test_bad_input_is_named(tmp_path, capsys) -> None:
 
 
 def test_a_phase_stopped_by_max_minutes_keeps_its_time_for_the_call_that_finishes_it(tmp_path):
-    from msta.eval.apps.compare import PhaseLog
+    from msta.eval.apps.phases import PhaseLog
 
     first = PhaseLog(tmp_path, deadline=None)
     first.start("msta stage 1")

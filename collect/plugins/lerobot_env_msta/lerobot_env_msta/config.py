@@ -24,7 +24,7 @@ from msta.data.robot import DECIMATION, SIM_DT
 from msta.data.sensors import ACTION_DIM, SENSORS
 
 if TYPE_CHECKING:
-    from msta.collect.sim.env import EnvConfig as SimConfig
+    from msta.collect.sim.env_config import EnvConfig as SimConfig
 
 #: The paper's five terrain types (the default task groups).
 PAPER_TERRAINS: tuple[str, ...] = tuple(LEGGED_GYM_TYPE_WEIGHTS)
@@ -138,9 +138,14 @@ class MstaA1EnvConfig(EnvConfig):
                 ``platform_size`` at each tile's centre).
             num_envs: robots simulated together (lerobot-eval's ``--eval.batch_size``).
         """
-        from msta.collect.sim.commands import CommandConfig
-        from msta.collect.sim.env import EnvConfig as SimConfig
-        from msta.collect.sim.env import NoiseConfig
+        # lerobot imports this plugin at the start of every command: MuJoCo waits for envs
+        from msta.collect.sim.commands import CommandConfig  # lazy: MuJoCo loads when envs are made
+
+        # lazy: MuJoCo loads when envs are made
+        from msta.collect.sim.env_config import EnvConfig as SimConfig
+        from msta.collect.sim.env_config import NoiseConfig  # lazy: MuJoCo loads when envs are made
+
+        # lazy: MuJoCo loads when envs are made
         from msta.collect.sim.randomization import RandomizationConfig
 
         return SimConfig(
@@ -161,6 +166,7 @@ class MstaA1EnvConfig(EnvConfig):
             use_async_envs: ignored: the batched simulator already steps every robot of a
                 batch at once, in this process.
         """
+        # lazy: lerobot imports the plugin on every command; the simulator loads when envs are made
         from lerobot_env_msta.vector_env import A1VectorEnv
 
         if n_envs < 1:

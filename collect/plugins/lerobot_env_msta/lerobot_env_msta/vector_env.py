@@ -25,7 +25,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from msta.collect.sim.env import EnvConfig as SimConfig
+from msta.collect.sim.env_config import EnvConfig as SimConfig
 from msta.collect.sim.gym_env import MstaVectorEnv
 from msta.data import derived
 from msta.data.sensors import STUDENT_SENSORS, get
