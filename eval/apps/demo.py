@@ -31,7 +31,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import shutil
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -41,11 +40,12 @@ from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig, simulate
-from msta.data.cli import check_at_least, parse_config
+from msta.data.cli import check_at_least, parse_config, usage_error
 from msta.data.hub_pull import pull
 from msta.data.hub_push import push_dataset
 from msta.data.hub_server.app import ServerConfig
 from msta.data.hub_server.server import HubServer
+from msta.data.output_dirs import OutputDirError, clear_output_dir
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
@@ -57,6 +57,9 @@ from msta.train.online import correct
 from msta.train.round_eval import RoundEvalConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
+#: What the demo writes at the top of its --output_dir (a run from before the output marker).
+OUTPUTS = frozenset({"teacher", "datasets", "hub", "hub_cache", "pulled", "stage1", "stage2",
+                     "eval", "verdict.txt"})
 
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
@@ -343,10 +346,11 @@ class DemoConfig:
 def main(argv: list[str] | None = None) -> None:
     """Run the msta pipeline demo on built-in defaults (``python -m msta.eval.apps.demo --help``)."""
     cfg = parse_config(DemoConfig, argv, prog="python -m msta.eval.apps.demo")
-    out = Path(cfg.output_dir)
+    try:  # a rerun starts afresh, but only in a folder the demo wrote
+        out = clear_output_dir(cfg.output_dir, "msta-demo", legacy=OUTPUTS)
+    except OutputDirError as e:
+        raise usage_error(f"msta-demo: error: {e}") from None
     os.environ.setdefault("MUJOCO_GL", "egl")
-    if out.exists():
-        shutil.rmtree(out)
     t0 = time.time()
     with timed("step 1"):
         step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type,

@@ -37,7 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta.data.cli import parse_config
+from msta.data.cli import parse_config, usage_error
+from msta.data.output_dirs import OutputDirError, claim_output_dir, clear_output_dir
 from msta.data.windows import WindowDataset
 from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.train_scaling import measure
@@ -54,6 +55,9 @@ from msta.train.round_eval import RoundEvalConfig
 
 #: scale -> (episodes, episode s, gpu steps, cpu steps, batch, round episodes, round steps,
 #: eval trials, eval episode s, preset)
+#: What the check writes at the top of its --output_dir (a run from before the marker).
+OUTPUTS = frozenset({"dataset", "device_check.json", "eval", "progress.json", "torchrun",
+                     "stage1", "stage1_cpu", "stage2"})
 SCALES: dict[str, tuple[int, float, int, int, int, int, int, int, float, str]] = {
     "tiny": (4, 1.0, 4, 2, 8, 2, 2, 2, 1.0, "tiny"),
     "device": (256, 10.0, 1500, 40, 256, 128, 600, 100, 5.0, "paper"),
@@ -194,10 +198,7 @@ def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
     torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
     main = str(select_device(cfg.device))
-    out = Path(cfg.output_dir)
-    if out.exists():
-        shutil.rmtree(out)
-    out.mkdir(parents=True)
+    out = clear_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS)
     figs: dict[str, Any] = {"machine": machine(), "device": main, "scale": cfg.scale,
                             "threads": torch.get_num_threads()}
     print(f"[device-check] {json.dumps(figs['machine'])}; main device {main}", flush=True)
@@ -249,7 +250,13 @@ def print_summary(figs: dict[str, Any]) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    run(parse_config(DeviceCheckConfig, argv, prog="python -m msta.eval.apps.device_check"))
+    prog = "python -m msta.eval.apps.device_check"
+    cfg = parse_config(DeviceCheckConfig, argv, prog=prog)
+    try:
+        claim_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS)  # refuse early
+    except OutputDirError as e:
+        raise usage_error(f"{prog}: error: {e}") from None
+    run(cfg)
 
 
 if __name__ == "__main__":
