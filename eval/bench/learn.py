@@ -42,6 +42,7 @@ from msta.data.cli import parse_config
 from msta.data.stats import load_stats
 from msta.data.windows import WindowDataset, episode_split
 from msta.eval.apps.demo import easy_terrain_dataset
+from msta.eval.bench.outputs import own_output
 from msta.policies.baselines import GRUConfig
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
@@ -259,9 +260,9 @@ class BenchLearnConfig:
 def main(argv: list[str] | None = None) -> None:
     args = parse_config(BenchLearnConfig, argv, prog="python -m msta.eval.bench.learn")
     learners = args.names()
-    out = Path(args.output_dir)
+    out = own_output(args.output_dir, "python -m msta.eval.bench.learn",
+                     frozenset({"dataset", "results.json", "learning_curves.png"}))
     torch.set_num_threads(args.num_threads)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     root = record_dataset(out / "dataset", args.episodes, args.episode_length_s)
     print(f"dataset: {args.episodes} teacher episodes recorded in {time.time() - t0:.0f} s; "

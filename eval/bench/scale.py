@@ -43,6 +43,7 @@ from msta.data.cli import parse_config
 from msta.data.sensors import DEFAULT_RECORDED
 from msta.data.stats import load_stats
 from msta.data.writer import DatasetWriter
+from msta.eval.bench.outputs import own_output
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
@@ -225,9 +226,10 @@ def summarize(args: BenchScaleConfig, m: dict[str, Any], committer: float) -> di
 
 
 def main(argv: list[str] | None = None) -> None:
-    args = parse_config(BenchScaleConfig, argv, prog="python -m msta.eval.bench.scale")
-    out = Path(args.output_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    prog = "python -m msta.eval.bench.scale"
+    args = parse_config(BenchScaleConfig, argv, prog=prog)
+    out = own_output(args.output_dir, prog, frozenset({"results.json", "committer", "student"}),
+                     ("collect_w", "eval_w", "stage2_w"))
     m = measure(args, out)
     res = summarize(args, m, committer_rate(args, out))
     (out / "results.json").write_text(json.dumps(res, indent=1) + "\n")

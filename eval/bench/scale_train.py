@@ -28,6 +28,7 @@ from msta.data.cli import parse_config
 from msta.data.writer import DatasetWriter
 from msta.eval.apps.train_scaling import measure
 from msta.eval.bench.data import PROVENANCE, make_episodes
+from msta.eval.bench.outputs import own_output
 from msta.train.ddp import check_batch
 
 #: today's run: one plain process on every core (the reference of every ratio)
@@ -98,7 +99,9 @@ def run(cfg: ScaleTrainConfig) -> dict[str, Any]:
     """Every configuration, round-robin; returns {name: {procs, threads, samples_per_s (the
     best round's), per_process, vs_today (the median over rounds of the ratio to today's run
     of the same round), rounds}}."""
-    work = Path(cfg.output_dir or tempfile.mkdtemp(prefix="msta_scale_train_"))
+    work = own_output(cfg.output_dir, "python -m msta.eval.bench.scale_train",
+                      frozenset({"dataset"}), ("run_",)) if cfg.output_dir \
+        else Path(tempfile.mkdtemp(prefix="msta_scale_train_"))
     try:
         shutil.rmtree(work / "dataset", ignore_errors=True)
         dataset = make_dataset(work / "dataset", cfg.episodes, cfg.frames)

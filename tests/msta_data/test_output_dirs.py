@@ -1,5 +1,6 @@
-"""A command deletes only what it wrote (msta.data.output_dirs): the demo and the device
-check refuse an --output_dir holding someone else's files, in one line, deleting nothing."""
+"""A command deletes only what it wrote (msta.data.output_dirs): the demo, the device check
+and the benchmarks refuse an --output_dir holding someone else's files, in one line,
+deleting nothing."""
 
 from __future__ import annotations
 
@@ -60,7 +61,9 @@ def test_an_old_run_is_recognised_by_its_entries(tmp_path):
         clear_output_dir(old, "msta-demo", legacy=frozenset({"stage1", "verdict.txt"}))
 
 
-@pytest.mark.parametrize("module", ["msta.eval.apps.demo", "msta.eval.apps.device_check"])
+@pytest.mark.parametrize("module", ["msta.eval.apps.demo", "msta.eval.apps.device_check",
+                                    "msta.eval.bench.learn", "msta.eval.bench.scale",
+                                    "msta.eval.bench.scale_train"])
 def test_the_commands_refuse_a_users_folder_in_one_line(tmp_path, module):
     """What a hostile review did: --output_dir=<a folder of one's own> (or '.') deleted it."""
     user = tmp_path / "x"

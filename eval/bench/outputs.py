@@ -1,0 +1,22 @@
+"""The benchmarks' ``--output_dir``: claimed before a benchmark replaces what it wrote there
+(:mod:`msta.data.output_dirs`), refused in one line when it holds someone else's files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from msta.data.cli import usage_error
+from msta.data.output_dirs import OutputDirError, claim_output_dir
+
+
+def own_output(path: str | Path, prog: str, names: frozenset[str],
+               prefixes: tuple[str, ...] = ()) -> Path:
+    """``path`` claimed for benchmark ``prog`` (its entries from before the marker: ``names``
+    and names starting with one of ``prefixes``); exit 2 with one line otherwise."""
+    path = Path(path)
+    legacy = names | {p.name for p in path.iterdir() if p.name.startswith(prefixes)} \
+        if path.is_dir() and prefixes else names
+    try:
+        return claim_output_dir(path, prog, legacy=frozenset(legacy))
+    except OutputDirError as e:
+        raise usage_error(f"{prog}: error: {e}") from None
