@@ -129,10 +129,11 @@ class RslVecEnv(VecEnv):
         return self.groups(res.obs)
 
     def _log(self, res, done: np.ndarray) -> dict[str, float]:
-        log = {"/terrain_level": float(self.sim.level.mean()),
-               "/lin_vel_tracking": float(res.metrics["lin_vel_tracking"].mean())}
+        # a "/" in the key: rsl_rl uses it as the TensorBoard tag (no "Episode/" prefix)
+        log = {"Env/terrain_level": float(self.sim.level.mean()),
+               "Env/lin_vel_tracking": float(res.metrics["lin_vel_tracking"].mean())}
         if done.any():
             ids = np.flatnonzero(done)
-            log["/episode_fall_rate"] = float(fell(res)[ids].mean())
-            log["/episode_distance_m"] = float(res.final["distance"][ids].mean())
+            log["Episode/fall_rate"] = float(fell(res)[ids].mean())
+            log["Episode/distance_m"] = float(res.final["distance"][ids].mean())
         return log

@@ -292,7 +292,8 @@ class DemoConfig:
             reference. Default: the shipped PPO-trained RMA MLP
             (policies/teacher/checkpoints/rma_ppo; memoryless, so its labels on the
             student's states are consistent and the rounds lift the student; docs/teachers.md).
-            ``--teacher.type=rma`` alone: the shipped warm start (rma_dart);
+            ``--teacher.type=rma --teacher.path=policies/teacher/checkpoints/rma_dart``: the
+            shipped warm start;
             ``--teacher.type=gait``: the gait controller, whose rounds do not lift an MSTA
             student.
     """

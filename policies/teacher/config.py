@@ -44,26 +44,26 @@ SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
 @dataclass
 class TeacherConfig:
     """Args:
-        type: registered teacher name: rma (the RMA MLP; the default, with ``path`` the
-            shipped PPO teacher ``rma_ppo``; ``--teacher.type=rma`` alone is the shipped DART
-            warm start ``rma_dart``), gait (the gait controller, no training), imported (needs
-            ``path`` to a spec file), zero.
+        type: registered teacher name: rma (the RMA MLP; the default; without ``path`` the
+            shipped PPO teacher ``rma_ppo``, the DART warm start with
+            ``--teacher.path=policies/teacher/checkpoints/rma_dart``), gait (the gait
+            controller, no training), imported (needs ``path`` to a spec file), zero.
         path: checkpoint directory (rma) or spec file (imported).
     """
 
     # "" (nothing chosen) becomes the best shipped teacher in __post_init__: the command line
     # builds a group from the class defaults plus the options given, so ``--teacher.type=gait``
-    # must not inherit a default path, nor ``--teacher.type=rma`` lose its own (rma_dart)
+    # must not inherit a default path
     type: str = ""
     path: str = ""
 
     def __post_init__(self) -> None:
         if not self.type:
-            self.type, self.path = "rma", self.path or str(SHIPPED_RMA_PPO)
+            self.type = "rma"
         if self.type not in TEACHERS:
             raise ValueError(f"unknown teacher type {self.type!r}; registered: {sorted(TEACHERS)}")
         if self.type == "rma" and not self.path:
-            self.path = str(SHIPPED_RMA)
+            self.path = str(SHIPPED_RMA_PPO)
         if self.type in PATH_ARGUMENT and not self.path:
             raise ValueError(f"teacher type {self.type!r} needs --teacher.path "
                              f"({PATH_ARGUMENT[self.type]})")

@@ -10,7 +10,7 @@ from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.eval import teacher_report as tr
-from msta.policies.teacher.config import SHIPPED_RMA_PPO, TeacherConfig, build_teacher
+from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 
 
 def tiny(**kw) -> tr.TeacherReportConfig:
@@ -65,10 +65,11 @@ def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, c
     gait = tr.TeacherReportConfig(teacher=TeacherConfig(type="gait"))
     assert tr.command_line(gait) == (
         "python -m msta.eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
-    # the default teacher (the shipped PPO one) needs its path: --teacher.type=rma is rma_dart
+    # the default teacher (the shipped PPO one): --teacher.type=rma alone loads it
     assert tr.command_line(tr.TeacherReportConfig()) == (
-        f"python -m msta.eval.teacher_report --teacher.type=rma --teacher.path={SHIPPED_RMA_PPO} "
-        "--episodes=100 --envs_per_tile=10")
+        "python -m msta.eval.teacher_report --teacher.type=rma --episodes=100 --envs_per_tile=10")
+    dart = tr.TeacherReportConfig(teacher=TeacherConfig(type="rma", path=str(SHIPPED_RMA)))
+    assert f"--teacher.path={SHIPPED_RMA} " in tr.command_line(dart)
 
 
 @pytest.mark.parametrize("arg, message", [

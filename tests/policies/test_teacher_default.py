@@ -1,6 +1,7 @@
 """Every command that chooses a teacher defaults to the best shipped one, the PPO-trained RMA
 teacher (``SHIPPED_RMA_PPO``), and says so in ``--help``; ``--teacher.type=gait`` still
-selects the gait controller and ``--teacher.type=rma`` alone the DART warm start."""
+selects the gait controller and ``--teacher.type=rma`` alone the default, rma_ppo (the DART
+warm start takes its path)."""
 
 from __future__ import annotations
 
@@ -59,7 +60,8 @@ def test_the_config_default_is_the_shipped_ppo_teacher():
     assert TeacherConfig() == TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))
     assert TeacherConfig().label == "rma (rma_ppo)"
     assert TeacherConfig(type="gait") == TeacherConfig(type="gait", path="")
-    assert TeacherConfig(type="rma").path == str(SHIPPED_RMA)
+    assert TeacherConfig(type="rma") == TeacherConfig()  # rma alone: the default, rma_ppo
+    assert TeacherConfig(type="rma", path=str(SHIPPED_RMA)).path == str(SHIPPED_RMA)
 
 
 @pytest.mark.parametrize("command", sorted(COMMANDS))
@@ -68,7 +70,7 @@ def test_each_command_defaults_to_the_shipped_ppo_teacher(command):
     assert parse([]).teacher == TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))
     assert parse(["--teacher.type=gait"]).teacher == TeacherConfig(type="gait", path="")
     assert parse(["--teacher.type=rma"]).teacher == TeacherConfig(type="rma",
-                                                                  path=str(SHIPPED_RMA))
+                                                                  path=str(SHIPPED_RMA_PPO))
 
 
 def _option_help(help_text: str, flag: str) -> str:

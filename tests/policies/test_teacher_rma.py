@@ -187,8 +187,7 @@ def _walk(teacher, n: int = 40, seconds: float = 4.0, types=("flat", "smooth_slo
 def test_the_shipped_teacher_walks_like_the_gait_controller_it_imitated() -> None:
     from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 
-    cfg = TeacherConfig(type="rma")  # no path: the checkpoint shipped with msta
-    assert cfg.path == str(SHIPPED_RMA)
+    cfg = TeacherConfig(type="rma", path=str(SHIPPED_RMA))  # the DART warm start
     made = json.loads((SHIPPED_RMA / "produced_by.json").read_text())
     assert made["command"].startswith("msta-train-teacher") and "--ppo.iterations=0" in made["command"]
     surv, lin = _walk(build_teacher(cfg))

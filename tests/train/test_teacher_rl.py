@@ -45,7 +45,8 @@ def test_the_simulator_is_an_rsl_rl_vec_env_with_the_teachers_scaling():
     for _ in range(10):
         obs, rew, dones, extras = env.step(torch.zeros(8, 12))
         assert rew.shape == (8,) and rew.dtype == torch.float32 and dones.dtype == torch.bool
-        assert "/terrain_level" in extras["log"]
+        assert "Env/terrain_level" in extras["log"]  # TensorBoard tags without a leading /
+        assert not any(k.startswith("/") for k in extras["log"])
         timeouts.append(extras["time_outs"])
     # standing still on easy ground: every episode ends by the time limit at step 10
     assert bool(timeouts[-1].all()) and not any(bool(t.any()) for t in timeouts[:-1])
