@@ -299,6 +299,7 @@ def main(argv: list[str] | None = None) -> None:
     # deterministic cuBLAS (students on CUDA): only read before CUDA's first matrix product
     os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     cfg = parse_config(EvalConfig, argv, "msta-eval")  # bad flags: one line, exit 2
+    started = time.time()
     try:
         metrics = evaluate(cfg)
     except TimeLimitReached as e:
@@ -310,7 +311,11 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(2) from None
     out = Path(cfg.output_dir)
     print(report.table_one(metrics, "total"))
-    print(f"\nmsta-eval: wrote {out / 'metrics.json'}, {out / 'report.md'} and the plots in {out}/")
+    plots = sorted(p.name for p in out.glob("*.png") if p.stat().st_mtime >= started - 1)
+    print(f"\nmsta-eval: wrote {out / 'metrics.json'}, {out / 'report.md'}"
+          + (f" and the plots {', '.join(plots)} in {out}/" if plots else
+             " (no plots: they draw the sensor_removal, dead_joints, history, dummy_tokens and "
+             "mask_matrix scenarios)"))
 
 
 if __name__ == "__main__":

@@ -109,6 +109,11 @@ def test_cli_deterministic_outputs_and_plots(two_ckpts, tmp_path, capsys):
     assert again["runs"][0]["raw"] != json.loads(first)["runs"][0]["raw"]  # the seed matters
     printed = capsys.readouterr().out
     assert "| policy | flat 0% | flat 25% | flat 50% |" in printed
+    # the closing line names the plots a run wrote, and says when it wrote none
+    assert "and the plots dead_joints.png, history.png, mask_matrix.png, sensor_removal.png in" \
+        in printed
+    assert printed.rstrip().endswith("(no plots: they draw the sensor_removal, dead_joints, "
+                                     "history, dummy_tokens and mask_matrix scenarios)")
     metrics = json.loads(first)
     assert [p["train_masks"] for p in metrics["policies"]] == [None, [0.75, 0.5], [0.5, 0.5]]
     assert all(len(p["revision"]) >= 12 for p in metrics["policies"])

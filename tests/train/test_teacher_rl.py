@@ -22,7 +22,7 @@ from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.ppo import PPOConfig, latest_checkpoint
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.teacher.cli import TrainTeacherConfig, train_teacher
-from msta.train.teacher.model import RMAActor, load_from_teacher, to_teacher
+from msta.train.teacher.model import RMAActor, load_from_teacher, teacher_runner_cfg, to_teacher
 from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 
 
@@ -60,7 +60,7 @@ def test_the_simulator_is_an_rsl_rl_vec_env_with_the_teachers_scaling():
 def test_rsl_rls_runner_trains_the_rma_actor_and_it_exports_to_an_rma_teacher(tmp_path):
     env = RslVecEnv(small_env())
     rma = RMAConfig()
-    cfg = PPOConfig(num_steps_per_env=4).runner_cfg(rma)
+    cfg = teacher_runner_cfg(PPOConfig(num_steps_per_env=4), rma)
     runner = OnPolicyRunner(env, cfg, log_dir=None, device="cpu")
     actor = runner.alg.get_policy()
     assert isinstance(actor, RMAActor)

@@ -35,8 +35,8 @@ from msta.data.locking import hold_directory
 from msta.policies.factory import select_device
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.ppo import ChunkLoop, PPOConfig, latest_checkpoint
-from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
-from msta.train.teacher.model import actor_cfg, load_from_teacher, to_teacher
+from msta.train.rsl_env import RslVecEnv
+from msta.train.teacher.model import load_from_teacher, teacher_runner_cfg, to_teacher
 from msta.train.teacher.warmstart import WarmStartConfig, warm_start
 
 PROG = "msta-train-teacher"
@@ -155,10 +155,7 @@ def _run_ppo(cfg: TrainTeacherConfig, out: Path, rma: RMAConfig,
     policy (``warm``), not from rsl_rl's random actor."""
     device = str(select_device(cfg.device))
     env = RslVecEnv(cfg.env, rma, device=device)
-    both = [PRIVILEGED, PROPRIO]
-    runner = OnPolicyRunner(env, cfg.ppo.runner_cfg(actor_cfg(rma, cfg.ppo.init_std),
-                                                    {"actor": both, "critic": both}),
-                            log_dir=str(out / "ppo"),
+    runner = OnPolicyRunner(env, teacher_runner_cfg(cfg.ppo, rma), log_dir=str(out / "ppo"),
                             device=device)
     runner.add_git_repo_to_log(__file__)
     actor = runner.alg.get_policy()

@@ -16,6 +16,7 @@ from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
 from msta.policies.teacher.rma import RMAConfig, RMATeacher, mlp
+from msta.train.ppo import PPOConfig
 from msta.train.rsl_env import PRIVILEGED, PROPRIO
 
 
@@ -71,6 +72,13 @@ def actor_cfg(rma: RMAConfig, init_std: float) -> dict:
             "policy_hidden": list(rma.policy_hidden), "activation": rma.activation,
             "distribution_cfg": {"class_name": "GaussianDistribution", "init_std": init_std,
                                  "std_type": "scalar"}}
+
+
+def teacher_runner_cfg(ppo: PPOConfig, rma: RMAConfig) -> dict:
+    """rsl_rl ``OnPolicyRunner`` train_cfg of msta-train-teacher: ``ppo``'s settings with the
+    RMA actor of ``rma`` reading both observation groups (the critic too)."""
+    both = [PRIVILEGED, PROPRIO]
+    return ppo.runner_cfg(actor_cfg(rma, ppo.init_std), {"actor": both, "critic": both})
 
 
 def to_teacher(actor: RMAActor, rma: RMAConfig) -> RMATeacher:
