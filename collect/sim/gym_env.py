@@ -71,12 +71,14 @@ which backends fail where and why).
 from __future__ import annotations
 
 import atexit
+import dataclasses
 from dataclasses import replace
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import mujoco
 import numpy as np
+from gymnasium.envs.registration import EnvSpec
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
@@ -122,6 +124,17 @@ class _View:
         self._np_random, self._np_random_seed = self.sim.rng, cfg.seed
         return gym.spaces.Dict({s: gym.spaces.Box(*self._bounds[s], dtype=np.float32)
                                 for s in self.sensors})
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The spec ``gym.make`` gave (None without it), its ``max_episode_steps`` the
+        simulator's own time limit in control steps (the env truncates there itself)."""
+        return getattr(self, "_spec", None)
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        self._spec = value if value is None else dataclasses.replace(
+            value, max_episode_steps=self.sim.max_steps)
 
     def _action_box(self) -> gym.spaces.Box:
         low, high = action_bounds(self.sim, self.actions)

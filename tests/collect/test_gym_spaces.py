@@ -142,6 +142,22 @@ def test_gym_make_steps_without_warnings():
     assert [str(w.message) for w in caught] == []
 
 
+def test_the_spec_states_the_episode_length_the_env_truncates_at():
+    """``env.spec.max_episode_steps`` (read by Gymnasium's tools and by RL libraries) is the
+    simulator's time limit, for gym.make and make_vec, without a second TimeLimit."""
+    env = gym.make("msta/A1-v0", cfg=EnvConfig(episode_length_s=0.4, seed=0))
+    assert env.spec.max_episode_steps == 20 and gym.make("msta/A1-v0").spec.max_episode_steps == 1000
+    env.reset(seed=0)
+    steps, done = 0, False
+    while not done:
+        _, _, terminated, truncated, _ = env.step(np.zeros(12, dtype=np.float32))
+        steps, done = steps + 1, terminated or truncated
+    assert steps == 20 and truncated and not terminated
+    vec = gym.make_vec("msta/A1-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    assert vec.spec.max_episode_steps == 1000
+    assert MstaEnv().spec is None  # made directly, not through gym.make
+
+
 def test_headless_render_goes_through_egl_and_draws_the_robot():
     """Without MUJOCO_GL, ``import msta.collect.sim`` picks EGL on Linux; an rgb_array frame
     shows the scene (not one flat colour) and the robot in it (moving it changes the frame).
