@@ -226,6 +226,7 @@ def _fit(policy: StudentPolicy, train_ds: Any, val_ds: Any | None, cfg: LoopConf
             metrics = _one_step(policy, train_ds, cfg, run)
             row, new_val = _log_row(policy, val_ds, cfg, run, metrics)
             val = val if new_val is None else new_val
+            metrics.update({k: row[k] for k in ("loss", "action_mse") if k in row})  # ranks' mean
             if row and logger is not None:
                 logger.log(run.step, row)
             stopping = run.step < cfg.steps and passed(deadline)

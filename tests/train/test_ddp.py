@@ -34,7 +34,7 @@ FLAGS = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,grav
 def torchrun(*args: str, nproc: int = 2) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone",
            f"--nproc_per_node={nproc}", *args]
-    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
     return subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
                           check=False)
 
@@ -82,6 +82,7 @@ def two_processes(synthetic_dataset, tmp_path_factory) -> Path:
     res = torchrun("-m", "msta.train.offline", f"--dataset={synthetic_dataset}",
                    f"--output_dir={out}", *FLAGS)
     assert res.returncode == 0, res.stderr[-3000:]
+    (out / "stdout.txt").write_text(res.stdout)
     return out
 
 
@@ -89,6 +90,9 @@ def test_two_processes_reach_the_single_process_weights(one_process, two_process
     assert_same_weights(weights(one_process), weights(two_processes))
     np.testing.assert_allclose(losses(two_processes), losses(one_process), rtol=1e-4)
     assert len(losses(one_process)) == STEPS // 5
+    # the closing line's train loss is metrics.csv's last one (the ranks' mean, not rank 0's)
+    printed = (two_processes / "stdout.txt").read_text()
+    assert f"train loss {losses(two_processes)[-1]:.4g}" in printed, printed[-500:]
     ckpts = sorted(p.name for p in (two_processes / "checkpoints").iterdir())
     assert ckpts == ["000005", "000010", "000015", "000020", "last"]
 
