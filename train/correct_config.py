@@ -13,6 +13,7 @@ import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default 
 from msta.collect.ray_pool import RayOptions, check_ray_options
 from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.data.cli import check_at_least
+from msta.data.threads import check_threads
 from msta.policies.actor import InputSpec
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.teacher.config import TeacherConfig
@@ -80,7 +81,7 @@ class CorrectConfig(LoopConfig, RayOptions):
         resume: continue the run in output_dir.
         device: auto (CUDA when available), cpu, cuda, ...: training, rollouts and the
             per-round evaluation.
-        num_threads: torch threads (0 = torch's default).
+        num_threads: torch threads (0: the cores other work leaves free, msta.data.threads).
         push_to: hub model repo ``user/name``: push each ``round_<r>`` with tag
             ``stage2-r<r>`` and a model card after its evaluation; empty = no push.
         push_private: create that repo as private.
@@ -122,6 +123,7 @@ class CorrectConfig(LoopConfig, RayOptions):
     PROG: ClassVar[str] = "msta-correct"
 
     def __post_init__(self) -> None:
+        check_threads(self.num_threads)
         super().__post_init__()
         if isinstance(self.policy, str | Path):  # the Python API may pass the path itself
             self.policy = PolicyPath(str(self.policy))

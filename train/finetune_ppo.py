@@ -34,7 +34,6 @@ it as they run msta-finetune's rounds (``msta-eval --policies teacher,<output_di
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -54,6 +53,7 @@ from msta.data.errors import DirectoryLockedError
 from msta.data.locate import locate_checkpoint
 from msta.data.locking import hold_directory
 from msta.data.stats import load_stats
+from msta.data.threads import check_threads, resolve_threads
 from msta.policies.actor import StudentActor
 from msta.policies.base import StudentPolicy
 from msta.policies.checkpoint import PolicyPath
@@ -307,7 +307,7 @@ class FinetunePPOConfig:
             and finetune_ppo.json; re-running resumes.
         seed: seeds torch and the simulator (env.seed follows it).
         device: torch device: auto (CUDA when present), cpu, cuda.
-        num_threads: torch threads (0: one per core).
+        num_threads: torch threads (0: the cores other work leaves free, msta.data.threads).
         ppo: rsl_rl PPO settings.
         env: the simulator (robots, terrains and curriculum, rewards, randomization); the
             default starts robots at levels 0-2 with the curriculum on.
@@ -327,6 +327,7 @@ class FinetunePPOConfig:
     env: EnvConfig = field(default_factory=_default_env)
 
     def __post_init__(self) -> None:
+        check_threads(self.num_threads)
         check_at_least(self, 1, "history")
         check_at_least(self, 0, "num_threads", "dummy_tokens")
         sensor_names(self.sensors, registry.STUDENT_SENSORS)
@@ -446,7 +447,7 @@ def finetune_ppo(cfg: FinetunePPOConfig, log=print) -> Path:
 
 def _finetune_ppo_locked(cfg: FinetunePPOConfig, out: Path, log) -> Path:
     """:func:`finetune_ppo` once output_dir is locked."""
-    torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
+    torch.set_num_threads(resolve_threads(cfg.num_threads))
     torch.manual_seed(cfg.seed)
     check_resume(cfg, out)
     start, record = prepare_start(cfg, out)

@@ -35,6 +35,7 @@ from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_dataset
 from msta.data.locking import hold_directory
 from msta.data.stats import load_stats
+from msta.data.threads import check_threads, resolve_threads
 from msta.data.windows import episode_split
 from msta.policies.config import PolicyConfig
 from msta.policies.factory import make_policy, select_device
@@ -60,7 +61,7 @@ class TrainConfig(LoopConfig):
         resume: continue from ``output_dir/checkpoints/last``.
         val_fraction: share of episodes held out for validation (split by episode).
         device: ``auto`` (CUDA when available, else CPU), ``cpu``, ``cuda``, ``cuda:1``...
-        num_threads: torch intra-op threads (0 = torch's default).
+        num_threads: torch intra-op threads (0: the cores other work leaves free, msta.data.threads).
         push_to: hub model repo ``user/name``: push ``final/`` with tag ``stage1`` and a
             model card (HF_ENDPOINT / HF_TOKEN); empty = no push. See ``train/push.py``.
         push_private: create that repo as private.
@@ -81,8 +82,7 @@ class TrainConfig(LoopConfig):
         check_push_to(self.push_to)
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
-        if self.num_threads < 0:
-            raise ValueError(f"num_threads={self.num_threads} must be >= 0")
+        check_threads(self.num_threads)
 
 
 # ----- dataset and output directory ------------------------------------------------------
@@ -163,8 +163,7 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     resuming = prepare_output(out, cfg.resume)
     if resuming:
         check_resume_config(out, cfg)
-    if cfg.num_threads:
-        torch.set_num_threads(cfg.num_threads)
+    torch.set_num_threads(resolve_threads(cfg.num_threads))
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
     policy = make_policy(cfg.policy, load_stats(root)).to(device)

@@ -40,6 +40,7 @@ from msta.data.errors import DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.figures import fmt as _fmt
 from msta.data.locking import hold_directory
+from msta.data.threads import check_threads
 from msta.eval.apps.phases import PhaseLog
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.eval.report import table_one
@@ -112,7 +113,7 @@ class CompareConfig:
         trials: evaluation trials per (policy, condition); 0 = the suite's.
         eval_terrains: comma-separated terrains; empty = the suite's.
         eval_episode_length_s: evaluation episode length (s); 0 = the suite's.
-        num_threads: torch threads for training (0 = torch's default).
+        num_threads: torch threads for training (0: the cores other work leaves free, msta.data.threads).
         progress: progress bars.
         max_minutes: stop after this many minutes at the next safe point (a training step
             with its checkpoint, a stage-2 phase, a round of evaluation trials) and exit with status
@@ -150,6 +151,7 @@ class CompareConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
+        check_threads(self.num_threads)
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()]
         if not self.policies:
             self.policy_list = ["msta", "msta_mask", *registered_policies("baseline")]

@@ -39,6 +39,7 @@ import torch
 
 from msta.data.cli import parse_config, usage_error
 from msta.data.output_dirs import OutputDirError, claim_output_dir, clear_output_dir
+from msta.data.threads import check_threads, resolve_threads
 from msta.data.windows import WindowDataset
 from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.train_scaling import measure
@@ -75,7 +76,7 @@ class DeviceCheckConfig:
         output_dir: every stage's outputs and device_check.json (cleared first).
         scale: device (sized for a lent GPU machine, ~6 min) or tiny (seconds: the pipeline).
         device: the main device: auto (CUDA when present), cpu, cuda, cuda:<index>.
-        num_threads: torch threads on the CPU (0: every core).
+        num_threads: torch threads on the CPU (0: the cores other work leaves free, msta.data.threads).
     """
 
     output_dir: str = "outputs/device_check"
@@ -86,8 +87,7 @@ class DeviceCheckConfig:
     def __post_init__(self) -> None:
         if self.scale not in SCALES:
             raise ValueError(f"scale={self.scale!r}: choose one of {', '.join(SCALES)}")
-        if self.num_threads < 0:
-            raise ValueError(f"num_threads={self.num_threads} must be >= 0")
+        check_threads(self.num_threads)
 
 
 def machine() -> dict[str, Any]:
@@ -196,7 +196,7 @@ def timed(figures: dict[str, Any], name: str, fn, *args):
 def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     """Every stage; returns (and writes) the figures."""
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
-    torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
+    torch.set_num_threads(resolve_threads(cfg.num_threads))
     main = str(select_device(cfg.device))
     out = clear_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS)
     figs: dict[str, Any] = {"machine": machine(), "device": main, "scale": cfg.scale,

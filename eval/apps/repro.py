@@ -58,6 +58,7 @@ from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.locking import hold_directory
+from msta.data.threads import check_threads
 from msta.eval.apps.compare import (
     PAPER_TABLE_I,
     CompareConfig,
@@ -148,7 +149,7 @@ class ReproConfig:
             them; the report says finding (a) was not measured). A finished study re-run
             with false writes its report from the evaluations it has.
         seed: seeds recording, training, rollouts and evaluation.
-        num_threads: torch threads for training (0: torch's default).
+        num_threads: torch threads for training (0: the cores other work leaves free, msta.data.threads).
         progress: progress bars.
         max_minutes: stop after this many minutes at the next safe point (an optimizer step
             with its checkpoint, a stage-2 phase, a round of evaluation trials) and exit with status
@@ -170,6 +171,7 @@ class ReproConfig:
     max_minutes: float = 0.0
 
     def __post_init__(self) -> None:
+        check_threads(self.num_threads)
         if self.scale not in SCALES:
             raise ValueError(f"unknown scale {self.scale!r}; scales: {', '.join(SCALES)}")
         check_optimizer(self.optimizer)

@@ -54,6 +54,8 @@ def measure(dataset: Path, work: Path, procs: int, device: str, threads: int, pr
     out = work / f"run_{procs}"
     shutil.rmtree(out, ignore_errors=True)
     env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+    if not threads:  # msta-train's default decides (OMP_NUM_THREADS=0 means nothing)
+        env.pop("OMP_NUM_THREADS")
     res = subprocess.run(train_command(procs, dataset, out, preset, steps, batch, device,
                                        threads), capture_output=True, text=True, env=env,
                          check=False)

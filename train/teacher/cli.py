@@ -20,7 +20,6 @@ Re-running the same command after an interruption continues where it stopped.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -32,6 +31,7 @@ from msta.collect.sim.env_config import EnvConfig
 from msta.data.cli import check_at_least, parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.locking import hold_directory
+from msta.data.threads import check_threads, resolve_threads
 from msta.policies.factory import select_device
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.ppo import ChunkLoop, PPOConfig, latest_checkpoint
@@ -53,7 +53,7 @@ class TrainTeacherConfig:
             teacher/ (the exported rma checkpoint) go; re-running resumes.
         seed: seeds torch, the warm start and the simulator (env.seed follows it).
         device: torch device for PPO: auto (CUDA when present), cpu, cuda.
-        num_threads: torch threads (0: one per core).
+        num_threads: torch threads (0: the cores other work leaves free, msta.data.threads).
         init_from: an existing ``rma`` teacher checkpoint (a directory with config.json and
             model.safetensors, e.g. policies/teacher/checkpoints/rma_dart, the shipped warm
             start) that PPO starts from instead of running the warm start; empty: run the
@@ -74,6 +74,7 @@ class TrainTeacherConfig:
     env: EnvConfig = field(default_factory=_default_env)
 
     def __post_init__(self) -> None:
+        check_threads(self.num_threads)
         check_at_least(self, 0, "num_threads")
         self.env.seed = self.seed
 
@@ -100,7 +101,7 @@ def train_teacher(cfg: TrainTeacherConfig, log=print) -> Path:
 
 def _train_teacher_locked(cfg: TrainTeacherConfig, out: Path, log) -> Path:
     """:func:`train_teacher` once output_dir is locked."""
-    torch.set_num_threads(cfg.num_threads or os.cpu_count() or 1)
+    torch.set_num_threads(resolve_threads(cfg.num_threads))
     torch.manual_seed(cfg.seed)
     rma = RMAConfig()
     resuming = cfg.ppo.iterations > 0 and latest_checkpoint(out / "ppo") is not None

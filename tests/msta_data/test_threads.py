@@ -1,0 +1,60 @@
+"""msta.data.threads: each process computes with the cores other work leaves free."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from msta.data import threads as T
+
+
+def test_the_rule_shares_the_free_cores():
+    assert T.auto_threads(processes=1, cores=8, busy=0.0) == 8
+    assert T.auto_threads(processes=1, cores=2, busy=1.0) == 1      # another job: one left
+    assert T.auto_threads(processes=1, cores=2, busy=2.6) == 1      # all busy: still one
+    assert T.auto_threads(processes=2, cores=8, busy=0.4) == 4      # torchrun: shared
+    assert T.auto_threads(processes=3, cores=8, busy=2.0) == 2
+    assert T.auto_threads(processes=4, cores=2, busy=0.0) == 1
+
+
+def test_busy_cores_count_the_other_running_work():
+    """A busy process beside this one is one busy core; this process's own threads are not
+    counted, whatever its history (the load average would still count finished work)."""
+    assert T._runnable("1.97 1.50 1.20 3/180 4242\n") == 3
+    before = T.busy_cores()
+    busy = [subprocess.Popen([sys.executable, "-c", "while True:\n    pass\n"])
+            for _ in range(2)]
+    try:
+        time.sleep(1.0)
+        during = T.busy_cores(samples=9)
+    finally:
+        for p in busy:
+            p.kill()
+            p.wait()
+    assert during >= 1.0 and during >= before  # at least one of the two shows as running
+
+
+def test_torchruns_local_world_size_counts(monkeypatch):
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "2")
+    assert T.run_processes() == 2
+    monkeypatch.setenv("LOCAL_WORLD_SIZE", "x")
+    assert T.run_processes() == 1
+
+
+def test_counts_are_checked_in_one_line():
+    assert T.resolve_threads(3) == 3 and T.resolve_threads(0) >= 1
+    for bad in (-1, T.max_threads() + 1, 100_000):
+        with pytest.raises(ValueError, match=r"num_threads=-?\d+ must be in \[0, \d+\]"):
+            T.resolve_threads(bad)
+
+
+def test_msta_train_refuses_a_huge_thread_count_in_one_line(tmp_path):
+    """(Was: --num_threads=100000 started thousands of threads.)"""
+    res = subprocess.run([sys.executable, "-m", "msta.train.offline", "--dataset=x",
+                          f"--output_dir={tmp_path / 'o'}", "--num_threads=100000"],
+                         capture_output=True, text=True, timeout=120, check=False)
+    err = res.stderr.strip()
+    assert res.returncode == 2 and "\n" not in err and "num_threads=100000 must be in" in err
