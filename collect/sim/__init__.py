@@ -1,14 +1,7 @@
-"""Batched MuJoCo simulation of an A1-class quadruped on legged_gym-style terrain."""
-
-import os
-import sys
+"""Batched MuJoCo simulation of an A1-class quadruped on legged_gym-style terrain (the GL
+backend default is set by :mod:`msta.collect`, which Python imports first)."""
 
 from gymnasium.envs.registration import register, registry
-
-# MuJoCo picks its offscreen GL backend when it is first imported. Headless Linux machines
-# render through EGL; elsewhere MuJoCo's own default (GLFW) is right. A user's setting wins.
-if sys.platform.startswith("linux") and "mujoco" not in sys.modules:
-    os.environ.setdefault("MUJOCO_GL", "egl")
 
 # Gymnasium: importing this package registers "msta/A1-v0" (see gym_env.py), the way
 # Gymnasium's plugin packages do. The entry points are strings, so MuJoCo and gym_env load

@@ -158,13 +158,15 @@ def test_the_spec_states_the_episode_length_the_env_truncates_at():
     assert MstaEnv().spec is None  # made directly, not through gym.make
 
 
-def test_headless_render_goes_through_egl_and_draws_the_robot():
-    """Without MUJOCO_GL, ``import msta.collect.sim`` picks EGL on Linux; an rgb_array frame
-    shows the scene (not one flat colour) and the robot in it (moving it changes the frame).
-    msta's suite runs on Linux with EGL (the Makefile sets MUJOCO_GL=egl), so this always
-    runs."""
+@pytest.mark.parametrize("first", ["msta.collect.sim", "msta.collect.rollout",
+                                   "msta.eval.apps.demo"])
+def test_headless_render_goes_through_egl_and_draws_the_robot(first):
+    """Without MUJOCO_GL, importing msta's simulator (or a module that loads MuJoCo itself
+    before it, as the rollout loop, msta-eval and the demo do) picks EGL on Linux; an
+    rgb_array frame shows the scene (not one flat colour) and the robot in it (moving it
+    changes the frame). msta's suite runs on Linux with EGL, so this always runs."""
     code = (
-        "import json, os, numpy as np, msta.collect.sim\n"
+        f"import json, os, numpy as np, {first}\n"
         "from msta.collect.sim.env import EnvConfig\n"
         "from msta.collect.sim.gym_env import MstaEnv\n"
         "from msta.collect.sim.randomization import RandomizationConfig\n"
