@@ -31,7 +31,6 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-import msta.policies.teacher.gait  # noqa: F401  (registers the "gait" teacher)
 from msta.collect.faults import FaultSpec, split_faults
 from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from msta.collect.rollout import film

@@ -6,8 +6,10 @@ that does not exist is created, an empty one is taken, and either gets the marke
 :data:`MARKER` naming the command. A folder holding anything else without that marker (a
 user's files, ``--output_dir=.``, another tool's outputs) is refused with one line that
 names it, and nothing is deleted. :func:`clear_output_dir` empties only a folder claimed so.
-A folder written before the marker existed is recognised by its entries: every one a name
-the command writes (``legacy``).
+A folder marked by another msta command is refused too (``msta-demo`` does not clear
+msta-eval's outputs). A folder written before the marker existed is recognised by its
+entries: every one a name the command writes (``legacy``), one of them a name only it
+writes (``sign``), so a folder of other tools' outputs with common names is not taken.
 """
 
 from __future__ import annotations
@@ -36,7 +38,8 @@ def _owner(path: Path) -> str | None:
 
 
 def claim_output_dir(path: str | Path, command: str, option: str = "--output_dir",
-                     legacy: frozenset[str] = frozenset()) -> Path:
+                     legacy: frozenset[str] = frozenset(),
+                     sign: frozenset[str] = frozenset()) -> Path:
     """``path`` as ``command``'s output folder: created (with parents) when missing, taken
     when empty or already marked by an msta command; marked with :data:`MARKER`.
 
@@ -45,29 +48,38 @@ def claim_output_dir(path: str | Path, command: str, option: str = "--output_dir
         command: the command's name, written into the marker and named in errors.
         option: the option the folder came from, for the message.
         legacy: the names the command writes at the folder's top: an unmarked folder
-            holding only these is one of its runs from before the marker.
+            holding only these, ``sign`` among them, is one of its runs from before the
+            marker.
+        sign: names of ``legacy`` no other command writes.
 
     Raises:
         OutputDirError: ``path`` is a file (or a link), or a folder that holds files
-            without msta's marker.
+            without msta's marker, or marked by another msta command.
     """
     path = Path(path)
     if path.is_symlink() or (path.exists() and not path.is_dir()):
         raise OutputDirError(f"{option}={path} is not a folder; give a folder path")
-    foreign = [c.name for c in path.iterdir() if c.name not in legacy] if path.is_dir() else []
-    if path.is_dir() and _owner(path) is None and foreign:
-        raise OutputDirError(f"{option}={path} holds files that {command} did not write (no "
-                             f"{MARKER}); choose another {option} or empty it")
+    if path.is_dir():
+        owner, names = _owner(path), {c.name for c in path.iterdir()}
+        if owner is not None and owner != command:
+            raise OutputDirError(f"{option}={path} holds {owner}'s outputs; choose another "
+                                 f"{option} for {command}")
+        old_run = names <= legacy and bool(names & sign)
+        if owner is None and names and not old_run:
+            raise OutputDirError(f"{option}={path} holds files that {command} did not write "
+                                 f"(no {MARKER}); choose another {option} or empty it")
     path.mkdir(parents=True, exist_ok=True)
     (path / MARKER).write_text(json.dumps({"command": command}) + "\n")
     return path
 
 
 def clear_output_dir(path: str | Path, command: str, option: str = "--output_dir",
-                     legacy: frozenset[str] = frozenset()) -> Path:
+                     legacy: frozenset[str] = frozenset(),
+                     sign: frozenset[str] = frozenset()) -> Path:
     """Empty ``command``'s output folder for a fresh run (after :func:`claim_output_dir`'s
-    checks: a folder msta did not write is refused, not emptied); returns it, marked."""
-    path = claim_output_dir(path, command, option, legacy)
+    checks: a folder the command did not write is refused, not emptied); returns it,
+    marked."""
+    path = claim_output_dir(path, command, option, legacy, sign)
     for child in path.iterdir():
         if child.name == MARKER:
             continue

@@ -8,25 +8,22 @@ shared among the processes of the run:
     threads = max(1, (cores - busy) // processes)
 
 ``cores`` are the cores this process may run on (its CPU affinity, so a container's or
-``taskset``'s limit counts), ``busy`` the other work running now: the tasks the kernel counts
-as runnable (``/proc/loadavg``) less this process's own running threads, the median of a few
-looks over ~0.1 s, rounded to the nearest whole core (the load average is not used: it still
-counts a job that ended a minute ago, this command's own previous runs included), and
-``processes`` the run's processes on this machine (torchrun's ``LOCAL_WORLD_SIZE``; 1
-otherwise). Where /proc is missing, the 1-minute load average stands in. Every
-``--num_threads`` option takes 0 for this rule (the default) or a count. ``make
-bench-threads`` measures the rule against fixed counts on an idle and a loaded machine.
+``taskset``'s limit counts), ``busy`` how many of those cores other work keeps busy now: the
+kernel's busy time on exactly those CPUs over ~0.1 s (``/proc/stat``) less this process's
+own (``/proc/self/stat``), rounded to the nearest whole core (the load average is not used:
+it counts the whole host, and a job that ended a minute ago, this command's own previous
+runs included), and ``processes`` the run's processes on this machine (torchrun's
+``LOCAL_WORLD_SIZE``; 1 otherwise). Where /proc is missing, the 1-minute load average
+stands in. Every ``--num_threads`` option takes 0 for this rule (the default) or a count.
+``make bench-threads`` measures the rule against fixed counts on an idle and a loaded
+machine.
 """
 
 from __future__ import annotations
 
 import os
-import statistics
 import time
 from pathlib import Path
-
-#: The kernel's load figures: 1-, 5-, 15-minute averages, then "runnable/total" tasks.
-LOADAVG = Path("/proc/loadavg")
 
 
 def usable_cores() -> int:
@@ -36,35 +33,43 @@ def usable_cores() -> int:
     return max(1, os.cpu_count() or 1)
 
 
-def _runnable(loadavg: str) -> int:
-    """The runnable tasks of a /proc/loadavg text (its fourth field, ``runnable/total``)."""
-    fields = loadavg.split()
-    return int(fields[3].split("/")[0]) if len(fields) > 3 else 0
+#: /proc/stat's per-CPU columns: user nice system idle iowait irq softirq steal
+_IDLE = (3, 4)
+_STAT = Path("/proc/stat")
 
 
-def _own_running() -> int:
-    """This process's threads in the running state (/proc/self/task/*/stat)."""
-    n = 0
-    for stat in Path("/proc/self/task").glob("*/stat"):
-        try:
-            n += stat.read_text().rsplit(")", 1)[1].split()[0] == "R"
-        except (OSError, IndexError):
+def cpu_times(stat: str, cpus: set[int]) -> tuple[int, int]:
+    """(busy, total) clock ticks of ``cpus`` summed from a /proc/stat text."""
+    busy = total = 0
+    for line in stat.splitlines():
+        name, *values = line.split()
+        if not (name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus):
             continue
-    return n
+        ticks = [int(v) for v in values[:8]]
+        total += sum(ticks)
+        busy += sum(v for i, v in enumerate(ticks) if i not in _IDLE)
+    return busy, total
 
 
-def busy_cores(samples: int = 5, interval_s: float = 0.02) -> float:
-    """Cores other work keeps busy now (module docstring): the median over ``samples``
-    looks of the runnable tasks less this process's running threads."""
+def _own_ticks() -> int:
+    """This process's user + system clock ticks (/proc/self/stat fields 14 and 15)."""
+    fields = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+    return int(fields[11]) + int(fields[12])
+
+
+def busy_cores(interval_s: float = 0.1) -> float:
+    """Cores of this process's affinity that other work keeps busy now (module docstring)."""
     try:
-        looks = []
-        for i in range(samples):
-            if i:
-                time.sleep(interval_s)
-            looks.append(max(0, _runnable(LOADAVG.read_text()) - _own_running()))
-        return float(statistics.median(looks))
-    except (OSError, ValueError):
+        cpus = os.sched_getaffinity(0)
+        busy0, total0 = cpu_times(_STAT.read_text(), cpus)
+        own0 = _own_ticks()
+        time.sleep(interval_s)
+        busy1, total1 = cpu_times(_STAT.read_text(), cpus)
+        own1 = _own_ticks()
+    except (OSError, ValueError, IndexError, AttributeError):
         return float(os.getloadavg()[0]) if hasattr(os, "getloadavg") else 0.0
+    per_cpu = max(total1 - total0, 1) / len(cpus)  # ticks of one CPU over the interval
+    return max(0.0, (busy1 - busy0 - (own1 - own0)) / per_cpu)
 
 
 def run_processes() -> int:

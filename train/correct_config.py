@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from msta.collect.ray_pool import RayOptions, check_ray_options
 from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.data.cli import check_at_least

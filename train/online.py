@@ -44,7 +44,6 @@ import draccus
 import numpy as np
 import torch
 
-import msta.policies.teacher.gait  # noqa: F401  (registers "gait", the default teacher)
 from msta.collect.recorder import LabelledActor, record_rollouts
 from msta.collect.sim.env import QuadrupedEnv
 from msta.data.budget import TimeLimitReached, check_deadline, deadline_after, stop

@@ -57,9 +57,11 @@ from msta.train.online import correct
 from msta.train.round_eval import RoundEvalConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
-#: What the demo writes at the top of its --output_dir (a run from before the output marker).
+#: What the demo writes at the top of its --output_dir (a run from before the output marker),
+#: and the names of those only the demo writes.
 OUTPUTS = frozenset({"teacher", "datasets", "hub", "hub_cache", "pulled", "stage1", "stage2",
                      "eval", "verdict.txt"})
+OUTPUTS_SIGN = frozenset({"hub", "hub_cache", "pulled", "verdict.txt"})
 
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
@@ -348,7 +350,7 @@ def main(argv: list[str] | None = None) -> None:
     """Run the msta pipeline demo on built-in defaults (``python -m msta.eval.apps.demo --help``)."""
     cfg = parse_config(DemoConfig, argv, prog="python -m msta.eval.apps.demo")
     try:  # a rerun starts afresh, but only in a folder the demo wrote
-        out = clear_output_dir(cfg.output_dir, "msta-demo", legacy=OUTPUTS)
+        out = clear_output_dir(cfg.output_dir, "msta-demo", legacy=OUTPUTS, sign=OUTPUTS_SIGN)
     except OutputDirError as e:
         raise usage_error(f"msta-demo: error: {e}") from None
     os.environ.setdefault("MUJOCO_GL", "egl")

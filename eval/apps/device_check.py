@@ -56,9 +56,11 @@ from msta.train.round_eval import RoundEvalConfig
 
 #: scale -> (episodes, episode s, gpu steps, cpu steps, batch, round episodes, round steps,
 #: eval trials, eval episode s, preset)
-#: What the check writes at the top of its --output_dir (a run from before the marker).
+#: What the check writes at the top of its --output_dir (a run from before the marker), and
+#: the names of those only it writes.
 OUTPUTS = frozenset({"dataset", "device_check.json", "eval", "progress.json", "torchrun",
-                     "stage1", "stage1_cpu", "stage2"})
+                     "stage1", "stage1_cpu", "stage2", "stage2_dataset"})
+OUTPUTS_SIGN = frozenset({"device_check.json", "stage1_cpu", "stage2_dataset", "torchrun"})
 SCALES: dict[str, tuple[int, float, int, int, int, int, int, int, float, str]] = {
     "tiny": (4, 1.0, 4, 2, 8, 2, 2, 2, 1.0, "tiny"),
     "device": (256, 10.0, 1500, 40, 256, 128, 600, 100, 5.0, "paper"),
@@ -198,7 +200,8 @@ def run(cfg: DeviceCheckConfig) -> dict[str, Any]:
     eps, ep_s, steps, cpu_steps, batch, r_eps, r_steps, trials, ev_s, preset = SCALES[cfg.scale]
     torch.set_num_threads(resolve_threads(cfg.num_threads))
     main = str(select_device(cfg.device))
-    out = clear_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS)
+    out = clear_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS,
+                           sign=OUTPUTS_SIGN)
     figs: dict[str, Any] = {"machine": machine(), "device": main, "scale": cfg.scale,
                             "threads": torch.get_num_threads()}
     print(f"[device-check] {json.dumps(figs['machine'])}; main device {main}", flush=True)
@@ -253,7 +256,8 @@ def main(argv: list[str] | None = None) -> None:
     prog = "python -m msta.eval.apps.device_check"
     cfg = parse_config(DeviceCheckConfig, argv, prog=prog)
     try:
-        claim_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS)  # refuse early
+        claim_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS,  # refuse early
+                         sign=OUTPUTS_SIGN)
     except OutputDirError as e:
         raise usage_error(f"{prog}: error: {e}") from None
     run(cfg)

@@ -261,7 +261,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_config(BenchLearnConfig, argv, prog="python -m msta.eval.bench.learn")
     learners = args.names()
     out = own_output(args.output_dir, "python -m msta.eval.bench.learn",
-                     frozenset({"dataset", "results.json", "learning_curves.png"}))
+                     frozenset({"dataset", "results.json", "learning_curves.png"}),
+                     sign=frozenset({"learning_curves.png"}))
     torch.set_num_threads(args.num_threads)
     t0 = time.time()
     root = record_dataset(out / "dataset", args.episodes, args.episode_length_s)

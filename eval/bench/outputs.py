@@ -10,13 +10,15 @@ from msta.data.output_dirs import OutputDirError, claim_output_dir
 
 
 def own_output(path: str | Path, prog: str, names: frozenset[str],
-               prefixes: tuple[str, ...] = ()) -> Path:
+               prefixes: tuple[str, ...] = (), sign: frozenset[str] = frozenset()) -> Path:
     """``path`` claimed for benchmark ``prog`` (its entries from before the marker: ``names``
-    and names starting with one of ``prefixes``); exit 2 with one line otherwise."""
+    and names starting with one of ``prefixes``, one of them in ``sign`` or prefixed);
+    exit 2 with one line otherwise."""
     path = Path(path)
-    legacy = names | {p.name for p in path.iterdir() if p.name.startswith(prefixes)} \
-        if path.is_dir() and prefixes else names
+    prefixed = {p.name for p in path.iterdir() if p.name.startswith(prefixes)} \
+        if path.is_dir() and prefixes else set()
     try:
-        return claim_output_dir(path, prog, legacy=frozenset(legacy))
+        return claim_output_dir(path, prog, legacy=frozenset(names | prefixed),
+                                sign=frozenset(sign | prefixed))
     except OutputDirError as e:
         raise usage_error(f"{prog}: error: {e}") from None

@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> None:
     prog = "python -m msta.eval.bench.scale"
     args = parse_config(BenchScaleConfig, argv, prog=prog)
     out = own_output(args.output_dir, prog, frozenset({"results.json", "committer", "student"}),
-                     ("collect_w", "eval_w", "stage2_w"))
+                     ("collect_w", "eval_w", "stage2_w"), sign=frozenset({"committer"}))
     m = measure(args, out)
     res = summarize(args, m, committer_rate(args, out))
     (out / "results.json").write_text(json.dumps(res, indent=1) + "\n")

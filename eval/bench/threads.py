@@ -120,7 +120,8 @@ def run(cfg: BenchThreadsConfig, out: Path) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     prog = "python -m msta.eval.bench.threads"
     cfg = parse_config(BenchThreadsConfig, argv, prog=prog)
-    out = own_output(cfg.output_dir, prog, frozenset({"dataset", "results.json", *STATES}))
+    out = own_output(cfg.output_dir, prog, frozenset({"dataset", "results.json", *STATES}),
+                     sign=frozenset(STATES))
     res = run(cfg, out)
     (out / "results.json").write_text(json.dumps(res, indent=1) + "\n")
     names = [n for n, _ in settings()]

@@ -30,7 +30,7 @@ class ZeroTeacher:
 
 #: which constructor argument receives ``TeacherConfig.path`` for each teacher type
 PATH_ARGUMENT = {"rma": "pretrained", "imported": "spec"}
-#: The RMA teacher shipped with msta (``--teacher.type=rma`` without ``--teacher.path``): the
+#: The DART warm start shipped with msta (``--teacher.type=rma --teacher.path=<it>``): the
 #: gait controller imitated by ``msta-train-teacher --ppo.iterations=0`` (10 DART iterations;
 #: ``produced_by.json`` in the folder; docs/results/2026-12-04-teacher-quality-rma.md).
 SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"

@@ -50,15 +50,30 @@ def test_a_file_or_a_link_is_not_an_output_folder(tmp_path):
 
 
 def test_an_old_run_is_recognised_by_its_entries(tmp_path):
+    legacy, sign = frozenset({"stage1", "eval", "verdict.txt"}), frozenset({"verdict.txt"})
     old = tmp_path / "old"
     (old / "stage1").mkdir(parents=True)
     (old / "verdict.txt").write_text("VERDICT")
-    clear_output_dir(old, "msta-demo", legacy=frozenset({"stage1", "verdict.txt"}))
+    clear_output_dir(old, "msta-demo", legacy=legacy, sign=sign)
     assert sorted(p.name for p in old.iterdir()) == [MARKER]
     (old / "notes.txt").write_text("a user's")
     (old / MARKER).unlink()
     with pytest.raises(OutputDirError):
-        clear_output_dir(old, "msta-demo", legacy=frozenset({"stage1", "verdict.txt"}))
+        clear_output_dir(old, "msta-demo", legacy=legacy, sign=sign)
+    common = tmp_path / "outputs"  # other commands' outputs with names the demo also writes
+    (common / "eval").mkdir(parents=True)
+    (common / "stage1").mkdir()
+    with pytest.raises(OutputDirError, match="did not write"):
+        clear_output_dir(common, "msta-demo", legacy=legacy, sign=sign)
+    assert (common / "eval").is_dir()
+
+
+def test_another_commands_folder_is_refused(tmp_path):
+    out = claim_output_dir(tmp_path / "run", "msta-x")
+    (out / "result").write_text("x's")
+    with pytest.raises(OutputDirError, match="holds msta-x's outputs; choose another"):
+        clear_output_dir(out, "msta-y")
+    assert (out / "result").read_text() == "x's"
 
 
 @pytest.mark.parametrize("module", ["msta.eval.apps.demo", "msta.eval.apps.device_check",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -20,21 +21,31 @@ def test_the_rule_shares_the_free_cores():
     assert T.auto_threads(processes=4, cores=2, busy=0.0) == 1
 
 
-def test_busy_cores_count_the_other_running_work():
-    """A busy process beside this one is one busy core; this process's own threads are not
-    counted, whatever its history (the load average would still count finished work)."""
-    assert T._runnable("1.97 1.50 1.20 3/180 4242\n") == 3
-    before = T.busy_cores()
-    busy = [subprocess.Popen([sys.executable, "-c", "while True:\n    pass\n"])
-            for _ in range(2)]
+def test_busy_cores_count_the_other_work_on_this_processes_cpus():
+    """A busy process beside this one is one busy core, on this process's own CPUs; this
+    process's own work is not counted (the load average would still count finished work,
+    and the whole host's)."""
+    stat = ("cpu  9 9 9 9 9 9 9 9 0 0\ncpu0 10 0 10 80 0 0 0 0 0 0\n"
+            "cpu1 50 0 50 0 0 0 0 0 0 0\ncpu2 0 0 0 100 0 0 0 0 0 0\n")
+    assert T.cpu_times(stat, {0, 2}) == (20, 200) and T.cpu_times(stat, {1}) == (100, 100)
+    busy = [subprocess.Popen([sys.executable, "-c", "while True:\n    pass\n"])]
     try:
         time.sleep(1.0)
-        during = T.busy_cores(samples=9)
+        during = T.busy_cores(interval_s=0.3)
     finally:
         for p in busy:
             p.kill()
             p.wait()
-    assert during >= 1.0 and during >= before  # at least one of the two shows as running
+    assert 0.6 <= during  # one core's worth, give or take the sampling
+    stop = threading.Event()
+    spin = threading.Thread(target=lambda: [None for _ in iter(stop.is_set, True)])
+    spin.start()  # this process keeps one core busy: its own work, not other work
+    try:
+        own = T.busy_cores(interval_s=0.3)
+    finally:
+        stop.set()
+        spin.join()
+    assert own < 0.5, own
 
 
 def test_torchruns_local_world_size_counts(monkeypatch):
