@@ -34,8 +34,7 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None,
         FileNotFoundError: no such directory, or a file (path named).
         CheckpointError: a LeRobot checkpoint of another policy type, or a malformed one.
     """
-    # lazy: the hub client (huggingface_hub) loads when a checkpoint is resolved, not with
-    # every import of the students
+    # lazy: the hub client loads when a checkpoint is resolved, not with every student
     from msta.data.locate import locate_checkpoint
 
     return as_msta_checkpoint(locate_checkpoint(str(path_or_repo_id), what, revision),

@@ -23,7 +23,8 @@
 
 Why these defaults, and the verdicts of earlier recipes: docs/results/2026-12-04-demo-history.md.
 
-Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh.
+Everything goes under ``--output_dir`` (default ``outputs/demo``); a rerun starts afresh
+there; a folder holding files the demo did not write is refused (msta.data.output_dirs).
 """
 
 from __future__ import annotations
@@ -262,7 +263,8 @@ def timed(name: str) -> Iterator[None]:
 @dataclass
 class DemoConfig:
     """Args:
-        output_dir: where everything goes; a rerun deletes it and starts afresh.
+        output_dir: where everything goes; a rerun empties it and starts afresh (a folder
+            holding files the demo did not write is refused, nothing deleted).
         episodes: teacher episodes to record.
         episode_length_s: teacher episode length (s).
         action_noise: std of noise on the recording teacher's executed actions (DART; its
