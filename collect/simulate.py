@@ -10,7 +10,6 @@ The teacher is chosen as everywhere else (``--teacher.type``, ``--teacher.path``
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -58,8 +57,6 @@ def simulate(cfg: SimRunConfig) -> str:
           f"{dict(zip(('running', 'fall', 'timeout', 'nan'), env.resets_by_reason.tolist()))}")
     print(table)
     if cfg.image or cfg.video:
-        os.environ.setdefault("MUJOCO_GL", "egl")
-
         env.reset()
         frames = film(env, policy, min(steps, 150), every=5)
         out = Path(cfg.output_dir)

@@ -18,7 +18,6 @@ the teacher climbing stairs (MuJoCo offscreen, ``MUJOCO_GL=egl``).
 from __future__ import annotations
 
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -284,8 +283,6 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
         frames: pictures in the strip.
         seed: simulator seed.
     """
-    os.environ.setdefault("MUJOCO_GL", "egl")
-
     cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),
                     randomization=RandomizationConfig(enabled=False),

@@ -18,6 +18,8 @@ import json
 import shutil
 from pathlib import Path
 
+from msta.data.cli import usage_error
+
 #: The file that marks a folder as an msta command's output (JSON: the command's name).
 MARKER = ".msta-output"
 
@@ -88,3 +90,15 @@ def clear_output_dir(path: str | Path, command: str, option: str = "--output_dir
         else:
             child.unlink()
     return path
+
+
+def command_output_dir(path: str | Path, command: str, prog: str, clear: bool = False,
+                       legacy: frozenset[str] = frozenset(),
+                       sign: frozenset[str] = frozenset()) -> Path:
+    """:func:`claim_output_dir` (or :func:`clear_output_dir` with ``clear``) for a command
+    line: a refusal exits 2 with one line, ``<prog>: error: ...``."""
+    try:
+        return (clear_output_dir if clear else claim_output_dir)(path, command, legacy=legacy,
+                                                                 sign=sign)
+    except OutputDirError as e:
+        raise usage_error(f"{prog}: error: {e}") from None

@@ -41,12 +41,12 @@ from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig, simulate
-from msta.data.cli import check_at_least, parse_config, usage_error
+from msta.data.cli import check_at_least, parse_config
 from msta.data.hub_pull import pull
 from msta.data.hub_push import push_dataset
 from msta.data.hub_server.app import ServerConfig
 from msta.data.hub_server.server import HubServer
-from msta.data.output_dirs import OutputDirError, clear_output_dir
+from msta.data.output_dirs import command_output_dir
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
@@ -351,11 +351,9 @@ class DemoConfig:
 def main(argv: list[str] | None = None) -> None:
     """Run the msta pipeline demo on built-in defaults (``python -m msta.eval.apps.demo --help``)."""
     cfg = parse_config(DemoConfig, argv, prog="python -m msta.eval.apps.demo")
-    try:  # a rerun starts afresh, but only in a folder the demo wrote
-        out = clear_output_dir(cfg.output_dir, "msta-demo", legacy=OUTPUTS, sign=OUTPUTS_SIGN)
-    except OutputDirError as e:
-        raise usage_error(f"msta-demo: error: {e}") from None
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    # a rerun starts afresh, but only in a folder the demo wrote
+    out = command_output_dir(cfg.output_dir, "msta-demo", "msta-demo", clear=True,
+                             legacy=OUTPUTS, sign=OUTPUTS_SIGN)
     t0 = time.time()
     with timed("step 1"):
         step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type,

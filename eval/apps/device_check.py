@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from msta.data.cli import parse_config, usage_error
-from msta.data.output_dirs import OutputDirError, claim_output_dir, clear_output_dir
+from msta.data.cli import parse_config
+from msta.data.output_dirs import clear_output_dir, command_output_dir
 from msta.data.threads import check_threads, resolve_threads
 from msta.data.windows import WindowDataset
 from msta.eval.apps.demo import easy_terrain_dataset
@@ -255,11 +255,8 @@ def print_summary(figs: dict[str, Any]) -> None:
 def main(argv: list[str] | None = None) -> None:
     prog = "python -m msta.eval.apps.device_check"
     cfg = parse_config(DeviceCheckConfig, argv, prog=prog)
-    try:
-        claim_output_dir(cfg.output_dir, "make device-check", legacy=OUTPUTS,  # refuse early
-                         sign=OUTPUTS_SIGN)
-    except OutputDirError as e:
-        raise usage_error(f"{prog}: error: {e}") from None
+    command_output_dir(cfg.output_dir, "make device-check", prog, legacy=OUTPUTS,  # refuse early
+                       sign=OUTPUTS_SIGN)
     run(cfg)
 
 

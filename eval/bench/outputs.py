@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from msta.data.cli import usage_error
-from msta.data.output_dirs import OutputDirError, claim_output_dir
+from msta.data.output_dirs import command_output_dir
 
 
 def own_output(path: str | Path, prog: str, names: frozenset[str],
@@ -17,8 +16,5 @@ def own_output(path: str | Path, prog: str, names: frozenset[str],
     path = Path(path)
     prefixed = {p.name for p in path.iterdir() if p.name.startswith(prefixes)} \
         if path.is_dir() and prefixes else set()
-    try:
-        return claim_output_dir(path, prog, legacy=frozenset(names | prefixed),
-                                sign=frozenset(sign | prefixed))
-    except OutputDirError as e:
-        raise usage_error(f"{prog}: error: {e}") from None
+    return command_output_dir(path, prog, prog, legacy=frozenset(names | prefixed),
+                              sign=frozenset(sign | prefixed))
