@@ -44,6 +44,7 @@ import pyarrow.compute as pc
 from msta.data import features as F
 from msta.data import layout as L
 from msta.data.errors import DatasetFormatError, DatasetIntegrityError
+from msta.data.inside import PathOutsideRootError, inside
 
 logger = logging.getLogger(__name__)
 
@@ -183,12 +184,10 @@ def check_entry(manifest: Path, rel: str) -> None:
 
 def _inside(root: Path, rel: str) -> Path:
     """``root / rel`` after checking that symbolic links do not lead outside ``root``."""
-    path = root / rel
-    real, base = Path(os.path.realpath(path)), Path(os.path.realpath(root))
-    if real != base and base not in real.parents:
-        raise DatasetIntegrityError(f"{path}: a symbolic link leading outside the dataset "
-                                    f"(to {real}); refused, nothing was read")
-    return path
+    try:
+        return inside(root, rel, what="dataset")
+    except PathOutsideRootError as e:
+        raise DatasetIntegrityError(str(e)) from None
 
 
 def current_generation(root: str | Path, manifest: Manifest) -> Generation:
