@@ -61,6 +61,17 @@ def links_under(root: str | Path) -> list[str]:
     return sorted(found)
 
 
+def refuse_links(root: str | Path, *, what: str = "root") -> None:
+    """Raise :class:`PathOutsideRootError` when a symbolic link is anywhere under ``root``
+    (the links named): what a writer checks before it moves or rewrites files in a root."""
+    found = links_under(root)
+    if found:
+        shown = ", ".join(found[:4]) + (f" and {len(found) - 4} more" if len(found) > 4 else "")
+        raise PathOutsideRootError(
+            f"{root}: the {what} holds symbolic links ({shown}); msta does not follow links "
+            "out of a root, replace them with the files themselves")
+
+
 def files_under(root: str | Path, *, what: str = "root",
                 links: str = "refuse") -> dict[str, Path]:
     """The regular files under ``root`` by relative POSIX path, no symbolic link followed.
@@ -78,12 +89,8 @@ def files_under(root: str | Path, *, what: str = "root",
     if links not in ("refuse", "skip"):
         raise ValueError(f"links={links!r}: expected 'refuse' or 'skip'")
     root = Path(root)
-    found = links_under(root)
-    if found and links == "refuse":
-        shown = ", ".join(found[:4]) + (f" and {len(found) - 4} more" if len(found) > 4 else "")
-        raise PathOutsideRootError(
-            f"{root}: the {what} holds symbolic links ({shown}); msta does not follow links "
-            "out of a root, replace them with the files themselves")
+    if links == "refuse":
+        refuse_links(root, what=what)
     out: dict[str, Path] = {}
     for folder, dirs, files in os.walk(root, followlinks=False):
         dirs.sort()

@@ -83,8 +83,34 @@ def derive_msta_meta(root: str | Path, info: dict[str, Any]) -> dict[str, Any]:
             "sensors": sensors, "provenance_columns": list(F.PROVENANCE_COLUMNS)}
 
 
-def _provenance_column(table: pa.Table, col: str, kind: pa.DataType) -> pa.Array | None:
-    """The filled column, or None when ``table`` already has it complete and typed."""
+_INT64 = (-(2**63), 2**63 - 1)
+
+
+def _as_int(value: Any, where: str) -> int:
+    """An integer provenance value as LeRobot's tools may leave it (an int, an integral float
+    from pandas, a string of digits), or a one-line refusal naming ``where``."""
+    number = None
+    if isinstance(value, float):
+        number = int(value) if math.isfinite(value) and value.is_integer() else None
+    elif isinstance(value, int) and not isinstance(value, bool):
+        number = value
+    elif isinstance(value, str) and value.strip().lstrip("+-").isdigit() and len(value) < 40:
+        number = int(value)
+    if number is None or not _INT64[0] <= number <= _INT64[1]:
+        raise DatasetFormatError(
+            f"{where}: {str(value)[:40]!r} is not an integer msta can record (64-bit); fix or "
+            "remove the value, nothing was changed")
+    return number
+
+
+def _provenance_column(table: pa.Table, col: str, kind: pa.DataType,
+                       path: Path | None = None) -> pa.Array | None:
+    """The filled column, or None when ``table`` already has it complete and typed.
+
+    Raises:
+        DatasetFormatError: an integer column holds a value that is not an integer (the
+            file, column and row named).
+    """
     have = table.column(col) if col in table.column_names else None
     if have is not None and have.null_count == 0 and have.type == kind:
         return None
@@ -97,7 +123,10 @@ def _provenance_column(table: pa.Table, col: str, kind: pa.DataType) -> pa.Array
         fill = [-1 if kind == pa.int64() else UNKNOWN] * table.num_rows
     missing = [v is None or (isinstance(v, float) and math.isnan(v)) for v in values]  # NaN: pandas
     out = [f if m else v for v, f, m in zip(values, fill, missing, strict=True)]
-    return pa.array([int(v) for v in out] if kind == pa.int64() else [str(v) for v in out], kind)
+    if kind == pa.int64():
+        return pa.array([_as_int(v, f"{path}: column {col!r}, row {i}")
+                         for i, v in enumerate(out)], kind)
+    return pa.array([str(v) for v in out], kind)
 
 
 def provenance_fixes(root: str | Path) -> dict[str, tuple[pa.Table, int]]:
@@ -108,7 +137,7 @@ def provenance_fixes(root: str | Path) -> dict[str, tuple[pa.Table, int]]:
         table = F.read_parquet(path)
         filled = 0
         for col, kind in F.PROVENANCE_COLUMNS.items():
-            new = _provenance_column(table, col, kind)
+            new = _provenance_column(table, col, kind, path)
             if new is None:
                 continue
             have = table.column(col) if col in table.column_names else None
@@ -132,9 +161,9 @@ def adopt(root: str | Path, msta_meta: dict[str, Any],
         relative path -> what was written (the writer's next commit records it).
     """
     root = Path(root)
+    fixes = provenance_fixes(root)  # first: a bad value refuses before anything is written
     text = json.dumps(msta_meta, indent=4, ensure_ascii=False).encode()
     done = {L.MSTA_META_PATH: write(root / L.MSTA_META_PATH, lambda p: p.write_bytes(text))}
-    fixes = provenance_fixes(root)
     for rel, (table, _) in fixes.items():
         done[rel] = write(root / rel, lambda p, t=table: pq.write_table(
             t, p, compression="snappy", write_page_checksum=True))

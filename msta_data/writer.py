@@ -65,9 +65,10 @@ from msta.data import layout as L
 from msta.data import lerobot_edits as E
 from msta.data import quarantine as Q
 from msta.data import stats as S
-from msta.data.errors import DatasetFormatError, DatasetLockedError
+from msta.data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
 from msta.data.features import validate_episode
 from msta.data.hub_cards import write_dataset_card
+from msta.data.inside import PathOutsideRootError, refuse_links
 from msta.data.layout import LOCK_NAME
 from msta.data.locking import lock_directory
 
@@ -209,10 +210,16 @@ class DatasetWriter:
             DatasetIntegrityError: a committed file is missing, truncated or changed, or
                 ``info.json`` matches no recorded commit (nothing is modified).
             DatasetFormatError: the schema or the metadata is wrong (file named).
+            DatasetIntegrityError: a symbolic link is anywhere under ``root`` (a writer
+                would move, rewrite or create files where it leads).
         """
         root = Path(root)
         if not (root / L.INFO_PATH).exists():
             raise DatasetFormatError(f"{root / L.INFO_PATH}: no such file; use create()")
+        try:  # a chunk folder, the quarantine, meta/ or the lock linked elsewhere
+            refuse_links(root, what="dataset")
+        except PathOutsideRootError as e:
+            raise DatasetIntegrityError(str(e)) from None
         lock_fd = _take_lock(root)
         try:
             info = F.load_info(root)

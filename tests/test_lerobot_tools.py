@@ -185,3 +185,53 @@ def test_lerobot_dataset_viz_saves_an_episode(recorded, tmp_path):
     summary = RrdReader(str(rrd)).store().summary()  # one row per frame of the episode
     for entity in ("action", "state", "next.reward", "next.done"):
         assert f"/{entity} rows={length} " in summary, summary
+
+
+@pytest.mark.parametrize("bad", [["two"] * 6, [1e300] * 6, ["9" * 23] * 6, [0.5] * 6])
+def test_a_non_integer_provenance_round_is_refused_before_anything_is_written(recorded, tmp_path,
+                                                                             bad):
+    """A LeRobot-edited dataset whose provenance/round holds text, a huge or a fractional
+    number: one line naming the file, column and row; meta/msta.json is not written."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from msta.data.errors import DatasetFormatError
+    from msta.data.writer import DatasetWriter
+
+    root = _copy(recorded, tmp_path / "ds")
+    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
+        (root / rel).unlink()
+    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
+    table = pq.read_table(path)
+    i = table.column_names.index("provenance/round")
+    table = table.set_column(i, "provenance/round", pa.array(bad))
+    pq.write_table(table, path)
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()
+              and p.name != L.LOCK_NAME}
+    with pytest.raises(DatasetFormatError, match=rf"{path.name}: column 'provenance/round', "
+                       r"row 0: .* is not an integer msta can record.*nothing was changed"):
+        DatasetWriter.open(root)
+    after = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()
+             and p.name != L.LOCK_NAME}
+    assert after == before
+    with pytest.raises(SystemExit, match="is not an integer"):  # the command: one line
+        msta_collect([*RECORD, f"--root={root}", "--episodes=8", "--resume=true"])
+
+
+def test_integral_provenance_values_of_another_type_are_taken(recorded, tmp_path):
+    """pandas may leave floats (and NaN for a gap) where msta wrote integers: 3.0 is 3."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from msta.data.writer import DatasetWriter
+
+    root = _copy(recorded, tmp_path / "ds")
+    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
+        (root / rel).unlink()
+    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
+    table = pq.read_table(path)
+    i = table.column_names.index("provenance/round")
+    table = table.set_column(i, "provenance/round", pa.array([3.0, 2.0, None, 1.0, 0.0, 0.0]))
+    pq.write_table(table, path)
+    DatasetWriter.open(root).close()
+    assert load_episode_table(root)["provenance/round"].tolist() == [3, 2, -1, 1, 0, 0]

@@ -222,3 +222,25 @@ def test_a_zero_std_statistic_trains_with_a_finite_loss(ds, tmp_path, capsys):
     main([f"--dataset={ds}", f"--output_dir={tmp_path / 'run'}", *TRAIN[:-1], "--steps=10"])
     loss = float(re.search(r"train loss ([0-9.e+-]+)", capsys.readouterr().out).group(1))
     assert loss < 1e3
+
+
+@pytest.mark.parametrize("link", ["data/chunk-001", ".msta-quarantine", "meta/episodes"])
+def test_a_writer_touches_nothing_through_a_symbolic_link(ds, tmp_path, link):
+    """A chunk folder, the quarantine or the episodes folder linked to an outside folder:
+    reopening for append (msta-collect --resume, stage 2) refuses in one line, and neither
+    the outside folder nor the dataset changes."""
+    from msta.data.writer import DatasetWriter
+
+    outside = tmp_path / "outside"
+    if (ds / link).exists():
+        shutil.move(ds / link, outside)
+    else:
+        outside.mkdir()
+    (outside / "mine.txt").write_text("a user's file")
+    (ds / link).symlink_to(outside, target_is_directory=True)
+    before, theirs = snapshot(ds), sorted(p.name for p in outside.iterdir())
+    with pytest.raises(DatasetIntegrityError, match=rf"holds symbolic links \({link}\).*"
+                       "replace them with the files themselves"):
+        DatasetWriter.open(ds)
+    assert snapshot(ds) == before
+    assert sorted(p.name for p in outside.iterdir()) == theirs
