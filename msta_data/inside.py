@@ -61,13 +61,14 @@ def links_under(root: str | Path) -> list[str]:
     return sorted(found)
 
 
-def refuse_links(root: str | Path, *, what: str = "root") -> None:
-    """Raise :class:`PathOutsideRootError` when a symbolic link is anywhere under ``root``
-    (the links named): what a writer checks before it moves or rewrites files in a root."""
+def refuse_links(root: str | Path, *, what: str = "root",
+                 error: type[Exception] = PathOutsideRootError) -> None:
+    """Raise ``error`` when a symbolic link is anywhere under ``root`` (the links named): what
+    a writer checks before it moves or rewrites files in a root."""
     found = links_under(root)
     if found:
         shown = ", ".join(found[:4]) + (f" and {len(found) - 4} more" if len(found) > 4 else "")
-        raise PathOutsideRootError(
+        raise error(
             f"{root}: the {what} holds symbolic links ({shown}); msta does not follow links "
             "out of a root, replace them with the files themselves")
 

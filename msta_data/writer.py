@@ -68,7 +68,7 @@ from msta.data import stats as S
 from msta.data.errors import DatasetFormatError, DatasetIntegrityError, DatasetLockedError
 from msta.data.features import validate_episode
 from msta.data.hub_cards import write_dataset_card
-from msta.data.inside import PathOutsideRootError, refuse_links
+from msta.data.inside import refuse_links
 from msta.data.layout import LOCK_NAME
 from msta.data.locking import lock_directory
 
@@ -216,10 +216,8 @@ class DatasetWriter:
         root = Path(root)
         if not (root / L.INFO_PATH).exists():
             raise DatasetFormatError(f"{root / L.INFO_PATH}: no such file; use create()")
-        try:  # a chunk folder, the quarantine, meta/ or the lock linked elsewhere
-            refuse_links(root, what="dataset")
-        except PathOutsideRootError as e:
-            raise DatasetIntegrityError(str(e)) from None
+        # a chunk folder, the quarantine, meta/ or the lock linked elsewhere: nothing touched
+        refuse_links(root, what="dataset", error=DatasetIntegrityError)
         lock_fd = _take_lock(root)
         try:
             info = F.load_info(root)
