@@ -32,7 +32,7 @@ from msta.collect.recorder import LabelledActor, record_rollouts
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data import cli, layout
+from msta.data import checks, cli, layout
 from msta.data.errors import DatasetError, DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.layout import LOCK_NAME
@@ -93,9 +93,9 @@ class CollectConfig(RayOptions):
                 raise ValueError(f"extra_sensors: {name!r} is not an extension sensor (the others "
                                  f"are always recorded); extension sensors: "
                                  f"{', '.join(EXTENSION_SENSORS)}")
-        cli.check_number("action_noise", self.action_noise, 0)
+        checks.check_number("action_noise", self.action_noise, 0)
         check_ray_options(self.workers, self.ray_address)
-        cli.check_at_least(self, 1, "episodes", "flush_every_frames")
+        checks.check_at_least(self, 1, "episodes", "flush_every_frames")
         check_sizes(self.num_envs, self.episode_length_s)
         terrain = self.env.terrain
         default = TerrainConfig.__dataclass_fields__["max_init_level"].default

@@ -204,9 +204,11 @@ def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry,
     out = []
     for e in entries:
         sensors = e.obj.required_sensors if e.kind == "student" else STUDENT_SENSORS
-        guarded = e.kind == "student" and load_guard(e.path, 1) is not None
-        out += [(e, c) for c in build_conditions(cfg.scenario_list, suite, sensors, cfg.seed,
-                                                 values)
+        conds = build_conditions(cfg.scenario_list, suite, sensors, cfg.seed, values)
+        # the guard is read only for guard rows (a damaged one cannot stop the others)
+        guarded = (e.kind == "student" and any(c.removal == "guard" for c in conds)
+                   and load_guard(e.path, 1) is not None)
+        out += [(e, c) for c in conds
                 if (c.removal != "guard" or guarded)  # no guard saved: no guard rows
                 and (e.kind == "student" or not is_fault_run(c))]  # the teacher: fault-free
     return out

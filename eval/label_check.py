@@ -36,7 +36,8 @@ from msta.collect.rollout import Step, fell, rollout, step_quantities
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data.cli import check_at_least, parse_config, usage_error
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config, usage_error
 from msta.data.locate import locate_checkpoint
 from msta.data.robot import CONTROL_DT
 from msta.eval.intervals import ratio_interval

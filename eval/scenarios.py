@@ -42,7 +42,7 @@ import numpy as np
 from msta.collect.faults import FaultSpec
 from msta.collect.sim.env_config import check_sizes
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from msta.data.cli import check_at_least
+from msta.data.checks import check_at_least
 from msta.data.robot import NUM_JOINTS
 from msta.eval.metrics import TrialLayout
 from msta.policies.actor import InputSpec

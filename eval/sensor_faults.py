@@ -17,7 +17,7 @@ import numpy as np
 from msta.collect.faults import FaultInjector, FaultSpec, FaultyActor, std_from_stats
 from msta.eval.scenarios import Condition
 from msta.policies.actor import StudentActor
-from msta.policies.guard import load_guard as load
+from msta.policies.guard_file import load_guard as load
 
 #: Mixed into every injector's seed (apart from the students' mask streams).
 FAULT_SEED_TAG = 0xFA17

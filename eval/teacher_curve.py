@@ -29,7 +29,8 @@ import torch
 from tqdm import tqdm
 
 from msta.collect.sim.terrain import TERRAIN_TYPES
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.eval.intervals import wilson_interval
 from msta.eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
 from msta.policies.teacher.config import TeacherConfig, teacher_revision

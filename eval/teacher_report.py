@@ -33,7 +33,8 @@ from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.render import save_strip, tracking_camera
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.eval.metrics import TrialResults, summarize
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 

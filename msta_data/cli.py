@@ -24,8 +24,7 @@ import difflib
 import functools
 import inspect
 import itertools
-import math
-import numbers
+import json
 import re
 import sys
 import textwrap
@@ -289,6 +288,7 @@ def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str
         wrapper = draccus.argparsing.ArgumentParser(config_class, prog=prog,
                                                     formatter_class=HelpFormatter)
         args = _argparse_spellings(args, wrapper.parser, positionals, prog)
+        args = _literal_strings(args, wrapper.parser, config_class)
         if "-h" in args or "--help" in args:
             document(wrapper.parser, config_class)
             _document_positionals(wrapper.parser, positionals)
@@ -353,65 +353,47 @@ def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
     return out
 
 
-def check_number(name: str, value: Any, minimum: float | None = None,
-                 maximum: float | None = None, *, above: bool = False, why: str = "") -> None:
-    """The range check every command's config makes: raise a one-line
-    ``ValueError("<name>=<value> must be ...")`` unless ``value`` is a finite number (NaN
-    and infinity never pass, a bool is not a number) within the bounds.
-
-    Args:
-        name: the option, as the user spells it (``batch_size``, ``env.num_envs``).
-        value: its value.
-        minimum: the lowest value allowed (None: no lower bound).
-        maximum: the highest value allowed (None: no upper bound).
-        above: ``value`` must be strictly greater than ``minimum``.
-        why: why the upper bound is what it is, appended to the message.
-    """
-    ok = (isinstance(value, numbers.Real) and not isinstance(value, bool)
-          and math.isfinite(value))
-    if ok and (minimum is None or value > minimum or (value == minimum and not above)) and (
-            maximum is None or value <= maximum):
-        return
-    low = "" if minimum is None else f"{'>' if above else '>='} {minimum}"
-    if maximum is None:
-        bound = low
-    elif minimum is None:
-        bound = f"<= {maximum}"
-    else:
-        bound = f"in {'(' if above else '['}{minimum}, {maximum}]"
-    finite = "" if ok else "a finite number "
-    raise ValueError(f"{name}={value} must be {finite}{bound}" + (f" ({why})" if why else ""))
-
-
-def check_finite_fields(config: Any, prefix: str = "") -> None:
-    """Raise a one-line ``ValueError("<prefix><name>=nan must be a finite number")`` for the
-    first float of the dataclass ``config`` (nested dataclasses, tuples, lists and dict values
-    included) that is NaN or infinite: options without a range check of their own (a reward
-    scale, a PD gain, a command range) must not reach the simulator as NaN either."""
-    for f in dataclasses.fields(config):
-        _check_finite(f"{prefix}{f.name}", getattr(config, f.name))
+def _literal_strings(args: list[str], parser: argparse.ArgumentParser,
+                     config_class: type) -> list[str]:
+    """A text option's value is taken as typed: draccus reads every value as YAML, so
+    ``--root=null`` gave None, ``--root=[a, b]`` a folder named ``['a', 'b']``, ``yes`` the
+    text ``True`` and ``bias:3:encoder:`` a mapping. Each ``--<text option>=<value>`` is
+    quoted for YAML here; a value with a control character (a newline, which also let a
+    second YAML document in) is refused in one line."""
+    options = {s: a for a in parser._actions for s in a.option_strings}
+    groups = _group_dests(config_class)
+    out: list[str] = []
+    i = 0
+    while i < len(args):
+        arg = args[i]
+        i += 1
+        flag, sep, value = arg.partition("=")
+        action = options.get(flag)
+        if (action is None or action.type is not str or flag == "--config_path"
+                or action.dest in groups):
+            out.append(arg)
+            continue
+        if not sep:  # --option value
+            if i == len(args) or args[i].startswith("--"):
+                out.append(arg)  # argparse names the missing value
+                continue
+            value, i = args[i], i + 1
+        bad = next((c for c in value if ord(c) < 32 or ord(c) == 127
+                    or 0xD800 <= ord(c) <= 0xDFFF), None)
+        if bad is not None:
+            raise ValueError(f"{flag} must be text without control characters, got "
+                             f"{value[:40]!r}")
+        out.append(f"{flag}={json.dumps(value)}")  # a YAML double-quoted scalar
+    return out
 
 
-def _check_finite(name: str, value: Any) -> None:
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        check_finite_fields(value, name + ".")
-    elif isinstance(value, tuple | list):
-        for v in value:
-            _check_finite(name, v)
-    elif isinstance(value, dict):
-        for k, v in value.items():
-            _check_finite(f"{name}.{k}", v)
-    elif isinstance(value, float) and not math.isfinite(value):
-        raise ValueError(f"{name}={value} must be a finite number")
-
-
-def check_at_least(config: Any, minimum: float, *names: str, maximum: float | None = None,
-                   why: str = "") -> None:
-    """:func:`check_number` on each of the config's fields ``names``: ``ValueError("<name>=
-    <value> must be >= <minimum>")`` for the first one below ``minimum`` (or above
-    ``maximum``, or not finite)."""
-    for name in names:
-        check_number(name, getattr(config, name), minimum, maximum, why=why)
+def _group_dests(cls: type, prefix: str = "") -> set[str]:
+    """Dotted names of the nested config groups of ``cls`` (``env``, ``env.terrain``)."""
+    out: set[str] = set()
+    for name, tp in _field_types(cls).items():
+        for sub in _dataclasses_of(tp):
+            out |= {prefix + name} | _group_dests(sub, f"{prefix}{name}.")
+    return out
 
 
 def _check_groups(config_class: type, args: Sequence[str], prog: str) -> None:

@@ -14,7 +14,8 @@ from typing import Any
 import numpy as np
 
 from msta.data import sensors as registry
-from msta.policies.guard import GUARD_ARRAYS, GUARD_JSON, INPUT_SENSORS, load_guard
+from msta.policies.guard import INPUT_SENSORS
+from msta.policies.guard_file import GUARD_ARRAYS, GUARD_JSON, load_guard
 
 #: ONNX / TorchScript input name of a sensor's per-sample channel removal
 ABSENT_PREFIX = "absent_"

@@ -52,19 +52,14 @@ are flagged together.
 
 from __future__ import annotations
 
-import json
-from dataclasses import asdict, dataclass, fields
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
-from safetensors.numpy import load_file, save_file
 
 from msta.data import sensors as registry
 from msta.data.sensors import PHYSICAL_SENSORS
 from msta.policies.guard_imu import ImuRules
 
-GUARD_JSON = "guard.json"
-GUARD_ARRAYS = "guard.safetensors"
 FORMAT = 1
 #: What the guard reads: the physical sensors, then the software inputs its predictors use.
 INPUT_SENSORS: tuple[str, ...] = PHYSICAL_SENSORS + ("command", "last_action")
@@ -80,6 +75,16 @@ CONTACTS = np.arange(OFFSET["foot_contact"], OFFSET["foot_contact"] + 4)
 CONTACT_INPUTS = np.setdiff1d(np.arange(D), CONTACTS)
 #: The physical channels but the contacts (the contact network trusts them or not).
 NOT_CONTACTS = np.setdiff1d(np.arange(P), CONTACTS)
+
+
+#: Bounds of the integer settings (steps, lags, units): beyond them the guard's buffers alone
+#: would take gigabytes. Float settings are finite and in (0, 1e6].
+_INT_RANGES = {"window": (1, 1000), "imu_window": (1, 1000), "min_repeat": (1, 1000),
+               "contact_lags": (1, 100), "contact_hidden": (1, 4096), "imu_delay": (0, 1000),
+               "warmup": (0, 100_000)}
+_FLOAT_MAX = 1e6
+#: Arrays that divide: finite and > 0 (a zero scale would switch statistics off).
+SCALE_ARRAYS = ("feat_std", "z_std", "enc_std", "z2_std", "contact_std")
 
 
 @dataclass
@@ -143,16 +148,18 @@ class GuardConfig:
     warmup: int = 50
 
     def __post_init__(self) -> None:
-        for name in ("imu_delay", "warmup"):
-            if int(getattr(self, name)) < 0:
-                raise ValueError(f"guard {name} must be >= 0, got {getattr(self, name)}")
-        for name in ("window", "imu_window", "min_repeat", "contact_lags", "contact_hidden"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"guard {name} must be >= 1, got {getattr(self, name)}")
+        for name, (low, high) in _INT_RANGES.items():
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise ValueError(f"guard {name} must be an integer in [{low}, {high}], "
+                                 f"got {value!r}")
         for name in ("ridge", "margin", "binary_tolerance", "margin2", "imu_jump",
                      "contact_epochs", "contact_margin"):
-            if not float(getattr(self, name)) > 0:
-                raise ValueError(f"guard {name} must be > 0, got {getattr(self, name)}")
+            value = getattr(self, name)
+            if (isinstance(value, bool) or not isinstance(value, int | float)
+                    or not 0 < value <= _FLOAT_MAX):
+                raise ValueError(f"guard {name} must be a number in (0, {_FLOAT_MAX:g}], "
+                                 f"got {value!r}")
 
 
 def encoder_partner(c: np.ndarray) -> np.ndarray:
@@ -231,22 +238,29 @@ class SensorGuard(ImuRules):
     def __init__(self, cfg: GuardConfig, stats: dict[str, np.ndarray],
                  sensors: tuple[str, ...] = PHYSICAL_SENSORS, num_envs: int = 1,
                  dt: float = 0.02) -> None:
-        need = tuple(array_shapes(cfg))
-        missing = [k for k in need if k not in stats]
+        shapes = array_shapes(cfg)
+        missing = [k for k in shapes if k not in stats]
         if missing:
             raise KeyError(f"guard arrays missing: {missing}")
+        for k, shape in shapes.items():
+            a = np.asarray(stats[k], np.float64)
+            if k == "threshold":  # may be +inf (a probe that never fires); a file may not
+                ok, want = not np.isnan(a).any() and (a >= 0).all(), "not NaN and >= 0"
+            else:
+                ok = np.isfinite(a).all() and (k not in SCALE_ARRAYS or (a > 0).all())
+                want = "finite and > 0" if k in SCALE_ARRAYS else "finite"
+            if not ok or a.shape != shape:
+                raise ValueError(f"guard array {k!r} must be {want} with shape {shape}, got "
+                                 f"shape {a.shape}")
         bad = [s for s in sensors if s not in PHYSICAL_SENSORS]
         if bad or not sensors:
             raise ValueError(f"guard sensors must be a non-empty subset of {PHYSICAL_SENSORS}, "
                              f"got {list(sensors)}")
-        if num_envs < 1 or not dt > 0:
-            raise ValueError(f"guard needs num_envs >= 1 and dt > 0, got {num_envs}, {dt}")
+        if num_envs < 1 or not 0 < dt <= 1:
+            raise ValueError(f"guard needs num_envs >= 1 and 0 < dt <= 1 s, got {num_envs}, {dt}")
         self.cfg, self.sensors, self.num_envs, self.dt = cfg, tuple(sensors), num_envs, dt
-        self.stats = {k: np.asarray(stats[k], np.float64) for k in need}
+        self.stats = {k: np.asarray(stats[k], np.float64) for k in shapes}
         self.names, accuse = statistic_layout(cfg.two_sided, cfg.contact_model)
-        if self.stats["threshold"].shape != (len(self.names),):
-            raise ValueError(f"guard threshold has shape {self.stats['threshold'].shape}, "
-                             f"expected ({len(self.names)},)")
         keep = np.zeros(P, bool)
         for s in self.sensors:
             keep[OFFSET[s]:OFFSET[s] + registry.get(s).dim] = True
@@ -433,18 +447,6 @@ class SensorGuard(ImuRules):
         return {s: self.flags[:, OFFSET[s]:OFFSET[s] + registry.get(s).dim].copy()
                 for s in self.sensors}
 
-    def save(self, directory: str | Path) -> Path:
-        """Write ``guard.json`` and ``guard.safetensors`` into ``directory`` (a checkpoint
-        folder); returns the json's path."""
-        out = Path(directory)
-        out.mkdir(parents=True, exist_ok=True)
-        save_file({k: np.ascontiguousarray(v) for k, v in self.stats.items()},
-                  str(out / GUARD_ARRAYS))
-        meta = {"format": FORMAT, "config": asdict(self.cfg), "sensors": list(self.sensors),
-                "dt": self.dt, "statistics": self.names}
-        (out / GUARD_JSON).write_text(json.dumps(meta, indent=1) + "\n")
-        return out / GUARD_JSON
-
 
 def contact_probability(s: dict[str, np.ndarray], feats: np.ndarray) -> np.ndarray:
     """The contact network: the probability (N, 4) of each foot's contact one step back
@@ -455,20 +457,3 @@ def contact_probability(s: dict[str, np.ndarray], feats: np.ndarray) -> np.ndarr
     h = gelu((feats - s["contact_mean"]) / s["contact_std"] @ s["contact_w0"] + s["contact_b0"])
     h = gelu(h @ s["contact_w1"] + s["contact_b1"])
     return 1.0 / (1.0 + np.exp(-(h @ s["contact_w2"] + s["contact_b2"])))
-
-
-def load_guard(directory: str | Path, num_envs: int = 1) -> SensorGuard | None:
-    """The guard saved in a checkpoint folder, or None when the folder has none."""
-    path = Path(directory) / GUARD_JSON
-    if not path.is_file():
-        return None
-    meta = json.loads(path.read_text())
-    if meta.get("format") != FORMAT:
-        raise ValueError(f"{path}: guard format {meta.get('format')!r}, expected {FORMAT}")
-    known = {f.name for f in fields(GuardConfig)}
-    unknown = sorted(set(meta["config"]) - known)
-    if unknown:
-        raise ValueError(f"{path}: unknown guard config keys {unknown}")
-    arrays = load_file(str(Path(directory) / GUARD_ARRAYS))
-    return SensorGuard(GuardConfig(**{**LEGACY_CONFIG, **meta["config"]}), arrays, tuple(meta["sensors"]),
-                       num_envs, float(meta["dt"]))

@@ -33,7 +33,8 @@ from typing import Any
 import numpy as np
 
 from msta.data.sensors import get
-from msta.policies.guard import INPUT_SENSORS, load_guard
+from msta.policies.guard import INPUT_SENSORS
+from msta.policies.guard_file import load_guard
 
 FORMAT = "msta-export/1"
 

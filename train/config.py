@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
-from msta.data.cli import check_at_least, check_number
+from msta.data.checks import check_at_least, check_number
 
 #: The largest ``batch_size``: 65,536 windows of T = 15 steps of the 49 student input
 #: channels are 190 MB of float32, and the model's activations several times that.

@@ -11,7 +11,7 @@ from typing import ClassVar
 
 from msta.collect.ray_pool import RayOptions, check_ray_options
 from msta.collect.sim.env_config import EnvConfig, check_sizes
-from msta.data.cli import check_at_least
+from msta.data.checks import check_at_least
 from msta.data.threads import check_threads
 from msta.policies.actor import InputSpec
 from msta.policies.checkpoint import PolicyPath

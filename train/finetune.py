@@ -42,7 +42,7 @@ from typing import Any, ClassVar
 
 from msta.data import layout
 from msta.data import sensors as registry
-from msta.data.cli import check_at_least
+from msta.data.checks import check_at_least
 from msta.data.features import load_info
 from msta.data.locate import locate_checkpoint
 from msta.data.stats import load_stats

@@ -48,7 +48,8 @@ from torch import nn
 
 from msta.collect.sim.env_config import EnvConfig
 from msta.data import sensors as registry
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.locate import locate_checkpoint
 from msta.data.locking import hold_directory

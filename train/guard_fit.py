@@ -31,6 +31,7 @@ from msta.policies.guard import (
     encoder_partner,
     statistic_layout,
 )
+from msta.policies.guard_file import save_guard
 from msta.train.guard_data import Episodes, load_episodes, stream
 from msta.train.guard_eval import evaluate_guard, format_table
 
@@ -223,14 +224,14 @@ def run(cmd: GuardCommand) -> dict:
     cfg = cmd.guard
     if cmd.command == "fit":
         guard = fit_guard(cmd.dataset, cfg=cfg)
-        path = guard.save(cmd.output_dir)
+        path = save_guard(guard, cmd.output_dir)
         print(f"msta-guard: saved {path}")
         return {"path": str(path)}
 
     train_eps, held = episode_split(cmd.dataset, cmd.val_fraction, cmd.seed)
     guard = fit_guard(cmd.dataset, train_eps, cfg=cfg)
     report = evaluate_guard(guard, cmd.dataset, held, seed=cmd.seed, min_length=cmd.min_length)
-    guard.save(cmd.output_dir)
+    save_guard(guard, cmd.output_dir)
     (Path(cmd.output_dir) / "guard_eval.json").write_text(json.dumps(report, indent=1) + "\n")
     print(format_table(report))
     return report

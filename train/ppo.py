@@ -24,7 +24,7 @@ from typing import Any
 
 import torch
 
-from msta.data.cli import check_at_least, check_number
+from msta.data.checks import check_at_least, check_number
 from msta.train.rsl_env import RslVecEnv
 from msta.train.state import atomic_json
 

@@ -9,7 +9,7 @@ from msta.collect.sim.commands import CommandConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.rewards import RewardConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data.cli import check_finite_fields, check_number
+from msta.data.checks import check_finite_fields, check_number
 from msta.data.robot import ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
 
 #: The most environments one simulator steps (legged_gym trains with 4,096; every

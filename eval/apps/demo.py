@@ -41,7 +41,8 @@ from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig, simulate
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.data.hub_pull import pull
 from msta.data.hub_push import push_dataset
 from msta.data.hub_server.app import ServerConfig

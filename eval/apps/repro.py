@@ -54,7 +54,8 @@ from typing import Any
 
 from msta.data import layout
 from msta.data.budget import TimeLimitReached, deadline_after, stop
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.locking import hold_directory

@@ -55,6 +55,7 @@ from msta.policies.export import (
 )
 from msta.policies.factory import make_policy
 from msta.policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
+from msta.policies.guard_file import save_guard
 from msta.policies.msta import MSTAConfig
 from msta.policies.onnx_runtime import OnnxStudent
 
@@ -73,7 +74,7 @@ def synthetic_guard(seed: int = 0) -> SensorGuard:
         stats[k] = (0.05 * rng.standard_normal(shape) if k.startswith(("weight", "contact_w"))
                     else np.zeros(shape) if k.startswith(("bias", "feat_mean", "contact_b",
                                                           "contact_mean"))
-                    else np.full(shape, np.inf) if k == "threshold" else np.ones(shape))
+                    else np.full(shape, 1e300) if k == "threshold" else np.ones(shape))
     return SensorGuard(cfg, stats)
 
 
@@ -81,7 +82,7 @@ def bench_guard(policy, T: int, out: Path, seconds: float, student_ms: float) ->
     """Guard alone and guard + student (OnnxStudent.step) per step at the full observation;
     printed with their ratios to ``student_ms`` (the plain ONNX Runtime student)."""
     guard = synthetic_guard()
-    guard.save(out / "guard")
+    save_guard(guard, out / "guard")
     names = resolve_sensors(policy, "all")
     absent = [n for n in names if n in guard.sensors]
     spec = export_student(policy, out / "export", names, T, absent=absent,

@@ -142,3 +142,23 @@ def test_false_removals_count_only_each_trials_live_steps():
     false, steps = live_false_removals([det], np.array([2, 4]))
     assert false == (0 + 1) + (1 + 1 + 1 + 1)
     assert steps == 34 * (2 + 4)
+
+
+def test_a_damaged_guard_stops_only_the_guard_rows(tiny_ckpt, tmp_path, capsys):
+    """A guard.json whose arrays file is damaged: a suite without guard rows runs as before;
+    the sensor-fault suite (guard rows) is one line naming the file."""
+    import shutil
+
+    ckpt = tmp_path / "ckpt"
+    shutil.copytree(tiny_ckpt, ckpt)
+    (ckpt / "guard.json").write_text('{"format": 1}')
+    (ckpt / "guard.safetensors").write_bytes(b"\x00" * 16)
+    metrics = evaluate(EvalConfig(policies=str(ckpt), trials=1, episode_length_s=0.2,
+                                  output_dir=str(tmp_path / "plain"), **FAST))
+    assert metrics["runs"] and all(r["policy"] == "ckpt" for r in metrics["runs"])
+    with pytest.raises(SystemExit) as e:
+        main([f"--policies={ckpt}", "--scenarios=sensor_faults", f"--faults={STUCK}",
+              f"--output_dir={tmp_path / 'faults'}", "--suite=quick", "--progress=false"])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and len(err.splitlines()) == 1
+    assert f"{ckpt / 'guard.safetensors'}: not a readable safetensors file" in err

@@ -245,3 +245,37 @@ def test_an_error_raised_from_none_is_shown_as_raised_not_its_hidden_cause(capsy
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip()
     assert err == "prog: error: _Checked: --level 'x' must be an integer", err
+
+
+@dataclass
+class _Text:
+    """Args:
+        root: a folder.
+        task: a text.
+        n: a number.
+        sensors: names.
+    """
+
+    root: str = "out"
+    task: str = ""
+    n: int = 1
+    sensors: tuple[str, ...] = ("a",)
+
+
+@pytest.mark.parametrize("value", ["null", "~", "[a, b]", "{a: 1}", "yes", "bias:3:encoder:",
+                                   "a: b", "'quoted'", 'say "hi"', "back\\slash", "1e3", ""])
+def test_a_text_option_is_taken_as_typed(value):
+    """Values are YAML for draccus; a text option's value is not (null, yes, [a, b] and
+    bias:3:encoder: were None, True, a list and a mapping)."""
+    for argv in ([f"--root={value}"], ["--root", value]):
+        cfg = parse_config(_Text, [*argv, "--n=3", "--sensors=[x, y]"], "prog")
+        assert (cfg.root, cfg.n, cfg.sensors) == (value, 3, ("x", "y"))
+
+
+@pytest.mark.parametrize("value", ["a\n---\nb", "tab\there", "bell\x07", "\udc80"])
+def test_a_control_character_in_a_text_option_is_one_line(value, capsys):
+    with pytest.raises(SystemExit) as e:
+        parse_config(_Text, [f"--task={value}"], "prog")
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and len(err.splitlines()) == 1
+    assert err.startswith("prog: error: --task must be text without control characters")

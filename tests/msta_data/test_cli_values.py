@@ -1,6 +1,6 @@
 """Issue 41 (14): a value no run can use (NaN, infinity, a size no memory holds, a negative
 thread count) is refused when the command line is parsed: exit 2, one line naming the
-option, never a traceback. The bounds come from one helper, ``msta.data.cli.check_number``."""
+option, never a traceback. The bounds come from one helper, ``msta.data.checks.check_number``."""
 
 from __future__ import annotations
 

@@ -21,7 +21,8 @@ from msta.collect.faults import FaultInjector, FaultSpec, std_from_stats
 from msta.data.stats import load_stats
 from msta.policies.export import export_student, main, random_windows, resolve_sensors
 from msta.policies.export_removal import absent_masks
-from msta.policies.guard import INPUT_SENSORS, GuardConfig, load_guard
+from msta.policies.guard import INPUT_SENSORS, GuardConfig
+from msta.policies.guard_file import load_guard, save_guard
 from msta.train.guard_data import load_episodes
 from msta.train.guard_fit import fit_guard
 
@@ -46,7 +47,7 @@ def checkpoint(recorded, tmp_path_factory) -> Path:
     """A tiny MSTA student saved with a guard fitted on the recorded episodes."""
     ckpt = student("msta", {}, recorded).save_pretrained(
         tmp_path_factory.mktemp("ckpt") / "ckpt")
-    fit_guard(recorded, cfg=GuardConfig(ridge=30.0)).save(ckpt)  # 300 steps: a firm fit
+    save_guard(fit_guard(recorded, cfg=GuardConfig(ridge=30.0)), ckpt)  # 300 steps: a firm fit
     return Path(ckpt)
 
 

@@ -9,7 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from msta.policies.guard import GuardConfig, load_guard
+from msta.policies.guard import GuardConfig
+from msta.policies.guard_file import load_guard
 from msta.train.guard_eval import evaluate_guard, format_table
 from msta.train.guard_fit import main
 
@@ -83,3 +84,112 @@ def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_data
     assert len(unseen["shown_ok"]) == 0  # reading * 1 never changes a reading
     row = summarize([unseen])
     assert row["shown"] == 0 and row["within_10_shown"] is None and row["faults"] == 4
+
+
+@pytest.mark.parametrize("option,msg", [
+    ("--guard.margin=inf", "guard margin must be a number in (0, 1e+06]"),
+    ("--guard.margin=nan", "guard margin must be a number in (0, 1e+06]"),
+    ("--guard.contact_lags=100000", "guard contact_lags must be an integer in [1, 100]"),
+    ("--guard.window=0", "guard window must be an integer in [1, 1000]"),
+])
+def test_settings_that_would_switch_the_guard_off_or_exhaust_memory_are_refused(
+        option, msg, capsys, synthetic_dataset, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", option])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and msg in err and "\n" not in err
+    assert not list(tmp_path.iterdir())  # nothing saved
+
+
+@pytest.fixture(scope="module")
+def saved(synthetic_dataset, tmp_path_factory):
+    """A guard fitted on the synthetic dataset, saved: (folder, guard)."""
+    from msta.policies.guard_file import save_guard
+    from msta.train.guard_fit import fit_guard
+
+    folder = tmp_path_factory.mktemp("guard")
+    guard = fit_guard(synthetic_dataset, cfg=GuardConfig(warmup=0))
+    save_guard(guard, folder)
+    return folder, guard
+
+
+def _edited_copy(saved, tmp_path, meta=None, arrays=None, text=None):
+    """A copy of the saved guard whose settings (guard.json and the arrays' header) or arrays
+    are replaced, as a hostile or damaged checkpoint would hold them."""
+    from safetensors.numpy import save_file
+
+    folder, guard = saved
+    stats = {k: v.copy() for k, v in guard.stats.items()} | (arrays or {})
+    good = json.loads((folder / "guard.json").read_text())
+    body = text if text is not None else json.dumps(good if meta is None else meta(good))
+    save_file(stats, str(tmp_path / "guard.safetensors"), metadata={"msta_guard": body})
+    (tmp_path / "guard.json").write_text(body)
+    return tmp_path
+
+
+def _set(path, value):
+    def edit(meta):
+        node = meta
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = value
+        return meta
+    return edit
+
+
+@pytest.mark.parametrize("meta,arrays,text,msg", [
+    (_set(["dt"], float("inf")), None, None, "0 < dt <= 1 s"),
+    (_set(["dt"], "0.02"), None, None, "'dt' must be a number"),
+    (_set(["config", "margin"], "2"), None, None, "'margin' must be a float"),
+    (_set(["config", "window"], [1]), None, None, "'window' must be a int"),
+    (_set(["config", "contact_lags"], 10**9), None, None, "contact_lags must be an integer in"),
+    (_set(["config"], None), None, None, "'config' must be an object"),
+    (_set(["sensors"], "joint_pos"), None, None, "'sensors' must be a list"),
+    (lambda m: [m], None, None, "must be a JSON object"),
+    (None, None, "[" * 100_000, "not valid JSON"),
+    (None, {"threshold": "nan"}, None, "'threshold' must be not NaN and >= 0"),
+    (None, {"threshold": "inf"}, None, "'threshold' must be finite (an infinite"),
+    (None, {"z_std": "zero"}, None, "'z_std' must be finite and > 0"),
+    (None, {"weight": "short"}, None, "'weight' must be finite with shape"),
+])
+def test_a_malformed_or_disarming_guard_file_is_one_line(saved, tmp_path, meta, arrays, text,
+                                                         msg):
+    from msta.policies.guard_file import GuardFileError
+
+    stats = saved[1].stats
+    values = {"nan": np.nan, "inf": np.inf, "zero": 0.0}
+    arrays = {k: (stats[k][:3].copy() if v == "short" else np.full_like(stats[k], values[v]))
+              for k, v in (arrays or {}).items()}
+    folder = _edited_copy(saved, tmp_path, meta, arrays, text)
+    with pytest.raises(GuardFileError) as err:
+        load_guard(folder)
+    assert msg in str(err.value) and "\n" not in str(err.value)
+    assert str(folder / "guard.") in str(err.value)
+
+
+def test_a_damaged_arrays_file_is_one_line(saved, tmp_path):
+    from msta.policies.guard_file import GuardFileError
+
+    (tmp_path / "guard.json").write_bytes((saved[0] / "guard.json").read_bytes())
+    (tmp_path / "guard.safetensors").write_bytes(b"\xff" * 64)
+    with pytest.raises(GuardFileError, match=r"guard\.safetensors: not a readable safetensors"):
+        load_guard(tmp_path)
+
+
+def test_a_save_killed_between_its_two_files_leaves_a_consistent_guard(saved, tmp_path,
+                                                                       synthetic_dataset):
+    """The arrays file carries the settings: new arrays beside an old guard.json (a kill
+    after the first rename) load as the new guard."""
+    import shutil
+
+    from msta.policies.guard_file import save_guard
+    from msta.train.guard_fit import fit_guard
+
+    folder, old = saved
+    shutil.copytree(folder, tmp_path / "ckpt")
+    new = fit_guard(synthetic_dataset, cfg=GuardConfig(warmup=0, two_sided=False))
+    save_guard(new, tmp_path / "new")
+    shutil.copy(tmp_path / "new" / "guard.safetensors", tmp_path / "ckpt")  # json is the old
+    back = load_guard(tmp_path / "ckpt")
+    assert not back.cfg.two_sided and back.names == new.names != old.names
+    assert all((back.stats[k] == new.stats[k]).all() for k in new.stats)

@@ -28,7 +28,8 @@ import torch
 from rsl_rl.runners import OnPolicyRunner
 
 from msta.collect.sim.env_config import EnvConfig
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.data.errors import DirectoryLockedError
 from msta.data.locking import hold_directory
 from msta.data.threads import check_threads, resolve_threads

@@ -36,7 +36,7 @@ from msta.collect.recorder import LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import REASONS
 from msta.collect.sim.env_config import EnvConfig
-from msta.data.cli import check_at_least, check_number
+from msta.data.checks import check_at_least, check_number
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.rsl_env import RslVecEnv

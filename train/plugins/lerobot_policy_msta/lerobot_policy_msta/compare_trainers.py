@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from lerobot_policy_msta.convert import lerobot_to_msta
-from msta.data.cli import check_at_least, parse_config
+from msta.data.checks import check_at_least
+from msta.data.cli import parse_config
 from msta.data.locate import locate_dataset
 from msta.data.stats import load_stats
 from msta.data.windows import episode_split
