@@ -58,6 +58,10 @@ ENCODER = "encoder"
 BINARY_FAULTS: tuple[str, ...] = ("stuck", "spikes", "dropout")
 #: The fault types whose size is a multiple of the channel's std.
 STD_FAULTS: tuple[str, ...] = ("bias", "drift", "noise", "spikes")
+#: The latest onset (s): an hour, beyond any episode (later ones overflowed the step count).
+MAX_ONSET_S = 3600.0
+#: The largest severity (std multiples, either sign).
+MAX_SEVERITY = 1000.0
 _FORM = "TYPE:VALUE:TARGET[/rate=R][/onset=A-B], e.g. bias:3:encoder:2"
 
 
@@ -110,15 +114,17 @@ class FaultSpec:
         if self.type not in FAULT_TYPES:
             raise ValueError(f"unknown fault type {self.type!r}; known: {', '.join(FAULT_TYPES)}")
         chans = _channels(self.target)
-        if not math.isfinite(self.severity):
-            raise ValueError(f"fault {self}: severity must be finite")
+        if not abs(self.severity) <= MAX_SEVERITY:  # NaN fails too
+            raise ValueError(f"fault {self}: severity must be a finite number in "
+                             f"[-{MAX_SEVERITY:g}, {MAX_SEVERITY:g}] (std multiples)")
         if self.type in ("noise", "spikes") and self.severity < 0:
             raise ValueError(f"fault {self}: {self.type} severity must be >= 0 (std multiples)")
         if not 0.0 <= self.rate <= 1.0:
             raise ValueError(f"fault {self}: rate must be in [0, 1], got {self.rate:g}")
         lo, hi = (self.onset_s + (math.nan, math.nan))[:2]
-        if len(self.onset_s) != 2 or not 0.0 <= lo <= hi:
-            raise ValueError(f"fault {self}: onset_s must be (low, high) with 0 <= low <= high")
+        if len(self.onset_s) != 2 or not 0.0 <= lo <= hi <= MAX_ONSET_S:
+            raise ValueError(f"fault {self}: onset_s must be (low, high) with 0 <= low <= high "
+                             f"<= {MAX_ONSET_S:g} s")
         binary = [s for s in chans if get(s).binary]
         if binary and self.type not in BINARY_FAULTS:
             raise ValueError(f"fault {self}: {binary[0]} is binary (0/1); it takes "

@@ -112,6 +112,9 @@ def _existing_dataset(cfg: CollectConfig, root: Path) -> DatasetWriter | None:
             return DatasetWriter.open(root, flush_every_frames=cfg.flush_every_frames)
         raise FileExistsError(f"{root} already holds a dataset ({have} episodes); pass "
                               "--resume=true to extend it or choose another --root")
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"--root={root} is not a folder; choose a folder for the "
+                                 "dataset")
     if root.exists() and any(p for p in root.iterdir() if p.name != LOCK_NAME):
         raise FileExistsError(f"{root} is not empty and holds no dataset (no meta/info.json); "
                               "choose another --root")
@@ -184,7 +187,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     try:
         collect(cfg)
     except (DatasetError, DirectoryLockedError, FileExistsError, FileNotFoundError,
-            ValueError) as e:
+            NotADirectoryError, PermissionError, ValueError) as e:
         raise SystemExit(f"msta-collect: error: {e}") from None
 
 

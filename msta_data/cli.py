@@ -24,20 +24,21 @@ import difflib
 import functools
 import inspect
 import itertools
-import json
 import re
 import sys
 import textwrap
-import typing
 from collections.abc import Callable, Sequence
 from typing import Any, NoReturn
 
 import draccus
+import yaml
 from draccus.wrappers.field_metavar import get_metavar
+
+from msta.data.cli_values import dataclasses_of, field_types, prepare_values
 
 #: Errors that mean "a bad value on the command line" (draccus wraps ours).
 VALUE_ERRORS = (draccus.utils.DecodingError, draccus.utils.ParsingError, ValueError, KeyError,
-                TypeError, FileNotFoundError, NotADirectoryError)
+                TypeError, OSError, yaml.YAMLError)
 
 _ENTRY = re.compile(r"^(\s*)(\w+(?:,\s*\w+)*)(?:\s*\([^)]*\))?:\s*(.*)$")
 
@@ -100,26 +101,6 @@ def _parse_args_block(doc: str) -> dict[str, str]:
     return out
 
 
-def _field_types(cls: type) -> dict[str, Any]:
-    try:
-        hints = typing.get_type_hints(cls)
-    except Exception:  # noqa: BLE001 - unresolvable annotations: fall back to the raw ones
-        hints = {f.name: f.type for f in dataclasses.fields(cls)}
-    return {f.name: hints.get(f.name, f.type) for f in dataclasses.fields(cls)}
-
-
-def _dataclasses_of(tp: Any) -> list[type]:
-    """The dataclass(es) a field's type can hold: itself, an Optional's argument, or every
-    registered choice of a draccus choice type (``--policy.type=...``)."""
-    for arg in typing.get_args(tp) or (tp,):
-        if isinstance(arg, type) and dataclasses.is_dataclass(arg):
-            choices = getattr(arg, "get_known_choices", None)
-            if choices is not None:
-                return [arg, *choices().values()]
-            return [arg]
-    return []
-
-
 def field_help(config_class: type, dest: str) -> str | None:
     """Description of the option ``--<dest>`` (``env.terrain.types``) from the docstrings."""
     classes, *path = [config_class], *dest.split(".")
@@ -127,9 +108,9 @@ def field_help(config_class: type, dest: str) -> str | None:
         nested = []
         for cls in classes:
             if dataclasses.is_dataclass(cls):
-                tp = _field_types(cls).get(part)
+                tp = field_types(cls).get(part)
                 if tp is not None:
-                    nested += _dataclasses_of(tp)
+                    nested += dataclasses_of(tp)
         classes = nested
     for cls in classes:
         doc = args_doc(cls).get(path[-1])
@@ -288,7 +269,7 @@ def parse_config[T](config_class: type[T], argv: Sequence[str] | None, prog: str
         wrapper = draccus.argparsing.ArgumentParser(config_class, prog=prog,
                                                     formatter_class=HelpFormatter)
         args = _argparse_spellings(args, wrapper.parser, positionals, prog)
-        args = _literal_strings(args, wrapper.parser, config_class)
+        args = prepare_values(args, wrapper.parser, config_class)
         if "-h" in args or "--help" in args:
             document(wrapper.parser, config_class)
             _document_positionals(wrapper.parser, positionals)
@@ -353,57 +334,14 @@ def _argparse_spellings(args: list[str], parser: argparse.ArgumentParser,
     return out
 
 
-def _literal_strings(args: list[str], parser: argparse.ArgumentParser,
-                     config_class: type) -> list[str]:
-    """A text option's value is taken as typed: draccus reads every value as YAML, so
-    ``--root=null`` gave None, ``--root=[a, b]`` a folder named ``['a', 'b']``, ``yes`` the
-    text ``True`` and ``bias:3:encoder:`` a mapping. Each ``--<text option>=<value>`` is
-    quoted for YAML here; a value with a control character (a newline, which also let a
-    second YAML document in) is refused in one line."""
-    options = {s: a for a in parser._actions for s in a.option_strings}
-    groups = _group_dests(config_class)
-    out: list[str] = []
-    i = 0
-    while i < len(args):
-        arg = args[i]
-        i += 1
-        flag, sep, value = arg.partition("=")
-        action = options.get(flag)
-        if (action is None or action.type is not str or flag == "--config_path"
-                or action.dest in groups):
-            out.append(arg)
-            continue
-        if not sep:  # --option value
-            if i == len(args) or args[i].startswith("--"):
-                out.append(arg)  # argparse names the missing value
-                continue
-            value, i = args[i], i + 1
-        bad = next((c for c in value if ord(c) < 32 or ord(c) == 127
-                    or 0xD800 <= ord(c) <= 0xDFFF), None)
-        if bad is not None:
-            raise ValueError(f"{flag} must be text without control characters, got "
-                             f"{value[:40]!r}")
-        out.append(f"{flag}={json.dumps(value)}")  # a YAML double-quoted scalar
-    return out
-
-
-def _group_dests(cls: type, prefix: str = "") -> set[str]:
-    """Dotted names of the nested config groups of ``cls`` (``env``, ``env.terrain``)."""
-    out: set[str] = set()
-    for name, tp in _field_types(cls).items():
-        for sub in _dataclasses_of(tp):
-            out |= {prefix + name} | _group_dests(sub, f"{prefix}{name}.")
-    return out
-
-
 def _check_groups(config_class: type, args: Sequence[str], prog: str) -> None:
     """``--policy=x`` where ``policy`` is a group of options (a nested config): one line
     naming the group's options instead of draccus' decoding error."""
-    groups = {name: tp for name, tp in _field_types(config_class).items() if _dataclasses_of(tp)}
+    groups = {name: tp for name, tp in field_types(config_class).items() if dataclasses_of(tp)}
     for a in args:
         name = a[2:].partition("=")[0] if a.startswith("--") else None
         if name in groups:
-            classes = _dataclasses_of(groups[name])
+            classes = dataclasses_of(groups[name])
             choices = getattr(classes[0], "get_known_choices", None)
             fields = sorted({f.name for c in classes for f in dataclasses.fields(c)})
             if choices is not None:

@@ -70,6 +70,10 @@ class NoiseConfig:
     scale: float = 1.0
 
 
+#: The largest observation-noise multiple (1e300 turned every observation into +-inf).
+MAX_NOISE_SCALE = 100.0
+
+
 @dataclass
 class EnvConfig:
     """Args:
@@ -104,6 +108,8 @@ class EnvConfig:
     def __post_init__(self) -> None:
         check_sizes(self.num_envs, self.episode_length_s, self.nthread)
         check_finite_fields(self, "env.")
+        check_number("env.noise.scale", self.noise.scale, 0, MAX_NOISE_SCALE,
+                     why="times each sensor's noise half-width; larger drowns every reading")
         self.type_weights = tuple(self.type_weights)
         robot.check_collision_set(self.collision)
         if self.type_weights and len(self.type_weights) != len(self.terrain.types):

@@ -54,3 +54,12 @@ def test_an_empty_dataset_left_by_a_run_that_recorded_nothing_is_reused(tmp_path
     assert len(load_episode_table(root)) == 2
     assert "--resume=true" in _fails([f"--root={root}", "--episodes=3", *SMALL])
 
+
+
+@pytest.mark.parametrize("root", ["/dev/null", "FILE"])
+def test_a_root_that_is_not_a_folder_is_one_line(tmp_path, root):
+    path = tmp_path / "file.txt"
+    path.write_text("mine")
+    root = root.replace("FILE", str(path))
+    assert f"--root={root} is not a folder" in _fails([*SMALL, f"--root={root}", "--episodes=2"])
+    assert path.read_text() == "mine"

@@ -272,7 +272,9 @@ def test_one_string_form_round_trips():
     "bias:3:joint_pos:1,1", "bias:3:encoder", "bias:3:joint_pos:a", "noise:-1:ang_vel",
     "bias:3:foot_contact", "drift:1:foot_contact:0", "spikes:5:gravity/rate=2",
     "spikes:5:gravity/speed=2", "bias:3:ang_vel/onset=3-1", "bias:inf:ang_vel",
-    "dropout:0.2:ang_vel/rate=0.3"])
+    "dropout:0.2:ang_vel/rate=0.3", "bias:3:ang_vel/onset=0-inf",
+    "bias:3:ang_vel/onset=1e300-1e300", "bias:3:ang_vel/onset=nan", "bias:1e300:ang_vel",
+    "bias:3:encoder:"])
 def test_bad_specs_are_one_line_errors(text):
     with pytest.raises(ValueError) as e:
         FaultSpec.parse(text)

@@ -30,7 +30,7 @@ CASES = [
     ("msta-train", train_main, "--weight_decay=nan", "weight_decay=nan"),
     ("msta-train", train_main, "--batch_size=100000000", "batch_size=100000000"),
     ("msta-train", train_main, "--grad_clip=nan", "grad_clip=nan"),
-    ("msta-train", train_main, "--policy.init_std=nan", "init_std must be a finite number"),
+    ("msta-train", train_main, "--policy.init_std=nan", "init_std=nan must be a finite number"),
     ("msta-train", train_main, "--policy.sensor_embed_std=inf", "sensor_embed_std"),
     ("msta-correct", correct_main, "--num_envs=100000000", "num_envs=100000000"),
     ("msta-correct", correct_main, "--episode_length_s=inf", "episode_length_s=inf"),
@@ -74,4 +74,4 @@ def test_the_real_command_line_says_it_in_one_line():
                           check=False, cwd=REPO, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     err = proc.stderr.strip()
-    assert err == "msta-train: error: TrainConfig: lr=inf must be a finite number > 0", err
+    assert err == "msta-train: error: --lr=inf must be a finite number", err
