@@ -19,11 +19,11 @@ from msta.data.hub_server.api import read_repo, write_repo
 from msta.data.hub_server.boundary import InputError, field
 from msta.data.hub_server.cards import validate_card
 from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
+from msta.data.hub_server.storage import RepoMeta, StoreError
 from msta.data.hub_server.tickets import TICKET_TTL_S, Ticket
 
 if TYPE_CHECKING:
     from msta.data.hub_server.app import HubApp
-    from msta.data.hub_server.storage import RepoMeta
 
 _RANGE_RE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
 LFS_CONTENT_TYPE = "application/vnd.git-lfs+json"
@@ -61,7 +61,7 @@ def resolve_file(app: HubApp, req: Request) -> Response:
     headers = {"X-Repo-Commit": sha, "ETag": etag, "Accept-Ranges": "bytes"}
     if entry.lfs:
         headers.update({"X-Linked-Etag": etag, "X-Linked-Size": str(entry.size)})
-    path = str(app.storage.blob_path(entry.sha256))
+    path = str(app.storage.blob_path(meta, entry.sha256))
     byte_range = _byte_range(req.headers.get("Range"), entry.size) if entry.size else None
     if byte_range is None:
         return Response(200, headers=headers, stream=(path, 0, entry.size),
@@ -91,7 +91,7 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
             objects.append({"oid": boundary._shown(obj.get("oid") if isinstance(obj, dict) else obj),
                             "size": 0, "error": {"code": 422, "message": err.message}})
             continue
-        if oid in known and app.storage.has_blob(oid, size):
+        if app.storage.repo_has_blob(meta, oid, size, known=known):
             objects.append({"oid": oid, "size": size})  # already in this repo: no actions
             continue
         key = app.tickets.issue(oid, size, meta.repo_type, meta.repo_id)
@@ -119,12 +119,12 @@ def lfs_upload(app: HubApp, req: Request) -> Response:
         declared = req.headers.get("Content-Length")
         if declared is not None and int(declared) != ticket.size:
             raise HttpError(400, f"upload is {declared} bytes but the batch request announced {ticket.size}")
-        app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
-        if req.body.read(1):
-            raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
-        with app.storage.repo_lock(meta.repo_type, meta.repo_id):  # no delete between check and grant
-            _ticket_repo(app, ticket)  # 404 when the repo was deleted during the upload
-            app.storage.grant_blob(meta, ticket.oid)
+        try:
+            app.storage.put_blob_stream(meta, req.body, ticket.size, ticket.oid)
+        except StoreError as err:  # the repo was deleted (and maybe created again) meanwhile
+            if err.kind not in ("repo_not_found", "conflict"):
+                raise
+            raise HttpError(404, "the repo of this upload ticket no longer exists") from None
     return Response(body={})
 
 
