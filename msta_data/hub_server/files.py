@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from msta.data.hub_server.app import HubApp
 
 _RANGE_RE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
+MAX_BATCH_OBJECTS = 1000  # huggingface_hub sends 256 a batch, git-lfs 100 (lfs.transfer.batchSize)
 LFS_CONTENT_TYPE = "application/vnd.git-lfs+json"
 
 
@@ -80,9 +81,14 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
         raise HttpError(400, "only the LFS 'upload' operation is supported; download with /resolve/")
     if "basic" not in field(data, "transfers", list, ["basic"]):
         raise HttpError(400, "only the 'basic' LFS transfer is supported")
+    requested = field(data, "objects", list, [])
+    if len(requested) > MAX_BATCH_OBJECTS:
+        raise HttpError(413, f"an LFS batch request may list at most {MAX_BATCH_OBJECTS} objects, "
+                             f"got {len(requested)}; send several")
     known = app.storage.repo_blobs(meta)
-    objects = []
-    for obj in field(data, "objects", list, []):
+    objects: list[dict] = []
+    wanted: list[dict] = []  # the answer's objects that need an upload
+    for obj in requested:
         try:
             obj = boundary.json_object(obj, "each LFS object")
             oid = boundary.sha256_oid(obj.get("oid"))
@@ -91,13 +97,15 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
             objects.append({"oid": boundary._shown(obj.get("oid") if isinstance(obj, dict) else obj),
                             "size": 0, "error": {"code": 422, "message": err.message}})
             continue
-        if app.storage.repo_has_blob(meta, oid, size, known=known):
-            objects.append({"oid": oid, "size": size})  # already in this repo: no actions
-            continue
-        key = app.tickets.issue(oid, size, meta.repo_type, meta.repo_id)
-        objects.append({"oid": oid, "size": size, "authenticated": True, "actions": {
+        objects.append({"oid": oid, "size": size})  # already in this repo: no actions
+        if not app.storage.repo_has_blob(meta, oid, size, known=known):
+            wanted.append(objects[-1])
+    keys = app.tickets.issue([(o["oid"], o["size"]) for o in wanted], meta.repo_type, meta.repo_id,
+                             req.user or "")
+    for obj, key in zip(wanted, keys, strict=True):
+        obj.update(authenticated=True, actions={
             "upload": {"href": f"{req.base_url}/lfs/upload/{key}", "header": {}, "expires_in": int(TICKET_TTL_S)},
-            "verify": {"href": f"{req.base_url}/lfs/verify/{key}", "header": {}}}})
+            "verify": {"href": f"{req.base_url}/lfs/verify/{key}", "header": {}}})
     return Response(body={"transfer": "basic", "objects": objects, "hash_algo": "sha256"},
                     content_type=LFS_CONTENT_TYPE)
 
