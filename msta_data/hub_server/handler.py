@@ -184,7 +184,7 @@ class HubHandler(BaseHTTPRequestHandler):
         limit = self._body_limit(route, anonymous)
         if length is not None and length > limit:
             raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
-        held = 0 if route.body == "upload" else (limit if length is None else length)  # uploads: to disk
+        held = _held_bytes(route, length, chunked, limit)
         refused = self.server.admission.begin(self.client_address[0], principal, held)  # type: ignore[attr-defined]
         if refused is not None:
             self._reader.broken = True  # busy: close rather than read the body
@@ -330,6 +330,15 @@ class HubHandler(BaseHTTPRequestHandler):
 
     def log_message(self, format: str, *args: Any) -> None:
         pass
+
+
+def _held_bytes(route: Route, length: int | None, chunked: bool, limit: int) -> int:
+    """What a request's body counts against its principal's ``max_user_body_bytes``: its
+    Content-Length, a chunked one its route's limit, none for no body or an LFS upload
+    (streamed to disk, never held)."""
+    if route.body == "upload" or not (chunked or length):
+        return 0
+    return limit if chunked else length or 0
 
 
 def _file_chunks(path: str, offset: int, length: int) -> Iterator[bytes]:

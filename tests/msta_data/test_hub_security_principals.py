@@ -77,8 +77,8 @@ def test_one_user_with_64_slow_commits_leaves_other_users_and_anonymous_clients_
 
 def test_body_bytes_in_progress_are_capped_per_user(tmp_path):
     """max_user_body_bytes = 1 MiB: while alice's 800 kB commit trickles in, her second commit
-    of 300 kB is 429 naming the limit, a small one passes, bob's 300 kB one passes; alone, a
-    body over the cap passes (the size limits bound a single body)."""
+    of 300 kB is 429 naming the limit, a small one and a request without a body pass, bob's
+    300 kB one passes; alone, a body over the cap passes (the size limits bound a single body)."""
     srv = H.start_server(tmp_path / "hub", max_user_body_bytes=1 << 20)
     for token in (ALICE, BOB):
         H.create_repo(srv, token, "m")
@@ -89,6 +89,7 @@ def test_body_bytes_in_progress_are_capped_per_user(tmp_path):
         status, body = H.commit(srv, ALICE, "alice/m", big)
         assert status == 429 and "max_user_body_bytes" in json.loads(body)["error"]
         assert H.commit(srv, ALICE, "alice/m", [H.inline_file("small.txt", b"x")])[0] == 200
+        assert H.call(srv, "GET", "/api/whoami-v2", token=ALICE)[0] == 200  # no body: counts nothing
         assert H.commit(srv, BOB, "bob/m", big)[0] == 200
     finally:
         slow.close()
