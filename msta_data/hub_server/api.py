@@ -96,7 +96,8 @@ def create_repo(app: HubApp, req: Request) -> Response:
     existing = app.storage.get_repo(repo_type, f"{namespace}/{name}")
     base = req.base_url
     if existing is not None:
-        raise HttpError(409, f"You already created this {repo_type} repo", extra={"url": repo_url(base, existing)})
+        raise HttpError(409, f"You already created this {repo_type} repo: {existing.repo_id}",
+                        extra={"url": repo_url(base, existing)})
     meta = app.storage.create_repo(repo_type, namespace, name, private, author=req.user)
     return Response(body={"url": repo_url(base, meta), "name": meta.repo_id, "id": meta.repo_id})
 
@@ -134,7 +135,7 @@ def repo_info(app: HubApp, req: Request) -> Response:
             sib["lfs"] = {"size": entry.size, "sha256": entry.sha256,
                           "pointerSize": len(lfs_pointer(entry.sha256, entry.size))}
         siblings.append(sib)
-    card = _card(app, commit.files.get("README.md"), anonymous=req.user is None)
+    card = _card(app, meta, commit.files.get("README.md"), anonymous=req.user is None)
     body = {"_id": meta.repo_id, "id": meta.repo_id, "author": meta.namespace, "sha": sha,
             "lastModified": commit.date, "createdAt": meta.created_at, "private": meta.private,
             "disabled": False, "gated": False, "downloads": 0, "likes": 0,
@@ -149,13 +150,13 @@ def repo_info(app: HubApp, req: Request) -> Response:
     return Response(body=body)
 
 
-def _card(app: HubApp, entry: FileEntry | None, anonymous: bool) -> dict | None:
+def _card(app: HubApp, meta: RepoMeta, entry: FileEntry | None, anonymous: bool) -> dict | None:
     """The README's front matter (read from its first bytes only), or None; ``anonymous``:
     read for a request without a token (cards.front_matter's parser slots)."""
     if entry is None:
         return None
     limit = app.limits.max_card_bytes
-    with open(app.storage.blob_path(entry.sha256), "rb") as f:
+    with open(app.storage.blob_path(meta, entry.sha256), "rb") as f:
         head = f.read(limit + 64 * 1024)
     return front_matter(head.decode("utf-8", errors="replace"), max_bytes=limit, anonymous=anonymous)
 

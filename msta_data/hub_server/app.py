@@ -5,13 +5,16 @@ imports none of them (the server hands it its routes).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from msta.data.hub_server.auth import AuthConfig, read_token_file
-from msta.data.hub_server.protocol import Limits, Route
+from msta.data.hub_server.protocol import HttpError, Limits, Route
 from msta.data.hub_server.storage import Storage
 from msta.data.hub_server.tickets import TicketBook
+
+_HOST = re.compile(r"(?:[A-Za-z0-9_.-]{1,253}|\[[0-9A-Fa-f:.]{2,45}\])(?::[0-9]{1,5})?")
 
 
 @dataclass
@@ -65,7 +68,7 @@ class HubApp:
             specs += read_token_file(config.token_file)
         self.auth = AuthConfig.from_specs(specs, config.orgs)
         self.storage = Storage(config.root)
-        self.tickets = TicketBook()
+        self.tickets = TicketBook(config.limits.max_user_tickets, config.limits.max_tickets)
         self.limits = config.limits
         self.lfs_threshold = config.lfs_threshold
         self.public_url = config.public_url.rstrip("/") if config.public_url else None
@@ -73,6 +76,13 @@ class HubApp:
         self.fallback_url = f"http://{config.host}:{config.port}"
 
     def base_url(self, host_header: str | None) -> str:
+        """The URL links start with: ``public_url``, else the request's Host (400 unless it is
+        a host name or address with an optional port, at most 261 characters), else the bound
+        address. A Host of any length or shape would be copied into every link of an answer."""
         if self.public_url:
             return self.public_url
-        return f"http://{host_header}" if host_header else self.fallback_url
+        if not host_header:
+            return self.fallback_url
+        if not _HOST.fullmatch(host_header):
+            raise HttpError(400, "the Host header must be HOST or HOST:PORT (a name or an address)")
+        return f"http://{host_header}"

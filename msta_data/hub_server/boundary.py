@@ -105,8 +105,9 @@ def commit_sha(value: object, what: str = "commit") -> str:
 
 # ------------------------------------------------------------------ paths, objects, sizes
 def repo_path(path: object, *, missing_is_404: bool = False) -> str:
-    """A repo-relative file path: '/'-separated, no empty, '.', '..' or '.git' part, no
-    backslash, no control character, not absolute, at most 4096 bytes (255 a part).
+    """A repo-relative file path: valid UTF-8 text (no lone surrogate), '/'-separated, no
+    empty, '.', '..' or '.git' part, no backslash, no control character, not absolute, at most
+    4096 bytes (255 a part).
 
     Args:
         path: the value sent by the client.
@@ -124,14 +125,18 @@ def repo_path(path: object, *, missing_is_404: bool = False) -> str:
 def _path_problem(path: object) -> str | None:
     if not isinstance(path, str) or not path:
         return "must be a non-empty string"
-    if len(path.encode("utf-8", "surrogatepass")) > MAX_PATH_BYTES:
+    try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:  # a lone surrogate ("\\udc80" in JSON): not text
+        return "not valid UTF-8 text (a lone surrogate)"
+    if len(path.encode("utf-8")) > MAX_PATH_BYTES:
         return f"longer than {MAX_PATH_BYTES} bytes"
     if _CONTROL_RE.search(path) or "\\" in path:
         return "control characters and backslashes are not allowed"
     for part in path.split("/"):
         if part in ("", ".", "..") or part.lower() == ".git":
             return "empty, '.', '..' and '.git' parts are not allowed (nor a leading '/')"
-        if len(part.encode("utf-8", "surrogatepass")) > MAX_SEGMENT_BYTES:
+        if len(part.encode("utf-8")) > MAX_SEGMENT_BYTES:
             return f"a part is longer than {MAX_SEGMENT_BYTES} bytes"
     return None
 

@@ -79,7 +79,7 @@ class _Ops:
             data = base64.b64decode(content, validate=True) if encoding == "base64" else content.encode()
         except (binascii.Error, ValueError):
             raise HttpError(400, f"content of '{path}' is not valid base64") from None
-        sha, size = self.app.storage.put_blob_bytes(data)
+        sha, size = self.app.storage.put_blob_bytes(self.meta, data)
         self.files[path] = FileEntry(sha, size, git_blob_sha1(data), False)
 
     def _lfs_file(self, path: str, value: dict) -> None:
@@ -91,9 +91,9 @@ class _Ops:
             boundary.byte_size(size, "'size'")
         if self._repo_blobs is None:
             self._repo_blobs = self.app.storage.repo_blobs(self.meta)
-        if oid not in self._repo_blobs or not self.app.storage.has_blob(oid, size):
+        if not self.app.storage.repo_has_blob(self.meta, oid, size, known=self._repo_blobs):
             raise HttpError(400, f"LFS object {oid} for '{path}' was not uploaded to this repo")
-        size = self.app.storage.blob_path(oid).stat().st_size
+        size = self.app.storage.blob_path(self.meta, oid).stat().st_size
         self.files[path] = FileEntry(oid, size, git_blob_sha1(lfs_pointer(oid, size)), True)
 
 

@@ -20,6 +20,7 @@ import json
 import secrets
 import threading
 from collections import OrderedDict
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -63,6 +64,49 @@ class Commit(CommitInfo):
     """A commit with its complete file table."""
 
     files: dict[str, FileEntry]
+
+
+class _Folder:
+    """A folder of :func:`path_clash`'s index: its files (name -> path) and sub-folders."""
+
+    __slots__ = ("files", "folders")
+
+    def __init__(self) -> None:
+        self.files: dict[str, str] = {}
+        self.folders: dict[str, _Folder] = {}
+
+    def any_file(self) -> str:
+        node = self
+        while not node.files:
+            node = next(iter(node.folders.values()))
+        return next(iter(node.files.values()))
+
+
+def path_clash(kept: Iterable[str], added: Iterable[str]) -> tuple[str, str] | None:
+    """``(added path, other path)`` when an added file would sit where a folder is, or under a
+    file (``a`` beside ``a/x``), among ``added`` or against ``kept``; None when all fit.
+
+    One pass over the paths' parts (no prefix strings), so the cost is linear in the length
+    of all paths, however deep they nest. Clashes among ``kept`` alone (older roots) are let be.
+    """
+    root = _Folder()
+    for path in kept:
+        node = root
+        *parents, name = path.split("/")
+        for part in parents:
+            node = node.folders.get(part) or node.folders.setdefault(part, _Folder())
+        node.files[name] = path
+    for path in added:
+        node = root
+        *parents, name = path.split("/")
+        for part in parents:
+            if part in node.files:
+                return path, node.files[part]
+            node = node.folders.get(part) or node.folders.setdefault(part, _Folder())
+        if name in node.folders:
+            return path, node.folders[name].any_file()
+        node.files[name] = path
+    return None
 
 
 class _Lru:

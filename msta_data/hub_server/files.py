@@ -19,13 +19,14 @@ from msta.data.hub_server.api import read_repo, write_repo
 from msta.data.hub_server.boundary import InputError, field
 from msta.data.hub_server.cards import validate_card
 from msta.data.hub_server.protocol import HttpError, Request, Response, Route, route
+from msta.data.hub_server.storage import RepoMeta, StoreError
 from msta.data.hub_server.tickets import TICKET_TTL_S, Ticket
 
 if TYPE_CHECKING:
     from msta.data.hub_server.app import HubApp
-    from msta.data.hub_server.storage import RepoMeta
 
 _RANGE_RE = re.compile(r"^bytes=(\d{0,18})-(\d{0,18})$")
+MAX_BATCH_OBJECTS = 1000  # huggingface_hub sends 256 a batch, git-lfs 100 (lfs.transfer.batchSize)
 LFS_CONTENT_TYPE = "application/vnd.git-lfs+json"
 
 
@@ -61,7 +62,7 @@ def resolve_file(app: HubApp, req: Request) -> Response:
     headers = {"X-Repo-Commit": sha, "ETag": etag, "Accept-Ranges": "bytes"}
     if entry.lfs:
         headers.update({"X-Linked-Etag": etag, "X-Linked-Size": str(entry.size)})
-    path = str(app.storage.blob_path(entry.sha256))
+    path = str(app.storage.blob_path(meta, entry.sha256))
     byte_range = _byte_range(req.headers.get("Range"), entry.size) if entry.size else None
     if byte_range is None:
         return Response(200, headers=headers, stream=(path, 0, entry.size),
@@ -80,9 +81,14 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
         raise HttpError(400, "only the LFS 'upload' operation is supported; download with /resolve/")
     if "basic" not in field(data, "transfers", list, ["basic"]):
         raise HttpError(400, "only the 'basic' LFS transfer is supported")
+    requested = field(data, "objects", list, [])
+    if len(requested) > MAX_BATCH_OBJECTS:
+        raise HttpError(413, f"an LFS batch request may list at most {MAX_BATCH_OBJECTS} objects, "
+                             f"got {len(requested)}; send several")
     known = app.storage.repo_blobs(meta)
-    objects = []
-    for obj in field(data, "objects", list, []):
+    objects: list[dict] = []
+    wanted: list[dict] = []  # the answer's objects that need an upload
+    for obj in requested:
         try:
             obj = boundary.json_object(obj, "each LFS object")
             oid = boundary.sha256_oid(obj.get("oid"))
@@ -91,13 +97,15 @@ def lfs_batch(app: HubApp, req: Request) -> Response:
             objects.append({"oid": boundary._shown(obj.get("oid") if isinstance(obj, dict) else obj),
                             "size": 0, "error": {"code": 422, "message": err.message}})
             continue
-        if oid in known and app.storage.has_blob(oid, size):
-            objects.append({"oid": oid, "size": size})  # already in this repo: no actions
-            continue
-        key = app.tickets.issue(oid, size, meta.repo_type, meta.repo_id)
-        objects.append({"oid": oid, "size": size, "authenticated": True, "actions": {
+        objects.append({"oid": oid, "size": size})  # already in this repo: no actions
+        if not app.storage.repo_has_blob(meta, oid, size, known=known):
+            wanted.append(objects[-1])
+    keys = app.tickets.issue([(o["oid"], o["size"]) for o in wanted], meta.repo_type, meta.repo_id,
+                             req.user or "")
+    for obj, key in zip(wanted, keys, strict=True):
+        obj.update(authenticated=True, actions={
             "upload": {"href": f"{req.base_url}/lfs/upload/{key}", "header": {}, "expires_in": int(TICKET_TTL_S)},
-            "verify": {"href": f"{req.base_url}/lfs/verify/{key}", "header": {}}}})
+            "verify": {"href": f"{req.base_url}/lfs/verify/{key}", "header": {}}})
     return Response(body={"transfer": "basic", "objects": objects, "hash_algo": "sha256"},
                     content_type=LFS_CONTENT_TYPE)
 
@@ -119,12 +127,12 @@ def lfs_upload(app: HubApp, req: Request) -> Response:
         declared = req.headers.get("Content-Length")
         if declared is not None and int(declared) != ticket.size:
             raise HttpError(400, f"upload is {declared} bytes but the batch request announced {ticket.size}")
-        app.storage.put_blob_stream(req.body, ticket.size, ticket.oid)
-        if req.body.read(1):
-            raise HttpError(400, f"upload is longer than the announced {ticket.size} bytes")
-        with app.storage.repo_lock(meta.repo_type, meta.repo_id):  # no delete between check and grant
-            _ticket_repo(app, ticket)  # 404 when the repo was deleted during the upload
-            app.storage.grant_blob(meta, ticket.oid)
+        try:
+            app.storage.put_blob_stream(meta, req.body, ticket.size, ticket.oid)
+        except StoreError as err:  # the repo was deleted (and maybe created again) meanwhile
+            if err.kind not in ("repo_not_found", "conflict"):
+                raise
+            raise HttpError(404, "the repo of this upload ticket no longer exists") from None
     return Response(body={})
 
 

@@ -4,11 +4,12 @@ answers, logs.
 Order of work for each request, cheapest checks first. The request line and headers must
 arrive within ``header_timeout_s`` and 64 KiB (else 408 / 431, connection closed). The framing
 (Content-Length / chunked, no folded or malformed header lines) is checked (400), the route is
-found (404/405), the token is checked (401), the declared body size is checked against the
-route's limit, smaller for anonymous requests (413, nothing read), a request slot is taken
-(503 when none is left, 429 when the anonymous share is used; connection closed), and only then the
-endpoint reads the body, bounded in size (413) and pace (408). After another error answer a
-body of at most ``max_anonymous_body_bytes`` (``max_body_bytes`` for users) is drained, at the
+found (404/405), the token is checked (401; 400 for two Authorization headers), the declared
+body size is checked against the route's limit, smaller for anonymous requests (413, nothing
+read), a request slot is taken for the request's principal (its user, or its address without a
+token: 503 when the server has none left, 429 when the principal's share of slots or body bytes
+is used; connection closed), and only then the endpoint reads the body, bounded in size (413)
+and pace (408). After another error answer a body of at most ``max_anonymous_body_bytes`` (``max_body_bytes`` for users) is drained, at the
 same pace, so keep-alive clients keep their connection; larger or broken ones close it. A full
 disk is a 507. Logged lines carry the method, the path without its query string (LFS upload tickets
 replaced by ``<ticket>``, control characters escaped) and the status: never headers, query
@@ -52,9 +53,6 @@ _BAD_HEADER_VALUE = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")  # CR, LF (folded li
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,18}")
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 _CLOSING = {408: b"408 Request Timeout", 431: b"431 Request Header Fields Too Large"}
-_BUSY_MESSAGE = {503: "the server is busy (too many requests in progress); retry later",
-                 429: "too many requests without a token in progress (from this address or in all); "
-                      "retry later, or pass a token"}
 
 
 def escape_controls(text: str) -> str:
@@ -76,7 +74,7 @@ class HubHandler(BaseHTTPRequestHandler):
     server_version = "msta-hub/1"
     app: HubApp  # set on the subclass made by the server
     timeout: float | None = None  # socket timeout, set from Limits.read_timeout_s by the server
-    _slot: bool | None = None  # the request slot taken (True: an anonymous one), None: none
+    _slot: tuple[str | None, int] | None = None  # the request slot taken: (user or None, body bytes)
     _reader: BodyReader | None = None  # the current request's body, once a slot is taken
 
     def setup(self) -> None:
@@ -160,14 +158,15 @@ class HubHandler(BaseHTTPRequestHandler):
                 logger.exception("internal error on %s %s", self.command, redact(self.path))
                 response = self._error_response(HttpError(500, "internal server error"))
             limits = self.app.limits
-            drain = limits.max_body_bytes if self._slot is False else limits.max_anonymous_body_bytes
+            user = self._slot[0] if self._slot is not None else None
+            drain = limits.max_body_bytes if user is not None else limits.max_anonymous_body_bytes
             if self._reader is None or not self._reader.drain(drain):  # small bodies: keep-alive
                 self.close_connection = True
             self._send(response)
         finally:
             self._reader = None
             if self._slot is not None:
-                self.server.admission.end(self.client_address[0], self._slot)  # type: ignore[attr-defined]
+                self.server.admission.end(self.client_address[0], *self._slot)  # type: ignore[attr-defined]
                 self._slot = None
 
     def _respond(self) -> Response:
@@ -180,15 +179,17 @@ class HubHandler(BaseHTTPRequestHandler):
                                   limits.read_timeout_s, self.conn)
         route, groups = self._match()
         user = self._authenticate()
-        anonymous = user is None and not self._has_ticket(groups)
+        principal = user if user is not None else self._ticket_user(groups)
+        anonymous = principal is None
         limit = self._body_limit(route, anonymous)
         if length is not None and length > limit:
             raise HttpError(413, f"request body is larger than this server accepts ({limit} bytes)")
-        refused = self.server.admission.begin(self.client_address[0], anonymous)  # type: ignore[attr-defined]
+        held = _held_bytes(route, length, chunked, limit)
+        refused = self.server.admission.begin(self.client_address[0], principal, held)  # type: ignore[attr-defined]
         if refused is not None:
             self._reader.broken = True  # busy: close rather than read the body
-            raise HttpError(refused, _BUSY_MESSAGE[refused], headers={"Retry-After": "1"})
-        self._slot = anonymous
+            raise HttpError(refused.status, refused.message, headers={"Retry-After": "1"})
+        self._slot = (principal, held)
         self._reader.limit = limit
         values = boundary.MAX_ANONYMOUS_JSON_VALUES if anonymous else boundary.MAX_JSON_VALUES
         return self._dispatch(route, groups, user, io.BufferedReader(self._reader, buffer_size=CHUNK), values)
@@ -244,15 +245,14 @@ class HubHandler(BaseHTTPRequestHandler):
         limit = limits.max_commit_bytes if route.body == "commit" else limits.max_body_bytes
         return min(limit, limits.max_anonymous_body_bytes) if anonymous else limit
 
-    def _has_ticket(self, groups: dict[str, str]) -> bool:
-        """Whether the URL carries a valid LFS upload ticket (it stands in for the token)."""
+    def _ticket_user(self, groups: dict[str, str]) -> str | None:
+        """The user of the valid LFS upload ticket in the URL (it stands in for the token), or None."""
         if "ticket" not in groups:
-            return False
+            return None
         try:
-            self.app.tickets.get(groups["ticket"])
+            return self.app.tickets.get(groups["ticket"]).user
         except (HttpError, InputError):
-            return False
-        return True
+            return None
 
     def _dispatch(self, route: Route, groups: dict[str, str], user: str | None, body: io.BufferedReader,
                   max_json_values: int) -> Response:
@@ -270,6 +270,8 @@ class HubHandler(BaseHTTPRequestHandler):
             raise http_error_from_store(err, user) from None
 
     def _authenticate(self) -> str | None:
+        if len(self.headers.get_all("Authorization") or []) > 1:
+            raise HttpError(400, "more than one Authorization header; send one")
         header = self.headers.get("Authorization")
         if not header:
             return None
@@ -328,6 +330,15 @@ class HubHandler(BaseHTTPRequestHandler):
 
     def log_message(self, format: str, *args: Any) -> None:
         pass
+
+
+def _held_bytes(route: Route, length: int | None, chunked: bool, limit: int) -> int:
+    """What a request's body counts against its principal's ``max_user_body_bytes``: its
+    Content-Length, a chunked one its route's limit, none for no body or an LFS upload
+    (streamed to disk, never held)."""
+    if route.body == "upload" or not (chunked or length):
+        return 0
+    return limit if chunked else length or 0
 
 
 def _file_chunks(path: str, offset: int, length: int) -> Iterator[bytes]:

@@ -51,6 +51,16 @@ class Limits:
         max_open_connections: open connections (idle, sending headers or being served); more
             are answered 503 and closed at once.
         max_open_per_client: open connections from one IP address.
+        max_user_connections: requests one user serves at once (LFS uploads count for the
+            user whose ticket they carry); more get 429, so other users keep their slots.
+        max_user_body_bytes: bytes of request bodies one user (or, without a token, one
+            address) may have in progress at once, each counted at its Content-Length (a
+            chunked body at its route's size limit) from its start; more get 429. LFS uploads,
+            streamed to disk, are not counted; a request is never refused for this when it is
+            the principal's only one in progress.
+        max_user_tickets: open LFS upload tickets of one user (issued, not yet verified or
+            expired); a batch request that would exceed it gets 429.
+        max_tickets: open LFS upload tickets in all; a batch beyond gets 503.
     """
 
     max_body_bytes: int = 8 << 20
@@ -64,11 +74,16 @@ class Limits:
     max_anonymous_per_client: int = 8
     max_open_connections: int = 512
     max_open_per_client: int = 128
+    max_user_connections: int = 16
+    max_user_body_bytes: int = 4 << 30
+    max_user_tickets: int = 10_000
+    max_tickets: int = 100_000
 
     def __post_init__(self) -> None:
         for name in ("max_body_bytes", "max_anonymous_body_bytes", "max_commit_bytes", "max_card_bytes",
                      "max_connections", "max_anonymous", "max_anonymous_per_client", "max_open_connections",
-                     "max_open_per_client"):
+                     "max_open_per_client", "max_user_connections", "max_user_body_bytes", "max_user_tickets",
+                     "max_tickets"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         for name in ("read_timeout_s", "header_timeout_s"):

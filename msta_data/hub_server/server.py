@@ -30,8 +30,11 @@ class _HttpServer(ThreadingHTTPServer):
     request_queue_size = 128  # a burst of connections waits in the kernel, not in SYN retries
 
     def __init__(self, address: tuple[str, int], handler: type, limits: Limits):
-        self.admission = Admission(limits.max_open_connections, limits.max_open_per_client,
-                                   limits.max_connections, limits.max_anonymous, limits.max_anonymous_per_client)
+        self.admission = Admission(
+            max_open=limits.max_open_connections, max_open_per_client=limits.max_open_per_client,
+            max_busy=limits.max_connections, max_anonymous=limits.max_anonymous,
+            max_anonymous_per_client=limits.max_anonymous_per_client, max_user=limits.max_user_connections,
+            max_user_bytes=limits.max_user_body_bytes)
         super().__init__(address, handler)
 
     def process_request(self, request: Any, client_address: Any) -> None:
@@ -73,9 +76,10 @@ class HubServer:
                        {"app": self.app, "timeout": config.limits.read_timeout_s})
         try:
             self.httpd = _HttpServer((config.host, config.port), handler, config.limits)
-        except OSError:
+        except OSError as err:  # a host that names no interface, a port in use: one line
             self.app.storage.close()
-            raise
+            reason = err.strerror or type(err).__name__
+            raise ValueError(f"cannot listen on {config.host!r} port {config.port}: {reason}") from None
         host, port = self.httpd.server_address[:2]
         self.app.fallback_url = f"http://{host}:{port}"
         self._thread: threading.Thread | None = None

@@ -1,23 +1,32 @@
-"""On-disk store of the hub server: content-addressed blobs, repos, commits and refs.
+"""On-disk store of the hub server: repos, their commits, refs and file contents.
 
 Layout under ``root``::
 
     FORMAT                         storage format marker
-    blobs/ab/abcdef...             file contents, named by their sha256
     tmp/                           staging area (same filesystem, so renames are atomic)
+    blobs/ab/abcdef...             contents written by formats 1 and 2 (read, never written)
     repos/<models|datasets>/<namespace>/<name>/
         repo.json                  id, type, private flag, creation date
         refs.json                  {"branches": {name: sha}, "tags": {name: sha}}
         commits/<sha>.json         one commit: parents, message, author, date, diff to its parent
         trees/<sha>.json           full file table of some commits (see commits.py)
+        blobs/ab/abcdef...         this repo's file contents, named by their sha256
         blobs.txt                  sha256 of every blob this repo's commits and uploads brought in
 
-Blobs are shared on disk but not across repos: a commit may reference an LFS object by hash
-only if ``blobs.txt`` of its own repo lists it (an upload to this repo, or a file committed to
-it), so knowing a hash never opens another repo's file. Every file is written to a temporary
-name and renamed into place, so a crash never leaves a half-written blob, commit or ref.
-Roots written by format 1 (full file table in every commit, no ``blobs.txt``) are read as
-they are; ``blobs.txt`` is rebuilt from a repo's commits the first time it is needed.
+Each repo keeps its own contents: bytes are stored once per repo, never looked up in another
+repo, so a write costs the same whether or not some other repo (a private one, say) holds the
+same bytes, and deleting a repo deletes its contents. A commit may reference an LFS object by
+hash only if ``blobs.txt`` of its own repo lists it (an upload to this repo, or a file committed
+to it), so knowing a hash never opens another repo's file. Every file is written to a
+temporary name and renamed into place, so a crash never leaves a half-written blob, commit or
+ref. Roots written by formats 1 and 2 (contents shared in ``blobs/``; format 1: a full file
+table in every commit and no ``blobs.txt``) are read as they are: a repo's granted blob that
+is not in its own store is read from ``blobs/``; ``blobs.txt`` is rebuilt from a repo's commits
+the first time it is needed.
+
+Repo ids are case-insensitive, as on the Hugging Face hub: ``alice/Pub`` and ``alice/pub`` name
+one repo (stored under the case it was created with); a second repo differing only in case
+cannot be created.
 """
 
 from __future__ import annotations
@@ -36,14 +45,14 @@ from pathlib import Path
 from typing import IO
 
 from msta.data.hub_server import boundary
-from msta.data.hub_server.commits import Commit, CommitInfo, CommitStore, FileEntry
+from msta.data.hub_server.commits import Commit, CommitInfo, CommitStore, FileEntry, path_clash
 from msta.data.hub_server.fsio import append_line, atomic_write, read_json, write_json
 
 __all__ = ["Commit", "CommitInfo", "FileEntry", "RepoMeta", "Storage", "StoreError", "git_blob_sha1",
            "lfs_pointer"]
 
-FORMAT = "msta-hub-storage 2"
-_READABLE_FORMATS = ("msta-hub-storage 1", FORMAT)
+FORMAT = "msta-hub-storage 3"
+_READABLE_FORMATS = ("msta-hub-storage 1", "msta-hub-storage 2", FORMAT)
 REPO_TYPES = ("model", "dataset")
 
 
@@ -107,13 +116,17 @@ class Storage:
         except BlockingIOError:
             self._lock_file.close()
             raise ValueError(f"{self.root} is in use by another msta-hub server") from None
-        for sub in ("blobs", "tmp", "repos"):
+        for sub in ("tmp", "repos"):
             (self.root / sub).mkdir(exist_ok=True)
         if not marker.exists() or marker.read_text().strip() != FORMAT:
-            atomic_write(marker, (FORMAT + "\n").encode())  # format 1 roots are read as they are
+            atomic_write(marker, (FORMAT + "\n").encode())  # older roots are read as they are
         self._locks: dict[tuple[str, str], threading.RLock] = {}
         self._locks_guard = threading.Lock()
         self.commits = CommitStore()
+        self._ids: dict[tuple[str, str], set[str]] = {}  # (type, lower-case id) -> ids on disk
+        for repo_type in REPO_TYPES:
+            for path in (self.root / "repos" / f"{repo_type}s").glob("*/*/repo.json"):
+                self._index(repo_type, f"{path.parent.parent.name}/{path.parent.name}", True)
 
     def close(self) -> None:
         """Release the root's file lock."""
@@ -122,31 +135,33 @@ class Storage:
             self._lock_file.close()
 
     # ---------------------------------------------------------------- blobs
-    def blob_path(self, sha256: str) -> Path:
-        """Where the blob ``sha256`` lives; the id is checked, so the path stays under the root."""
+    def blob_path(self, meta: RepoMeta, sha256: str) -> Path:
+        """Where the blob ``sha256`` of ``meta``'s repo lives: its own store, or for a blob an
+        older root kept in the shared ``blobs/``, there. The id is checked, so the path stays
+        under the root. Callers pass ids of the repo's own files or check ``repo_has_blob``."""
         sha256 = boundary.sha256_oid(sha256)
-        return self.root / "blobs" / sha256[:2] / sha256
+        own = self.repo_dir(meta) / "blobs" / sha256[:2] / sha256
+        if own.is_file():
+            return own
+        shared = self.root / "blobs" / sha256[:2] / sha256
+        return shared if shared.is_file() else own
 
-    def has_blob(self, sha256: str, size: int | None = None) -> bool:
-        path = self.blob_path(sha256)
-        return path.is_file() and (size is None or path.stat().st_size == size)
-
-    def put_blob_bytes(self, data: bytes) -> tuple[str, int]:
-        """Store ``data``; returns (sha256, size)."""
-        sha = hashlib.sha256(data).hexdigest()
-        if not self.has_blob(sha, len(data)):
-            path = self.blob_path(sha)
-            path.parent.mkdir(exist_ok=True)
-            atomic_write(path, data)
+    def put_blob_bytes(self, meta: RepoMeta, data: bytes) -> tuple[str, int]:
+        """Store ``data`` in ``meta``'s repo; returns (sha256, size). Always written in full."""
+        tmp = self.root / "tmp" / f"blob-{secrets.token_hex(8)}"
+        try:
+            atomic_write(tmp, data)
+            sha = hashlib.sha256(data).hexdigest()
+            self._place(meta, tmp, sha, grant=False)
+        finally:
+            tmp.unlink(missing_ok=True)
         return sha, len(data)
 
-    def put_blob_stream(self, stream: IO[bytes], size: int, expected_sha256: str) -> None:
-        """Copy exactly ``size`` bytes from ``stream``; keep them if their sha256 matches.
-
-        The bytes are always read and hashed, also when the blob is already stored, so an
-        upload proves its sender holds the content.
-        """
-        path = self.blob_path(expected_sha256)
+    def put_blob_stream(self, meta: RepoMeta, stream: IO[bytes], size: int, expected_sha256: str) -> None:
+        """Copy exactly ``size`` bytes from ``stream`` (400 when it holds more or fewer) into
+        ``meta``'s repo if their sha256 matches, and let the repo's commits reference them
+        (``blobs.txt``). The bytes are always read, hashed and written in full."""
+        expected_sha256 = boundary.sha256_oid(expected_sha256)
         tmp = self.root / "tmp" / f"upload-{secrets.token_hex(8)}"
         digest = hashlib.sha256()
         remaining = size
@@ -159,15 +174,31 @@ class Storage:
                     digest.update(chunk)
                     f.write(chunk)
                     remaining -= len(chunk)
+                if stream.read(1):
+                    raise StoreError("bad_request", f"upload is longer than the announced {size} bytes")
                 f.flush()
                 os.fsync(f.fileno())
             if digest.hexdigest() != expected_sha256:
                 raise StoreError("bad_request", f"uploaded content does not match sha256 {expected_sha256}")
-            if not self.has_blob(expected_sha256, size):
-                path.parent.mkdir(exist_ok=True)
-                os.replace(tmp, path)
+            self._place(meta, tmp, expected_sha256, grant=True)
         finally:
             tmp.unlink(missing_ok=True)
+
+    def _place(self, meta: RepoMeta, tmp: Path, sha256: str, grant: bool) -> None:
+        """Rename the written file ``tmp`` into the repo's store, also over a copy already
+        there (the same work either way); 404 when the repo was deleted meanwhile, 409 when it
+        was also created anew."""
+        with self.repo_lock(meta.repo_type, meta.repo_id):
+            now = self.get_repo(meta.repo_type, meta.repo_id)
+            if now is None or now.repo_id != meta.repo_id:
+                raise StoreError("repo_not_found", f"Repository Not Found: {meta.repo_id} (deleted meanwhile)")
+            if now.created_at != meta.created_at:
+                raise StoreError("conflict", f"{meta.repo_id} was deleted and created again meanwhile")
+            path = self.repo_dir(meta) / "blobs" / sha256[:2] / sha256
+            path.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, path)
+            if grant:
+                self.grant_blob(meta, sha256)
 
     # ---------------------------------------------------------------- blobs of one repo
     def _grants_path(self, meta: RepoMeta) -> Path:
@@ -195,9 +226,17 @@ class Storage:
         if sha256 not in self.repo_blobs(meta):
             append_line(self._grants_path(meta), sha256)
 
-    def repo_has_blob(self, meta: RepoMeta, sha256: str, size: int | None = None) -> bool:
-        """Whether the blob is stored *and* reachable from this repo (never says more)."""
-        return sha256 in self.repo_blobs(meta) and self.has_blob(sha256, size)
+    def repo_has_blob(self, meta: RepoMeta, sha256: str, size: int | None = None,
+                      known: set[str] | None = None) -> bool:
+        """Whether the blob is stored *and* reachable from this repo (never says more).
+
+        Args:
+            known: ``repo_blobs(meta)`` when the caller has it already.
+        """
+        if sha256 not in (self.repo_blobs(meta) if known is None else known):
+            return False
+        path = self.blob_path(meta, sha256)
+        return path.is_file() and (size is None or path.stat().st_size == size)
 
     # ---------------------------------------------------------------- repos
     def _repo_dir(self, repo_type: str, namespace: str, name: str) -> Path:
@@ -211,13 +250,23 @@ class Storage:
 
     @contextlib.contextmanager
     def repo_lock(self, repo_type: str, repo_id: str) -> Iterator[None]:
+        """The lock of one repo id (case-insensitive: ``a/B`` and ``a/b`` share it)."""
         with self._locks_guard:
-            lock = self._locks.setdefault((repo_type, repo_id), threading.RLock())
+            lock = self._locks.setdefault((repo_type, repo_id.lower()), threading.RLock())
         with lock:
             yield
 
+    def _index(self, repo_type: str, repo_id: str, present: bool) -> None:
+        """Record that the repo ``repo_id`` (as spelled on disk) exists or no longer does."""
+        with self._locks_guard:
+            ids = self._ids.setdefault((repo_type, repo_id.lower()), set())
+            (ids.add if present else ids.discard)(repo_id)
+
     def get_repo(self, repo_type: str, repo_id: str) -> RepoMeta | None:
-        """The repo's metadata, or None when it does not exist (or cannot be named)."""
+        """The repo's metadata, or None when it does not exist (or cannot be named).
+
+        ``repo_id`` is matched without regard to case: an id spelled as on disk first, else the
+        one repo whose id differs only in case (None when an older root holds several)."""
         if repo_type not in REPO_TYPES or repo_id.count("/") != 1:
             return None
         namespace, name = repo_id.split("/")
@@ -225,17 +274,26 @@ class Storage:
             return None
         path = self._repo_dir(repo_type, namespace, name) / "repo.json"
         if not path.is_file():
-            return None
+            with self._locks_guard:
+                ids = sorted(self._ids.get((repo_type, repo_id.lower()), ()))
+            if len(ids) != 1 or ids[0] == repo_id:
+                return None
+            namespace, name = ids[0].split("/")
+            path = self._repo_dir(repo_type, namespace, name) / "repo.json"
+            if not path.is_file():
+                return None
         d = read_json(path)
         return RepoMeta(repo_type, namespace, name, bool(d["private"]), d["createdAt"])
 
     def create_repo(self, repo_type: str, namespace: str, name: str, private: bool, author: str) -> RepoMeta:
-        """Create a repo with an empty initial commit on ``main``; StoreError("conflict") if it exists."""
+        """Create a repo with an empty initial commit on ``main``; StoreError("conflict") naming
+        the existing repo if one has this id, in any case."""
         boundary.repo_name(namespace, name)
         repo_id = f"{namespace}/{name}"
         with self.repo_lock(repo_type, repo_id):
-            if self.get_repo(repo_type, repo_id) is not None:
-                raise StoreError("conflict", f"You already created this {repo_type} repo: {repo_id}")
+            existing = self.get_repo(repo_type, repo_id)
+            if existing is not None:
+                raise StoreError("conflict", f"You already created this {repo_type} repo: {existing.repo_id}")
             final = self._repo_dir(repo_type, namespace, name)
             staging = self.root / "tmp" / f"repo-{secrets.token_hex(8)}"
             created = now_iso()
@@ -251,15 +309,18 @@ class Storage:
             except BaseException:  # a full disk, say: leave no half-made repo in tmp/
                 shutil.rmtree(staging, ignore_errors=True)
                 raise
+            self._index(repo_type, repo_id, True)
         return RepoMeta(repo_type, namespace, name, private, created)
 
     def delete_repo(self, repo_type: str, repo_id: str) -> None:
+        """Delete the repo with its contents (its own blob store)."""
         with self.repo_lock(repo_type, repo_id):
             meta = self.get_repo(repo_type, repo_id)
             if meta is None:
                 raise StoreError("repo_not_found", f"Repository {repo_id} not found")
             trash = self.root / "tmp" / f"deleted-{secrets.token_hex(8)}"
             os.rename(self.repo_dir(meta), trash)
+            self._index(repo_type, meta.repo_id, False)
         shutil.rmtree(trash, ignore_errors=True)
 
     def set_private(self, meta: RepoMeta, private: bool) -> None:
@@ -335,6 +396,7 @@ class Storage:
                 prefix = folder.rstrip("/") + "/"
                 for path in [p for p in tree if p.startswith(prefix)]:
                     del tree[path]
+            self._check_clash(tree, files, branch)
             tree.update(files)
             known = self.repo_blobs(meta)
             for sha in sorted({e.sha256 for e in files.values()} - known):
@@ -343,6 +405,20 @@ class Storage:
             refs["branches"][branch] = commit.id
             self._write_refs(meta, refs)
             return commit
+
+    @staticmethod
+    def _check_clash(tree: dict[str, FileEntry], files: dict[str, FileEntry], branch: str) -> None:
+        """400 when two added paths are a file and a folder at one path (``a``, ``a/x``), 409
+        when an added path is one with a file or folder already on the branch."""
+        clash = path_clash([p for p in tree if p not in files], files)
+        if clash is None:
+            return
+        path, other = (boundary._shown(p) for p in clash)
+        if clash[1] in files:
+            raise StoreError("bad_request", f"cannot commit both '{path}' and '{other}': "
+                                            "a path cannot be a file and a folder")
+        raise StoreError("conflict", f"cannot add '{path}': '{other}' is on branch {branch}, "
+                                     "and a path cannot be a file and a folder")
 
     def empty_commit(self, meta: RepoMeta, author: str) -> str:
         """Write a parentless commit without files (for ``create_branch(emptyBranch=True)``)."""

@@ -38,6 +38,12 @@ def _index(files: dict[str, FileEntry]) -> _Dir:
     return root
 
 
+def _utf8(name: str) -> bytes:
+    """``name`` as UTF-8; a lone surrogate an older server let in is kept as its bytes, so
+    such a root's listings still work (new paths are checked: boundary.repo_path)."""
+    return name.encode("utf-8", "surrogatepass")
+
+
 def _set_oids(top: _Dir) -> None:
     """Git tree id of ``top`` and every directory below it (post-order, no recursion: paths
     may nest 2,000 levels)."""
@@ -50,8 +56,8 @@ def _set_oids(top: _Dir) -> None:
             stack.append((node, True))
             stack.extend((d, False) for d in node.dirs.values() if not d.oid)
             continue
-        items = [(n.encode() + b"/", b"40000 " + n.encode(), d.oid) for n, d in node.dirs.items()]
-        items += [(n.encode(), b"100644 " + n.encode(), e.oid) for n, e in node.files.items()]
+        items = [(_utf8(n) + b"/", b"40000 " + _utf8(n), d.oid) for n, d in node.dirs.items()]
+        items += [(_utf8(n), b"100644 " + _utf8(n), e.oid) for n, e in node.files.items()]
         body = b"".join(head + b"\0" + bytes.fromhex(oid) for _, head, oid in sorted(items))
         node.oid = hashlib.sha1(b"tree %d\0" % len(body) + body).hexdigest()
 

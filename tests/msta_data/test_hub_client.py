@@ -114,7 +114,7 @@ def test_corrupted_blob_fails_pull_and_leaves_nothing(server, tmp_path):
     ckpt = _checkpoint(tmp_path / "c", 4)
     push(ckpt, "alice/corrupt", tag="t")
     weights = hashlib.sha256((ckpt / "model.safetensors").read_bytes()).hexdigest()
-    blob = server.config.root / "blobs" / weights[:2] / weights
+    blob = server.config.root / "repos" / "models" / "alice" / "corrupt" / "blobs" / weights[:2] / weights
     data = bytearray(blob.read_bytes())
     data[100] ^= 0xFF
     blob.write_bytes(bytes(data))  # same size, different bytes

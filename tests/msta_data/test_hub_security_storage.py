@@ -100,4 +100,4 @@ def test_format_1_roots_stay_readable_and_writable(tmp_path):
         assert last["w.bin"] == c1
     finally:
         srv.stop()
-    assert (tmp_path / "hub" / "FORMAT").read_text().strip() == "msta-hub-storage 2"
+    assert (tmp_path / "hub" / "FORMAT").read_text().strip() == "msta-hub-storage 3"
