@@ -1,4 +1,6 @@
-"""Model and dataset cards (README.md: YAML front matter plus markdown) and their metrics.
+"""Cards (README.md: YAML front matter plus Markdown): dataset cards, and what model cards
+(:mod:`msta.data.hub_model_card`) share with them: :class:`CardInfo`, the figures' tables
+and reading cards back.
 
 A dataset card follows LeRobot's (``lerobot.datasets.utils.create_lerobot_dataset_card``:
 ``license``, ``tags`` starting with ``LeRobot``, ``task_categories: [robotics]``, the
@@ -7,7 +9,8 @@ usage snippet, the provenance summary (episodes and frames by source, stage-2 ro
 terrain type, counted from the episode table) and a table of every feature. The writer
 rebuilds it after every commit (:func:`write_dataset_card`) and ``push_dataset`` before
 every push, so its counts are those of ``meta/info.json``. A card holds no local path
-(:func:`portable`).
+(:func:`portable`), and names and values from users or files are inert text
+(:mod:`msta.data.hub_markdown`).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from typing import Any
 from huggingface_hub import CardData, RepoCard
 
 from msta.data import features as F
+from msta.data import hub_markdown as md
 from msta.data import layout as L
 from msta.data import sensors as registry
 from msta.data.figures import fmt_ci
@@ -43,6 +47,11 @@ class CardInfo:
         notes: free text appended to the card's Training section.
         eval_note: how the figures were measured (the card's Evaluation section).
         evaluation: the evaluation's provenance (front matter ``msta.evaluation``).
+        base_model: hub id of the checkpoint this one was trained from (front matter
+            ``base_model``); default: what the checkpoint's run configuration names.
+
+    ``notes`` and ``eval_note`` are Markdown written by msta (a value quoted in them goes
+    through :mod:`msta.data.hub_markdown`); every other string is shown as inert text.
 
     A figure ``X`` with bounds ``X_ci95_low`` / ``X_ci95_high`` (a metric ``X@m`` with
     ``X_ci95_low@m``; a table column likewise) is shown as one cell, ``0.85 ±0.10`` or
@@ -60,6 +69,7 @@ class CardInfo:
     notes: str = ""
     eval_note: str = ""
     evaluation: dict[str, Any] | None = None
+    base_model: str | None = None
 
     def msta_metadata(self) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -91,62 +101,36 @@ def portable(obj: Any) -> Any:
     return obj
 
 
+class Shown(str):
+    """A cell msta formatted from numbers (``0.93 ±0.03``): written as it is."""
+
+
 def _cell(value: Any) -> str:
-    """Counts as they are (46653, not 4.665e+04); other numbers to 4 significant digits."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    """Counts as they are (46653, not 4.665e+04); other numbers to 4 significant digits;
+    text as inert Markdown (:func:`msta.data.hub_markdown.text`)."""
+    if isinstance(value, Shown):
         return str(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return md.text(value)
     return str(value) if isinstance(value, int) else f"{value:.4g}"
 
 
 def _markdown_table(table: dict[str, dict[str, Any]], corner: str = "") -> str:
     columns = list(dict.fromkeys(c for row in table.values() for c in row))
-    lines = [f"| {corner} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    lines = [f"| {md.text(corner)} | " + " | ".join(map(md.text, columns)) + " |",
+             "|---" * (len(columns) + 1) + "|"]
     for name, row in table.items():
-        lines.append(f"| {name} | " + " | ".join(_cell(row.get(c, "")) for c in columns) + " |")
+        lines.append(f"| {md.text(name)} | " + " | ".join(_cell(row.get(c, "")) for c in columns)
+                     + " |")
     return "\n".join(lines)
 
 
-def _front_matter(metadata: dict[str, Any]) -> str:
+def front_matter(metadata: dict[str, Any]) -> str:
     return f"---\n{CardData(**metadata).to_yaml()}\n---\n\n"
 
 
-# ----- model cards -----------------------------------------------------------------------
-def _usage(ref: str, policy_type: str | None) -> list[str]:
-    repo, _, tag = ref.partition("@")
-    kind = policy_type or "msta"
-    rev = f', revision="{tag}"' if tag else ""
-    lines = ["## Usage", "", "```python", "from msta.policies.factory import get_policy_class, load_policy",
-             "", f'policy = load_policy("{ref}")  # or a local checkpoint directory',
-             f'policy = get_policy_class("{kind}").from_pretrained("{repo}"{rev})  # the same',
-             "actions = policy.act(batch)  # batch: sensor windows, see docs/msta_model.md", "```",
-             "", "```bash", f"msta-eval --policies teacher,{ref} --suite quick"]
-    if kind == "msta":  # LeRobot's format through the converter (msta students only)
-        lines += [f"python -m lerobot_policy_msta.convert --policy.path={ref} "
-                  "--output_dir=msta_lerobot",
-                  "lerobot-eval --env.type=msta_a1 --policy.path=msta_lerobot "
-                  "--eval.n_episodes=10 --eval.batch_size=10 --env.video=false "
-                  "--eval.recording=true"]
-    return [*lines, "```", ""]
-
-
-def _training(info: CardInfo) -> list[str]:
-    lines = []
-    if info.dataset_repo:
-        rev = (f" at revision `{info.dataset_revision}`" if info.dataset_revision
-               else " (a local dataset: no hub revision)")
-        lines.append(f"- **Training data**: dataset `{portable(info.dataset_repo)}`{rev}")
-    if info.stage is not None:
-        what = STAGES.get(info.stage) if isinstance(info.stage, int) else None
-        rnd = f", round {info.round}" if info.round is not None else ""
-        lines.append(f"- **Stage**: {info.stage}{rnd}" + (f" ({what})" if what else ""))
-    if info.config is not None:
-        lines.append("- **Configuration**: `msta.config` in this card's front matter")
-    if not lines and not info.notes:
-        return []
-    return ["## Training", "", *lines, "", *([info.notes, ""] if info.notes else [])]
-
-
-def _bounds_key(key: str, end: str) -> str:
+# ----- figures ---------------------------------------------------------------------------
+def bounds_key(key: str, end: str) -> str:
     """``X`` -> ``X_ci95_<end>``; ``X@m`` -> ``X_ci95_<end>@m``."""
     name, at, cond = key.partition("@")
     return f"{name}_ci95_{end}{at}{cond}"
@@ -159,20 +143,20 @@ def with_intervals(row: dict[str, Any]) -> dict[str, Any]:
     for key, value in row.items():
         if "_ci95_low" in key or "_ci95_high" in key:
             continue
-        low, high = row.get(_bounds_key(key, "low")), row.get(_bounds_key(key, "high"))
+        low, high = row.get(bounds_key(key, "low")), row.get(bounds_key(key, "high"))
         if isinstance(value, (int, float)) and isinstance(low, (int, float)) \
                 and isinstance(high, (int, float)):
-            value = fmt_ci(value, (low, high))
+            value = Shown(fmt_ci(value, (low, high)))
         out[key] = value
     return out
 
 
-def _evaluation(info: CardInfo) -> list[str]:
+def evaluation_section(info: CardInfo) -> list[str]:
     out = []
     if info.metrics:
         shown = with_intervals(info.metrics)
         out += ["## Metrics", "", "| metric | value |", "|---|---|",
-                *(f"| {k} | {_cell(v)} |" for k, v in shown.items()), ""]
+                *(f"| {md.text(k)} | {_cell(v)} |" for k, v in shown.items()), ""]
     if info.eval_table:
         trials = sorted({int(row["trials"]) for row in info.eval_table.values()
                          if isinstance(row.get("trials"), (int, float))})
@@ -183,31 +167,6 @@ def _evaluation(info: CardInfo) -> list[str]:
     if info.eval_note:
         out += ([] if info.eval_table else ["## Evaluation", ""]) + [info.eval_note, ""]
     return out
-
-
-def model_card(info: CardInfo, repo_id: str = "", revision: str | None = None,
-               policy_type: str | None = None) -> str:
-    """README.md text (YAML front matter + markdown) for a checkpoint: a usage snippet, what
-    it was trained on (dataset repo and revision, stage and round), its figures (the eval
-    table with its trial count) and the license; local paths are never written.
-
-    Args:
-        info: what to record.
-        repo_id: used in the default title and the usage snippet.
-        revision: the tag the checkpoint is pushed with (in the usage snippet).
-        policy_type: the checkpoint's registered policy type (``config.json``'s ``type``);
-            the LeRobot lines of the usage snippet are for ``msta`` students (and unknown types).
-    """
-    meta: dict[str, Any] = {"library_name": "msta", "license": LICENSE,
-                            "tags": ["msta", "robotics", "quadruped", "lerobot"]}
-    if info.dataset_repo:
-        meta["datasets"] = [portable(info.dataset_repo)]
-    meta["msta"] = info.msta_metadata()
-    ref = f"{repo_id}@{revision}" if repo_id and revision else repo_id or "<user/name@tag>"
-    title = info.title or f"MSTA checkpoint {repo_id}".strip()
-    body = [f"# {title}", "", *_usage(ref, policy_type), *_training(info), *_evaluation(info),
-            "## License", "", f"`{LICENSE}` (Apache License 2.0)."]
-    return _front_matter(meta) + "\n".join(body).rstrip() + "\n"
 
 
 # ----- dataset cards ---------------------------------------------------------------------
@@ -247,8 +206,9 @@ def _channels(names: list[str] | dict[str, Any] | None) -> str:
         return ""
     names = [str(n) for n in names]
     if len(names) <= MAX_LISTED_CHANNELS:
-        return f"`{', '.join(names)}`"
-    return f"{len(names)} channels `{', '.join(names[:3])}, ..., {', '.join(names[-2:])}`"
+        return md.code(", ".join(names), in_table=True)
+    return (f"{len(names)} channels "
+            + md.code(f"{', '.join(names[:3])}, ..., {', '.join(names[-2:])}", in_table=True))
 
 
 def features_table(features: dict[str, dict[str, Any]]) -> str:
@@ -258,9 +218,11 @@ def features_table(features: dict[str, dict[str, Any]]) -> str:
     for col, ft in features.items():
         desc = (registry.get(sensor_of[col]).description if col in sensor_of
                 else COLUMN_DESCRIPTIONS.get(col, ""))
-        text = "; ".join(p for p in (desc, _channels(ft.get("names"))) if p)
-        shape = "(" + ", ".join(map(str, ft["shape"])) + ("," if len(ft["shape"]) == 1 else "") + ")"
-        lines.append(f"| `{col}` | {ft['dtype']} | {shape} | {text} |")
+        text = "; ".join(p for p in (md.text(desc), _channels(ft.get("names"))) if p)
+        shape = "(" + ", ".join(map(md.text, ft["shape"])) + ("," if len(ft["shape"]) == 1
+                                                               else "") + ")"
+        lines.append(f"| {md.code(col, in_table=True)} | {md.text(ft['dtype'])} | {shape} | "
+                     f"{text} |")
     return "\n".join(lines)
 
 
@@ -293,17 +255,20 @@ def provenance_summary(root: str | Path, info: dict[str, Any]) -> dict[str, dict
 def _dataset_body(info: CardInfo, dataset_info: dict[str, Any] | None, repo_id: str,
                   provenance: dict[str, dict[str, dict]] | None) -> list[str]:
     repo = repo_id or "<user/name>"
-    body = [f"# {info.title or f'MSTA dataset {repo_id}'.strip()}", "",
+    body = [f"# {md.text(info.title or f'MSTA dataset {repo_id}'.strip())}", "",
             "A quadruped-locomotion dataset recorded with msta in LeRobot's v3.0 format.", ""]
     if dataset_info:
-        body += [f"- **Robot**: {dataset_info.get('robot_type')}, {dataset_info.get('fps')} "
-                 f"frames per second", f"- **Episodes**: {dataset_info.get('total_episodes')}, "
-                 f"**frames**: {dataset_info.get('total_frames')}, "
-                 f"**tasks**: {dataset_info.get('total_tasks')}",
+        got = {k: md.text(dataset_info.get(k)) for k in (
+            "robot_type", "fps", "total_episodes", "total_frames", "total_tasks")}
+        body += [f"- **Robot**: {got['robot_type']}, {got['fps']} frames per second",
+                 f"- **Episodes**: {got['total_episodes']}, **frames**: {got['total_frames']}, "
+                 f"**tasks**: {got['total_tasks']}",
                  f"- **License**: `{LICENSE}` (Apache License 2.0)", ""]
     body += ["## Usage", "", "```python", "from lerobot.datasets.lerobot_dataset import LeRobotDataset",
-             "", f'dataset = LeRobotDataset("{repo}", revision="{F.CODEBASE_VERSION}")', "```", "",
-             "```bash", f"msta-train --dataset=datasets/{repo}@{F.CODEBASE_VERSION}", "```", ""]
+             "", f"dataset = LeRobotDataset({md.python_str(repo)}, "
+             f"revision={md.python_str(F.CODEBASE_VERSION)})", "```", "", "```bash",
+             f"msta-train --dataset={md.shell(f'datasets/{repo}@{F.CODEBASE_VERSION}')}", "```",
+             ""]
     if provenance:
         titles = {"by_source": "source", "by_round": "stage-2 round (0: teacher data)",
                   "by_terrain": "terrain"}
@@ -314,7 +279,7 @@ def _dataset_body(info: CardInfo, dataset_info: dict[str, Any] | None, repo_id: 
     if dataset_info and dataset_info.get("features"):
         body += ["## Features", "", features_table(dataset_info["features"]), "",
                  f"Everything else LeRobot records is in [{L.INFO_PATH}]({L.INFO_PATH}).", ""]
-    return [*body, *_evaluation(info), info.notes]
+    return [*body, *evaluation_section(info), info.notes]
 
 
 def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, repo_id: str = "",
@@ -340,7 +305,7 @@ def dataset_card(info: CardInfo, dataset_info: dict[str, Any] | None = None, rep
         msta["provenance"] = provenance
     meta["msta"] = msta
     body = _dataset_body(info, dataset_info, repo_id, provenance)
-    return _front_matter(meta) + "\n".join(body).rstrip() + "\n"
+    return front_matter(meta) + "\n".join(body).rstrip() + "\n"
 
 
 def root_dataset_card(root: str | Path, card: CardInfo | None = None, repo_id: str = ""

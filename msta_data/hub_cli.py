@@ -16,15 +16,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import httpx
 from huggingface_hub.errors import HfHubHTTPError
 
 from msta.data.cli import parse_config, usage_error
 from msta.data.errors import DirectoryLockedError
 from msta.data.hub_cards import CardInfo
-from msta.data.hub_eval import EvalFigures, EvalJsonError, read_eval_json
-from msta.data.hub_ids import HubError
+from msta.data.hub_eval import EvalFigures, EvalJsonError, read_eval_json, read_json_input
+from msta.data.hub_ids import HubError, endpoint_url
 from msta.data.hub_pull import pull
-from msta.data.hub_push import push, push_dataset
+from msta.data.hub_push import Pushed, push, push_dataset
 from msta.data.hub_server import HubServer, ServerConfig
 from msta.data.hub_server.protocol import Limits
 from msta.data.hub_versions import versions
@@ -137,12 +138,16 @@ class CardOptions(ClientConfig):
     Args:
         tag: tag for this version, e.g. stage1-r0.
         private: create the repo as private (only when it is created).
-        message: commit message; null: "push <directory name>".
+        message: commit message; null: "Upload <type> checkpoint <name> (<n> files)" (push-dataset:
+            "Upload LeRobot dataset <name> (<episodes> episodes, <n> files)").
         dataset_repo: hub id of the training / source dataset.
         dataset_revision: commit sha or tag of that dataset.
         stage: training stage (1 offline, 2 online correction).
         round: correction round.
-        config_json: config to record; null: the checkpoint's config.json.
+        base_model: hub id of the checkpoint this one was trained from (the card's
+            base_model); null: the one train_config.json names, when it is a hub id.
+        config_json: config to record; null: the checkpoint's config.json (without
+            LeRobot's run settings such as device and push_to_hub).
         eval_json: figures for the card: msta-eval's metrics.json (push only: the student's
             tracking vs teacher, survival and total vs teacher per scenario and condition,
             with 95 % intervals and trial counts), ``{metric: number}`` or ``{row: {column:
@@ -156,6 +161,7 @@ class CardOptions(ClientConfig):
     dataset_revision: str | None = None
     stage: int | None = None
     round: int | None = None
+    base_model: str | None = None
     config_json: Path | None = None
     eval_json: Path | None = None
 
@@ -250,9 +256,11 @@ def _card(cfg: CardOptions, checkpoint: Path | None = None, eval_policy: str = "
           ref: str = "") -> CardInfo | None:
     config = None
     if cfg.config_json is not None:
-        config = json.loads(cfg.config_json.read_text())
+        config = read_json_input(cfg.config_json, "--config_json")
     elif checkpoint is not None and (checkpoint / "config.json").is_file():
-        config = json.loads((checkpoint / "config.json").read_text())
+        config = read_json_input(checkpoint / "config.json", "config.json")
+    if config is not None and not isinstance(config, dict):
+        raise ValueError(f"--config_json: expected a JSON object, got {type(config).__name__}")
     figures = EvalFigures()
     if cfg.eval_json is not None:
         figures = read_eval_json(cfg.eval_json, checkpoint, eval_policy, ref)
@@ -261,30 +269,36 @@ def _card(cfg: CardOptions, checkpoint: Path | None = None, eval_policy: str = "
                                 "describes policies; give it to msta-hub push")
         for line in figures.warnings:
             print(f"msta-hub: warning: {line}", file=sys.stderr)
-    fields = (cfg.dataset_repo, cfg.dataset_revision, cfg.stage, cfg.round, config,
-              figures.table, figures.metrics)
+    fields = (cfg.dataset_repo, cfg.dataset_revision, cfg.stage, cfg.round, cfg.base_model,
+              config, figures.table, figures.metrics)
     if all(f is None for f in fields):
         return None
     return CardInfo(dataset_repo=cfg.dataset_repo, dataset_revision=cfg.dataset_revision,
                     config=config, stage=cfg.stage, round=cfg.round, eval_table=figures.table,
                     metrics=figures.metrics, eval_note=figures.note,
-                    evaluation=figures.evaluation)
+                    evaluation=figures.evaluation, base_model=cfg.base_model)
 
 
 def _push(cfg: PushConfig) -> int:
     assert cfg.checkpoint_dir is not None
     ref = f"{cfg.repo_id}@{cfg.tag}" if cfg.tag else cfg.repo_id
     card = _card(cfg, cfg.checkpoint_dir, cfg.eval_policy, ref)
-    print(push(cfg.checkpoint_dir, cfg.repo_id, tag=cfg.tag, private=cfg.private,
-               card=card, branch=cfg.branch, message=cfg.message,
-               move_tag=cfg.move_tag, endpoint=cfg.endpoint or None))
+    sha = push(cfg.checkpoint_dir, cfg.repo_id, tag=cfg.tag, private=cfg.private,
+               card=card, branch=cfg.branch, message=cfg.message, move_tag=cfg.move_tag,
+               endpoint=cfg.endpoint or None, report=_report)
+    print(sha)  # stdout: the commit sha alone, for scripts
     return 0
+
+
+def _report(pushed: Pushed) -> None:
+    """What a push committed and its URL, on stderr (stdout keeps the sha alone)."""
+    print(pushed.summary(), file=sys.stderr, flush=True)
 
 
 def _push_dataset(cfg: PushDatasetConfig) -> int:
     assert cfg.root is not None
     print(push_dataset(cfg.root, cfg.repo_id, private=cfg.private, card=_card(cfg), tag=cfg.tag,
-                       message=cfg.message, endpoint=cfg.endpoint or None))
+                       message=cfg.message, endpoint=cfg.endpoint or None, report=_report))
     return 0
 
 
@@ -389,6 +403,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (HubError, HfHubHTTPError, FileNotFoundError, FileExistsError, ValueError,
             DirectoryLockedError) as err:
         print(f"msta-hub {name}: error: {err}", file=sys.stderr)
+        return 1
+    except httpx.TransportError as err:  # nothing answers there (refused, no route, timeout)
+        url = endpoint_url(getattr(cfg, "endpoint", "") or None)
+        print(f"msta-hub {name}: error: cannot reach the hub at {url} ({type(err).__name__}: "
+              f"{err}); check --endpoint or HF_ENDPOINT", file=sys.stderr)
         return 1
 
 

@@ -23,10 +23,13 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from msta.data import hub_markdown as md
 from msta.data.revision import checkpoint_revision
 
 #: metrics.json formats this module reads (msta-eval's ``msta_eval_version``).
@@ -42,8 +45,54 @@ HEADLINE_FIGURES: tuple[tuple[str, str, str], ...] = (
 HEADLINE_SCENARIO = "token_removal"
 
 
-class EvalJsonError(ValueError):
+#: The largest file ``--eval_json`` / ``--config_json`` read (msta-eval's metrics.json of a
+#: whole study is well under 1 MiB).
+MAX_INPUT_BYTES = 16 << 20
+
+
+class CardInputError(ValueError):
+    """A file given for a card (``--eval_json``, ``--config_json``) that msta cannot use
+    (the message names it and says why)."""
+
+
+class EvalJsonError(CardInputError):
     """An ``--eval_json`` file msta cannot put on a card (the message says why)."""
+
+
+def read_json_input(path: str | Path, option: str, max_bytes: int = MAX_INPUT_BYTES) -> Any:
+    """The JSON value of ``path``, a regular file of at most ``max_bytes``.
+
+    A FIFO, a device (``/dev/zero``), a socket or a directory is refused before anything is
+    read (opening does not wait for a FIFO's writer), and so is a larger file.
+
+    Args:
+        path: the file.
+        option: how the message names it (``--eval_json``).
+        max_bytes: the size limit.
+
+    Raises:
+        CardInputError: one line naming the file and what is wrong with it.
+    """
+    path = Path(path)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except OSError as e:
+        raise CardInputError(f"{option} {path}: cannot read it ({e.strerror})") from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise CardInputError(f"{option} {path}: not a regular file (a device, FIFO, socket "
+                             "or directory); refused, nothing was read")
+    with os.fdopen(fd, "rb") as f:
+        raw = f.read(max_bytes + 1) if st.st_size <= max_bytes else b""
+    if st.st_size > max_bytes or len(raw) > max_bytes:
+        raise CardInputError(f"{option} {path}: larger than {max_bytes:,} bytes; refused")
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
+        first = str(e).splitlines()[0] if str(e) else ""
+        raise CardInputError(f"{option} {path}: cannot read it as JSON ({type(e).__name__}: "
+                             f"{first[:200]})") from None
 
 
 @dataclass
@@ -84,12 +133,17 @@ def read_eval_json(path: str | Path, checkpoint: str | Path | None = None, polic
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as e:
-        raise EvalJsonError(f"--eval_json {path}: cannot read it ({type(e).__name__}: "
-                            f"{str(e).splitlines()[0] if str(e) else ''})") from None
+        data = read_json_input(path, "--eval_json")
+    except CardInputError as e:
+        raise EvalJsonError(str(e)) from None
     if isinstance(data, dict) and "msta_eval_version" in data:
-        return msta_eval_figures(data, path, checkpoint, policy, ref)
+        try:
+            return msta_eval_figures(data, path, checkpoint, policy, ref)
+        except (KeyError, TypeError, AttributeError, IndexError, ValueError, OverflowError) as e:
+            if isinstance(e, EvalJsonError):
+                raise
+            raise EvalJsonError(f"--eval_json {path}: not a well-formed msta-eval metrics.json "
+                                f"({type(e).__name__}: {str(e)[:200]})") from None
     if policy:
         raise EvalJsonError(f"--eval_policy {policy!r}: {path} is not msta-eval's metrics.json")
     return _plain_figures(data, path)
@@ -158,7 +212,10 @@ def _row(run: dict) -> dict[str, float]:
             ci = (cell.get("ci") or {}).get(key)
             if ci and all(_number(b) for b in ci):
                 row[f"{name}_ci95_low"], row[f"{name}_ci95_high"] = ci
-    row["trials"] = run["normalized"]["per_terrain"]["average"]["trials"]
+    trials = run["normalized"]["per_terrain"]["average"]["trials"]
+    if not _number(trials) or trials < 0:
+        raise ValueError(f"run {run['policy']!r}: trials {trials!r} is not a count")
+    row["trials"] = trials
     return row
 
 
@@ -209,21 +266,23 @@ def msta_eval_figures(data: dict, path: Path, checkpoint: str | Path | None = No
 
 def reproduce_command(cfg: dict[str, Any], ref: str) -> str:
     """The msta-eval command that runs the trials of a metrics.json ``config`` again on
-    ``ref`` (figures equal on the same device type)."""
-    parts = [f"msta-eval --policies teacher,{ref or '<checkpoint>'}", f"--suite {cfg['suite']}",
-             f"--scenarios {','.join(cfg['scenarios'])}", f"--trials {cfg['trials']}",
-             f"--terrains {','.join(cfg['terrains'])}",
-             f"--levels {','.join(map(str, cfg['levels']))}",
-             f"--episode_length_s {cfg['episode_length_s']:g}", f"--num_envs {cfg['num_envs']}",
-             f"--seed {cfg['seed']}", f"--teacher.type={cfg['teacher']['type']}"]
+    ``ref`` (figures equal on the same device type); each value one shell word."""
+    q = md.shell
+    parts = [f"msta-eval --policies {q('teacher,' + (ref or '<checkpoint>'))}",
+             f"--suite {q(cfg['suite'])}", f"--scenarios {q(','.join(cfg['scenarios']))}",
+             f"--trials {q(cfg['trials'])}", f"--terrains {q(','.join(cfg['terrains']))}",
+             f"--levels {q(','.join(map(str, cfg['levels'])))}",
+             f"--episode_length_s {cfg['episode_length_s']:g}",
+             f"--num_envs {q(cfg['num_envs'])}", f"--seed {q(cfg['seed'])}",
+             f"--teacher.type={q(cfg['teacher']['type'])}"]
     parts += [f"--{k}=false" for k in ("noise", "randomization", "heading_commands")
               if cfg.get(k) is False]
     if cfg.get("num_threads", 1) != 1:
-        parts.append(f"--num_threads {cfg['num_threads']}")
+        parts.append(f"--num_threads {q(cfg['num_threads'])}")
     if cfg.get("faults"):
-        parts.append(f"--faults {','.join(cfg['faults'])}")
+        parts.append(f"--faults {q(','.join(cfg['faults']))}")
     if cfg.get("device", "cpu") not in ("cpu", "auto"):
-        parts.append(f"--device {cfg['device']}")
+        parts.append(f"--device {q(cfg['device'])}")
     return " ".join(parts)
 
 
@@ -231,20 +290,23 @@ def _note(data: dict, entry: dict, runs: list[dict], ref: str) -> str:
     """How the card's figures were measured, what was not applicable, and the command."""
     cfg, per = data["config"], data["reference"].get("per_terrain", {})
     each = sorted({per[t]["trials"] for t in data.get("terrains", []) if t in per})
+    each = [md.text(n) for n in each]
     spread = (f" ({each[0]} per terrain)" if len(each) == 1 else
               f" ({each[0]}-{each[-1]} per terrain)" if each else "")
-    text = (f"Figures from msta-eval's metrics.json (format {data['msta_eval_version']}) for "
-            f"`{entry['name']}` (checkpoint revision `{entry.get('revision')}`): "
-            f"{cfg['trials']} trials per row{spread}, one trial = one "
-            f"{cfg['episode_length_s']:g} s episode, terrains {', '.join(cfg['terrains'])} at "
-            f"levels {', '.join(map(str, cfg['levels']))}, seed {cfg['seed']}; reference teacher "
-            f"`{cfg['teacher']['type']}` (revision `{data['reference'].get('revision')}`). "
+    t, c = md.text, md.code
+    text = (f"Figures from msta-eval's metrics.json (format {t(data['msta_eval_version'])}) for "
+            f"{c(entry['name'])} (checkpoint revision {c(entry.get('revision'))}): "
+            f"{t(cfg['trials'])} trials per row{spread}, one trial = one "
+            f"{cfg['episode_length_s']:g} s episode, terrains {t(', '.join(cfg['terrains']))} at "
+            f"levels {t(', '.join(map(str, cfg['levels'])))}, seed {t(cfg['seed'])}; reference "
+            f"teacher {c(cfg['teacher']['type'])} (revision "
+            f"{c(data['reference'].get('revision'))}). "
             "Tracking and total reward are per-step returns normalized by the teacher's on the "
             "same trials, survival the share of episodes without a fall; each figure is the "
             "terrain average with its 95 % interval (`± half-width`: Student t, or the delta "
             "method for ratios; `(low–high)`: Wilson).")
-    na = [f"{r['scenario']} {r['condition']} ({r.get('reason', '')})" for r in runs
+    na = [t(f"{r['scenario']} {r['condition']} ({r.get('reason', '')})") for r in runs
           if r.get("status") != "ok"]
     if na:
         text += " Not applicable: " + "; ".join(na) + "."
-    return text + f"\n\n`{reproduce_command(cfg, ref)}` runs the same trials."
+    return text + f"\n\n{c(reproduce_command(cfg, ref))} runs the same trials."

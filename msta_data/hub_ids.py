@@ -17,7 +17,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from huggingface_hub import HfApi
+from huggingface_hub import HfApi, constants
 
 _HUB_ID_RE = re.compile(
     r"^(?:(?P<type>datasets|models)/)?(?P<repo>[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*)(?:@(?P<rev>[^\s@]+))?$"
@@ -67,6 +67,12 @@ def is_hub_id(value: str | os.PathLike) -> bool:
     return not Path(text).exists() and _HUB_ID_RE.match(text.strip()) is not None
 
 
+def endpoint_url(endpoint: str | None = None) -> str:
+    """The hub URL a call goes to: ``endpoint``, else HF_ENDPOINT (read now), else
+    huggingface_hub's default (huggingface.co)."""
+    return (endpoint or os.environ.get("HF_ENDPOINT") or constants.ENDPOINT).rstrip("/")
+
+
 def hub_api(endpoint: str | None = None, token: str | bool | None = None) -> HfApi:
     """An HfApi on ``endpoint`` (default: HF_ENDPOINT, else huggingface_hub's default).
 
@@ -74,4 +80,4 @@ def hub_api(endpoint: str | None = None, token: str | bool | None = None) -> HfA
         endpoint: hub URL; None reads HF_ENDPOINT now.
         token: secret; None lets huggingface_hub read HF_TOKEN or its stored login; False sends none.
     """
-    return HfApi(endpoint=endpoint or os.environ.get("HF_ENDPOINT") or None, token=token)
+    return HfApi(endpoint=endpoint_url(endpoint), token=token)
