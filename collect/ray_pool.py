@@ -56,10 +56,16 @@ class RayOptions:
     ray_address: str = ""
 
 
+#: The most Ray workers a command asks for (each is a process with its own simulator).
+MAX_WORKERS = 4096
+
+
 def check_ray_options(workers: int, ray_address: str) -> None:
     """One-line errors for bad ``--workers`` / ``--ray_address`` values."""
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise ValueError(f"workers={workers!r} must be an integer >= 0 (0 = no Ray)")
+    if (isinstance(workers, bool) or not isinstance(workers, int)
+            or not 0 <= workers <= MAX_WORKERS):
+        raise ValueError(f"workers={workers!r} must be an integer in [0, {MAX_WORKERS}] "
+                         "(0 = no Ray; one CPU each)")
     if ray_address and not workers:
         raise ValueError(f"ray_address={ray_address!r} needs --workers >= 1")
 

@@ -39,8 +39,9 @@ def prepare_values(args: list[str], parser: argparse.ArgumentParser,
     """A text option's value is taken as typed: draccus reads every value as YAML, so
     ``--root=null`` gave None, ``--root=[a, b]`` a folder named ``['a', 'b']``, ``yes`` the
     text ``True`` and ``bias:3:encoder:`` a mapping. Each ``--<text option>=<value>`` is
-    quoted for YAML here; a value with a control character (a newline, which also let a
-    second YAML document in) is refused in one line."""
+    quoted for YAML here. Any option's value with a control character (a newline, which also
+    let a second YAML document in) is refused in one line, and a number option's is checked
+    (:func:`_check_numbers`)."""
     options = {s: a for a in parser._actions for s in a.option_strings}
     groups = _group_dests(config_class)
     out: list[str] = []
@@ -50,8 +51,10 @@ def prepare_values(args: list[str], parser: argparse.ArgumentParser,
         i += 1
         flag, sep, value = arg.partition("=")
         action = options.get(flag)
-        if action is not None and sep and _numeric(action.type):
-            _check_numbers(flag, value)
+        if action is not None and sep:
+            _check_text(flag, value)
+            if _numeric(action.type):
+                _check_numbers(flag, value)
         if (action is None or action.type is not str or flag == "--config_path"
                 or action.dest in groups):
             out.append(arg)
@@ -61,13 +64,18 @@ def prepare_values(args: list[str], parser: argparse.ArgumentParser,
                 out.append(arg)  # argparse names the missing value
                 continue
             value, i = args[i], i + 1
-        bad = next((c for c in value if ord(c) < 32 or ord(c) == 127
-                    or 0xD800 <= ord(c) <= 0xDFFF), None)
-        if bad is not None:
-            raise ValueError(f"{flag} must be text without control characters, got "
-                             f"{value[:40]!r}")
+            _check_text(flag, value)
         out.append(f"{flag}={json.dumps(value)}")  # a YAML double-quoted scalar
     return out
+
+
+def _check_text(flag: str, value: str) -> None:
+    """No option's value holds a control character or a lone surrogate (a newline let
+    ``---`` start a second YAML document; a task or terrain name with one broke the dataset
+    card)."""
+    if any(ord(c) < 32 or ord(c) == 127 or 0xD800 <= ord(c) <= 0xDFFF for c in value):
+        raise ValueError(f"{flag} must be text without control characters, got "
+                         f"{value[:40]!r}")
 
 
 def _numeric(tp: Any) -> bool:
@@ -99,7 +107,7 @@ def _check_numbers(flag: str, value: str) -> None:
         if isinstance(item, float) and not math.isfinite(item):
             raise ValueError(f"{flag}={value} must be a finite number")
         if isinstance(item, int) and not isinstance(item, bool) and abs(item) >= 2**63:
-            raise ValueError(f"{flag}={value} is beyond the 64-bit integers msta takes")
+            raise ValueError(f"{flag}={value} must be within the 64-bit integers msta takes")
 
 
 def _group_dests(cls: type, prefix: str = "") -> set[str]:

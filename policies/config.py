@@ -25,6 +25,10 @@ from msta.policies.checkpoint import (
     read_json_file,
 )
 
+#: The longest window a student reads (steps): a window of 100,000 steps asked for 5 GB
+#: before training began.
+MAX_HISTORY = 250
+
 
 def check_positive(**values: float) -> None:
     """Raise ``ValueError("<name> must be > 0, got <value>")`` for the first value <= 0."""
@@ -89,6 +93,9 @@ class PolicyConfig(draccus.ChoiceRegistry):
         self.input_sensors = tuple(self.input_sensors)
         check_student_sensors(self.input_sensors)
         check_positive(history=self.history, clip_std=self.clip_std, action_dim=self.action_dim)
+        if not self.history <= MAX_HISTORY:
+            raise ValueError(f"history must be <= {MAX_HISTORY} steps ({MAX_HISTORY // 50} s at "
+                             f"50 Hz; the paper's students read 15), got {self.history}")
         if self.head_hidden_dim < 0:
             raise ValueError(f"head_hidden_dim must be >= 0, got {self.head_hidden_dim}")
         check_fraction(mask_ratio=self.mask_ratio)

@@ -38,6 +38,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file
 
 from msta.data import sensors
+from msta.data.inside import PathOutsideRootError, inside
 from msta.policies.checkpoint import (
     CONFIG_NAME,
     LEROBOT_POSTPROCESSOR,
@@ -93,7 +94,14 @@ def _step_stats(directory: Path, pipeline: str, step_name: str, key: str, dim: i
     if eps != 0.0:
         raise CheckpointError(f"{path}: {step_name} has eps={eps}; msta divides by the std "
                               "alone (eps=0), so the student's actions would differ")
-    state = directory / str(step.get("state_file", ""))
+    name = str(step.get("state_file", ""))
+    if Path(name).name != name or name in ("", ".", ".."):
+        raise CheckpointError(f"{path}: {step_name}'s state_file {name[:80]!r} must be a file "
+                              "name in the checkpoint folder (no folder, no '..')")
+    try:
+        state = inside(directory, name, what="checkpoint")
+    except PathOutsideRootError as e:
+        raise CheckpointError(str(e)) from None
     if not state.is_file() or state.stat().st_size > MAX_JSON_BYTES[PROCESSOR_NAME]:
         raise CheckpointError(f"{state}: missing or larger than "
                               f"{MAX_JSON_BYTES[PROCESSOR_NAME]:,} bytes")

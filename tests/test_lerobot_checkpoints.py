@@ -129,6 +129,20 @@ def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
         for f in d.glob("policy_preprocessor_*normalizer_processor.safetensors"):
             f.unlink()
 
+    def state_file(name: str):
+        def edit(d: Path) -> None:
+            spec = json.loads((d / LEROBOT_PREPROCESSOR).read_text())
+            step = next(s for s in spec["steps"] if s["registry_name"] == "normalizer_processor")
+            if name == "LINK":  # a link beside the others, leading out of the checkpoint
+                secret = tmp_path / "outside.safetensors"
+                shutil.copy(d / step["state_file"], secret)
+                (d / "link.safetensors").symlink_to(secret)
+                step["state_file"] = "link.safetensors"
+            else:
+                step["state_file"] = name.replace("ABS", str(d / step["state_file"]))
+            (d / LEROBOT_PREPROCESSOR).write_text(json.dumps(spec))
+        return edit
+
     run = tmp_path / "run" / "checkpoints" / "last"
     run.parent.mkdir(parents=True)
     shutil.copytree(lerobot, run / "pretrained_model")
@@ -136,6 +150,12 @@ def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
               "msta's tools load msta students"),
              (broken(lerobot, tmp_path / "eps", eps), "normalizer_processor has eps=1e-08"),
              (broken(lerobot, tmp_path / "nostats", no_stats), "missing or larger than"),
+             (broken(lerobot, tmp_path / "abs", state_file("ABS")),
+              f"state_file '{tmp_path}/abs/policy_pre"),
+             (broken(lerobot, tmp_path / "up", state_file("../../x.safetensors")),
+              "state_file '../../x.safetensors' must be a file name in the checkpoint folder"),
+             (broken(lerobot, tmp_path / "link", state_file("LINK")),
+              "a symbolic link leading outside the checkpoint"),
              (tmp_path / "run", "is a lerobot-train run directory; its last checkpoint is "
               f"{run / 'pretrained_model'}")]
     for path, message in cases:

@@ -35,7 +35,9 @@ from __future__ import annotations
 
 import copy
 import gc
+import math
 import os
+import sys
 from dataclasses import dataclass
 from datetime import timedelta
 from pathlib import Path
@@ -45,6 +47,7 @@ import numpy as np
 import torch
 import torch.distributed as dist
 from torch import nn
+from torch.distributed.distributed_c10d import _set_pg_timeout
 from torch.overrides import TorchFunctionMode
 
 from msta.data.windows import WindowDataset
@@ -52,6 +55,14 @@ from msta.data.windows import WindowDataset
 #: How long the other ranks wait for rank 0's next training loop (its rollouts and
 #: evaluations in between may take hours).
 JOB_WAIT = timedelta(days=7)
+#: How long a rank waits for the others to join (torchrun starts them together; variables
+#: left over in a shell would otherwise wait for ranks that never come).
+#: ``MSTA_DDP_JOIN_TIMEOUT_S`` overrides it (a multi-node job whose nodes start apart).
+JOIN_WAIT_S = 300.0
+
+
+#: The variables torchrun sets that this module reads (named in messages).
+ENV_NAMES = ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT")
 
 
 @dataclass(frozen=True)
@@ -64,13 +75,27 @@ class Launch:
     local_rank: int
 
 
+def join_wait_s() -> float:
+    """Seconds a rank waits for the job to form (:data:`JOIN_WAIT_S`, or the environment's
+    ``MSTA_DDP_JOIN_TIMEOUT_S``)."""
+    text = os.environ.get("MSTA_DDP_JOIN_TIMEOUT_S", "")
+    try:
+        wait = float(text) if text else JOIN_WAIT_S
+    except ValueError:
+        wait = math.nan
+    if not 0 < wait <= JOB_WAIT.total_seconds():
+        raise ValueError(f"MSTA_DDP_JOIN_TIMEOUT_S={text!r} must be seconds in (0, "
+                         f"{JOB_WAIT.total_seconds():g}]")
+    return wait
+
+
 def launched() -> Launch | None:
     """The torchrun variables of this process, or None for a plain process.
 
     Raises:
         ValueError: some of the variables are set but not all, or they are not integers.
     """
-    names = ("RANK", "WORLD_SIZE", "LOCAL_RANK")
+    names = ENV_NAMES[:3]
     given = {n: os.environ.get(n) for n in names}
     if not any(given.values()):
         return None
@@ -220,8 +245,20 @@ class Group:
         # other ranks' wait while rank 0 rolls out or evaluates between training loops (a
         # second group for that wait breaks torchrun's restarts); a rank that dies ends the
         # job at once anyway (torchrun stops the others)
-        dist.init_process_group("cpu:gloo,cuda:nccl" if cuda else "gloo", rank=where.rank,
-                                world_size=where.world, timeout=JOB_WAIT)
+        wait = join_wait_s()
+        names = " ".join(f"{n}={os.environ.get(n, '')}" for n in ENV_NAMES)
+        if where.rank == 0:
+            print(f"torchrun job of {where.world} processes ({names}): waiting up to "
+                  f"{wait:g} s for the other ranks", file=sys.stderr, flush=True)
+        try:
+            dist.init_process_group("cpu:gloo,cuda:nccl" if cuda else "gloo", rank=where.rank,
+                                    world_size=where.world, timeout=timedelta(seconds=wait))
+        except (RuntimeError, dist.DistError) as e:
+            raise ValueError(
+                f"the torchrun job did not form within {wait:g} s ({names}; "
+                f"{' '.join(str(e).split())[:120]}): variables left from another job? unset "
+                "them to train in one process, or set MSTA_DDP_JOIN_TIMEOUT_S") from None
+        _set_pg_timeout(JOB_WAIT)  # formed: the long wait between training loops
 
     @property
     def main(self) -> bool:

@@ -273,9 +273,12 @@ def test_a_text_option_is_taken_as_typed(value):
 
 
 @pytest.mark.parametrize("value", ["a\n---\nb", "tab\there", "bell\x07", "\udc80"])
-def test_a_control_character_in_a_text_option_is_one_line(value, capsys):
+@pytest.mark.parametrize("option", ["task", "sensors"])
+def test_a_control_character_in_any_option_is_one_line(value, option, capsys):
+    """A text option, and a list of names (a terrain or task name recorded into the dataset
+    card)."""
     with pytest.raises(SystemExit) as e:
-        parse_config(_Text, [f"--task={value}"], "prog")
+        parse_config(_Text, [f"--{option}={value}"], "prog")
     err = capsys.readouterr().err.strip()
     assert e.value.code == 2 and len(err.splitlines()) == 1
-    assert err.startswith("prog: error: --task must be text without control characters")
+    assert err.startswith(f"prog: error: --{option} must be text without control characters")

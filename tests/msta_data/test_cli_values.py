@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from msta.collect.record import main as collect_main
+from msta.collect.simulate import main as sim_main
 from msta.eval.evaluate import main as eval_main
 from msta.train.finetune import main as finetune_main
 from msta.train.finetune_ppo import main as finetune_ppo_main
@@ -51,6 +52,14 @@ CASES = [
     ("msta-finetune-ppo", finetune_ppo_main, "--ppo.num_steps_per_env=100000000",
      "num_steps_per_env=100000000"),
     ("msta-finetune-ppo", finetune_ppo_main, "--env.noise.scale=nan", "env.noise.scale=nan"),
+    # sizes that asked for gigabytes or thousands of processes before anything failed
+    ("msta-train", train_main, "--policy.history=100000", "history must be <= 250 steps"),
+    ("msta-collect", collect_main, "--workers=100000", "workers=100000 must be an integer in"),
+    ("msta-eval", eval_main, "--workers=100000", "workers=100000 must be an integer in"),
+    ("msta-collect", collect_main, "--env.noise.scale=1e300", "env.noise.scale=1e+300"),
+    ("msta-collect", collect_main, "--seed=99999999999999999999999", "within the 64-bit"),
+    ("msta-eval", eval_main, "--max_minutes=nan", "max_minutes=nan must be a finite number"),
+    ("msta-sim", sim_main, "--seconds=nan", "seconds=nan must be a finite number"),
 ]
 
 

@@ -157,3 +157,39 @@ def test_a_batch_that_does_not_split_is_refused(synthetic_dataset, tmp_path, mon
     with pytest.raises(SystemExit, match="batch_size=16 does not split over 3 processes"):
         main([f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'o'}", *FLAGS])
     assert not (tmp_path / "o").exists()
+
+
+def test_torchrun_variables_left_in_a_shell_end_in_one_line_not_a_wait(synthetic_dataset,
+                                                                       tmp_path):
+    """RANK / WORLD_SIZE / LOCAL_RANK / MASTER_ADDR / MASTER_PORT of a job that is gone:
+    msta-train says what it waits for, then stops with one line when the others never come
+    (it waited 7 days)."""
+    import socket
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    env = {**os.environ, "RANK": "0", "WORLD_SIZE": "2", "LOCAL_RANK": "0",
+           "MASTER_ADDR": "127.0.0.1", "MASTER_PORT": str(port),
+           "MSTA_DDP_JOIN_TIMEOUT_S": "3"}
+    start = time.monotonic()
+    proc = subprocess.run([sys.executable, "-m", "msta.train.offline",
+                           f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'o'}",
+                           *FLAGS], cwd=REPO, env=env, capture_output=True, text=True,
+                          timeout=120, check=False)
+    assert proc.returncode != 0 and time.monotonic() - start < 60
+    lines = proc.stderr.strip().splitlines()
+    assert "torchrun job of 2 processes (RANK=0 WORLD_SIZE=2" in proc.stderr
+    assert "waiting up to 3 s for the other ranks" in proc.stderr
+    assert lines[-1].startswith("msta-train: error: the torchrun job did not form within 3 s")
+    assert "unset them to train in one process" in lines[-1]
+    assert "Traceback" not in proc.stderr
+
+
+def test_a_bad_join_timeout_is_one_line(synthetic_dataset, tmp_path, monkeypatch):
+    for name, value in (("RANK", "0"), ("WORLD_SIZE", "2"), ("LOCAL_RANK", "0"),
+                        ("MSTA_DDP_JOIN_TIMEOUT_S", "nan")):
+        monkeypatch.setenv(name, value)
+    with pytest.raises(SystemExit, match=r"MSTA_DDP_JOIN_TIMEOUT_S='nan' must be seconds in"):
+        main([f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'o'}", *FLAGS])
