@@ -23,6 +23,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +37,10 @@ from msta.data import checks, cli, layout
 from msta.data.errors import DatasetError, DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.layout import LOCK_NAME
+from msta.data.lerobot_edits import UNKNOWN
+from msta.data.msta_json import add_recording, differences, recorded_settings
 from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
+from msta.data.windows import load_episode_table
 from msta.data.writer import DatasetWriter
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -65,6 +69,10 @@ class CollectConfig(RayOptions):
         extra_sensors: extension sensors to record too, a comma list (``height_map``: a
             student input the paper's students do not read); a new dataset only (a resumed
             one keeps its own sensors).
+        allow_mixed_settings: let ``resume`` append episodes recorded with other settings
+            than the dataset's (teacher, its revision, episode length, terrains, levels,
+            action noise); without it a difference is refused, each one named. The settings
+            of each session are kept in ``meta/msta.json`` (``recordings``).
         progress: show a progress bar.
     """
 
@@ -80,6 +88,7 @@ class CollectConfig(RayOptions):
     flush_every_frames: int = 50_000
     action_noise: float = 0.0
     extra_sensors: str = ""
+    allow_mixed_settings: bool = False
     progress: bool = True
 
     @property
@@ -121,6 +130,36 @@ def _existing_dataset(cfg: CollectConfig, root: Path) -> DatasetWriter | None:
     return None
 
 
+def recording_settings(cfg: CollectConfig, revision: str) -> dict[str, Any]:
+    """What a session records with, as ``meta/msta.json`` keeps it (msta.data.msta_json)."""
+    terrain = cfg.env.terrain
+    return {"teacher": cfg.teacher.type, "teacher_revision": revision,
+            "episode_length_s": float(cfg.episode_length_s), "terrains": list(terrain.types),
+            "terrain_levels": int(terrain.num_levels), "curriculum": bool(terrain.curriculum),
+            "max_init_level": int(terrain.max_init_level),
+            "action_noise": float(cfg.action_noise)}
+
+
+def check_same_settings(cfg: CollectConfig, writer: DatasetWriter,
+                        settings: dict[str, Any]) -> None:
+    """``--resume`` with other settings than the dataset's: one line naming each difference,
+    unless ``allow_mixed_settings``. A dataset that records no settings is compared on its
+    episodes' teacher."""
+    have = writer.num_episodes
+    recorded = recorded_settings(writer.msta_meta, have)
+    if recorded is None:
+        policies = set(load_episode_table(writer.root)["provenance/policy"]) - {UNKNOWN}
+        recorded = {"teacher": policies.pop()} if len(policies) == 1 else {}
+        settings = {k: v for k, v in settings.items() if k in recorded}
+    diffs = differences(recorded, settings)
+    if diffs and not cfg.allow_mixed_settings:
+        raise ValueError(
+            f"{writer.root} was recorded with other settings ({'; '.join(diffs)}): its "
+            f"{have} episodes would be mixed with new ones; give the dataset's settings, "
+            "choose another --root, or pass --allow_mixed_settings=true (each session's "
+            "settings are kept in meta/msta.json)")
+
+
 def collect(cfg: CollectConfig) -> Path:
     """Record (or extend) the dataset; returns its root (checks: module docstring)."""
     root = Path(cfg.root)
@@ -137,8 +176,11 @@ def collect(cfg: CollectConfig) -> Path:
         env_cfg = cfg.env
         env_cfg.num_envs, env_cfg.seed, env_cfg.episode_length_s = (
             cfg.num_envs, seed, cfg.episode_length_s)
-        teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
         revision = teacher_revision(cfg.teacher)
+        settings = recording_settings(cfg, revision)
+        if writer is not None and have:
+            check_same_settings(cfg, writer, settings)
+        teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
         env = QuadrupedEnv(env_cfg)
         if cfg.workers:  # the workers too: a cluster that does not answer creates no file
             shared_pool(cfg.workers, cfg.ray_address)
@@ -150,6 +192,8 @@ def collect(cfg: CollectConfig) -> Path:
         if writer is not None:
             writer.close()
         raise
+    if add_recording(writer.msta_meta, have, settings):
+        writer.meta_changed()
     with writer:
         types = env.cfg.terrain.types
 

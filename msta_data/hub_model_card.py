@@ -162,7 +162,7 @@ def eval_results(info: CardInfo) -> list[EvalResult]:
         args = None if ci is None else {"ci95_low": rounded(ci[0]), "ci95_high": rounded(ci[1])}
         out.append(EvalResult(
             task_type="robotics", task_name="quadruped locomotion", dataset_type=dataset,
-            dataset_name=dataset if training else "msta-eval trials in simulation",
+            dataset_name=dataset if training else "simulated trials (msta-eval)",
             dataset_revision=info.dataset_revision if training and info.dataset_repo else None,
             metric_type=name, metric_value=rounded(value), metric_name=label,
             metric_args=args))

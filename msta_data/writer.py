@@ -71,6 +71,7 @@ from msta.data.hub_cards import write_dataset_card
 from msta.data.inside import refuse_links
 from msta.data.layout import LOCK_NAME
 from msta.data.locking import lock_directory
+from msta.data.msta_json import read_msta_meta
 
 __all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
 
@@ -140,7 +141,7 @@ class DatasetWriter:
         self._buffer: list[_Episode] = []
         self._buffered_frames = 0
         self._tasks: dict[str, int] = {}
-        self._tasks_dirty = False
+        self._tasks_dirty = self._meta_dirty = False
         self._stats: S.Stats = {}
         self._next_file = 0
         self._committed: I.Generation | None = None  # the generation on disk
@@ -223,7 +224,7 @@ class DatasetWriter:
             info = F.load_info(root)
             rewritten = E.is_rewritten(root)  # by LeRobot's tools: msta's metadata re-derived
             msta_meta = (E.derive_msta_meta(root, info) if rewritten
-                         else _read_msta_meta(root, info))
+                         else read_msta_meta(root, info))
             manifest = I.Manifest.load(root)
             gen = None
             if manifest is None:  # no manifest (older or LeRobot-written): read every column
@@ -339,6 +340,10 @@ class DatasetWriter:
             return
         for group in self._groups():
             self._write_group(group)
+        if self._meta_dirty:  # the recording settings (msta.data.msta_json)
+            self._new_files[L.MSTA_META_PATH] = _atomic_json(self.root / L.MSTA_META_PATH,
+                                                             self.msta_meta)
+            self._meta_dirty = False
         if self._tasks_dirty:
             df = pd.DataFrame({"task_index": list(self._tasks.values())},
                               index=pd.Index(list(self._tasks), name="task"))
@@ -362,6 +367,11 @@ class DatasetWriter:
             write_dataset_card(self.root)
         except (OSError, ValueError) as e:
             logger.warning("%s not rebuilt (%s: %s)", self.root / L.CARD_NAME, type(e).__name__, e)
+
+    def meta_changed(self) -> None:
+        """``msta_meta`` was edited (:func:`msta.data.msta_json.add_recording`): the next
+        flush writes ``meta/msta.json`` with its episodes."""
+        self._meta_dirty = True
 
     def close(self) -> None:
         """Flush and release the lock. Idempotent."""
@@ -475,26 +485,3 @@ class DatasetWriter:
         _atomic_write(self.root / L.INFO_PATH, lambda p: p.write_bytes(data))  # commit point
         self._committed, self._new_files = gen, {}
         _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(gen).dumps()))
-
-
-def _read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
-    """``meta/msta.json``, checked against the schema version and ``info.json``'s features."""
-    msta_path = root / L.MSTA_META_PATH
-    try:
-        msta_meta = json.loads(msta_path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
-    if not isinstance(msta_meta, dict) or not isinstance(msta_meta.get("sensors"), list):
-        raise DatasetFormatError(f"{msta_path}: not an msta metadata object")
-    version = msta_meta.get("msta_schema_version")
-    if version not in F.SCHEMA_VERSIONS:
-        raise DatasetFormatError(
-            f"{msta_path}: msta_schema_version {version!r}, expected one of "
-            f"{list(F.SCHEMA_VERSIONS)}")
-    expected = F.build_features(msta_meta["sensors"], derived=version >= 2)
-    if info["features"] != expected:
-        bad = sorted(k for k in set(expected) | set(info["features"])
-                     if expected.get(k) != info["features"].get(k))
-        raise DatasetFormatError(f"{root / L.INFO_PATH}: features differ from the msta "
-                                 f"schema in columns {bad}")
-    return msta_meta

@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from msta.collect.record import main
+from msta.data.integrity import Generation, Manifest, digest_file
 from msta.data.windows import load_episode_table
 from msta.data.writer import DatasetWriter
 
@@ -63,3 +64,54 @@ def test_a_root_that_is_not_a_folder_is_one_line(tmp_path, root):
     root = root.replace("FILE", str(path))
     assert f"--root={root} is not a folder" in _fails([*SMALL, f"--root={root}", "--episodes=2"])
     assert path.read_text() == "mine"
+
+
+def test_resume_refuses_other_recording_settings_naming_each(tmp_path, capsys):
+    """A resumed recording with another teacher, episode length and terrains: one line
+    naming each difference, nothing appended; with --allow_mixed_settings the episodes are
+    appended and meta/msta.json keeps each session's settings from its first episode."""
+    import json
+
+    root = tmp_path / "ds"
+    main([*SMALL, f"--root={root}", "--episodes=2"])
+    before = sorted(p.name for p in (root / "data").rglob("*.parquet"))
+    other = [*SMALL, "--teacher.type=gait", "--episode_length_s=0.4",
+             "--env.terrain.types=[flat, stairs_up]"]
+    message = _fails([*other, f"--root={root}", "--episodes=4", "--resume=true"])
+    for diff in ('teacher "zero" -> "gait"', "episode_length_s 0.2 -> 0.4",
+                 'terrains ["flat"] -> ["flat", "stairs_up"]', "teacher_revision"):
+        assert diff in message, message
+    assert "--allow_mixed_settings=true" in message
+    assert sorted(p.name for p in (root / "data").rglob("*.parquet")) == before
+    main([*SMALL, f"--root={root}", "--episodes=3", "--resume=true"])  # the same settings
+    main([*other, f"--root={root}", "--episodes=5", "--resume=true",
+          "--allow_mixed_settings=true"])
+    blocks = json.loads((root / "meta/msta.json").read_text())["recordings"]
+    assert [(b["from_episode"], b["teacher"], b["episode_length_s"]) for b in blocks] == [
+        (0, "zero", 0.2), (3, "gait", 0.4)]
+    table = load_episode_table(root)
+    assert table["provenance/policy"].tolist() == ["zero"] * 3 + ["gait"] * 2
+    # the next resume compares with the latest session's settings
+    main([*other, f"--root={root}", "--episodes=6", "--resume=true"])
+    assert "teacher \"gait\" -> \"zero\"" in _fails([*SMALL, f"--root={root}", "--episodes=7",
+                                                    "--resume=true"])
+
+
+def test_a_dataset_without_recorded_settings_is_compared_on_its_teacher(tmp_path):
+    import json
+
+    root = tmp_path / "ds"
+    main([*SMALL, f"--root={root}", "--episodes=2"])
+    meta = json.loads((root / "meta/msta.json").read_text())
+    del meta["recordings"]  # as recorded before the settings were kept
+    (root / "meta/msta.json").write_text(json.dumps(meta, indent=4))
+    manifest = Manifest.load(root)  # the manifest follows the edit
+    files = dict(manifest.committed.files)
+    files["meta/msta.json"] = digest_file(root / "meta/msta.json", use_cache=False)
+    gen = Generation(manifest.committed.total_episodes, manifest.committed.total_frames, files)
+    (root / "meta/msta_checksums.json").write_bytes(Manifest(gen).dumps())
+    assert 'teacher "zero" -> "gait"' in _fails([*SMALL, "--teacher.type=gait",
+                                                 f"--root={root}", "--episodes=3",
+                                                 "--resume=true"])
+    main([*SMALL, "--episode_length_s=0.4", f"--root={root}", "--episodes=3", "--resume=true"])
+    assert len(load_episode_table(root)) == 3

@@ -1,0 +1,82 @@
+"""``meta/msta.json``: msta's own metadata of a dataset (schema version, recorded sensors,
+provenance columns) and the settings each recording session used.
+
+``recordings`` is a list of blocks, one per change of settings, each ``{"from_episode": k,
+<settings>}``: episode ``e`` was recorded with the last block whose ``from_episode`` is at
+most ``e``. ``msta-collect`` writes the settings a session records with (teacher and its
+revision, episode length, terrains and levels, action noise); ``--resume`` compares them with
+the dataset's and refuses a difference unless mixing is asked for, when a new block starts
+at the first new episode. A dataset recorded before the blocks existed has none: only its
+episodes' provenance (the teacher) can be compared.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from msta.data import features as F
+from msta.data import layout as L
+from msta.data.errors import DatasetFormatError
+
+RECORDINGS = "recordings"
+
+
+def read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
+    """``meta/msta.json``, checked against the schema version and ``info.json``'s features."""
+    msta_path = root / L.MSTA_META_PATH
+    try:
+        msta_meta = json.loads(msta_path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise DatasetFormatError(f"{msta_path}: cannot read ({e})") from e
+    if not isinstance(msta_meta, dict) or not isinstance(msta_meta.get("sensors"), list):
+        raise DatasetFormatError(f"{msta_path}: not an msta metadata object")
+    version = msta_meta.get("msta_schema_version")
+    if version not in F.SCHEMA_VERSIONS:
+        raise DatasetFormatError(
+            f"{msta_path}: msta_schema_version {version!r}, expected one of "
+            f"{list(F.SCHEMA_VERSIONS)}")
+    expected = F.build_features(msta_meta["sensors"], derived=version >= 2)
+    if info["features"] != expected:
+        bad = sorted(k for k in set(expected) | set(info["features"])
+                     if expected.get(k) != info["features"].get(k))
+        raise DatasetFormatError(f"{root / L.INFO_PATH}: features differ from the msta "
+                                 f"schema in columns {bad}")
+    blocks = msta_meta.get(RECORDINGS, [])
+    if not isinstance(blocks, list) or not all(
+            isinstance(b, dict) and isinstance(b.get("from_episode"), int) for b in blocks):
+        raise DatasetFormatError(f"{msta_path}: '{RECORDINGS}' must be a list of objects with "
+                                 "an integer 'from_episode'")
+    return msta_meta
+
+
+def recorded_settings(msta_meta: dict[str, Any], episodes: int) -> dict[str, Any] | None:
+    """The settings of the last block that covers one of the first ``episodes`` episodes
+    (without ``from_episode``), or None when the dataset records none."""
+    blocks = [b for b in msta_meta.get(RECORDINGS, []) if b["from_episode"] < episodes]
+    if not blocks:
+        return None
+    return {k: v for k, v in blocks[-1].items() if k != "from_episode"}
+
+
+def differences(recorded: dict[str, Any], wanted: dict[str, Any]) -> list[str]:
+    """``"<setting> <recorded> -> <wanted>"`` for each setting that differs (JSON values)."""
+    out = []
+    for key in sorted(set(recorded) | set(wanted)):
+        a, b = recorded.get(key), json.loads(json.dumps(wanted.get(key)))
+        if a != b:
+            out.append(f"{key} {json.dumps(a)} -> {json.dumps(b)}")
+    return out
+
+
+def add_recording(msta_meta: dict[str, Any], start: int, settings: dict[str, Any]) -> bool:
+    """Record that episodes from ``start`` on are recorded with ``settings``; blocks of a
+    killed session beyond the committed episodes go. Returns whether ``msta_meta`` changed."""
+    settings = json.loads(json.dumps(settings))
+    old = list(msta_meta.get(RECORDINGS, []))
+    blocks = [b for b in old if b["from_episode"] < start]
+    if not (blocks and {k: v for k, v in blocks[-1].items() if k != "from_episode"} == settings):
+        blocks.append({"from_episode": int(start), **settings})
+    msta_meta[RECORDINGS] = blocks
+    return blocks != old
