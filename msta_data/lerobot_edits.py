@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -103,6 +104,15 @@ def _as_int(value: Any, where: str) -> int:
     return number
 
 
+def _terrain_of(task: Any) -> str:
+    """The terrain a task text names (``a1 locomotion on <terrain>``), or ``unknown`` for
+    any other text: a task edited to hold a newline and ``---`` is not recorded as a
+    terrain (it broke the dataset card)."""
+    name = str(task).removeprefix(F.TASK_PREFIX)
+    ok = str(task).startswith(F.TASK_PREFIX) and re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name)
+    return name if ok else UNKNOWN
+
+
 def _provenance_column(table: pa.Table, col: str, kind: pa.DataType,
                        path: Path | None = None) -> pa.Array | None:
     """The filled column, or None when ``table`` already has it complete and typed.
@@ -117,8 +127,7 @@ def _provenance_column(table: pa.Table, col: str, kind: pa.DataType,
     values = have.to_pylist() if have is not None else [None] * table.num_rows
     if col == "provenance/terrain":
         tasks = table.column("tasks").to_pylist()
-        fill = [t[0].removeprefix(F.TASK_PREFIX) if t and str(t[0]).startswith(F.TASK_PREFIX)
-                else UNKNOWN for t in tasks]
+        fill = [_terrain_of(t[0]) if t else UNKNOWN for t in tasks]
     else:
         fill = [-1 if kind == pa.int64() else UNKNOWN] * table.num_rows
     missing = [v is None or (isinstance(v, float) and math.isnan(v)) for v in values]  # NaN: pandas

@@ -235,3 +235,29 @@ def test_integral_provenance_values_of_another_type_are_taken(recorded, tmp_path
     pq.write_table(table, path)
     DatasetWriter.open(root).close()
     assert load_episode_table(root)["provenance/round"].tolist() == [3, 2, -1, 1, 0, 0]
+
+
+def test_a_task_text_that_is_not_a_terrain_name_is_not_recorded_as_one(recorded, tmp_path):
+    """A LeRobot-edited dataset without provenance whose task text holds a newline and
+    ``---``: the terrain is taken as unknown, and the dataset card is a card."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from msta.data.writer import DatasetWriter
+
+    root = _copy(recorded, tmp_path / "ds")
+    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
+        (root / rel).unlink()
+    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
+    table = pq.read_table(path)
+    table = table.drop_columns([c for c in table.column_names if c.startswith("provenance/")])
+    hostile = "a1 locomotion on flat\n---\n# injected: true"
+    tasks = [[hostile]] + table.column("tasks").to_pylist()[1:]
+    table = table.set_column(table.column_names.index("tasks"), "tasks",
+                             pa.array(tasks, table.schema.field("tasks").type))
+    pq.write_table(table, path)
+    DatasetWriter.open(root).close()
+    terrains = load_episode_table(root)["provenance/terrain"].tolist()
+    assert terrains == [UNKNOWN] + ["flat"] * (len(terrains) - 1)
+    card = (root / L.CARD_NAME).read_text()
+    assert "injected" not in card and card.count("\n---\n") == 1
