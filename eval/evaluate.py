@@ -168,6 +168,18 @@ def _parse_matrix(text: str, policies: list[str]) -> dict[str, tuple[float, floa
         out[key] = (a1, a2)
     return out
 
+def local_name(path: Path) -> str:
+    """A checkpoint folder's name in tables: its own name, or for lerobot-train's
+    ``<run>/checkpoints/<step>/pretrained_model`` (``last`` followed) ``<run>@<step>``."""
+    path = path.resolve()
+    if path.name != "pretrained_model":
+        return path.name
+    step = path.parent
+    if step.parent.name == "checkpoints":
+        return f"{step.parent.parent.name}@{step.name}"
+    return step.name or path.name
+
+
 def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     """Resolve one --policies entry (teacher, teacher:<type>, directory or hub id)."""
     if source == "teacher":
@@ -182,7 +194,7 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     except FileNotFoundError as e:
         raise FileNotFoundError(f"{e} (teachers: 'teacher' or 'teacher:<type>' with type in "
                                 f"{sorted(TEACHERS)})") from None
-    name = source if reads_as_hub_id(source) else Path(source).resolve().name
+    name = source if reads_as_hub_id(source) else local_name(Path(source))
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
                          device=str(cfg.torch_device))
 

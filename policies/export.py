@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import warnings
 from collections.abc import Mapping, Sequence
@@ -400,10 +401,22 @@ def training_dataset(checkpoint: Path) -> str | None:
         if f.is_file():
             try:
                 root = json.loads(f.read_text()).get("dataset")
-            except (OSError, ValueError):
+            except (OSError, ValueError, AttributeError):
                 return None
-            return root if root and (Path(root) / "meta" / "info.json").is_file() else None
+            if isinstance(root, dict):  # lerobot-train's: {"repo_id": ..., "root": ...}
+                root = root.get("root") or _lerobot_cache(root.get("repo_id"))
+            return root if isinstance(root, str) and root and (
+                Path(root) / "meta" / "info.json").is_file() else None
     return None
+
+
+def _lerobot_cache(repo_id: Any) -> str | None:
+    """Where LeRobot keeps ``repo_id`` when no root was given (``HF_LEROBOT_HOME``)."""
+    if not isinstance(repo_id, str) or not repo_id:
+        return None
+    home = os.environ.get("HF_LEROBOT_HOME") or str(
+        Path(os.environ.get("HF_HOME") or Path.home() / ".cache" / "huggingface") / "lerobot")
+    return str(Path(home) / repo_id)
 
 
 def run(cfg: ExportConfig) -> dict[str, Any]:
@@ -412,7 +425,9 @@ def run(cfg: ExportConfig) -> dict[str, Any]:
     names = resolve_sensors(policy, cfg.sensors)
     T = cfg.history or (MINIMIZED_HISTORY if cfg.sensors == "minimized" else policy.config.history)
     windows: dict[str, dict[str, np.ndarray]] = {}
-    dataset = cfg.dataset or training_dataset(directory)
+    given = Path(cfg.policy)  # a LeRobot checkpoint resolves to a converted copy elsewhere
+    dataset = cfg.dataset or training_dataset(directory) or (
+        training_dataset(given) if given.is_dir() else None)
     if dataset and cfg.parity_windows:
         windows["recorded"] = recorded_windows(dataset, names, T, cfg.parity_windows)
     else:

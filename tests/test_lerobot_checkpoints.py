@@ -167,3 +167,19 @@ def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
         assert err.startswith("msta-eval: error: ") and "\n" not in err and message in err
     with pytest.raises(CheckpointError, match="LeRobot 'act' policy"):
         load_config(tmp_path / "act")  # msta-correct / msta-finetune read it first
+
+
+def test_lerobot_train_checkpoints_are_named_by_run_and_step(tmp_path):
+    """msta-eval's tables name lerobot-train's pretrained_model folders <run>@<step> (they
+    were all 'pretrained_model', then 'pretrained_model#2')."""
+    from msta.eval.evaluate import local_name
+
+    for run in ("run_a", "run_b"):
+        step = tmp_path / run / "checkpoints" / "000003" / "pretrained_model"
+        step.mkdir(parents=True)
+        (tmp_path / run / "checkpoints" / "last").symlink_to("000003")
+    assert local_name(tmp_path / "run_a/checkpoints/last/pretrained_model") == "run_a@000003"
+    assert local_name(tmp_path / "run_b/checkpoints/000003/pretrained_model") == "run_b@000003"
+    (tmp_path / "mine" / "pretrained_model").mkdir(parents=True)
+    assert local_name(tmp_path / "mine" / "pretrained_model") == "mine"
+    assert local_name(tmp_path / "run_a") == "run_a"  # any other folder: its own name

@@ -275,6 +275,21 @@ def test_lerobot_lists_the_plugins(tmp_path):
     assert "msta_a1" in env_types.split("{")[1].split("}")[0].split(",")
 
 
+@pytest.mark.parametrize("option,says", [
+    ("--policy.preset=huge", "unknown msta preset 'huge'; known presets: ['cpu', 'paper', 'tiny']"),
+    ("--policy.input_sensors=[lidar]", "lidar"),
+])
+def test_a_bad_msta_option_through_lerobot_train_says_msta_s_own_line(option, says, tmp_path):
+    """draccus keeps only "Couldn't instantiate class MSTAConfig"; msta's line comes first."""
+    proc = subprocess.run([str(BIN / "lerobot-train"), "--policy.type=msta", option,
+                           "--dataset.repo_id=local/x", f"--dataset.root={tmp_path / 'none'}",
+                           "--policy.push_to_hub=false"], env=offline_env(tmp_path),
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert proc.returncode != 0
+    mine = [line for line in proc.stderr.splitlines() if line.startswith("msta policy: error: ")]
+    assert len(mine) == 1 and says in mine[0], proc.stderr[-2000:]
+
+
 @pytest.fixture(scope="module")
 def lerobot_trained(synthetic_dataset, tmp_path_factory) -> Path:
     """A few lerobot-train steps of the tiny MSTA student on an msta dataset."""
@@ -304,6 +319,21 @@ def test_lerobot_train_trains_msta(lerobot_trained, synthetic_dataset, tmp_path)
     native = lerobot_to_msta(lerobot_trained, tmp_path / "msta")
     got = lerobot_actions(lerobot_trained, batch)
     assert torch.isfinite(got).all() and torch.equal(got, msta_actions(native, batch))
+
+
+def test_msta_export_checks_parity_on_the_dataset_lerobot_train_named(lerobot_trained,
+                                                                      synthetic_dataset,
+                                                                      tmp_path, capsys):
+    """train_config.json's dataset (LeRobot's {"repo_id", "root"}) gives the recorded
+    windows, as msta-train's does; no --dataset needed."""
+    from msta.policies.export import main as export_main
+
+    export_main([f"--policy={lerobot_trained}", f"--output_dir={tmp_path / 'export'}",
+                 "--parity_windows=8", "--random_windows=2"])
+    assert "no dataset found" not in capsys.readouterr().err
+    spec = json.loads((tmp_path / "export" / "spec.json").read_text())
+    assert spec["source"]["dataset"] == str(synthetic_dataset)
+    assert {p["windows"] for p in spec["parity"]} >= {"recorded", "random"}
 
 
 def test_lerobot_train_resumes_with_msta_windows(lerobot_trained, tmp_path):

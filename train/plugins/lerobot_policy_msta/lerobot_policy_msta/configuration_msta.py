@@ -15,6 +15,7 @@ msta config (what msta's checkpoints store).
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -129,6 +130,15 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     """push the trained policy to the hub (needs --policy.repo_id)."""
 
     def __post_init__(self) -> None:
+        try:
+            self._check()
+        except (ValueError, KeyError) as e:
+            # draccus (lerobot-train's parser) keeps only "Couldn't instantiate class
+            # MSTAConfig": msta's own line goes to stderr first
+            print(f"msta policy: error: {e.args[0] if e.args else e}", file=sys.stderr)
+            raise
+
+    def _check(self) -> None:
         PreTrainedConfig.__post_init__(self)  # device, amp
         self.apply_preset()
         NativeMSTAConfig.__post_init__(self)  # msta's checks
