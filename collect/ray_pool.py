@@ -20,10 +20,12 @@ the run with an error naming it.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import socket
 import sys
+import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -58,6 +60,10 @@ class RayOptions:
 
 #: The most Ray workers a command asks for (each is a process with its own simulator).
 MAX_WORKERS = 4096
+
+
+#: Ray's logger of the "token authentication is enabled" warning (every local start).
+_RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 
 
 def check_ray_options(workers: int, ray_address: str) -> None:
@@ -184,12 +190,15 @@ class RayPool:
     def __init__(self, workers: int, address: str = "", threads: int = 1) -> None:
         import ray  # lazy: Ray (~0.7 s) loads only with --workers or a Ray address
 
+        t0 = time.monotonic()
         check_ray_options(workers, address)
         if workers < 1:
             raise ValueError("a RayPool needs workers >= 1")
         self.started = not ray.is_initialized()
         if self.started:
             check_reachable(address)
+            # a local Ray keeps its default token authentication without the line saying so
+            logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
             kw: dict[str, Any] = {"address": address} if address else {"num_cpus": workers}
             ray.init(include_dashboard=False, log_to_driver=False, logging_level="warning",
                      **kw)
@@ -197,6 +206,12 @@ class RayPool:
         self._cls = ray.remote(num_cpus=1)(_Worker)
         self.actors = [self._new() for _ in range(workers)]
         self.replaced = 0  # workers lost and replaced so far
+        ray.get([a.__ray_ready__.remote() for a in self.actors])
+        self.startup_s = time.monotonic() - t0
+        where = f"on {address}" if address else (
+            "on a local Ray started for this run" if self.started else "on this process's Ray")
+        print(f"Ray: {workers} workers ready in {self.startup_s:.1f} s {where}",
+              file=sys.stderr, flush=True)
 
     def _new(self) -> Any:
         return self._cls.remote(self.threads, os.environ.get(EXIT_HOOK, ""))

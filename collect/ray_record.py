@@ -32,7 +32,7 @@ from msta.collect.ray_pool import (
     plan_blocks,
     shared_pool,
 )
-from msta.collect.recorder import EpisodeRecorder, LabelledActor
+from msta.collect.recorder import EpisodeBar, EpisodeRecorder, LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
@@ -185,5 +185,16 @@ def collect_on_workers(cfg: Any, write: Callable[[dict[str, np.ndarray], int, in
     env = replace(cfg.env, num_envs=cfg.num_envs, seed=cfg.seed,
                   episode_length_s=cfg.episode_length_s)
     job = RecordJob(env, teacher_factory(cfg.teacher, cfg.action_noise, cfg.seed), sensors)
-    return record_on_workers(shared_pool(cfg.workers, cfg.ray_address), job, cfg.episodes,
-                             have, lambda ep: write(*ep))
+    pool = shared_pool(cfg.workers, cfg.ray_address)
+    bar = EpisodeBar(None, cfg.episodes - have, cfg.progress, cfg.num_envs)
+    frames = [0]
+
+    def commit(ep: Episode) -> None:  # the bar as in one process: episodes, frames per s
+        write(*ep)
+        frames[0] += len(ep[0]["action"])
+        bar.update(frames[0] // cfg.num_envs - 1, 1)
+
+    try:
+        return record_on_workers(pool, job, cfg.episodes, have, commit)
+    finally:
+        bar.bar.close()

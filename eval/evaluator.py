@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from msta.data.budget import check_deadline
 from msta.data.revision import checkpoint_revision, content_revision
@@ -210,10 +211,20 @@ class Evaluator:
                 check_deadline(self.deadline, f"{label}: after round {r + 1} of {rounds}")
 
         t0 = time.perf_counter()
-        if self.pool is not None and not here:
+        if self.pool is not None and not here:  # a bar over the rounds the workers finish
+            bar = tqdm(total=self.layout.trials, initial=sum(len(d.steps) for d in done),
+                       desc=f"{label} (Ray)", unit="trial", disable=not self.progress,
+                       leave=False)
 
-            res = run_trials_on_workers(self.pool, self.cfg, make_actor, self.layout,
-                                        self.env.max_steps, done, on_round)
+            def on_round_bar(r: int, rounds: int, part: TrialResults) -> None:
+                on_round(r, rounds, part)
+                bar.update(min(len(part.steps), bar.total - bar.n))
+
+            try:
+                res = run_trials_on_workers(self.pool, self.cfg, make_actor, self.layout,
+                                            self.env.max_steps, done, on_round_bar)
+            finally:
+                bar.close()
         else:
             res = run_trials(self.env, make_actor, self.layout, desc=label,
                              progress=self.progress, done=done, on_round=on_round)

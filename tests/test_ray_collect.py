@@ -150,3 +150,21 @@ def test_the_committer_killed_mid_run_leaves_a_dataset_that_resumes_to_the_same_
     for a, b in zip(got, want, strict=True):
         for c in a:
             np.testing.assert_array_equal(a[c], b[c], err_msg=c)
+
+
+def test_a_ray_run_prints_its_start_up_and_the_one_process_progress(tmp_path):
+    """The command as a user runs it: the workers' start-up measured in one line, the same
+    episodes bar as one process, and no line about Ray's token authentication."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "msta.collect.record", "--teacher.type=zero", "--num_envs=2",
+         "--episodes=4", "--episode_length_s=0.4", "--env.nthread=1",
+         "--env.terrain.types=[flat]", "--env.terrain.num_levels=1", "--workers=2",
+         f"--root={tmp_path / 'ds'}"], cwd=REPO, capture_output=True, text=True, timeout=300,
+        check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    err = proc.stderr.replace("\r", "\n")
+    assert any(line.startswith("Ray: 2 workers ready in ") and
+               line.endswith(" s on a local Ray started for this run")
+               for line in err.splitlines()), err[-2000:]
+    assert "episodes: 100%" in err and "4/4" in err
+    assert "Token authentication" not in err

@@ -20,19 +20,22 @@ def student(tmp_path_factory):
     return tiny_student("msta", {}, root).save_pretrained(base / "msta_tiny")
 
 
-def run(tmp_path, student, workers: int) -> dict:
+def run(tmp_path, student, workers: int, progress: bool = False) -> dict:
     """Teacher and student, token removal 0 / 25 / 50 %: 4 trials in 2 rounds of 2."""
     out = tmp_path / f"w{workers}"
     cfg = EvalConfig(policies=f"teacher,{student}", scenarios="token_removal", trials=4,
                      num_envs=2, episode_length_s=0.5, terrains="flat,stairs_up", levels="1",
-                     output_dir=str(out), progress=False, workers=workers)
+                     output_dir=str(out), progress=progress, workers=workers)
     evaluate(cfg)
     return json.loads((out / "metrics.json").read_text())
 
 
-def test_one_and_two_workers_give_the_single_process_figures(local_ray, student, tmp_path):
+def test_one_and_two_workers_give_the_single_process_figures(local_ray, student, tmp_path,
+                                                            capsys):
     here = run(tmp_path, student, 0)
-    one, two = run(tmp_path, student, 1), run(tmp_path, student, 2)
+    one, two = run(tmp_path, student, 1), run(tmp_path, student, 2, progress=True)
+    bars = capsys.readouterr().err.replace("\r", "\n")
+    assert "reference teacher (Ray): " in bars and "trial" in bars  # as one process shows
     assert [r["status"] for r in here["runs"]] == ["ok", "n/a", "n/a", "ok", "ok", "ok"]
     masked = [r["raw"]["per_terrain"]["average"]["total"] for r in here["runs"][3:]]
     assert len(set(masked)) == 3  # the masks change the student's figures
