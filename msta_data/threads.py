@@ -21,6 +21,7 @@ machine.
 
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -112,3 +113,29 @@ def resolve_threads(requested: int, processes: int | None = None) -> int:
     """``--num_threads``: a count as given, 0 the :func:`auto_threads` rule."""
     check_threads(requested)
     return requested or auto_threads(processes)
+
+
+#: The thread count a run directory's first session chose with ``--num_threads=0``.
+RUN_THREADS = "threads.json"
+
+
+def run_threads(run_dir: str | Path, requested: int, resuming: bool) -> int:
+    """:func:`resolve_threads` for a run that can resume: with ``--num_threads=0`` the first
+    session's count (kept in ``run_dir/threads.json``) is used again on resume, so a resumed
+    run sums in the same order and ends bit for bit where an uninterrupted one would have,
+    whatever else the machine runs by then. A count given explicitly is used as given."""
+    path = Path(run_dir) / RUN_THREADS
+    if requested == 0 and resuming:
+        try:
+            kept = json.loads(path.read_text()).get("threads")
+        except (OSError, ValueError, AttributeError):
+            kept = None
+        if isinstance(kept, int) and not isinstance(kept, bool) and 1 <= kept <= max_threads():
+            return kept
+    threads = resolve_threads(requested)
+    if requested == 0:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"threads": threads}) + "\n")
+        os.replace(tmp, path)
+    return threads

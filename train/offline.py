@@ -35,7 +35,7 @@ from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_dataset
 from msta.data.locking import hold_directory
 from msta.data.stats import load_stats
-from msta.data.threads import check_threads, resolve_threads
+from msta.data.threads import check_threads, run_threads
 from msta.data.windows import episode_split
 from msta.policies.config import PolicyConfig
 from msta.policies.factory import make_policy, select_device
@@ -163,7 +163,7 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     resuming = prepare_output(out, cfg.resume)
     if resuming:
         check_resume_config(out, cfg)
-    torch.set_num_threads(resolve_threads(cfg.num_threads))
+    torch.set_num_threads(run_threads(out, cfg.num_threads, resuming))
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
     policy = make_policy(cfg.policy, load_stats(root)).to(device)

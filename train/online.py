@@ -49,7 +49,7 @@ from msta.collect.sim.env import QuadrupedEnv
 from msta.data.budget import TimeLimitReached, check_deadline, deadline_after, stop
 from msta.data.features import load_info, sensor_column_to_name
 from msta.data.locking import hold_directory
-from msta.data.threads import resolve_threads
+from msta.data.threads import run_threads
 from msta.data.windows import episode_split, load_episode_table
 from msta.data.writer import DatasetWriter
 from msta.policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
@@ -240,7 +240,7 @@ def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook:
         print(warning)
     if cfg.push_to and prog.dataset_source is None:  # before a hub tag can move
         prog.dataset_source = dataset_source(cfg.dataset, root)
-    torch.set_num_threads(resolve_threads(cfg.num_threads))
+    torch.set_num_threads(run_threads(out, cfg.num_threads, cfg.resume))
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
     revision = teacher_revision(cfg.teacher)

@@ -76,7 +76,6 @@ from dataclasses import replace
 from typing import Any, ClassVar
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium.envs.registration import EnvSpec
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -84,7 +83,7 @@ from gymnasium.vector.utils import batch_space
 
 from msta.collect.sim.env import REASONS, QuadrupedEnv, StepResult
 from msta.collect.sim.env_config import EnvConfig
-from msta.collect.sim.render import make_renderer, render_state
+from msta.collect.sim.render import PatchRenderer
 from msta.collect.sim.robot import joint_limits
 from msta.collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds
 from msta.collect.sim.terrain import sample_initial
@@ -118,6 +117,7 @@ class _View:
         self._bounds = observation_bounds(self.sim, actions)
         self.render_mode, self._size = render_mode, (height, width)
         self._renderer: Any = None
+        self.shadows = True  # frames with shadows (set before the first render)
         self._final_state = np.zeros_like(self.sim.state)   # see _keep_final
         self._ended = np.zeros(self.sim.num_envs, dtype=bool)
         self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.dt))}
@@ -188,24 +188,24 @@ class _View:
         return self._final_state[env_id] if self._ended[env_id] else self.sim.state[env_id]
 
     def _frame(self, env_id: int) -> np.ndarray:
-        """(H, W, 3) uint8 picture of env ``env_id`` (render.py's tracking camera)."""
+        """(H, W, 3) uint8 picture of env ``env_id`` (render.py's tracking camera, the
+        terrain around the robot: :class:`~msta.collect.sim.render.PatchRenderer`)."""
         if not self.sim.last_obs:
             raise RuntimeError("call reset() before render()")
         if self._renderer is None:
             h, w = self._size
-            renderer = make_renderer(self.sim.model, h, w)
+            self._renderer = PatchRenderer(self.sim.model, self.sim.terrain,
+                                           self.sim.cfg.collision, h, w, shadows=self.shadows)
             # MuJoCo's EGL backend terminates its display at exit (an atexit hook registered
             # with the first context); a renderer freed after that prints EGL errors, so an
             # env left open closes its renderer at exit, before that hook runs.
-            self._renderer = (renderer, mujoco.MjData(self.sim.model), renderer.close)
-            atexit.register(self._renderer[2])
-        renderer, data, _ = self._renderer
-        return render_state(renderer, self.sim.model, data, self._render_state(env_id))
+            atexit.register(self._renderer.close)
+        return self._renderer.render(self._render_state(env_id))
 
     def _close_renderer(self) -> None:
         if getattr(self, "_renderer", None) is not None:
-            atexit.unregister(self._renderer[2])
-            self._renderer[0].close()
+            atexit.unregister(self._renderer.close)
+            self._renderer.close()
             self._renderer = None
 
     def __del__(self) -> None:
@@ -397,6 +397,12 @@ class MstaVectorEnv(_View, VectorEnv):
             gym.logger.warn("render() needs render_mode='rgb_array' when the env is made")
             return None
         return tuple(self._frame(i) for i in range(self.num_envs))
+
+    def render_first(self, count: int) -> tuple[np.ndarray, ...]:
+        """:meth:`render` of the first ``count`` envs, a gray frame for each other one (a
+        caller that keeps only those, as lerobot-eval does, pays for no other)."""
+        gray = np.full((*self._size, 3), 128, np.uint8)
+        return tuple(self._frame(i) if i < count else gray for i in range(self.num_envs))
 
     def close_extras(self, **kwargs: Any) -> None:
         self._close_renderer()

@@ -239,3 +239,35 @@ def test_image_strip_and_video_are_written(tmp_path):
 
     img = matplotlib.image.imread(strip)
     assert img.shape[1] == 4 * 128
+
+
+@pytest.mark.parametrize("terrain", [TerrainConfig(),  # every type; flat ground alone:
+                                     TerrainConfig(types=("flat",), columns_per_type=1)])
+def test_the_patch_renderer_draws_the_full_terrains_picture(terrain):
+    """The env's frames (the terrain within 8 m of the robot) against frames of the whole
+    heightfield, for robots on every terrain type and on flat ground far from the origin,
+    also after the robot moved far enough that the patch is cut again: the same picture up
+    to the far background."""
+    from msta.collect.sim.env import QuadrupedEnv
+    from msta.collect.sim.render import PatchRenderer, make_renderer, render_state
+
+    env = QuadrupedEnv(EnvConfig(num_envs=5, nthread=1, seed=1, terrain=terrain,
+                                 randomization=RandomizationConfig(enabled=False)))
+    env.reset()
+    patch = PatchRenderer(env.model, env.terrain, env.cfg.collision, 96, 128)
+    full = make_renderer(env.model, 96, 128)
+    data = __import__("mujoco").MjData(env.model)
+    diffs = []
+    for i in range(env.num_envs):
+        state = env.state[i].copy()
+        for shift in (0.0, 3.0):  # 3 m east: beyond radius / 4, a new patch
+            state[1] += shift
+            a = patch.render(state).astype(np.int16)
+            b = render_state(full, env.model, data, state).astype(np.int16)
+            lower = slice(a.shape[0] // 2, None)  # the ground near the robot, and the robot
+            diffs.append(np.abs(a[lower] - b[lower]).mean())
+            assert np.abs(a - b).mean() < 8, (i, shift)  # up to the far background
+    assert max(diffs) < 0.5, diffs
+    assert patch.centre[0] == pytest.approx(env.state[4, 1] + 3, abs=0.51)
+    patch.close()
+    full.close()

@@ -46,6 +46,23 @@ def test_env_type_is_registered_with_the_dataset_features():
     assert feats["action"].shape == (12,)
 
 
+def test_only_the_robots_lerobot_keeps_are_filmed():
+    """video_robots robots get real frames, the others gray ones (lerobot-eval keeps the
+    first --eval.max_episodes_rendered and drops the rest)."""
+    cfg = MstaA1EnvConfig(terrains=("flat",), levels=(0,), episode_length_s=0.1,
+                          randomization=False, video_robots=2, video_width=64,
+                          video_height=48)
+    env = cfg.create_envs(n_envs=4)["flat"][0]
+    try:
+        env.reset(seed=[1, 2, 3, 4])
+        frames = env.call("render")
+        assert [f.shape for f in frames] == [(48, 64, 3)] * 4
+        assert frames[0].std() > 5 and frames[1].std() > 5  # pictures of the robots
+        assert all((f == 128).all() for f in frames[2:])
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize(("option", "message"), [
     ({"terrains": ("ice",)}, "unknown terrain 'ice'"),
     ({"terrains": ()}, "terrains is empty"),
@@ -53,6 +70,7 @@ def test_env_type_is_registered_with_the_dataset_features():
     ({"fps": 30}, "runs at 50 Hz"),
     ({"episode_length_s": 0.0}, "episode_length_s=0.0 must be > 0"),
     ({"platform_size": 9.0}, r"platform_size=9.0 must be in \[0, 8.0\] m"),
+    ({"video_robots": -1}, "video_robots=-1 must be >= 0"),
 ])
 def test_bad_options_are_one_line_errors(option, message):
     with pytest.raises(ValueError, match=message):

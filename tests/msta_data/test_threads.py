@@ -69,3 +69,18 @@ def test_msta_train_refuses_a_huge_thread_count_in_one_line(tmp_path):
                          capture_output=True, text=True, timeout=120, check=False)
     err = res.stderr.strip()
     assert res.returncode == 2 and "\n" not in err and "num_threads=100000 must be in" in err
+
+
+def test_a_resumed_run_keeps_the_thread_count_its_first_session_chose(tmp_path, monkeypatch):
+    """--num_threads=0 follows the machine's load; a resume uses the first session's count
+    again (sums in another order would break bit-identical resumes), a given count wins."""
+    from msta.data import threads as T
+
+    monkeypatch.setattr(T, "auto_threads", lambda processes=None: 2)
+    assert T.run_threads(tmp_path, 0, resuming=False) == 2
+    monkeypatch.setattr(T, "auto_threads", lambda processes=None: 1)  # the machine got busy
+    assert T.run_threads(tmp_path, 0, resuming=True) == 2
+    assert T.run_threads(tmp_path, 3, resuming=True) == 3
+    assert T.run_threads(tmp_path / "new", 0, resuming=False) == 1
+    (tmp_path / "threads.json").write_text('{"threads": 100000}')  # edited: not trusted
+    assert T.run_threads(tmp_path, 0, resuming=True) == 1

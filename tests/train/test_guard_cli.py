@@ -87,13 +87,16 @@ def test_detection_is_also_counted_from_the_first_changed_reading(synthetic_data
 
 
 @pytest.mark.parametrize("option,msg", [
-    ("--guard.margin=inf", "guard margin must be a number in (0, 1e+06]"),
-    ("--guard.margin=nan", "guard margin must be a number in (0, 1e+06]"),
+    ("--guard.margin=inf", "--guard.margin=inf must be a finite number"),  # command line
+    ("--guard.margin=nan", "--guard.margin=nan must be a finite number"),
+    ("--guard.margin=1e300", "guard margin must be a number in (0, 1e+06]"),  # the config
     ("--guard.contact_lags=100000", "guard contact_lags must be an integer in [1, 100]"),
     ("--guard.window=0", "guard window must be an integer in [1, 1000]"),
 ])
 def test_settings_that_would_switch_the_guard_off_or_exhaust_memory_are_refused(
         option, msg, capsys, synthetic_dataset, tmp_path):
+    with pytest.raises(ValueError, match="guard margin must be a number"):
+        GuardConfig(margin=float("inf"))  # from Python too
     with pytest.raises(SystemExit) as e:
         main(["fit", f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path}", option])
     err = capsys.readouterr().err.strip()

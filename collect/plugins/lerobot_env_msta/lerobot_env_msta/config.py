@@ -79,11 +79,18 @@ class MstaA1EnvConfig(EnvConfig):
     heading_commands: bool = True
     """the yaw-rate command steers to a sampled heading (paper); false samples it directly."""
     video: bool = True
-    """film the robots for lerobot-eval's videos (it films up to 10 episodes per terrain, one
-    frame per control step; software OpenGL takes 0.3-1.3 s a frame). false: nothing is
-    rendered, an evaluation costs only simulation and the policy; lerobot-eval (0.6.1) still
-    writes its video files, of blank 16x16 frames, unless it records instead
-    (--eval.recording=true), and a warning says so."""
+    """film the robots for lerobot-eval's videos (one frame per control step; only the
+    terrain within 8 m of each robot is drawn, without shadows: about 0.02 s a frame with
+    software OpenGL).
+    false: nothing is rendered, an evaluation costs only simulation and the policy;
+    lerobot-eval (0.6.1) still writes its video files, of blank 16x16 frames, unless it
+    records instead (--eval.recording=true), and a warning says so."""
+    video_robots: int = 10
+    """robots of each terrain filmed; the others get a gray frame. lerobot-eval keeps the
+    first --eval.max_episodes_rendered (10 by default) and drops the rest, so filming more
+    only costs time; raise it with --eval.max_episodes_rendered."""
+    video_shadows: bool = False
+    """draw shadows in the videos (about 4x the time of a frame with software OpenGL)."""
     video_width: int = 320
     """video frame width (pixels)."""
     video_height: int = 240
@@ -121,14 +128,17 @@ class MstaA1EnvConfig(EnvConfig):
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
         if self.video_width < 2 or self.video_height < 2:
             raise ValueError(f"video size {self.video_width}x{self.video_height} must be >= 2x2")
+        if self.video_robots < 0:
+            raise ValueError(f"video_robots={self.video_robots} must be >= 0")
         if self.nthread < 1:
             raise ValueError(f"nthread={self.nthread} must be >= 1")
 
     @property
     def gym_kwargs(self) -> dict[str, Any]:
         """The settings :meth:`create_envs` passes to each env (no gym id is involved)."""
-        return {"levels": self.levels, "video": self.video,
-                "width": self.video_width, "height": self.video_height}
+        return {"levels": self.levels, "video": self.video, "video_robots": self.video_robots,
+                "shadows": self.video_shadows, "width": self.video_width,
+                "height": self.video_height}
 
     def sim_config(self, terrain: str, num_envs: int) -> SimConfig:
         """The simulator config of one task group.

@@ -54,6 +54,9 @@ class A1VectorEnv(VectorEnv):
             (random among them when the reset has no seed).
         video: render the robots in ``render()``; False returns gray frames.
         width, height: frame size.
+        video_robots: robots rendered (the first ones); the others get gray frames (what
+            lerobot-eval drops).
+        shadows: frames with shadows.
     """
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 50,
@@ -61,14 +64,16 @@ class A1VectorEnv(VectorEnv):
     _warned_video_off: ClassVar[bool] = False  # VIDEO_OFF_WARNING is said once a process
 
     def __init__(self, cfg: SimConfig, task: str, levels: Sequence[int], video: bool = True,
-                 width: int = 320, height: int = 240) -> None:
+                 width: int = 320, height: int = 240, video_robots: int = 10,
+                 shadows: bool = False) -> None:
         if len(cfg.terrain.types) != 1:
             raise ValueError(f"A1VectorEnv runs one terrain type, got {cfg.terrain.types}")
         self.levels = np.asarray(levels, dtype=np.int64)
-        self.video = video
+        self.video, self.video_robots = video, int(video_robots)
         self.sim_env = MstaVectorEnv(cfg, sensors=STUDENT_SENSORS, actions="simulator",
                                      render_mode="rgb_array" if video else None,
                                      width=width, height=height)
+        self.sim_env.shadows = shadows
         self.num_envs = self.sim_env.num_envs
         self.task = task
         self.task_description = (f"walk on {task} terrain (levels {list(self.levels)}) "
@@ -142,7 +147,7 @@ class A1VectorEnv(VectorEnv):
                 logger.warning(VIDEO_OFF_WARNING)
             return tuple(np.full((BLANK_SIZE, BLANK_SIZE, 3), 128, np.uint8)
                          for _ in range(self.num_envs))
-        return self.sim_env.render()
+        return self.sim_env.render_first(self.video_robots)
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
         """An attribute of the env for every robot (called when it is a method): lerobot-eval's
