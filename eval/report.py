@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from msta.data.cli import parse_config
+from msta.data.hub_eval import read_json_input
 from msta.eval.fault_report import section
 from msta.eval.metrics import RETURNS
 from msta.eval.plots import write_plots
@@ -328,12 +329,21 @@ class EvalReportConfig:
             raise FileNotFoundError(f"--metrics {self.metrics!r}: no such file")
 
 
+#: The largest metrics.json read (a full study's is a few MB).
+MAX_METRICS_BYTES = 256 << 20
+
+
 def main(argv: list[str] | None = None) -> None:
     """Rewrite report.md and the plots (``python -m msta.eval.report METRICS [--output_dir=DIR]``)."""
     cfg = parse_config(EvalReportConfig, argv, "python -m msta.eval.report", positionals=("metrics",))
     path = Path(cfg.metrics)
-    metrics = json.loads(path.read_text())
-    for f in write_report(metrics, Path(cfg.output_dir) if cfg.output_dir else path.parent):
+    try:
+        metrics = read_json_input(path, "METRICS", max_bytes=MAX_METRICS_BYTES)
+        files = write_report(metrics, Path(cfg.output_dir) if cfg.output_dir else path.parent)
+    except (KeyError, TypeError, ValueError, AttributeError) as e:  # ValueError: unreadable
+        raise SystemExit(f"python -m msta.eval.report: error: {path}: not a metrics.json of "
+                         f"msta-eval ({' '.join(str(e).split())[:160]})") from None
+    for f in files:
         print(f)
     for line in identical_warnings(metrics):
         print(f"warning: {line}")

@@ -9,6 +9,7 @@ import dataclasses
 import json
 import math
 import typing
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -65,8 +66,18 @@ def prepare_values(args: list[str], parser: argparse.ArgumentParser,
                 continue
             value, i = args[i], i + 1
             _check_text(flag, value)
+        if action.dest.rsplit(".", 1)[-1] in FOLDER_OPTIONS and value:
+            path = Path(value)
+            if path.exists() and not path.is_dir():
+                raise ValueError(f"{flag}={value} is not a folder (a file, a device or a FIFO "
+                                 "is there); choose a folder")
         out.append(f"{flag}={json.dumps(value)}")  # a YAML double-quoted scalar
     return out
+
+
+#: Options that name a folder a command writes into or reads from: one naming a file, a
+#: device or a FIFO is refused when the command line is read.
+FOLDER_OPTIONS = ("output_dir", "root")
 
 
 def _check_text(flag: str, value: str) -> None:

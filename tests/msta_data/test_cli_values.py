@@ -84,3 +84,33 @@ def test_the_real_command_line_says_it_in_one_line():
     assert proc.returncode == 2
     err = proc.stderr.strip()
     assert err == "msta-train: error: --lr=inf must be a finite number", err
+
+
+@pytest.mark.parametrize("main,prog", [(eval_main, "msta-eval"), (sim_main, "msta-sim"),
+                                       (train_main, "msta-train")])
+@pytest.mark.parametrize("kind", ["/dev/null", "file", "fifo"])
+def test_an_output_folder_that_is_a_file_is_one_line(main, prog, kind, tmp_path, capsys):
+    import os
+
+    path = {"/dev/null": "/dev/null", "file": str(tmp_path / "f"), "fifo": str(tmp_path / "p")}
+    (tmp_path / "f").write_text("mine")
+    os.mkfifo(tmp_path / "p")
+    with pytest.raises(SystemExit) as e:
+        main([f"--output_dir={path[kind]}"])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and len(err.splitlines()) == 1
+    assert err == (f"{prog}: error: --output_dir={path[kind]} is not a folder (a file, a device "
+                   "or a FIFO is there); choose a folder")
+    assert (tmp_path / "f").read_text() == "mine"
+
+
+def test_a_report_of_a_file_that_is_not_a_metrics_json_is_one_line(tmp_path):
+    (tmp_path / "bad.json").write_text("not json")
+    (tmp_path / "list.json").write_text("[1, 2]")
+    for name in ("bad.json", "list.json"):
+        proc = subprocess.run([sys.executable, "-m", "msta.eval.report", str(tmp_path / name)],
+                              cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
+        err = proc.stderr.strip()
+        assert proc.returncode == 1 and len(err.splitlines()) == 1, err
+        assert err.startswith(f"python -m msta.eval.report: error: {tmp_path / name}: not a "
+                              "metrics.json of msta-eval")
