@@ -187,25 +187,38 @@ def test_lerobot_dataset_viz_saves_an_episode(recorded, tmp_path):
         assert f"/{entity} rows={length} " in summary, summary
 
 
+def _rewritten(recorded: Path, dst: Path, edit) -> tuple[Path, Path]:
+    """A copy of ``recorded`` as LeRobot's tools leave it (no meta/msta.json, no manifest)
+    whose first episode file's table went through ``edit(table) -> table``: (root, file)."""
+    import pyarrow.parquet as pq
+
+    root = _copy(recorded, dst)
+    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
+        (root / rel).unlink()
+    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
+    pq.write_table(edit(pq.read_table(path)), path)
+    return root, path
+
+
+def _with_round(values):
+    """``edit`` for :func:`_rewritten`: provenance/round replaced by ``values``."""
+    import pyarrow as pa
+
+    def edit(table):
+        i = table.column_names.index("provenance/round")
+        return table.set_column(i, "provenance/round", pa.array(values))
+    return edit
+
+
 @pytest.mark.parametrize("bad", [["two"] * 6, [1e300] * 6, ["9" * 23] * 6, [0.5] * 6])
 def test_a_non_integer_provenance_round_is_refused_before_anything_is_written(recorded, tmp_path,
                                                                              bad):
     """A LeRobot-edited dataset whose provenance/round holds text, a huge or a fractional
     number: one line naming the file, column and row; meta/msta.json is not written."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     from msta.data.errors import DatasetFormatError
     from msta.data.writer import DatasetWriter
 
-    root = _copy(recorded, tmp_path / "ds")
-    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
-        (root / rel).unlink()
-    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
-    table = pq.read_table(path)
-    i = table.column_names.index("provenance/round")
-    table = table.set_column(i, "provenance/round", pa.array(bad))
-    pq.write_table(table, path)
+    root, path = _rewritten(recorded, tmp_path / "ds", _with_round(bad))
     before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*") if p.is_file()
               and p.name != L.LOCK_NAME}
     with pytest.raises(DatasetFormatError, match=rf"{path.name}: column 'provenance/round', "
@@ -220,19 +233,9 @@ def test_a_non_integer_provenance_round_is_refused_before_anything_is_written(re
 
 def test_integral_provenance_values_of_another_type_are_taken(recorded, tmp_path):
     """pandas may leave floats (and NaN for a gap) where msta wrote integers: 3.0 is 3."""
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     from msta.data.writer import DatasetWriter
 
-    root = _copy(recorded, tmp_path / "ds")
-    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
-        (root / rel).unlink()
-    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
-    table = pq.read_table(path)
-    i = table.column_names.index("provenance/round")
-    table = table.set_column(i, "provenance/round", pa.array([3.0, 2.0, None, 1.0, 0.0, 0.0]))
-    pq.write_table(table, path)
+    root, _ = _rewritten(recorded, tmp_path / "ds", _with_round([3.0, 2.0, None, 1.0, 0.0, 0.0]))
     DatasetWriter.open(root).close()
     assert load_episode_table(root)["provenance/round"].tolist() == [3, 2, -1, 1, 0, 0]
 
@@ -241,21 +244,18 @@ def test_a_task_text_that_is_not_a_terrain_name_is_not_recorded_as_one(recorded,
     """A LeRobot-edited dataset without provenance whose task text holds a newline and
     ``---``: the terrain is taken as unknown, and the dataset card is a card."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
 
     from msta.data.writer import DatasetWriter
 
-    root = _copy(recorded, tmp_path / "ds")
-    for rel in (L.MSTA_META_PATH, L.MANIFEST_PATH):
-        (root / rel).unlink()
-    path = next((root / L.EPISODES_DIR).rglob("*.parquet"))
-    table = pq.read_table(path)
-    table = table.drop_columns([c for c in table.column_names if c.startswith("provenance/")])
-    hostile = "a1 locomotion on flat\n---\n# injected: true"
-    tasks = [[hostile]] + table.column("tasks").to_pylist()[1:]
-    table = table.set_column(table.column_names.index("tasks"), "tasks",
-                             pa.array(tasks, table.schema.field("tasks").type))
-    pq.write_table(table, path)
+    def edit(table):
+        table = table.drop_columns([c for c in table.column_names
+                                    if c.startswith("provenance/")])
+        tasks = [["a1 locomotion on flat\n---\n# injected: true"]]
+        tasks += table.column("tasks").to_pylist()[1:]
+        return table.set_column(table.column_names.index("tasks"), "tasks",
+                                pa.array(tasks, table.schema.field("tasks").type))
+
+    root, _ = _rewritten(recorded, tmp_path / "ds", edit)
     DatasetWriter.open(root).close()
     terrains = load_episode_table(root)["provenance/terrain"].tolist()
     assert terrains == [UNKNOWN] + ["flat"] * (len(terrains) - 1)
