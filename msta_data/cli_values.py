@@ -52,26 +52,31 @@ def prepare_values(args: list[str], parser: argparse.ArgumentParser,
         i += 1
         flag, sep, value = arg.partition("=")
         action = options.get(flag)
-        if action is not None and sep:
-            _check_text(flag, value)
-            if _numeric(action.type):
-                _check_numbers(flag, value)
-        if (action is None or action.type is not str or flag == "--config_path"
-                or action.dest in groups):
+        if action is None or not flag.startswith("--"):
             out.append(arg)
             continue
-        if not sep:  # --option value
+        if not sep and action.nargs != 0:  # --option value: checked as --option=value
             if i == len(args) or args[i].startswith("--"):
                 out.append(arg)  # argparse names the missing value
                 continue
-            value, i = args[i], i + 1
-            _check_text(flag, value)
+            sep, value, i = "=", args[i], i + 1
+        if not sep:
+            out.append(arg)
+            continue
+        _check_text(flag, value)
+        if _numeric(action.type):
+            _check_numbers(flag, value)
+        if action.type is not str or flag == "--config_path" or action.dest in groups:
+            out.append(f"{flag}={value}")
+            continue
         if action.dest.rsplit(".", 1)[-1] in FOLDER_OPTIONS and value:
             path = Path(value)
             if path.exists() and not path.is_dir():
                 raise ValueError(f"{flag}={value} is not a folder (a file, a device or a FIFO "
                                  "is there); choose a folder")
-        out.append(f"{flag}={json.dumps(value)}")  # a YAML double-quoted scalar
+        # a YAML double-quoted scalar; characters beyond U+FFFF stay themselves (escaped,
+        # they would come back as two lone surrogates)
+        out.append(f"{flag}={json.dumps(value, ensure_ascii=False)}")
     return out
 
 
@@ -81,10 +86,12 @@ FOLDER_OPTIONS = ("output_dir", "root")
 
 
 def _check_text(flag: str, value: str) -> None:
-    """No option's value holds a control character or a lone surrogate (a newline let
-    ``---`` start a second YAML document; a task or terrain name with one broke the dataset
-    card)."""
-    if any(ord(c) < 32 or ord(c) == 127 or 0xD800 <= ord(c) <= 0xDFFF for c in value):
+    """No option's value holds a control character (C0, DEL, C1), a Unicode line or
+    paragraph separator or a lone surrogate (a newline let ``---`` start a second YAML
+    document; a task or terrain name with one broke the dataset card; YAML folds U+0085 to a
+    space)."""
+    if any(ord(c) < 32 or 127 <= ord(c) <= 159 or c in "\u2028\u2029"
+           or 0xD800 <= ord(c) <= 0xDFFF for c in value):
         raise ValueError(f"{flag} must be text without control characters, got "
                          f"{value[:40]!r}")
 

@@ -18,6 +18,7 @@ from huggingface_hub import HfApi
 from huggingface_hub.errors import RepositoryNotFoundError, RevisionNotFoundError
 
 from msta.data.hub_ids import HubError, HubId, HubIntegrityError, hub_api, parse_hub_id
+from msta.data.layout import hf_home
 
 logger = logging.getLogger(__name__)
 
@@ -107,15 +108,6 @@ def pull(spec: str, dest_dir: str | os.PathLike, *, repo_type: str | None = None
         raise
     logger.info("pulled %s (commit %s) into %s", spec, hub_id.revision, dest)
     return dest
-
-
-def hf_home() -> Path:
-    """huggingface_hub's ``HF_HOME``, read now by its rule: ``HF_HOME``, else
-    ``$XDG_CACHE_HOME/huggingface``, else ``~/.cache/huggingface`` (``~`` and ``$VARS``
-    expanded)."""
-    default = os.path.join(os.environ.get("XDG_CACHE_HOME")
-                           or os.path.join(os.path.expanduser("~"), ".cache"), "huggingface")
-    return Path(os.path.expandvars(os.path.expanduser(os.environ.get("HF_HOME") or default)))
 
 
 def default_cache_dir() -> Path:

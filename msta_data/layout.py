@@ -2,11 +2,13 @@
 
 Every path is relative to the dataset root and uses ``/`` (it is also the path inside a hub
 repo). The writer, the reader, the integrity checks, the hub client and the commands that
-look at a dataset root all take the names from here.
+look at a dataset root all take the names from here, and where Hugging Face's and LeRobot's
+caches are (:func:`hf_home`, :func:`lerobot_home`).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 #: Directory of the metadata files.
@@ -55,3 +57,20 @@ def info_path(root: str | Path) -> Path:
 def is_dataset_root(root: str | Path) -> bool:
     """True when ``root`` holds ``meta/info.json`` (a dataset, finished or being appended)."""
     return info_path(root).is_file()
+
+
+def hf_home() -> Path:
+    """huggingface_hub's ``HF_HOME``, read now by its rule: ``HF_HOME``, else
+    ``$XDG_CACHE_HOME/huggingface``, else ``~/.cache/huggingface`` (``~`` and ``$VARS``
+    expanded)."""
+    default = os.path.join(os.environ.get("XDG_CACHE_HOME")
+                           or os.path.join(os.path.expanduser("~"), ".cache"), "huggingface")
+    return Path(os.path.expandvars(os.path.expanduser(os.environ.get("HF_HOME") or default)))
+
+
+def lerobot_home() -> Path:
+    """LeRobot's ``HF_LEROBOT_HOME``, read now by its rule: ``HF_LEROBOT_HOME``, else
+    ``<HF_HOME>/lerobot`` (``~`` and ``$VARS`` expanded): where a dataset named by repo id
+    alone lives."""
+    own = os.environ.get("HF_LEROBOT_HOME")
+    return Path(os.path.expandvars(os.path.expanduser(own))) if own else hf_home() / "lerobot"

@@ -95,7 +95,7 @@ def _as_int(value: Any, where: str) -> int:
         number = int(value) if math.isfinite(value) and value.is_integer() else None
     elif isinstance(value, int) and not isinstance(value, bool):
         number = value
-    elif isinstance(value, str) and value.strip().lstrip("+-").isdigit() and len(value) < 40:
+    elif isinstance(value, str) and re.fullmatch(r"\s*[+-]?[0-9]{1,19}\s*", value):
         number = int(value)
     if number is None or not _INT64[0] <= number <= _INT64[1]:
         raise DatasetFormatError(

@@ -2,8 +2,9 @@
 provenance columns) and the settings each recording session used.
 
 ``recordings`` is a list of blocks, one per change of settings, each ``{"from_episode": k,
-<settings>}``: episode ``e`` was recorded with the last block whose ``from_episode`` is at
-most ``e``. ``msta-collect`` writes the settings a session records with (teacher and its
+<settings>}``: an episode ``e`` that msta-collect recorded was recorded with the last block
+whose ``from_episode`` is at most ``e`` (stage 2's appended episodes, ``provenance/source``
+``student``, are described by their provenance columns alone). ``msta-collect`` writes the settings a session records with (teacher and its
 revision, episode length, terrains and levels, action noise); ``--resume`` compares them with
 the dataset's and refuses a difference unless mixing is asked for, when a new block starts
 at the first new episode. A dataset recorded before the blocks existed has none: only its

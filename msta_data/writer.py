@@ -45,6 +45,7 @@ README.md of the user's own is left alone.
 
 from __future__ import annotations
 
+import io
 import json
 import logging
 import os
@@ -142,6 +143,7 @@ class DatasetWriter:
         self._buffered_frames = 0
         self._tasks: dict[str, int] = {}
         self._tasks_dirty = self._meta_dirty = False
+        self._staged: dict[str, bytes] = {}  # replaced meta files, written by _commit
         self._stats: S.Stats = {}
         self._next_file = 0
         self._committed: I.Generation | None = None  # the generation on disk
@@ -340,15 +342,19 @@ class DatasetWriter:
             return
         for group in self._groups():
             self._write_group(group)
-        if self._meta_dirty:  # the recording settings (msta.data.msta_json)
-            self._new_files[L.MSTA_META_PATH] = _atomic_json(self.root / L.MSTA_META_PATH,
-                                                             self.msta_meta)
+        # msta.json (the recording settings) and tasks.parquet are replaced, not added:
+        # written only once the pending manifest lists their new bytes (_commit), so a kill
+        # leaves them matching one recorded generation or the other
+        if self._meta_dirty:
+            self._staged[L.MSTA_META_PATH] = json.dumps(
+                self.msta_meta, indent=4, ensure_ascii=False).encode()
             self._meta_dirty = False
         if self._tasks_dirty:
-            df = pd.DataFrame({"task_index": list(self._tasks.values())},
-                              index=pd.Index(list(self._tasks), name="task"))
-            self._new_files[L.TASKS_PATH] = _atomic_write(
-                self.root / L.TASKS_PATH, lambda p: df.to_parquet(p, write_page_checksum=True))
+            buf = io.BytesIO()
+            pd.DataFrame({"task_index": list(self._tasks.values())},
+                         index=pd.Index(list(self._tasks), name="task")
+                         ).to_parquet(buf, write_page_checksum=True)
+            self._staged[L.TASKS_PATH] = buf.getvalue()
             self._tasks_dirty = False
         self._stats = S.aggregate([self._stats, *(ep.stats for ep in self._buffer)])
         self._new_files[L.STATS_PATH] = _atomic_json(self.root / L.STATS_PATH,
@@ -478,10 +484,14 @@ class DatasetWriter:
         data = json.dumps(info, indent=4, ensure_ascii=False).encode()
         old = self._committed
         files = {**(old.files if old else {}), **self._new_files,
+                 **{rel: I.digest_bytes(b) for rel, b in self._staged.items()},
                  L.INFO_PATH: I.digest_bytes(data)}
         gen = I.Generation(self.info["total_episodes"], self.info["total_frames"], files)
         manifest = self.root / L.MANIFEST_PATH
         _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(old, gen).dumps()))
+        for rel, staged in self._staged.items():  # replaced files, now listed as pending
+            _atomic_write(self.root / rel, lambda p, b=staged: p.write_bytes(b))
+        self._staged = {}
         _atomic_write(self.root / L.INFO_PATH, lambda p: p.write_bytes(data))  # commit point
         self._committed, self._new_files = gen, {}
         _atomic_write(manifest, lambda p: p.write_bytes(I.Manifest(gen).dumps()))

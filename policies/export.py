@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import warnings
 from collections.abc import Mapping, Sequence
@@ -57,6 +56,7 @@ from torch import Tensor, nn
 from msta.data import robot
 from msta.data import sensors as registry
 from msta.data.cli import parse_config
+from msta.data.layout import lerobot_home
 from msta.data.torchcodec_warning import shorten_torchcodec_warning
 from msta.policies.base import StudentPolicy
 from msta.policies.export_removal import (
@@ -205,7 +205,7 @@ def export_student(
         source: provenance stored in the spec (checkpoint path, dataset, ...).
         absent: exported sensors that get an ``absent_<sensor>`` (B, dim) bool input (the
             per-sample channel removal a guard's flags drive); () = none.
-        guard_dir: a folder with a saved guard (:func:`msta.policies.guard.load_guard`) whose
+        guard_dir: a folder with a saved guard (:func:`msta.policies.guard_file.load_guard`) whose
             files are copied into ``output_dir`` and named in the spec.
 
     Raises:
@@ -411,12 +411,8 @@ def training_dataset(checkpoint: Path) -> str | None:
 
 
 def _lerobot_cache(repo_id: Any) -> str | None:
-    """Where LeRobot keeps ``repo_id`` when no root was given (``HF_LEROBOT_HOME``)."""
-    if not isinstance(repo_id, str) or not repo_id:
-        return None
-    home = os.environ.get("HF_LEROBOT_HOME") or str(
-        Path(os.environ.get("HF_HOME") or Path.home() / ".cache" / "huggingface") / "lerobot")
-    return str(Path(home) / repo_id)
+    """Where LeRobot keeps ``repo_id`` when no root was given."""
+    return str(lerobot_home() / repo_id) if isinstance(repo_id, str) and repo_id else None
 
 
 def run(cfg: ExportConfig) -> dict[str, Any]:

@@ -4,7 +4,6 @@ masks of the parity check, the guard's files and spec entry."""
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 from collections.abc import Sequence
@@ -15,7 +14,7 @@ import numpy as np
 
 from msta.data import sensors as registry
 from msta.policies.guard import INPUT_SENSORS
-from msta.policies.guard_file import GUARD_ARRAYS, GUARD_JSON, load_guard
+from msta.policies.guard_file import GUARD_ARRAYS, GUARD_JSON, load_guard, save_guard
 
 #: ONNX / TorchScript input name of a sensor's per-sample channel removal
 ABSENT_PREFIX = "absent_"
@@ -54,16 +53,21 @@ def removal_spec(absent: Sequence[str], guard_dir: str | Path | None, out: Path
 
 
 def copy_guard(src: Path, out: Path) -> dict[str, Any]:
-    """Copy a saved guard's files into the export folder; its spec.json entry."""
-    meta = json.loads((src / GUARD_JSON).read_text())
+    """Copy a saved guard's files into the export folder; its spec.json entry (what the
+    guard's loader reads, not the readable copy in guard.json)."""
+    guard = load_guard(src)
+    if guard is None:
+        raise FileNotFoundError(f"{src}: no guard saved there ({GUARD_ARRAYS})")
+    if not (src / GUARD_JSON).is_file():  # the arrays carry the settings: write both again
+        save_guard(guard, out)
     for name in (GUARD_JSON, GUARD_ARRAYS):
-        if (src / name).resolve() != (out / name).resolve():
+        if (src / name).is_file() and (src / name).resolve() != (out / name).resolve():
             shutil.copyfile(src / name, out / name)
     return {"files": [GUARD_JSON, GUARD_ARRAYS], "reads": list(INPUT_SENSORS),
-            "flags": meta["sensors"], "dt": meta["dt"],
-            "use": "msta.policies.guard.load_guard(<export dir>).update(readings) each step; its "
-                   "flags of the sensors with an absent_<sensor> input go there (latched until "
-                   "reset at an episode start)"}
+            "flags": list(guard.sensors), "dt": guard.dt,
+            "use": "msta.policies.guard_file.load_guard(<export dir>).update(readings) each "
+                   "step; its flags of the sensors with an absent_<sensor> input go there "
+                   "(latched until reset at an episode start)"}
 
 
 def absent_inputs(option: str, checkpoint: Path, names: Sequence[str]

@@ -95,7 +95,7 @@ def _step_stats(directory: Path, pipeline: str, step_name: str, key: str, dim: i
         raise CheckpointError(f"{path}: {step_name} has eps={eps}; msta divides by the std "
                               "alone (eps=0), so the student's actions would differ")
     name = str(step.get("state_file", ""))
-    if Path(name).name != name or name in ("", ".", ".."):
+    if "\x00" in name or Path(name).name != name or name in ("", ".", ".."):
         raise CheckpointError(f"{path}: {step_name}'s state_file {name[:80]!r} must be a file "
                               "name in the checkpoint folder (no folder, no '..')")
     try:

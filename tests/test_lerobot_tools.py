@@ -210,7 +210,8 @@ def _with_round(values):
     return edit
 
 
-@pytest.mark.parametrize("bad", [["two"] * 6, [1e300] * 6, ["9" * 23] * 6, [0.5] * 6])
+@pytest.mark.parametrize("bad", [["two"] * 6, [1e300] * 6, ["9" * 23] * 6, [0.5] * 6,
+                                 ["+-1"] * 6, ["\u00b2"] * 6])
 def test_a_non_integer_provenance_round_is_refused_before_anything_is_written(recorded, tmp_path,
                                                                              bad):
     """A LeRobot-edited dataset whose provenance/round holds text, a huge or a fractional

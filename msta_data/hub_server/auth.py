@@ -61,10 +61,19 @@ class AuthConfig:
                 raise ValueError(f"the same secret is given for users '{cfg.tokens[secret]}' and '{name}'")
             cfg.tokens[secret] = name
         users = set(cfg.tokens.values())
+        seen: dict[str, str] = {}  # repo ids ignore case, so names must too
+        for name in sorted(users):
+            if seen.setdefault(name.lower(), name) != name:
+                raise ValueError(f"users '{seen[name.lower()]}' and '{name}' differ only in "
+                                 "case (repo ids ignore case); rename one")
         for spec in org_specs or []:
             org, members = parse_org_spec(spec)
-            if org in users:
-                raise ValueError(f"organisation '{org}' has the same name as a user")
+            if org.lower() in {u.lower() for u in users}:
+                raise ValueError(f"organisation '{org}' has the same name as a user (case "
+                                 "ignored)")
+            if seen.setdefault(org.lower(), org) != org:
+                raise ValueError(f"organisations '{seen[org.lower()]}' and '{org}' differ only "
+                                 "in case (repo ids ignore case); rename one")
             cfg.orgs.setdefault(org, set()).update(members)
         return cfg
 

@@ -248,6 +248,8 @@ def test_the_patch_renderer_draws_the_full_terrains_picture(terrain):
     heightfield, for robots on every terrain type and on flat ground far from the origin,
     also after the robot moved far enough that the patch is cut again: the same picture up
     to the far background."""
+    import mujoco
+
     from msta.collect.sim.env import QuadrupedEnv
     from msta.collect.sim.render import PatchRenderer, make_renderer, render_state
 
@@ -256,7 +258,7 @@ def test_the_patch_renderer_draws_the_full_terrains_picture(terrain):
     env.reset()
     patch = PatchRenderer(env.model, env.terrain, env.cfg.collision, 96, 128)
     full = make_renderer(env.model, 96, 128)
-    data = __import__("mujoco").MjData(env.model)
+    data = mujoco.MjData(env.model)
     diffs = []
     for i in range(env.num_envs):
         state = env.state[i].copy()

@@ -263,7 +263,8 @@ class _Text:
 
 
 @pytest.mark.parametrize("value", ["null", "~", "[a, b]", "{a: 1}", "yes", "bias:3:encoder:",
-                                   "a: b", "'quoted'", 'say "hi"', "back\\slash", "1e3", ""])
+                                   "a: b", "'quoted'", 'say "hi"', "back\\slash", "1e3", "",
+                                   "/tmp/x\U0001F642\u00e9"])
 def test_a_text_option_is_taken_as_typed(value):
     """Values are YAML for draccus; a text option's value is not (null, yes, [a, b] and
     bias:3:encoder: were None, True, a list and a mapping)."""
@@ -272,7 +273,8 @@ def test_a_text_option_is_taken_as_typed(value):
         assert (cfg.root, cfg.n, cfg.sensors) == (value, 3, ("x", "y"))
 
 
-@pytest.mark.parametrize("value", ["a\n---\nb", "tab\there", "bell\x07", "\udc80"])
+@pytest.mark.parametrize("value", ["a\n---\nb", "tab\there", "bell\x07", "\udc80", "c1\x85",
+                                   "line\u2028sep"])
 @pytest.mark.parametrize("option", ["task", "sensors"])
 def test_a_control_character_in_any_option_is_one_line(value, option, capsys):
     """A text option, and a list of names (a terrain or task name recorded into the dataset
@@ -282,3 +284,15 @@ def test_a_control_character_in_any_option_is_one_line(value, option, capsys):
     err = capsys.readouterr().err.strip()
     assert e.value.code == 2 and len(err.splitlines()) == 1
     assert err.startswith(f"prog: error: --{option} must be text without control characters")
+
+
+@pytest.mark.parametrize("argv,says", [
+    (["--n", "nan"], "--n=nan must be a finite number"),
+    (["--n", "9" * 23], "must be within the 64-bit integers msta takes"),
+    (["--sensors", "[a\nb]"], "--sensors must be text without control characters"),
+])
+def test_the_spaced_spelling_is_checked_as_the_equals_one(argv, says, capsys):
+    """``--option value`` gets the checks of ``--option=value``."""
+    with pytest.raises(SystemExit):
+        parse_config(_Text, argv, "prog")
+    assert says in capsys.readouterr().err

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from msta.data import stats as S
@@ -103,3 +104,45 @@ def test_uncommitted_files_are_ignored_then_moved_aside(tmp_path, write_dataset,
     assert S.load_stats(root)["action"]["count"].tolist() == [15]  # recomputed, not 22
     np.testing.assert_array_equal(wd.get_batch(np.array([11]))["command"][0, 1],
                                   synth.episode(4, 9)["observation.command"][0])
+
+
+class _Killed(BaseException):
+    """A kill at one write of the commit (BaseException: nothing catches it on the way)."""
+
+
+@pytest.mark.parametrize("kill_at", ["manifest", "meta/msta.json", "meta/tasks.parquet",
+                                     "meta/info.json"])
+def test_a_kill_inside_a_commit_that_replaces_msta_json_and_tasks_reopens(tmp_path, synth,
+                                                                        monkeypatch, kill_at):
+    """A flush that changes meta/msta.json (a new recording block) and meta/tasks.parquet (a
+    new task) killed at each of the commit's writes: the dataset reopens (those files match
+    the committed generation or the pending one) and holds the committed episodes or all."""
+    from msta.data import writer as W
+    from msta.data.msta_json import add_recording
+
+    root = tmp_path / "ds"
+    with DatasetWriter.create(root, "local/test") as w:
+        w.add_episode(synth.episode(5, 0), synth.provenance(0))
+    real = W._atomic_write
+
+    def write(path, fill):
+        if path.as_posix().endswith(MANIFEST_PATH if kill_at == "manifest" else kill_at):
+            raise _Killed
+        return real(path, fill)
+
+    w = DatasetWriter.open(root)
+    assert add_recording(w.msta_meta, 1, {"teacher": "gait"})
+    w.meta_changed()
+    w.add_episode(synth.episode(6, 1), {**synth.provenance(1), "terrain": "stairs_up"})
+    monkeypatch.setattr(W, "_atomic_write", write)
+    with pytest.raises(_Killed):
+        w.flush()
+    monkeypatch.setattr(W, "_atomic_write", real)
+    import os
+
+    os.close(w._lock_fd)  # the killed process's lock goes with it
+    w._lock_fd = None
+    with DatasetWriter.open(root) as again:
+        assert again.num_episodes == 1  # the commit point was not reached
+        again.add_episode(synth.episode(4, 2), synth.provenance(2))
+    assert len(load_episode_table(root)) == 2

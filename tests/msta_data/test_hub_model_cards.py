@@ -26,7 +26,7 @@ from msta.data.hub_model_card import LEROBOT_RUNTIME_FIELDS
 from msta.data.hub_push import push
 from msta.data.stats import load_stats
 from msta.policies.factory import load_policy, make_policy
-from msta.policies.msta import MSTAConfig
+from msta.policies.msta.configuration_msta import MSTAConfig
 
 BIN = Path(sys.executable).parent
 SECRET = "alice-secret-0001"

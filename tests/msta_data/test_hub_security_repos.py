@@ -156,3 +156,20 @@ def test_repo_ids_are_case_insensitive_like_the_hub(srv):
     assert H.call(srv, "GET", "/api/models/alice/Pub", token=ALICE)[0] == 404
     assert api.create_repo("alice/pub").repo_id == "alice/pub"
     assert H.call(srv, "GET", "/api/models/bob/PUB", token=BOB)[0] == 404
+
+
+@pytest.mark.parametrize("tokens,orgs,says", [
+    (["alice:secret-1a", "Alice:secret-2a"], [], "users 'Alice' and 'alice' differ only in case"),
+    (["acme:secret-1a"], ["ACME:acme"], "organisation 'ACME' has the same name as a user"),
+    (["bob:secret-1a"], ["Team:bob", "team:bob"],
+     "organisations 'Team' and 'team' differ only in case"),
+])
+def test_names_that_differ_only_in_case_are_refused_at_start(tokens, orgs, says):
+    """Repo ids ignore case, so user and organisation names must too: otherwise a user could
+    hold the names of another's repos, and a 409 would name a private repo."""
+    from msta.data.hub_server.auth import AuthConfig
+
+    with pytest.raises(ValueError, match=says):
+        AuthConfig.from_specs(tokens, orgs)
+    ok = AuthConfig.from_specs(["alice:secret-1a", "alice:secret-2a"], ["team:alice"])
+    assert ok.orgs_of("alice") == ["team"]

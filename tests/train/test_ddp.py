@@ -193,3 +193,15 @@ def test_a_bad_join_timeout_is_one_line(synthetic_dataset, tmp_path, monkeypatch
         monkeypatch.setenv(name, value)
     with pytest.raises(SystemExit, match=r"MSTA_DDP_JOIN_TIMEOUT_S='nan' must be seconds in"):
         main([f"--dataset={synthetic_dataset}", f"--output_dir={tmp_path / 'o'}", *FLAGS])
+
+
+def test_after_the_job_forms_a_rank_waits_longer_than_the_join_limit():
+    """The join is bounded (MSTA_DDP_JOIN_TIMEOUT_S); the wait for rank 0's next loop is
+    not: rank 1 waits 5 s for rank 0 under a 2 s join limit."""
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2",
+           str(REPO / "tests/train/ddp_slow_rank0.py")]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "MSTA_DDP_JOIN_TIMEOUT_S": "2"}
+    res = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300,
+                         check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "rank 0: done" in res.stdout and "rank 1: done" in res.stdout

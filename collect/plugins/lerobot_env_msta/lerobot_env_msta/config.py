@@ -88,7 +88,7 @@ class MstaA1EnvConfig(EnvConfig):
     video_robots: int = 10
     """robots of each terrain filmed; the others get a gray frame. lerobot-eval keeps the
     first --eval.max_episodes_rendered (10 by default) and drops the rest, so filming more
-    only costs time; raise it with --eval.max_episodes_rendered."""
+    only costs time; when you raise --eval.max_episodes_rendered, raise this to the same."""
     video_shadows: bool = False
     """draw shadows in the videos (about 4x the time of a frame with software OpenGL)."""
     video_width: int = 320
