@@ -36,13 +36,12 @@ from msta.policies.checkpoint import (
     PROCESSOR_NAME,
     WEIGHTS_NAME,
     CheckpointError,
-    load_weights,
-    param_limit,
     read_json_file,
 )
 from msta.policies.config import PolicyConfig, check_fraction
 from msta.policies.processor import Batch, Channels, StudentProcessor
 from msta.policies.resolve import resolve_pretrained
+from msta.policies.weights import load_weights, param_limit
 
 #: Per-sample channel removal: sensor name -> (B, dim) bool over the sensor's full channels
 #: (tensor or numpy), True = removed at every step of that sample's window.

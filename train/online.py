@@ -54,9 +54,9 @@ from msta.data.windows import episode_split, load_episode_table
 from msta.data.writer import DatasetWriter
 from msta.policies.actor import InputSpec, SplitActor, StudentActor, mask_split_actor
 from msta.policies.base import StudentPolicy
-from msta.policies.checkpoint import weights_revision
 from msta.policies.factory import load_policy, select_device
 from msta.policies.teacher.config import build_teacher, teacher_revision
+from msta.policies.weights import weights_revision
 from msta.train.cli import USER_ERRORS, parse_cli
 from msta.train.config import LoopConfig, training_mask_ratio
 from msta.train.correct_config import CorrectConfig

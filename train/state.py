@@ -16,7 +16,8 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
 from msta.policies.base import StudentPolicy
-from msta.policies.checkpoint import WEIGHTS_NAME, CheckpointError, load_weights
+from msta.policies.checkpoint import WEIGHTS_NAME, CheckpointError
+from msta.policies.weights import load_weights
 from msta.train.sampling import WindowSampler
 
 if TYPE_CHECKING:

@@ -20,10 +20,11 @@ from msta.collect.sim.terrain import TerrainConfig
 from msta.data.budget import TimeLimitReached
 from msta.data.stats import load_stats
 from msta.data.windows import WindowDataset, load_episode_table
-from msta.policies.checkpoint import PolicyPath, weights_revision
+from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig, MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
+from msta.policies.weights import weights_revision
 from msta.train.correct_config import CorrectConfig
 from msta.train.correct_progress import CorrectProgress
 from msta.train.online import correct, main
