@@ -36,9 +36,11 @@ def _quarantined(root: Path) -> dict[str, bytes]:
 
 
 def _resume(root: Path, episodes: int) -> subprocess.CompletedProcess:
-    """``msta-collect --resume`` as a subprocess (what a user runs)."""
+    """``msta-collect --resume`` as a subprocess (what a user runs); the zero teacher extends
+    the synthetic datasets' gait episodes, a mix asked for."""
     return subprocess.run([sys.executable, "-m", "msta.collect.record", f"--root={root}",
-                           "--resume=true", f"--episodes={episodes}", *SMALL], cwd=REPO,
+                           "--resume=true", f"--episodes={episodes}", *SMALL,
+                           "--allow_mixed_settings=true"], cwd=REPO,
                           capture_output=True, text=True, timeout=300, check=False)
 
 
