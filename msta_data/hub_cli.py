@@ -73,6 +73,12 @@ class ServeConfig:
             (more get 429).
         max_open_connections: open connections (idle, sending headers or served); more get 503.
         max_open_per_client: open connections from one IP address.
+        max_user_connections: requests one user serves at once (an LFS upload counts for the
+            user whose ticket it carries); more get 429, so other users keep their slots.
+        max_user_body_bytes: bytes of request bodies one user (without a token: one address)
+            has in progress at once; more get 429 (a principal's only request always passes).
+        max_user_tickets: open LFS upload tickets of one user; a batch beyond gets 429.
+        max_tickets: open LFS upload tickets in all; a batch beyond gets 503.
         verbose: log requests and progress (serve always logs requests).
     """
 
@@ -96,6 +102,10 @@ class ServeConfig:
     max_anonymous_per_client: int = _LIMITS.max_anonymous_per_client
     max_open_connections: int = _LIMITS.max_open_connections
     max_open_per_client: int = _LIMITS.max_open_per_client
+    max_user_connections: int = _LIMITS.max_user_connections
+    max_user_body_bytes: int = _LIMITS.max_user_body_bytes
+    max_user_tickets: int = _LIMITS.max_user_tickets
+    max_tickets: int = _LIMITS.max_tickets
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -111,7 +121,11 @@ class ServeConfig:
                       header_timeout_s=self.header_timeout, max_card_bytes=self.max_card_bytes,
                       max_connections=self.max_connections, max_anonymous=self.max_anonymous,
                       max_anonymous_per_client=self.max_anonymous_per_client,
-                      max_open_connections=self.max_open_connections, max_open_per_client=self.max_open_per_client)
+                      max_open_connections=self.max_open_connections,
+                      max_open_per_client=self.max_open_per_client,
+                      max_user_connections=self.max_user_connections,
+                      max_user_body_bytes=self.max_user_body_bytes,
+                      max_user_tickets=self.max_user_tickets, max_tickets=self.max_tickets)
 
 
 @dataclass

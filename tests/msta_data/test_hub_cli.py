@@ -74,3 +74,12 @@ def test_versions_text_keeps_lines_short():
     shown = sum(line.count("=") for line in lines[2:4])
     assert lines[4].strip() == f"... {len(metrics) - shown} more metrics (--json lists them all)"
     assert lines[-1].strip() == "total=0.9"
+
+
+def test_serve_sets_every_per_user_budget_from_its_command_line(tmp_path):
+    _, cfg = parse_command(["serve", "--root", str(tmp_path), "--max_user_connections=3",
+                            "--max_user_body_bytes=1000", "--max_user_tickets=7",
+                            "--max_tickets=9"])
+    limits = cfg.limits()
+    assert (limits.max_user_connections, limits.max_user_body_bytes, limits.max_user_tickets,
+            limits.max_tickets) == (3, 1000, 7, 9)
