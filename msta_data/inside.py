@@ -49,23 +49,28 @@ def inside(root: str | Path, path: str | Path, *, what: str = "root") -> Path:
     return full
 
 
-def links_under(root: str | Path) -> list[str]:
-    """Relative paths of the symbolic links under ``root`` (none followed), sorted."""
-    root = Path(root)
-    found = []
+def _walk(root: Path) -> tuple[dict[str, Path], list[str]]:
+    """One pass over ``root``, no link followed: its regular files by relative POSIX path,
+    and the relative paths of its symbolic links, both sorted."""
+    files_found: dict[str, Path] = {}
+    links: list[str] = []
     for folder, dirs, files in os.walk(root, followlinks=False):
         for name in dirs + files:
             path = Path(folder) / name
+            rel = path.relative_to(root).as_posix()
             if path.is_symlink():
-                found.append(path.relative_to(root).as_posix())
-    return sorted(found)
+                links.append(rel)
+            elif name in files and path.is_file():
+                files_found[rel] = path
+    return dict(sorted(files_found.items())), sorted(links)
 
 
-def refuse_links(root: str | Path, *, what: str = "root",
-                 error: type[Exception] = PathOutsideRootError) -> None:
-    """Raise ``error`` when a symbolic link is anywhere under ``root`` (the links named): what
-    a writer checks before it moves or rewrites files in a root."""
-    found = links_under(root)
+def links_under(root: str | Path) -> list[str]:
+    """Relative paths of the symbolic links under ``root`` (none followed), sorted."""
+    return _walk(Path(root))[1]
+
+
+def _refuse(root: str | Path, found: list[str], what: str, error: type[Exception]) -> None:
     if found:
         shown = ", ".join(found[:4]) + (f" and {len(found) - 4} more" if len(found) > 4 else "")
         raise error(
@@ -73,9 +78,17 @@ def refuse_links(root: str | Path, *, what: str = "root",
             "out of a root, replace them with the files themselves")
 
 
+def refuse_links(root: str | Path, *, what: str = "root",
+                 error: type[Exception] = PathOutsideRootError) -> None:
+    """Raise ``error`` when a symbolic link is anywhere under ``root`` (the links named): what
+    a writer checks before it moves or rewrites files in a root."""
+    _refuse(root, links_under(root), what, error)
+
+
 def files_under(root: str | Path, *, what: str = "root",
                 links: str = "refuse") -> dict[str, Path]:
-    """The regular files under ``root`` by relative POSIX path, no symbolic link followed.
+    """The regular files under ``root`` by relative POSIX path, no symbolic link followed
+    (one pass over the tree).
 
     Args:
         root: the folder to list.
@@ -89,15 +102,7 @@ def files_under(root: str | Path, *, what: str = "root",
     """
     if links not in ("refuse", "skip"):
         raise ValueError(f"links={links!r}: expected 'refuse' or 'skip'")
-    root = Path(root)
+    found, linked = _walk(Path(root))
     if links == "refuse":
-        refuse_links(root, what=what)
-    out: dict[str, Path] = {}
-    for folder, dirs, files in os.walk(root, followlinks=False):
-        dirs.sort()
-        for name in sorted(files):
-            path = Path(folder) / name
-            if path.is_symlink() or not path.is_file():
-                continue
-            out[path.relative_to(root).as_posix()] = path
-    return dict(sorted(out.items()))
+        _refuse(root, linked, what, PathOutsideRootError)
+    return found
