@@ -4,10 +4,10 @@ provenance columns) and the settings each recording session used.
 ``recordings`` is a list of blocks, one per change of settings, each ``{"from_episode": k,
 <settings>}``: an episode ``e`` that msta-collect recorded was recorded with the last block
 whose ``from_episode`` is at most ``e`` (stage 2's appended episodes, ``provenance/source``
-``student``, are described by their provenance columns alone). ``msta-collect`` writes the settings a session records with (teacher and its
-revision, episode length, terrains and levels, action noise); ``--resume`` compares them with
-the dataset's and refuses a difference unless mixing is asked for, when a new block starts
-at the first new episode. A dataset recorded before the blocks existed has none: only its
+``student``, are described by their provenance columns alone). ``msta-collect`` writes the
+settings a session records with (teacher and its revision, episode length, terrains and
+levels, action noise); ``--resume`` compares them with the dataset's and refuses a
+difference unless mixing is asked for, when a new block starts at the first new episode. A dataset recorded before the blocks existed has none: only its
 episodes' provenance (the teacher) can be compared.
 """
 
@@ -56,9 +56,11 @@ def recorded_settings(msta_meta: dict[str, Any], episodes: int) -> dict[str, Any
     """The settings of the last block that covers one of the first ``episodes`` episodes
     (without ``from_episode``), or None when the dataset records none."""
     blocks = [b for b in msta_meta.get(RECORDINGS, []) if b["from_episode"] < episodes]
-    if not blocks:
-        return None
-    return {k: v for k, v in blocks[-1].items() if k != "from_episode"}
+    return _settings(blocks[-1]) if blocks else None
+
+
+def _settings(block: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in block.items() if k != "from_episode"}
 
 
 def differences(recorded: dict[str, Any], wanted: dict[str, Any]) -> list[str]:
@@ -77,7 +79,7 @@ def add_recording(msta_meta: dict[str, Any], start: int, settings: dict[str, Any
     settings = json.loads(json.dumps(settings))
     old = list(msta_meta.get(RECORDINGS, []))
     blocks = [b for b in old if b["from_episode"] < start]
-    if not (blocks and {k: v for k, v in blocks[-1].items() if k != "from_episode"} == settings):
+    if not (blocks and _settings(blocks[-1]) == settings):
         blocks.append({"from_episode": int(start), **settings})
     msta_meta[RECORDINGS] = blocks
     return blocks != old
