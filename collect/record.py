@@ -23,7 +23,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,9 +40,10 @@ from msta.data.layout import LOCK_NAME
 from msta.data.lerobot_edits import UNKNOWN
 from msta.data.msta_json import add_recording, differences, recorded_settings
 from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
-from msta.data.windows import load_episode_table
-from msta.data.writer import DatasetWriter
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+
+if TYPE_CHECKING:
+    from msta.data.writer import DatasetWriter
 
 
 @dataclass
@@ -115,6 +116,9 @@ class CollectConfig(RayOptions):
 
 def _existing_dataset(cfg: CollectConfig, root: Path) -> DatasetWriter | None:
     """The verified writer of the dataset at ``root`` to extend, or None for a new one."""
+    # lazy: pandas and pyarrow load after the command line is parsed (--help at once)
+    from msta.data.writer import DatasetWriter
+
     if layout.is_dataset_root(root):
         have = int(load_info(root)["total_episodes"])
         if cfg.resume or have == 0:  # an empty dataset is what a failed first run leaves
@@ -148,6 +152,8 @@ def check_same_settings(cfg: CollectConfig, writer: DatasetWriter,
     have = writer.num_episodes
     recorded = recorded_settings(writer.msta_meta, have)
     if recorded is None:
+        from msta.data.windows import load_episode_table  # lazy: pandas, an old dataset only
+
         policies = set(load_episode_table(writer.root)["provenance/policy"]) - {UNKNOWN}
         recorded = {"teacher": policies.pop()} if len(policies) == 1 else {}
         settings = {k: v for k, v in settings.items() if k in recorded}
@@ -185,6 +191,8 @@ def collect(cfg: CollectConfig) -> Path:
         if cfg.workers:  # the workers too: a cluster that does not answer creates no file
             shared_pool(cfg.workers, cfg.ray_address)
         if writer is None:
+            from msta.data.writer import DatasetWriter  # lazy: pandas and pyarrow (--help)
+
             writer = DatasetWriter.create(root, cfg.repo_id,
                                           sensors=(*DEFAULT_RECORDED, *cfg.extra),
                                           flush_every_frames=cfg.flush_every_frames)

@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import msta.policies.teacher  # noqa: F401  (registers the built-in teachers)
 from msta.collect.rollout import film, run
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig

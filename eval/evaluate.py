@@ -56,7 +56,7 @@ from msta.eval.sensor_faults import is_fault_run, load_guard
 from msta.eval.trial_env import make_env, torch_eval_settings
 from msta.policies.actor import StudentActor
 from msta.policies.factory import select_device
-from msta.policies.teacher.base import TEACHERS
+from msta.policies.teacher.base import teacher_names
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 
@@ -193,7 +193,7 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
         path = locate(source, "model", "--policies")
     except FileNotFoundError as e:
         raise FileNotFoundError(f"{e} (teachers: 'teacher' or 'teacher:<type>' with type in "
-                                f"{sorted(TEACHERS)})") from None
+                                f"{teacher_names()})") from None
     name = source if reads_as_hub_id(source) else local_name(Path(source))
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
                          device=str(cfg.torch_device))

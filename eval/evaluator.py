@@ -35,8 +35,9 @@ from msta.eval.sensor_faults import (
 )
 from msta.eval.trial_env import make_env
 from msta.eval.trials_pool import run_trials_on_workers
-from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.actor import StudentActor
 from msta.policies.factory import load_policy
+from msta.policies.input_spec import InputSpec
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 METRICS_VERSION = 2  # 2: trials and 95 % intervals per cell, per-level averages, run inputs

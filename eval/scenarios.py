@@ -45,7 +45,7 @@ from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.checks import check_at_least
 from msta.data.robot import NUM_JOINTS
 from msta.eval.metrics import TrialLayout
-from msta.policies.actor import InputSpec
+from msta.policies.input_spec import InputSpec
 
 #: The paper's five terrain types (legged_gym curriculum); "flat" may be added by the user.
 PAPER_TERRAINS: tuple[str, ...] = (

@@ -1,7 +1,7 @@
 """The config every student starts from: the fields all students have, checked once.
 
 :class:`PolicyConfig` is a draccus choice type: a student's config subclasses it and is
-registered under the policy's name by :func:`msta.policies.factory.register_policy`, so
+registered under the policy's name by :func:`msta.policies.registry.register_policy`, so
 ``--policy.type=<name>`` selects it and ``config.json`` records it as ``"type"``. The fields
 declared here (sensors, window length, mask ratio, action target, presets) exist on every
 student config, so code handed any student reads ``config.history`` directly.

@@ -66,7 +66,8 @@ from msta.policies.export_removal import (
     removal_spec,
     trace_masks,
 )
-from msta.policies.factory import get_policy_class, load_policy
+from msta.policies.factory import load_policy
+from msta.policies.registry import get_policy_class
 from msta.policies.resolve import resolve_pretrained
 
 __all__ = [

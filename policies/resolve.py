@@ -24,7 +24,7 @@ def resolve_pretrained(path_or_repo_id: str | Path, revision: str | None = None,
             (once per commit, hash-verified) from ``HF_ENDPOINT``.
         revision: hub revision (branch, tag or commit) when the id carries none.
         policy_class: policy name -> the student class that reads a LeRobot checkpoint
-            (:func:`msta.policies.factory.get_policy_class`).
+            (:func:`msta.policies.registry.get_policy_class`).
         what: the option or argument the path came from, for messages (``--policy.path``).
 
     Returns:

@@ -116,7 +116,8 @@ def tiny_student(name: str, overrides: dict, root: Path):
     """A tiny ``name`` student (``overrides`` on its preset) with the dataset ``root``'s
     statistics and large random weights (seeded): its actions vary with its inputs."""
     from msta.data.stats import load_stats
-    from msta.policies.factory import get_config_class, make_policy
+    from msta.policies.factory import make_policy
+    from msta.policies.registry import get_config_class
 
     torch.manual_seed(0)
     cfg = get_config_class(name).from_preset("tiny", **overrides)

@@ -35,9 +35,9 @@ from msta.eval.teacher_report import TeacherReportConfig
 from msta.policies.export import ExportConfig
 from msta.train.cli import parse_cli
 from msta.train.guard_fit import GuardCommand
-from msta.train.offline import TrainConfig
 from msta.train.online import parse_args as correct_args
 from msta.train.teacher.cli import TrainTeacherConfig
+from msta.train.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -22,7 +22,7 @@ import pytest
 from msta.eval.apps.demo import DemoConfig
 from msta.policies.teacher.config import SHIPPED_RMA_PPO
 from msta.train.correct_config import CorrectConfig
-from msta.train.offline import TrainConfig
+from msta.train.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[1]
 

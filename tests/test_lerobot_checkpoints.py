@@ -22,8 +22,9 @@ from msta.eval.evaluate import main as eval_main
 from msta.policies.checkpoint import LEROBOT_PREPROCESSOR, CheckpointError
 from msta.policies.config import PolicyConfig
 from msta.policies.export import main as export_main
-from msta.policies.factory import get_policy_class, load_config, load_policy
+from msta.policies.factory import load_config, load_policy
 from msta.policies.lerobot_checkpoint import as_msta_checkpoint
+from msta.policies.registry import get_policy_class
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.guard_fit import main as guard_main
 

@@ -21,9 +21,8 @@ from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.correct_config import CorrectConfig
-from msta.train.online import correct
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
+from msta.train.stage2 import correct
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1, border=2.0)
 ENV = EnvConfig(nthread=1, terrain=TERRAIN, randomization=RandomizationConfig(pool_size=2))

@@ -12,7 +12,7 @@ from msta.data.cli import parse_config, usage_error
 from msta.data.errors import DatasetError, DirectoryLockedError
 from msta.policies.checkpoint import CheckpointError
 from msta.policies.config import PolicyConfig
-from msta.policies.factory import registered_policies
+from msta.policies.registry import register_builtin_configs, registered_policies
 from msta.train.push import PushError
 
 _PRESET = re.compile(r"^--policy\.preset(?:=(.*))?$")
@@ -34,8 +34,8 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
         prog: program name for the usage message.
         aliases: nested option -> the top-level option that decides it (parse_config).
     """
-    registered_policies()  # registers every built-in policy type with draccus before parsing
     args = list(sys.argv[1:] if argv is None else argv)
+    register_types(args)
     if not builds_a_policy(config_class):  # --policy.path (a trained student): plain parsing
         return parse_config(config_class, args, prog, aliases=aliases)
     preset, rest = None, []
@@ -62,6 +62,18 @@ def parse_cli[T](config_class: type[T], argv: Sequence[str] | None, prog: str,
             raise usage_error(f"{prog}: error: {e.args[0]}") from None
         cfg = replace(cfg, policy=new)  # type: ignore[type-var]
     return cfg
+
+
+def register_types(args: Sequence[str]) -> None:
+    """Register the policy types a command line can name before it is parsed: the built-in
+    configs (no torch, so ``--help`` answers at once), and every registered student's (their
+    models imported) when ``args`` name a type those configs do not or read a config file."""
+    register_builtin_configs()
+    known = PolicyConfig.get_known_choices()
+    named = [b if a == "--policy.type" else a.partition("=")[2]
+             for a, b in zip(args, [*args[1:], ""]) if a.partition("=")[0] == "--policy.type"]
+    if any(n not in known for n in named) or any(a.startswith("--config_path") for a in args):
+        registered_policies()
 
 
 def builds_a_policy(config_class: type) -> bool:

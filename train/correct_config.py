@@ -13,13 +13,15 @@ from msta.collect.ray_pool import RayOptions, check_ray_options
 from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.data.checks import check_at_least
 from msta.data.threads import check_threads
-from msta.policies.actor import InputSpec
+from msta.eval.scenarios import TrialConfig
 from msta.policies.checkpoint import PolicyPath
+from msta.policies.input_spec import InputSpec
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import LoopConfig
 from msta.train.push import check_push_to
-from msta.train.round_eval import RoundEvalConfig
 
+#: The run directory's record of every round's phases (:mod:`msta.train.correct_progress`).
+PROGRESS = "progress.json"
 #: Fields that must match progress.json when resuming (they define the data).
 RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs",
                  "episode_length_s", "env", "beta", "beta_decay", "rollout", "seed",
@@ -28,6 +30,32 @@ RESUME_FIELDS = ("policy", "dataset", "teacher", "episodes_per_round", "num_envs
 #: Values of RESUME_FIELDS in progress.json files written before the field existed.
 RESUME_LEGACY = {"levels_from_dataset": False, "teacher_follows_robot": False,
                  "keep_unfinished": False, "rollout_mask_ratios": []}
+
+
+@dataclass
+class RoundEvalConfig(TrialConfig):
+    """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
+    on msta-eval's trials (``msta.eval.evaluator.Evaluator``: the same trial layout, per-trial
+    random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
+    figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
+    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
+    seed and device type; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
+    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
+    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
+    """
+
+    enabled: bool = True
+    """evaluate the starting checkpoint (round 0) and every round (false: no per-round table
+    and no figures on the model card)."""
+    mask_ratios: tuple[float, ...] = (0.0, 0.5)
+    """test-time token-removal ratios evaluated for the student (0.5 = msta-eval's
+    "mask 50" condition)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.mask_ratios = tuple(float(m) for m in self.mask_ratios)
+        if not self.mask_ratios or not all(0.0 <= m < 1.0 for m in self.mask_ratios):
+            raise ValueError(f"eval.mask_ratios={self.mask_ratios} must be values in [0, 1)")
 
 
 @dataclass

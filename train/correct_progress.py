@@ -41,10 +41,9 @@ from msta.eval.report import CI_NOTE, identical_groups, identical_line
 from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
 from msta.policies.factory import load_config
 from msta.policies.teacher.config import teacher_revision
-from msta.train.correct_config import RESUME_LEGACY, CorrectConfig
+from msta.train.correct_config import PROGRESS, RESUME_LEGACY, CorrectConfig
 from msta.train.state import atomic_json
 
-PROGRESS = "progress.json"
 PROGRESS_FORMAT = "msta-correct/1"
 
 

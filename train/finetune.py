@@ -53,7 +53,7 @@ from msta.policies.msta import MSTAPolicy
 from msta.train import online
 from msta.train.correct_config import RESUME_FIELDS, CorrectConfig
 from msta.train.correct_progress import CorrectProgress
-from msta.train.online import PhaseHook, correct
+from msta.train.stage2 import PhaseHook, correct
 from msta.train.state import atomic_json
 
 RECORD = "finetune.json"

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-from msta.data.windows import WindowDataset, load_episode_table
 from msta.policies.guard import (
     INPUT_SENSORS,
     P,
@@ -23,6 +22,9 @@ def load_episodes(root: str | Path, episodes: list[int] | None = None) -> Episod
     """The guard's inputs of ``episodes`` (None: all) as ``{sensor: (E, Tmax, dim)}``
     float64, each episode padded by repeating its last frame, plus ``length`` (E,) and
     ``terrain`` (E,) (the dataset's ``provenance/terrain``; "" when not recorded)."""
+    # lazy: pandas loads when a dataset is read, not for msta-guard --help
+    from msta.data.windows import WindowDataset, load_episode_table
+
     ds = WindowDataset(root, INPUT_SENSORS, T=1, extra_columns=(), episodes=episodes,
                        verify="sizes")
     batch = ds.get_batch(np.arange(len(ds)))

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 
 from msta.data.cli import parse_config
-from msta.data.windows import episode_split
 from msta.policies.guard import (
     CONTACT_INPUTS,
     CONTACTS,
@@ -227,6 +226,8 @@ def run(cmd: GuardCommand) -> dict:
         path = save_guard(guard, cmd.output_dir)
         print(f"msta-guard: saved {path}")
         return {"path": str(path)}
+
+    from msta.data.windows import episode_split  # lazy: pandas after parsing (--help)
 
     train_eps, held = episode_split(cmd.dataset, cmd.val_fraction, cmd.seed)
     guard = fit_guard(cmd.dataset, train_eps, cfg=cfg)

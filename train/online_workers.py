@@ -29,8 +29,9 @@ from msta.collect.ray_pool import RayOptions, block_seed, check_ray_options, sha
 from msta.collect.ray_record import RecordJob, record_on_workers
 from msta.collect.recorder import LabelledActor
 from msta.data.sensors import DEFAULT_RECORDED
-from msta.policies.actor import InputSpec, mask_split_actor
+from msta.policies.actor import mask_split_actor
 from msta.policies.base import StudentPolicy
+from msta.policies.input_spec import InputSpec
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 
 

@@ -12,42 +12,16 @@ on the same device type report the same figures.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from msta.eval.evaluator import Evaluator, student_entry
-from msta.eval.scenarios import ScenarioContext, TrialConfig, get_scenario
+from msta.eval.scenarios import ScenarioContext, get_scenario
 from msta.eval.trial_env import torch_eval_settings
 from msta.policies.teacher.config import TeacherConfig
-
-
-@dataclass
-class RoundEvalConfig(TrialConfig):
-    """The per-round evaluation: msta-eval's ``token_removal`` conditions at ``mask_ratios``
-    on msta-eval's trials (``msta.eval.evaluator.Evaluator``: the same trial layout, per-trial
-    random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
-    figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
-    --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
-    seed and device type; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
-    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
-    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
-    """
-
-    enabled: bool = True
-    """evaluate the starting checkpoint (round 0) and every round (false: no per-round table
-    and no figures on the model card)."""
-    mask_ratios: tuple[float, ...] = (0.0, 0.5)
-    """test-time token-removal ratios evaluated for the student (0.5 = msta-eval's
-    "mask 50" condition)."""
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.mask_ratios = tuple(float(m) for m in self.mask_ratios)
-        if not self.mask_ratios or not all(0.0 <= m < 1.0 for m in self.mask_ratios):
-            raise ValueError(f"eval.mask_ratios={self.mask_ratios} must be values in [0, 1)")
+from msta.train.correct_config import RoundEvalConfig
 
 
 class RoundEvaluator:

@@ -46,14 +46,14 @@ from msta.eval.apps.phases import PhaseLog
 from msta.eval.evaluate import EvalConfig, evaluate
 from msta.eval.report import table_one
 from msta.policies.checkpoint import PolicyPath
-from msta.policies.factory import get_config_class, registered_policies
+from msta.policies.registry import get_config_class, registered_policies
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, check_optimizer, training_mask_ratio
-from msta.train.correct_config import CorrectConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
 from msta.train.loop import rank0_runs
-from msta.train.offline import TrainConfig, train
-from msta.train.online import correct
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.stage1 import train
+from msta.train.stage2 import correct
+from msta.train.train_config import TrainConfig
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.

@@ -49,10 +49,10 @@ from msta.policies.factory import load_policy, select_device
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
-from msta.train.correct_config import CorrectConfig
-from msta.train.offline import TrainConfig, train
-from msta.train.online import correct
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
+from msta.train.stage1 import train
+from msta.train.stage2 import correct
+from msta.train.train_config import TrainConfig
 
 #: scale -> (episodes, episode s, gpu steps, cpu steps, batch, round episodes, round steps,
 #: eval trials, eval episode s, preset)

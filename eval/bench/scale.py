@@ -49,7 +49,7 @@ from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.correct_config import CorrectConfig
-from msta.train.online import drive_and_label
+from msta.train.stage2 import drive_and_label
 
 #: What each stage's figure counts, per second of wall clock.
 UNITS = {"collect": "frames/s", "stage2": "frames/s", "eval": "trial steps/s"}

@@ -32,18 +32,10 @@ from torch import Tensor, nn
 
 from msta.data import sensors
 from msta.policies.base import Absent, StudentPolicy, uniform
-from msta.policies.config import PolicyConfig
+from msta.policies.baselines.configs import TimestepConfig
 from msta.policies.processor import Batch, Channels, StudentProcessor
 
 FORMAT = "timestep-processor/1"
-
-
-@dataclass
-class TimestepConfig(PolicyConfig):
-    """Base of the timestep-level baselines' configs (not registered itself); its fields
-    are :class:`msta.policies.config.PolicyConfig`'s (``mask_ratio``: fraction of the input
-    scalars replaced by their placeholder per sample during training; 0: placeholders are
-    never trained)."""
 
 
 @dataclass

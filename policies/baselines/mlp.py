@@ -9,37 +9,11 @@ weights are tied to one window length: a window of another T raises.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, ClassVar
-
 from torch import Tensor, nn
 
-from msta.policies.baselines.common import TimestepConfig, TimestepPolicy, TimestepProcessor
-from msta.policies.factory import register_policy
-
-
-@dataclass
-class MLPConfig(TimestepConfig):
-    """Window MLP student (shared fields: :class:`msta.policies.config.PolicyConfig`'s;
-    ``head_hidden_dim`` is unused).
-
-    Args:
-        hidden_dims: widths of the hidden ELU layers.
-    """
-
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
-        "paper": {},
-        "cpu": {},
-        "tiny": {"hidden_dims": (32,)},
-    }
-
-    hidden_dims: tuple[int, ...] = (256, 256)
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.hidden_dims = tuple(int(h) for h in self.hidden_dims)
-        if not self.hidden_dims or min(self.hidden_dims) < 1:
-            raise ValueError(f"hidden_dims must be one or more widths >= 1, got {self.hidden_dims}")
+from msta.policies.baselines.common import TimestepPolicy, TimestepProcessor
+from msta.policies.baselines.configs import MLPConfig
+from msta.policies.registry import register_policy
 
 
 @register_policy("mlp", kind="reference")

@@ -12,90 +12,11 @@ targets (RMA's module predicts the teacher's latent; here every student predicts
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, ClassVar
-
 from torch import Tensor, nn
 
-from msta.policies.baselines.common import (
-    TimestepConfig,
-    TimestepPolicy,
-    TimestepProcessor,
-    action_head,
-)
-from msta.policies.factory import register_policy
-
-READOUTS = ("flatten", "mean")
-
-
-@dataclass
-class TCNConfig(TimestepConfig):
-    """RMA's TCN adaptation module as a student (shared fields:
-    :class:`msta.policies.config.PolicyConfig`'s).
-
-    Args:
-        embed_hidden_dim: hidden width of the per-step embedding MLP.
-        embed_dim: per-step embedding width (RMA: 32).
-        conv_channels: channels of every convolution (RMA: 32).
-        conv_kernels: kernel size of each convolution.
-        conv_strides: stride of each convolution (same length as conv_kernels).
-        readout: "flatten" (RMA; fixed T = history) or "mean" (any T >= min_steps).
-    """
-
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
-        "paper": {},
-        "cpu": {"head_hidden_dim": 64},
-        "tiny": {
-            "embed_hidden_dim": 32,
-            "embed_dim": 16,
-            "conv_channels": 16,
-            "head_hidden_dim": 32,
-        },
-    }
-
-    embed_hidden_dim: int = 128
-    embed_dim: int = 32
-    conv_channels: int = 32
-    conv_kernels: tuple[int, ...] = (4, 3, 3)
-    conv_strides: tuple[int, ...] = (2, 1, 1)
-    readout: str = "flatten"
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        self.conv_kernels = tuple(int(k) for k in self.conv_kernels)
-        self.conv_strides = tuple(int(s) for s in self.conv_strides)
-        if len(self.conv_kernels) != len(self.conv_strides) or not self.conv_kernels:
-            raise ValueError(
-                f"conv_kernels {self.conv_kernels} and conv_strides {self.conv_strides} must be "
-                "non-empty and of equal length"
-            )
-        if min(self.conv_kernels + self.conv_strides) < 1:
-            raise ValueError("conv kernels and strides must be >= 1")
-        for key in ("embed_hidden_dim", "embed_dim", "conv_channels"):
-            if getattr(self, key) < 1:
-                raise ValueError(f"{key} must be >= 1, got {getattr(self, key)}")
-        if self.readout not in READOUTS:
-            raise ValueError(f"readout must be one of {READOUTS}, got {self.readout!r}")
-        if self.history < self.min_steps:
-            raise ValueError(
-                f"history {self.history} is shorter than the convolutions need ({self.min_steps}); "
-                "choose smaller conv_kernels / conv_strides (e.g. kernels (3, 3, 3), strides "
-                "(1, 1, 1) need 7 steps)"
-            )
-
-    def out_steps(self, T: int) -> int:
-        """Steps left after the convolutions for a window of T (< 1: too short)."""
-        for k, s in zip(self.conv_kernels, self.conv_strides):
-            T = (T - k) // s + 1 if T >= k else 0
-        return T
-
-    @property
-    def min_steps(self) -> int:
-        """Shortest window the convolutions accept."""
-        T = 1
-        while self.out_steps(T) < 1:
-            T += 1
-        return T
+from msta.policies.baselines.common import TimestepPolicy, TimestepProcessor, action_head
+from msta.policies.baselines.configs import TCNConfig
+from msta.policies.registry import register_policy
 
 
 @register_policy("rma_tcn")

@@ -16,90 +16,19 @@ from attention, so a padded window acts exactly like its shorter unpadded one.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, ClassVar
-
 import torch
 from torch import Tensor, nn
 
-from msta.policies.baselines.common import (
-    TimestepConfig,
-    TimestepPolicy,
-    TimestepProcessor,
-    action_head,
+from msta.policies.baselines.common import TimestepPolicy, TimestepProcessor, action_head
+from msta.policies.baselines.configs import (
+    ACTION_SENSOR,
+    TERTConcatConfig,
+    TERTConfig,
+    TERTMaskConfig,
+    TERTSeparateConfig,
 )
-from msta.policies.config import check_fraction, check_positive
-from msta.policies.factory import register_policy
+from msta.policies.registry import register_policy
 from msta.policies.transformer import init_linears, make_blocks, scale_residuals, sincos_1d
-
-ACTION_SENSOR = "last_action"
-
-
-@dataclass
-class TERTConfig(TimestepConfig):
-    """Transformer over timestep tokens (base of the TERT configs; not registered itself;
-    shared fields: :class:`msta.policies.config.PolicyConfig`'s).
-
-    Args:
-        dim: token width d.
-        num_layers: transformer blocks.
-        num_heads: attention heads (dim must be divisible by it).
-        mlp_ratio: hidden width of each block's MLP relative to dim.
-        dropout: dropout in attention and MLPs.
-        pos_base: base of the sin-cos frequencies.
-    """
-
-    #: one action token and one observation token per step (2T tokens) instead of one
-    SEPARATE_ACTION: ClassVar[bool] = False
-    PRESETS: ClassVar[dict[str, dict[str, Any]]] = {
-        "paper": {},
-        "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 64},
-        "tiny": {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32},
-    }
-
-    dim: int = 128
-    num_layers: int = 4
-    num_heads: int = 4
-    mlp_ratio: float = 2.0
-    dropout: float = 0.0
-    pos_base: float = 10000.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        check_positive(dim=self.dim, num_layers=self.num_layers, num_heads=self.num_heads,
-                       mlp_ratio=self.mlp_ratio, pos_base=self.pos_base)
-        if self.dim % self.num_heads:
-            raise ValueError(f"dim {self.dim} is not divisible by num_heads {self.num_heads}")
-        if self.dim % 2:
-            raise ValueError(f"dim {self.dim} must be even (sin-cos positions)")
-        check_fraction(dropout=self.dropout)
-        if self.SEPARATE_ACTION and (
-            ACTION_SENSOR not in self.input_sensors or len(self.input_sensors) < 2
-        ):
-            raise ValueError(
-                f"{self.type} needs {ACTION_SENSOR!r} and at least one observation sensor in "
-                f"input_sensors, got {self.input_sensors}"
-            )
-
-
-@dataclass
-class TERTConcatConfig(TERTConfig):
-    """TERT with one token per step (concatenated observation and last action)."""
-
-
-@dataclass
-class TERTSeparateConfig(TERTConfig):
-    """TERT with separate observation and action tokens per step (2T tokens)."""
-
-    SEPARATE_ACTION: ClassVar[bool] = True
-
-
-@dataclass
-class TERTMaskConfig(TERTConfig):
-    """The paper's "TERT w/ learnable mask": tert_concat trained with masked inputs replaced
-    by learnable per-channel placeholders (default 75 % of the scalars, MSTA's stage-1 ratio)."""
-
-    mask_ratio: float = 0.75
 
 
 class TERTPolicy(TimestepPolicy):

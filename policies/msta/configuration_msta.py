@@ -1,5 +1,6 @@
-"""MSTA config: a draccus dataclass registered as ``msta`` (``--policy.type=msta``) by
-:func:`msta.policies.factory.register_policy` on :class:`~msta.policies.msta.modeling_msta.MSTAPolicy`.
+"""MSTA config: a draccus dataclass registered as ``msta`` (``--policy.type=msta``) here, no
+torch, and paired with :class:`~msta.policies.msta.modeling_msta.MSTAPolicy` by
+:func:`msta.policies.registry.register_policy`.
 
 Defaults are the ``paper`` preset. The paper fixes d = 128, 256 bins, T = 15 and MLP
 ratio 2.0; it does not state layer or head counts: we use 4 layers and 4 heads
@@ -34,6 +35,7 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 
+@PolicyConfig.register_subclass("msta")
 @dataclass
 class MSTAConfig(PolicyConfig):
     """Masked Sensory-Temporal Attention student (registered as ``msta`` with its policy).

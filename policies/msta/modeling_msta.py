@@ -54,11 +54,11 @@ from torch import Tensor, nn
 
 from msta.data.sensors import get
 from msta.policies.base import Absent, StudentPolicy, uniform
-from msta.policies.factory import register_policy
 from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
 from msta.policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
 from msta.policies.processor import Batch, Channels
+from msta.policies.registry import register_policy
 from msta.policies.transformer import (
     init_linears,
     make_blocks,

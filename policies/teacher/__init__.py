@@ -1,3 +1,3 @@
-"""Teachers: the protocol (base.py) and the built-in implementations, registered by name."""
-
-from msta.policies.teacher import gait, imported, rma  # noqa: F401  (registration)
+"""Teachers: the protocol and registry (base.py) and the built-in implementations, each
+registered by name when its module is imported (:data:`~msta.policies.teacher.base.BUILTIN_TEACHERS`
+names them; :func:`~msta.policies.teacher.base.make_teacher` imports a built-in on first use)."""

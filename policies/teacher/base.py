@@ -11,6 +11,7 @@ starts through ``reset``.
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
@@ -38,6 +39,14 @@ class Teacher(Protocol):
 
 
 TEACHERS: dict[str, Callable[..., Teacher]] = {}
+#: The built-in teachers and the module that registers each, imported on first use (rma and
+#: imported load torch), so a command line checks ``--teacher.type`` without them.
+BUILTIN_TEACHERS: dict[str, str] = {
+    "gait": "msta.policies.teacher.gait",
+    "imported": "msta.policies.teacher.imported",
+    "rma": "msta.policies.teacher.rma",
+    "zero": "msta.policies.teacher.config",
+}
 
 
 def register_teacher(name: str) -> Callable:
@@ -52,10 +61,17 @@ def register_teacher(name: str) -> Callable:
     return wrap
 
 
+def teacher_names() -> list[str]:
+    """Every teacher name a config may give: the registered ones and the built-ins."""
+    return sorted(set(TEACHERS) | set(BUILTIN_TEACHERS))
+
+
 def make_teacher(name: str, **kwargs) -> Teacher:
-    """Build a registered teacher by name."""
+    """Build a registered teacher by name (a built-in's module is imported first)."""
+    if name not in TEACHERS and name in BUILTIN_TEACHERS:
+        importlib.import_module(BUILTIN_TEACHERS[name])
     if name not in TEACHERS:
-        raise KeyError(f"unknown teacher {name!r}; registered: {sorted(TEACHERS)}")
+        raise KeyError(f"unknown teacher {name!r}; registered: {teacher_names()}")
     return TEACHERS[name](**kwargs)
 
 

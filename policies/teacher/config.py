@@ -10,8 +10,7 @@ import numpy as np
 
 from msta.data.revision import content_revision, file_parts
 from msta.data.robot import NUM_JOINTS
-from msta.policies.teacher import gait, imported, rma  # noqa: F401  (registers them)
-from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher, register_teacher
+from msta.policies.teacher.base import Teacher, make_teacher, register_teacher, teacher_names
 
 
 @register_teacher("zero")
@@ -60,8 +59,8 @@ class TeacherConfig:
     def __post_init__(self) -> None:
         if not self.type:
             self.type = "rma"
-        if self.type not in TEACHERS:
-            raise ValueError(f"unknown teacher type {self.type!r}; registered: {sorted(TEACHERS)}")
+        if self.type not in teacher_names():
+            raise ValueError(f"unknown teacher type {self.type!r}; registered: {teacher_names()}")
         if self.type == "rma" and not self.path:
             self.path = str(SHIPPED_RMA_PPO)
         if self.type in PATH_ARGUMENT and not self.path:

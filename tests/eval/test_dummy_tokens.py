@@ -10,7 +10,7 @@ import torch
 from msta.data.stats import load_stats
 from msta.eval.evaluate import main
 from msta.eval.scenarios import SUITES, build_conditions
-from msta.policies.baselines.gru import GRUConfig
+from msta.policies.baselines.configs import GRUConfig
 from msta.policies.factory import make_policy
 
 

@@ -13,7 +13,7 @@ from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
 from msta.eval.evaluator import Evaluator
 from msta.eval.metrics import RETURNS
 from msta.eval.scenarios import Condition
-from msta.policies.actor import InputSpec
+from msta.policies.input_spec import InputSpec
 from msta.policies.teacher.config import TeacherConfig
 
 FAST = {"suite": "quick", "terrains": "flat,smooth_slope", "levels": "0", "progress": False}

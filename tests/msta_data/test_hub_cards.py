@@ -23,7 +23,7 @@ from msta.data.hub_server import HubServer, ServerConfig
 from msta.data.hub_versions import RepoVersions, Version
 from msta.eval.evaluate import EvalConfig
 from msta.train.cli import parse_cli
-from msta.train.offline import TrainConfig
+from msta.train.train_config import TrainConfig
 
 SECRET = "alice-secret-0001"
 
@@ -68,7 +68,7 @@ def student_episodes(synth, n: int, round_: int, seed0: int) -> list:
 def test_the_writer_keeps_the_dataset_card_true_on_every_append(tmp_path, write_dataset, synth):
     from lerobot.datasets.utils import create_lerobot_dataset_card
 
-    from msta.train.online import append_episodes  # msta-correct's own append
+    from msta.train.stage2 import append_episodes
 
     root = tmp_path / "ds"
     write_dataset(root, [4, 5, 6, 7, 3], flush_every_frames=9)  # several commits
@@ -125,7 +125,7 @@ def test_a_readme_of_the_users_own_survives_appends(tmp_path, write_dataset):
 def test_pushed_dataset_cards_say_the_true_counts(server, tmp_path, write_dataset, synth, capsys):
     """Pushed, pulled, appended to by stage 2 and pushed again: every pushed card counts what
     that commit holds; `msta-hub versions --dataset` lists the sizes of each commit."""
-    from msta.train.online import append_episodes
+    from msta.train.stage2 import append_episodes
 
     root = tmp_path / "ds"
     write_dataset(root, [5, 5, 5, 5])

@@ -9,10 +9,12 @@ import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta.data import sensors
-from msta.policies.actor import InputSpec, SplitActor, StudentActor
+from msta.policies.actor import SplitActor, StudentActor
 from msta.policies.baselines import GRUPolicy
-from msta.policies.factory import get_config_class, make_policy
+from msta.policies.factory import make_policy
+from msta.policies.input_spec import InputSpec
 from msta.policies.msta.modeling_msta import num_kept
+from msta.policies.registry import get_config_class
 
 T = 6
 NAMES = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact", "command",

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.actor import StudentActor
+from msta.policies.input_spec import InputSpec
 
 
 class Recorder:

@@ -17,13 +17,8 @@ from msta.data import sensors
 from msta.policies.baselines import BASELINES, REFERENCES, TCNConfig, TERTMaskConfig, TimestepPolicy
 from msta.policies.baselines.common import random_input_mask
 from msta.policies.config import PolicyConfig
-from msta.policies.factory import (
-    get_config_class,
-    load_policy,
-    make_config,
-    make_policy,
-    registered_policies,
-)
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.registry import get_config_class, make_config, registered_policies
 
 T = 15  # the paper's window (RMA's convolutions need >= 12 steps)
 #: every registered baseline and reference learner, plus the TCN variant that accepts any

@@ -15,14 +15,9 @@ from msta_test_helpers import random_batch  # registered by tests/conftest.py
 from msta.data import sensors
 from msta.policies.base import Policy
 from msta.policies.config import PolicyConfig
-from msta.policies.factory import (
-    get_config_class,
-    load_policy,
-    make_config,
-    make_policy,
-    registered_policies,
-)
+from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import PRESETS, MSTAConfig, MSTAPolicy
+from msta.policies.registry import get_config_class, make_config, registered_policies
 
 
 def stats_for(cfg: MSTAConfig) -> dict:

@@ -12,8 +12,9 @@ import torch
 from msta_test_helpers import random_batch  # registered by tests/conftest.py
 
 from msta.data import sensors
-from msta.policies.actor import InputSpec, StudentActor
+from msta.policies.actor import StudentActor
 from msta.policies.factory import make_policy
+from msta.policies.input_spec import InputSpec
 from msta.policies.msta import MSTAConfig, MSTAPolicy
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -17,21 +17,20 @@ import msta.policies.baselines
 from msta.data import sensors
 from msta.data.cli import args_doc
 from msta.data.robot import NUM_JOINTS
-from msta.policies.actor import InputSpec
 from msta.policies.baselines import TimestepPolicy, TimestepProcessor
 from msta.policies.config import PolicyConfig
-from msta.policies.factory import (
+from msta.policies.factory import load_policy, make_policy
+from msta.policies.input_spec import InputSpec
+from msta.policies.processor import StudentProcessor
+from msta.policies.registry import (
     get_config_class,
     get_policy_class,
-    load_policy,
     make_config,
-    make_policy,
     policy_kind,
     register_policy,
     registered_policies,
     unregister_policy,
 )
-from msta.policies.processor import StudentProcessor
 from msta.policies.transformer import Block
 
 REPO = Path(__file__).resolve().parents[2]

@@ -13,7 +13,8 @@ import sys
 
 from msta.train.cli import parse_cli
 from msta.train.loop import rank0_runs
-from msta.train.offline import TrainConfig, train
+from msta.train.stage1 import train
+from msta.train.train_config import TrainConfig
 
 
 def main() -> None:

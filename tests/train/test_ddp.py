@@ -18,10 +18,12 @@ from msta_test_helpers import tiny_student  # registered by tests/conftest.py
 from safetensors.torch import load_file
 
 from msta.data.windows import WindowDataset
-from msta.policies.factory import registered_policies
+from msta.policies.registry import registered_policies
 from msta.train.cli import parse_cli
 from msta.train.ddp import ShardedDraws
-from msta.train.offline import TrainConfig, main, train
+from msta.train.offline import main
+from msta.train.stage1 import train
+from msta.train.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]
 STEPS = 20

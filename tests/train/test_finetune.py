@@ -21,13 +21,15 @@ from msta.data import sensors
 from msta.data.budget import TimeLimitReached
 from msta.data.stats import load_stats
 from msta.data.windows import WindowDataset, load_episode_table
-from msta.policies.actor import InputSpec, StudentActor
-from msta.policies.baselines.gru import GRUConfig
+from msta.policies.actor import StudentActor
+from msta.policies.baselines.configs import GRUConfig
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.export import MINIMIZED_SENSORS
 from msta.policies.factory import load_policy, make_policy
+from msta.policies.input_spec import InputSpec
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
+from msta.train.correct_config import RoundEvalConfig
 from msta.train.finetune import (
     RECORD,
     FinetuneConfig,
@@ -38,7 +40,6 @@ from msta.train.finetune import (
     trainable_modules,
 )
 from msta.train.optim import make_optimizer
-from msta.train.round_eval import RoundEvalConfig
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)

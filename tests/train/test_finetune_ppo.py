@@ -20,7 +20,7 @@ from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.stats import load_stats
 from msta.policies.actor import StudentActor
-from msta.policies.baselines.gru import GRUConfig
+from msta.policies.baselines.configs import GRUConfig
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.export import MINIMIZED_SENSORS
 from msta.policies.factory import load_policy, make_policy

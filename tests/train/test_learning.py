@@ -28,10 +28,10 @@ from msta.eval.apps.demo import easy_terrain_dataset
 from msta.policies.factory import load_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.correct_config import CorrectConfig
-from msta.train.offline import TrainConfig, train
-from msta.train.online import append_episodes, correct, drive_and_label
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
+from msta.train.stage1 import train
+from msta.train.stage2 import append_episodes, correct, drive_and_label
+from msta.train.train_config import TrainConfig
 
 pytestmark = pytest.mark.slow
 

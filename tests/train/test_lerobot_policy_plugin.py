@@ -28,10 +28,11 @@ from msta.data import derived
 from msta.data.sensors import SENSORS, STUDENT_SENSORS
 from msta.data.stats import load_stats
 from msta.data.windows import WindowDataset
-from msta.policies.factory import load_policy, make_config, make_policy
+from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import PRESETS
 from msta.policies.msta import MSTAConfig as NativeMSTAConfig
 from msta.policies.msta import MSTAPolicy as NativeMSTAPolicy
+from msta.policies.registry import make_config
 from msta.train.optim import WarmupCosine, make_optimizer
 
 BIN = Path(sys.executable).parent

@@ -12,10 +12,13 @@ import torch
 from safetensors.torch import load_file
 
 from msta.data.budget import EXIT_STOPPED
-from msta.policies.factory import get_config_class, load_policy, registered_policies
+from msta.policies.factory import load_policy
 from msta.policies.msta import MSTAPolicy
+from msta.policies.registry import get_config_class, registered_policies
 from msta.train.cli import parse_cli
-from msta.train.offline import TrainConfig, main, train
+from msta.train.offline import main
+from msta.train.stage1 import train
+from msta.train.train_config import TrainConfig
 
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",
         "--policy.history=5", "--batch_size=16", "--warmup_steps=2", "--progress=false",

@@ -25,10 +25,10 @@ from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig, MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 from msta.policies.weights import weights_revision
-from msta.train.correct_config import CorrectConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
 from msta.train.correct_progress import CorrectProgress
-from msta.train.online import correct, main
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.online import main
+from msta.train.stage2 import correct
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
                         border=2.0)
@@ -362,7 +362,7 @@ def test_rollout_mask_ratios_split_the_envs_and_are_part_of_the_run(base, tmp_pa
     """Half the envs drive at test mask 0.5: the round runs, progress.json records the
     ratios, and a resume with other ratios is refused (they define the data)."""
     from msta.policies.actor import SplitActor
-    from msta.train.online import student_actor
+    from msta.train.stage2 import student_actor
 
     cfg = make_cfg(base, tmp_path, rounds=1, rollout_mask_ratios=(0.0, 0.5))
     prog = correct(cfg)

@@ -22,12 +22,12 @@ from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.cli import parse_cli
-from msta.train.correct_config import CorrectConfig
-from msta.train.correct_progress import PROGRESS
-from msta.train.offline import TrainConfig, main, train
-from msta.train.online import correct
+from msta.train.correct_config import PROGRESS, CorrectConfig, RoundEvalConfig
+from msta.train.offline import main
 from msta.train.push import PushError, dataset_source
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.stage1 import train
+from msta.train.stage2 import correct
+from msta.train.train_config import TrainConfig
 
 ALICE, BOB = "alice-secret-0001", "bob-secret-0002"
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",

@@ -27,11 +27,10 @@ from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.correct_config import CorrectConfig
+from msta.train.correct_config import CorrectConfig, RoundEvalConfig
 from msta.train.loop import load_windows
-from msta.train.online import correct
 from msta.train.optim import make_optimizer
-from msta.train.round_eval import RoundEvalConfig
+from msta.train.stage2 import correct
 from msta.train.step import train_step
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,

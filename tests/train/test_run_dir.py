@@ -20,7 +20,9 @@ import torch
 from safetensors.torch import load_file
 
 from msta.train.cli import parse_cli
-from msta.train.offline import TrainConfig, main, train
+from msta.train.offline import main
+from msta.train.stage1 import train
+from msta.train.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[2]
 FAST = ["--policy.preset=tiny", "--policy.input_sensors=[command,joint_pos,gravity]",

@@ -21,7 +21,7 @@ from msta.eval.apps.repro import main as repro_main
 from msta.eval.evaluate import main as eval_main
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
-from msta.train.correct_progress import PROGRESS
+from msta.train.correct_config import PROGRESS
 from msta.train.finetune import main as finetune_main
 from msta.train.finetune_ppo import main as finetune_ppo_main
 from msta.train.offline import main as train_main

@@ -47,9 +47,10 @@ from msta.data.windows import episode_split
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import PRESETS, MSTAConfig
 from msta.train.loop import load_windows
-from msta.train.offline import TrainConfig, train
 from msta.train.optim import seed_everything
+from msta.train.stage1 import train
 from msta.train.step import validate
+from msta.train.train_config import TrainConfig
 
 FIGURES = ("loss_unmasked", "action_mse", "loss")
 
