@@ -28,7 +28,7 @@ from msta.eval.bench.deploy import BenchDeployConfig
 from msta.eval.bench.learn import BenchLearnConfig
 from msta.eval.bench.sim import BenchSimConfig
 from msta.eval.bench.train import BenchTrainConfig
-from msta.eval.evaluate import EvalConfig
+from msta.eval.eval_config import EvalConfig
 from msta.eval.label_check import LabelCheckConfig
 from msta.eval.report import EvalReportConfig
 from msta.eval.teacher_report import TeacherReportConfig

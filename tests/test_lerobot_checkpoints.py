@@ -17,8 +17,9 @@ from msta_test_helpers import hub_as, record_gait, tiny_student
 from lerobot_policy_msta.convert import msta_to_lerobot
 from msta.data.sensors import STUDENT_SENSORS
 from msta.data.windows import WindowDataset
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
 from msta.eval.evaluate import main as eval_main
+from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import LEROBOT_PREPROCESSOR, CheckpointError
 from msta.policies.config import PolicyConfig
 from msta.policies.export import main as export_main
@@ -173,7 +174,7 @@ def test_other_lerobot_checkpoints_fail_in_one_line(ckpts, tmp_path, capsys):
 def test_lerobot_train_checkpoints_are_named_by_run_and_step(tmp_path):
     """msta-eval's tables name lerobot-train's pretrained_model folders <run>@<step> (they
     were all 'pretrained_model', then 'pretrained_model#2')."""
-    from msta.eval.evaluate import local_name
+    from msta.eval.evaluation import local_name
 
     for run in ("run_a", "run_b"):
         step = tmp_path / run / "checkpoints" / "000003" / "pretrained_model"

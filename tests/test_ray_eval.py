@@ -10,7 +10,8 @@ import pytest
 from msta_test_helpers import record_gait, tiny_student
 
 from msta.collect import ray_pool
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 
 
 @pytest.fixture(scope="module")

@@ -43,7 +43,8 @@ from msta.data.figures import fmt as _fmt
 from msta.data.locking import hold_directory
 from msta.data.threads import check_threads
 from msta.eval.apps.phases import PhaseLog
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.eval.report import table_one
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.registry import get_config_class, registered_policies

@@ -48,7 +48,8 @@ from msta.data.hub_push import push_dataset
 from msta.data.hub_server.app import ServerConfig
 from msta.data.hub_server.server import HubServer
 from msta.data.output_dirs import command_output_dir
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig

@@ -43,7 +43,8 @@ from msta.data.threads import check_threads, resolve_threads
 from msta.data.windows import WindowDataset
 from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.train_scaling import measure
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import load_policy, select_device
 from msta.policies.msta import MSTAConfig

@@ -71,7 +71,8 @@ from msta.eval.apps.compare import (
 from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.phases import PhaseLog
 from msta.eval.apps.repro_report import write_report
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.policies.factory import select_device
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS, check_optimizer

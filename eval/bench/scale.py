@@ -44,7 +44,8 @@ from msta.data.sensors import DEFAULT_RECORDED
 from msta.data.stats import load_stats
 from msta.data.writer import DatasetWriter
 from msta.eval.bench.outputs import own_output
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig

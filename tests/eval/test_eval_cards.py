@@ -19,7 +19,8 @@ from msta.data.hub_cards import card_metadata
 from msta.data.hub_cli import main as hub
 from msta.data.hub_eval import HEADLINE_FIGURES
 from msta.data.hub_ids import hub_api
-from msta.eval.evaluate import EvalConfig, evaluate
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluation import evaluate
 from msta.eval.metrics import headline
 
 

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from msta.data.budget import EXIT_STOPPED
-from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluate import main
+from msta.eval.evaluation import evaluate, load_entries
 from msta.eval.evaluator import Evaluator
 from msta.eval.metrics import RETURNS
 from msta.eval.scenarios import Condition

@@ -13,7 +13,9 @@ from msta.collect.rollout import rollout
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
 from msta.data.sensors import STUDENT_SENSORS
-from msta.eval.evaluate import EvalConfig, evaluate, load_entries, main
+from msta.eval.eval_config import EvalConfig
+from msta.eval.evaluate import main
+from msta.eval.evaluation import evaluate, load_entries
 from msta.eval.scenarios import DEFAULT_FAULTS, FAULT_JOINT, build_conditions, get_suite
 from msta.policies.actor import StudentActor
 from msta.policies.factory import load_policy

@@ -21,7 +21,7 @@ from msta.data.hub_pull import pull
 from msta.data.hub_push import push, push_dataset
 from msta.data.hub_server import HubServer, ServerConfig
 from msta.data.hub_versions import RepoVersions, Version
-from msta.eval.evaluate import EvalConfig
+from msta.eval.eval_config import EvalConfig
 from msta.train.cli import parse_cli
 from msta.train.train_config import TrainConfig
 

@@ -21,8 +21,8 @@ from msta.data import sensors
 from msta.data.sensors import SensorSpec
 from msta.data.stats import load_stats
 from msta.data.windows import load_episode_table
-from msta.eval.evaluate import EvalConfig as MstaEvalConfig
-from msta.eval.evaluate import evaluate
+from msta.eval.eval_config import EvalConfig as MstaEvalConfig
+from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.factory import load_policy, make_policy
 from msta.policies.msta import MSTAConfig
