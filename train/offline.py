@@ -31,7 +31,7 @@ from msta.train.train_config import TrainConfig
 def main(argv: Sequence[str] | None = None) -> None:
     cfg = parse_cli(TrainConfig, argv, prog="msta-train")
     from msta.train.loop import rank0_runs  # lazy: torch after parsing (--help at once)
-    from msta.train.stage1 import train  # lazy: the same
+    from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
 
     try:  # under torchrun, rank 0 runs it and the others train with it (docs/scale.md)
         rank0_runs(lambda: train(cfg), cfg.batch_size)

@@ -22,6 +22,7 @@ the same trials writes ``output_dir/eval/`` and the table is printed and saved a
 
 from __future__ import annotations
 
+import functools
 import json
 import shlex
 import shutil
@@ -44,16 +45,13 @@ from msta.data.locking import hold_directory
 from msta.data.threads import check_threads
 from msta.eval.apps.phases import PhaseLog
 from msta.eval.eval_config import EvalConfig
-from msta.eval.evaluation import evaluate
 from msta.eval.report import table_one
 from msta.policies.checkpoint import PolicyPath
-from msta.policies.registry import get_config_class, registered_policies
+from msta.policies.config import PolicyConfig
+from msta.policies.registry import register_builtin_configs, registered_policies
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, check_optimizer, training_mask_ratio
 from msta.train.correct_config import CorrectConfig, RoundEvalConfig
-from msta.train.loop import rank0_runs
-from msta.train.stage1 import train
-from msta.train.stage2 import correct
 from msta.train.train_config import TrainConfig
 
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
@@ -154,12 +152,10 @@ class CompareConfig:
 
     def __post_init__(self) -> None:
         check_threads(self.num_threads)
-        self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()]
-        if not self.policies:
-            self.policy_list = ["msta", "msta_mask", *registered_policies("baseline")]
-        if not self.policy_list:
+        given = self.given_policies()
+        if self.policies and not given:
             raise ValueError("--policies is empty")
-        if len(set(self.policy_list)) != len(self.policy_list):
+        if len(set(given)) != len(given):
             raise ValueError(f"--policies {self.policies!r} has duplicates")
         check_at_least(self, 1, "stage1_steps", "batch_size", "episodes_per_round",
                        "collect_num_envs")
@@ -167,7 +163,7 @@ class CompareConfig:
                        "stage2_num_envs", "trials", "num_threads", "max_minutes")
         if not 0.0 <= self.msta_mask_ratio < 1.0:
             raise ValueError(f"msta_mask_ratio={self.msta_mask_ratio} must be in [0, 1)")
-        for name in self.policy_list:
+        for name in given:
             self.policy(name)  # unknown names / presets fail before any work
         if not 0.0 <= self.stage2_mask_ratio < 1.0:
             raise ValueError(f"stage2_mask_ratio={self.stage2_mask_ratio} must be in [0, 1)")
@@ -178,6 +174,16 @@ class CompareConfig:
         check_optimizer(self.optimizer)
         if not self.dataset and not self.collect_episodes:
             raise ValueError("give --dataset=ROOT (a teacher dataset) or --collect_episodes=N")
+
+    def given_policies(self) -> list[str]:
+        """The names ``--policies`` gives, in order (empty: the default list)."""
+        return [p.strip() for p in self.policies.split(",") if p.strip()]
+
+    @functools.cached_property
+    def policy_list(self) -> list[str]:
+        """The students compared: ``--policies``, or MSTA, its learnable-mask variant and
+        every registered baseline (their models imported to read the registry)."""
+        return self.given_policies() or ["msta", "msta_mask", *registered_policies("baseline")]
 
     def policy(self, name: str) -> Any:
         """The config ``name`` trains with: its preset's, at ``msta_history`` and
@@ -201,10 +207,11 @@ def policy_config(name: str, preset: str) -> Any:
         preset: preset name of that policy type.
     """
     ptype, overrides = VARIANTS.get(name, (name, {}))
-    if ptype not in registered_policies():
+    register_builtin_configs()  # the shipped types without their models (no torch)
+    if ptype not in PolicyConfig.get_known_choices() and ptype not in registered_policies():
         known = sorted(set(VARIANTS) | set(registered_policies()))
         raise ValueError(f"unknown policy {name!r}; known: {known}")
-    cls = get_config_class(ptype)
+    cls = PolicyConfig.get_choice_class(ptype)
     try:
         return cls.from_preset(preset, **overrides)
     except KeyError as e:
@@ -271,6 +278,8 @@ def stage1(cfg: CompareConfig, name: str, root: Path, run: Path, prog: PhaseLog,
         shutil.rmtree(out)
     t = prog.start(f"{name} stage 1", f"{cfg.stage1_steps} steps, batch {cfg.batch_size}"
                    f"{' (resumed)' if resume else ''}")
+    from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
+
     train(TrainConfig(
         dataset=str(root), policy=config or cfg.policy(name), output_dir=str(out),
         resume=resume, steps=cfg.stage1_steps, batch_size=cfg.batch_size, seed=cfg.seed,
@@ -319,6 +328,8 @@ def stage2(cfg: CompareConfig, name: str, start: Path, root: Path, run: Path,
     t = prog.start(f"{name} stage 2", f"{cfg.stage2_rounds} round(s) x {cfg.episodes_per_round}"
                    f" episodes + {cfg.stage2_steps} steps, mask {mask:g}, dataset copy {own}"
                    f"{' (resumed)' if resume else ''}")
+    from msta.train.stage2 import correct  # lazy: torch after parsing (--help at once)
+
     correct(CorrectConfig(
         policy=PolicyPath(str(start)), dataset=str(own), output_dir=str(out),
         rounds=cfg.stage2_rounds,
@@ -364,6 +375,8 @@ def run_eval(cfg: CompareConfig, ckpts: list[Path], prog: PhaseLog) -> dict[str,
                    f"{ecfg.num_trials} trials of {ecfg.episode:g} s, {len(ckpts)} policies "
                    "+ teacher")
     ecfg.max_minutes = prog.minutes_left()
+    from msta.eval.evaluation import evaluate  # lazy: torch after parsing (--help at once)
+
     metrics = evaluate(ecfg)
     prog.done("eval", t)
     return metrics
@@ -453,6 +466,8 @@ def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     cfg = parse_config(CompareConfig, args, "msta-compare")  # bad flags: one line, exit 2
     try:  # under torchrun, rank 0 compares and the other ranks train with it (docs/scale.md)
+        from msta.train.loop import rank0_runs  # lazy: torch after parsing (--help at once)
+
         rank0_runs(lambda: compare(cfg, shlex.join(["msta-compare", *args])), cfg.batch_size)
     except TimeLimitReached as e:
         stop("msta-compare", e)

@@ -49,14 +49,11 @@ from msta.data.hub_server.app import ServerConfig
 from msta.data.hub_server.server import HubServer
 from msta.data.output_dirs import command_output_dir
 from msta.eval.eval_config import EvalConfig
-from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_MASK_RATIO, STAGE2_ROLLOUT_MASK_RATIOS
 from msta.train.correct_config import CorrectConfig, RoundEvalConfig
-from msta.train.stage1 import train
-from msta.train.stage2 import correct
 from msta.train.train_config import TrainConfig
 
 HUB_USER, HUB_SECRET = "demo", "demo-secret-token"
@@ -116,6 +113,8 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
                mask: float = MSTAConfig.mask_ratio, **loop: float) -> Path:
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
           f"ratio {mask:g} ==")
+    from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
+
     return train(TrainConfig(
         dataset=dataset, policy=MSTAConfig.from_preset("cpu", history=history, mask_ratio=mask),
         output_dir=str(out / "stage1"),
@@ -184,6 +183,8 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                                         levels="0,1,2",
                                         episode_length_s=select_s, seed=SELECT_SEED, num_threads=threads),
                         progress=False)
+    from msta.train.stage2 import correct  # lazy: torch after parsing (--help at once)
+
     correct(cfg)
     if not select_trials:
         print(f"no round selection (--select_trials=0): evaluating the last round, {rounds}")
@@ -206,6 +207,8 @@ def step_eval(out: Path, best: int, trials: int, episode_length_s: float, thread
           "0-2) ==")
     pulled = pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
     print(f"pulled to {pulled}")
+    from msta.eval.evaluation import evaluate  # lazy: torch after parsing (--help at once)
+
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
                                   scenarios="token_removal", output_dir=str(out / "eval"),
                                   trials=trials, levels="0,1,2", episode_length_s=episode_length_s,

@@ -72,8 +72,6 @@ from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.phases import PhaseLog
 from msta.eval.apps.repro_report import write_report
 from msta.eval.eval_config import EvalConfig
-from msta.eval.evaluation import evaluate
-from msta.policies.factory import select_device
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS, check_optimizer
 
@@ -227,6 +225,8 @@ def check_run(cfg: ReproConfig, out: Path) -> None:
 
 
 def print_sizes(cfg: ReproConfig) -> None:
+    from msta.policies.factory import select_device  # lazy: torch after parsing (--help at once)
+
     s = cfg.sizes
     grid = len(s.heatmap_stage1) * len(s.heatmap_stage2) if cfg.heatmap else 0
     print(f"[{PROG}] scale {cfg.scale}: teacher {cfg.teacher.label}; dataset "
@@ -301,6 +301,8 @@ def run_eval(cfg: ReproConfig, name: str, policies: list[Path], scenarios: str,
                       nthread=0)  # MuJoCo threads: one per core of the machine
     t = prog.start(f"eval {name}", f"{scenarios}: {len(policies)} students + teacher")
     ecfg.max_minutes = prog.minutes_left()
+    from msta.eval.evaluation import evaluate  # lazy: torch after parsing (--help at once)
+
     metrics = evaluate(ecfg)
     prog.done(f"eval {name}", t)
     return metrics
