@@ -45,3 +45,9 @@ class InputSpec:
         check_fraction(mask_ratio=self.mask_ratio)
         if self.dummy_tokens < 0:
             raise ValueError(f"dummy_tokens={self.dummy_tokens} must be >= 0")
+
+
+#: The paper's minimized observation ({cmd, q, g, a_{t-1}}, T = 7).
+MINIMIZED_SENSORS = ("command", "joint_pos", "gravity", "last_action")
+#: The minimized observation's window (T = 7).
+MINIMIZED_HISTORY = 7

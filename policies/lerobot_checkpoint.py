@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 from safetensors import SafetensorError
-from safetensors.torch import load_file
 
 from msta.data import sensors
 from msta.data.inside import PathOutsideRootError, inside
@@ -105,6 +104,9 @@ def _step_stats(directory: Path, pipeline: str, step_name: str, key: str, dim: i
     if not state.is_file() or state.stat().st_size > MAX_JSON_BYTES[PROCESSOR_NAME]:
         raise CheckpointError(f"{state}: missing or larger than "
                               f"{MAX_JSON_BYTES[PROCESSOR_NAME]:,} bytes")
+    # lazy: torch loads only when a LeRobot checkpoint is read (not for a command's --help)
+    from safetensors.torch import load_file
+
     try:
         tensors = load_file(str(state))
     except (SafetensorError, OSError) as e:

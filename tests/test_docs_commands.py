@@ -32,7 +32,7 @@ from msta.eval.eval_config import EvalConfig
 from msta.eval.label_check import LabelCheckConfig
 from msta.eval.report import EvalReportConfig
 from msta.eval.teacher_report import TeacherReportConfig
-from msta.policies.export import ExportConfig
+from msta.policies.export_cli import ExportConfig
 from msta.train.cli import parse_cli
 from msta.train.guard_fit import GuardCommand
 from msta.train.online import parse_args as correct_args

@@ -22,7 +22,7 @@ from msta.eval.evaluate import main as eval_main
 from msta.eval.evaluation import evaluate
 from msta.policies.checkpoint import LEROBOT_PREPROCESSOR, CheckpointError
 from msta.policies.config import PolicyConfig
-from msta.policies.export import main as export_main
+from msta.policies.export_cli import main as export_main
 from msta.policies.factory import load_config, load_policy
 from msta.policies.lerobot_checkpoint import as_msta_checkpoint
 from msta.policies.registry import get_policy_class
@@ -70,7 +70,8 @@ def test_msta_loaders_read_a_lerobot_checkpoint(ckpts, recorded):
 def test_msta_eval_export_and_finetune_take_a_lerobot_checkpoint(ckpts, recorded, tmp_path,
                                                                  capsys):
     from msta.policies.checkpoint import PolicyPath
-    from msta.train.finetune import FinetuneConfig, check_source
+    from msta.train.finetune_config import FinetuneConfig
+    from msta.train.finetune_run import check_source
 
     native, lerobot = ckpts
     export_main([f"--policy={lerobot}", f"--output_dir={tmp_path / 'export'}",

@@ -58,11 +58,12 @@ from msta.data.threads import check_threads, resolve_threads
 from msta.policies.actor import StudentActor
 from msta.policies.base import StudentPolicy
 from msta.policies.checkpoint import PolicyPath
-from msta.policies.export import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from msta.policies.factory import load_config, load_policy, select_device
+from msta.policies.input_spec import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from msta.policies.msta import MSTAPolicy
 from msta.policies.teacher.rma import RMAConfig
-from msta.train.finetune import freeze, module_of, sensor_names, trainable_modules
+from msta.train.finetune_config import sensor_names, trainable_modules
+from msta.train.finetune_run import freeze, module_of
 from msta.train.ppo import ChunkLoop, PPOConfig
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
 from msta.train.state import atomic_json

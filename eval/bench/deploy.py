@@ -44,18 +44,12 @@ import torch
 from msta.data import sensors as registry
 from msta.data.cli import parse_config
 from msta.policies import guard as guard_mod
-from msta.policies.export import (
-    MINIMIZED_HISTORY,
-    MINIMIZED_SENSORS,
-    DeployedStudent,
-    ExportParityError,
-    export_student,
-    random_windows,
-    resolve_sensors,
-)
+from msta.policies.export import DeployedStudent, export_student, random_windows, resolve_sensors
+from msta.policies.export_files import ExportParityError
 from msta.policies.factory import make_policy
 from msta.policies.guard import INPUT_SENSORS, GuardConfig, SensorGuard
 from msta.policies.guard_file import save_guard
+from msta.policies.input_spec import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 from msta.policies.msta import MSTAConfig
 from msta.policies.onnx_runtime import OnnxStudent
 

@@ -23,7 +23,7 @@ from msta.eval.evaluate import main as eval_main
 from msta.eval.label_check import main as label_check_main
 from msta.eval.report import main as report_main
 from msta.eval.teacher_report import main as teacher_report_main
-from msta.policies.export import main as export_main
+from msta.policies.export_cli import main as export_main
 from msta.train.finetune import main as finetune_main
 from msta.train.offline import main as train_main
 from msta.train.online import main as correct_main

@@ -15,15 +15,10 @@ from msta_test_helpers import record_gait, tiny_student  # registered by tests/c
 
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
 from msta.policies.baselines import BASELINES, REFERENCES
-from msta.policies.export import (
-    MINIMIZED_SENSORS,
-    ExportParityError,
-    export_student,
-    main,
-    random_windows,
-    recorded_windows,
-    resolve_sensors,
-)
+from msta.policies.export import export_student, random_windows, recorded_windows, resolve_sensors
+from msta.policies.export_cli import main
+from msta.policies.export_files import ExportParityError
+from msta.policies.input_spec import MINIMIZED_SENSORS
 
 REPO = Path(__file__).resolve().parents[2]
 #: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant) and every

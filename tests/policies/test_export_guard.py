@@ -19,7 +19,8 @@ from msta_test_helpers import record_gait, tiny_student  # registered by tests/c
 import msta.policies.teacher.gait  # noqa: F401  (registers "gait")
 from msta.collect.faults import FaultInjector, FaultSpec, std_from_stats
 from msta.data.stats import load_stats
-from msta.policies.export import export_student, main, random_windows, resolve_sensors
+from msta.policies.export import export_student, random_windows, resolve_sensors
+from msta.policies.export_cli import main
 from msta.policies.export_removal import absent_masks
 from msta.policies.guard import INPUT_SENSORS, GuardConfig
 from msta.policies.guard_file import load_guard, save_guard

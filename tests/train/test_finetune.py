@@ -24,21 +24,14 @@ from msta.data.windows import WindowDataset, load_episode_table
 from msta.policies.actor import StudentActor
 from msta.policies.baselines.configs import GRUConfig
 from msta.policies.checkpoint import PolicyPath
-from msta.policies.export import MINIMIZED_SENSORS
 from msta.policies.factory import load_policy, make_policy
-from msta.policies.input_spec import InputSpec
+from msta.policies.input_spec import MINIMIZED_SENSORS, InputSpec
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.correct_config import RoundEvalConfig
-from msta.train.finetune import (
-    RECORD,
-    FinetuneConfig,
-    Preparation,
-    finetune,
-    freeze,
-    main,
-    trainable_modules,
-)
+from msta.train.finetune import main
+from msta.train.finetune_config import FinetuneConfig, trainable_modules
+from msta.train.finetune_run import RECORD, Preparation, finetune, freeze
 from msta.train.optim import make_optimizer
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,

@@ -22,8 +22,8 @@ from msta.data.stats import load_stats
 from msta.policies.actor import StudentActor
 from msta.policies.baselines.configs import GRUConfig
 from msta.policies.checkpoint import PolicyPath
-from msta.policies.export import MINIMIZED_SENSORS
 from msta.policies.factory import load_policy, make_policy
+from msta.policies.input_spec import MINIMIZED_SENSORS
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.finetune_ppo import (

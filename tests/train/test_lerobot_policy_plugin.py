@@ -327,7 +327,7 @@ def test_msta_export_checks_parity_on_the_dataset_lerobot_train_named(lerobot_tr
                                                                       tmp_path, capsys):
     """train_config.json's dataset (LeRobot's {"repo_id", "root"}) gives the recorded
     windows, as msta-train's does; no --dataset needed."""
-    from msta.policies.export import main as export_main
+    from msta.policies.export_cli import main as export_main
 
     export_main([f"--policy={lerobot_trained}", f"--output_dir={tmp_path / 'export'}",
                  "--parity_windows=8", "--random_windows=2"])
