@@ -1,7 +1,7 @@
 """The paper's test-time experiments as a registry of scenarios, and the suites that run them.
 
 A *scenario* turns a student (its input sensors) and a suite's values into *conditions*:
-one :class:`~msta.policies.actor.InputSpec` each (what the student sees at test time) plus the
+one :class:`~msta.policies.input_spec.InputSpec` each (what the student sees at test time) plus the
 label and x-axis value used in tables and plots. The teacher is the reference: no input
 change applies to it.
 

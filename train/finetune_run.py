@@ -124,7 +124,7 @@ def finetune(cfg: FinetuneConfig, on_phase: PhaseHook | None = None) -> CorrectP
 
     Args:
         cfg: the parsed configuration.
-        on_phase: as :func:`msta.train.online.correct`'s (after finetune.json is written).
+        on_phase: as :func:`msta.train.stage2.correct`'s (after finetune.json is written).
     """
     source, kept = check_source(cfg)
     prep, out = Preparation(cfg, source, kept), Path(cfg.output_dir)

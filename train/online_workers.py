@@ -77,7 +77,7 @@ def round_slots(cfg: Any, max_steps: int) -> tuple[int, int | None]:
 def drive_and_label_on_workers(cfg: Any, policy: StudentPolicy, r: int, revision: str,
                                sensors: tuple[str, ...] | None = None
                                ) -> tuple[list, dict[str, float]]:
-    """:func:`msta.train.online.drive_and_label` on ``cfg.workers`` Ray workers: the same
+    """:func:`msta.train.stage2.drive_and_label` on ``cfg.workers`` Ray workers: the same
     arguments and return (episodes with provenance, rollout figures; the share of steps the
     teacher executed is counted over the recorded frames whose action is the label's)."""
     seed = cfg.env.seed + 1000 * r

@@ -7,8 +7,8 @@ evaluate them together and print the paper's Table I.
 
 For every policy of ``--policies`` (names: :data:`VARIANTS`, or any registered policy type):
 
-1. **stage 1** (``msta.train.offline.train``) on the shared teacher dataset, ``--stage1_steps``;
-2. **stage 2** (``msta.train.online.correct``) on the policy's **own copy** of the dataset
+1. **stage 1** (``msta.train.stage1.train``) on the shared teacher dataset, ``--stage1_steps``;
+2. **stage 2** (``msta.train.stage2.correct``) on the policy's **own copy** of the dataset
    (``shutil.copytree`` before the first round), ``--stage2_rounds`` rounds of
    ``--episodes_per_round`` student episodes and ``--stage2_steps`` steps: every policy
    appends its own correction episodes, and the shared dataset is never written;

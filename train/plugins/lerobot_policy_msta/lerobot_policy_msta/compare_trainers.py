@@ -1,7 +1,7 @@
 """msta-train vs lerobot-train on the same data, steps and seeds: does LeRobot's trainer
 train the MSTA student as msta's own does?
 
-For every seed: ``msta-train`` (in this process, :func:`msta.train.offline.train`) and
+For every seed: ``msta-train`` (in this process, :func:`msta.train.stage1.train`) and
 ``lerobot-train --policy.type=msta`` (a subprocess, the real command) train the same student
 (the ``--preset``'s fields) for the same steps and batch size on the same training episodes
 (msta-train's episode split for that seed; lerobot-train gets them as ``--dataset.episodes``).
