@@ -36,7 +36,7 @@ from msta.policies.export_cli import ExportConfig
 from msta.train.cli import parse_cli
 from msta.train.guard_fit import GuardCommand
 from msta.train.online import parse_args as correct_args
-from msta.train.teacher.cli import TrainTeacherConfig
+from msta.train.teacher.config import TrainTeacherConfig
 from msta.train.train_config import TrainConfig
 
 REPO = Path(__file__).resolve().parents[1]

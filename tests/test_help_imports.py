@@ -16,9 +16,6 @@ from msta_source_tree import REPO
 #: What a command may load only after its command line is parsed (each costs 0.2-1.5 s).
 HEAVY = ("torch", "pandas", "lerobot", "datasets", "ray", "rsl_rl", "tensordict",
          "matplotlib", "onnxruntime")
-#: Commands whose config still imports a heavy library (their PPO settings and warm start
-#: import rsl_rl and torch): the exceptions, named so that the list can only shrink.
-STILL_HEAVY = frozenset({"msta-train-teacher", "msta-finetune-ppo"})
 SCRIPTS = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["scripts"]
 #: Run in a fresh interpreter: ``<command> --help``, then print what got imported.
 PROBE = """
@@ -42,18 +39,11 @@ def help_imports(name: str) -> dict:
     return {**json.loads(out.stdout.strip().splitlines()[-1]), "help": out.stdout}
 
 
-@pytest.mark.parametrize("name", sorted(set(SCRIPTS) - STILL_HEAVY))
+@pytest.mark.parametrize("name", sorted(SCRIPTS))
 def test_help_loads_no_heavy_library(name):
     got = help_imports(name)
     assert got["code"] in (0, None) and "usage:" in got["help"], got["help"][-500:]
     assert got["loaded"] == [], f"{name} --help imported {got['loaded']}"
-
-
-def test_the_exceptions_are_still_commands_and_still_heavy():
-    """The exception list names real commands that still load torch: a fixed one leaves it."""
-    assert STILL_HEAVY <= set(SCRIPTS)
-    for name in sorted(STILL_HEAVY):
-        assert "torch" in help_imports(name)["loaded"], f"{name} is light now: drop it"
 
 
 def test_the_probe_sees_a_heavy_import(tmp_path, monkeypatch):

@@ -11,9 +11,9 @@ import torch
 import msta.eval.teacher_curve as tc
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.train.ppo import PPOConfig
-from msta.train.teacher.cli import TrainTeacherConfig, train_teacher
-from msta.train.teacher.warmstart import WarmStartConfig
+from msta.train.ppo_config import PPOConfig
+from msta.train.teacher.config import TrainTeacherConfig, WarmStartConfig
+from msta.train.teacher.run import train_teacher
 
 
 @pytest.fixture(scope="module", autouse=True)

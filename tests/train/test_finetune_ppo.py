@@ -26,18 +26,18 @@ from msta.policies.factory import load_policy, make_policy
 from msta.policies.input_spec import MINIMIZED_SENSORS
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
-from msta.train.finetune_ppo import (
+from msta.train.finetune_ppo import main
+from msta.train.finetune_ppo_config import FinetunePPOConfig, StudentPPOConfig
+from msta.train.finetune_ppo_run import (
     DUMMY,
     RECORD,
     STUDENT,
-    FinetunePPOConfig,
     MSTAActor,
-    StudentPPOConfig,
     StudentVecEnv,
     finetune_ppo,
-    main,
     prepare_start,
     split_window,
+    student_runner_cfg,
 )
 
 TERRAIN = TerrainConfig(types=("flat", "stairs_up"), num_levels=2, max_init_level=1,
@@ -197,7 +197,7 @@ def test_the_runner_uses_the_student_as_its_actor(base, tmp_path):
     cfg = make_cfg(base, tmp_path)
     start, _ = prepare_start(cfg, tmp_path)
     env = StudentVecEnv(cfg.env, load_policy(start))
-    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, "embeddings+head"),
+    runner = OnPolicyRunner(env, student_runner_cfg(cfg.ppo, start, "embeddings+head"),
                             log_dir=None, device="cpu")
     actor = runner.alg.get_policy()
     assert isinstance(actor, MSTAActor)
@@ -244,7 +244,7 @@ def test_dummy_tokens_ride_with_the_rollout_so_the_update_sees_the_same_tokens(b
     cfg = make_cfg(base, tmp_path, dummy_tokens=8)
     start, _ = prepare_start(cfg, tmp_path)
     env = StudentVecEnv(cfg.env, load_policy(start), dummy_tokens=8)
-    runner = OnPolicyRunner(env, cfg.ppo.student_runner_cfg(start, "embeddings", 8),
+    runner = OnPolicyRunner(env, student_runner_cfg(cfg.ppo, start, "embeddings", 8),
                             log_dir=None, device="cpu")
     actor = runner.alg.get_policy()
     obs = env.get_observations()

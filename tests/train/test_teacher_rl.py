@@ -19,11 +19,13 @@ from msta.collect.sim.terrain import TerrainConfig
 from msta.policies.teacher.config import SHIPPED_RMA, TeacherConfig, build_teacher
 from msta.policies.teacher.imported import InputScaler
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
-from msta.train.ppo import PPOConfig, latest_checkpoint
+from msta.train.ppo import latest_checkpoint
+from msta.train.ppo_config import PPOConfig
 from msta.train.rsl_env import PRIVILEGED, PROPRIO, RslVecEnv
-from msta.train.teacher.cli import TrainTeacherConfig, train_teacher
+from msta.train.teacher.config import TrainTeacherConfig, WarmStartConfig
 from msta.train.teacher.model import RMAActor, load_from_teacher, teacher_runner_cfg, to_teacher
-from msta.train.teacher.warmstart import WarmStartConfig, warm_start
+from msta.train.teacher.run import train_teacher
+from msta.train.teacher.warmstart import warm_start
 
 
 def small_env(n: int = 8, seconds: float = 1.0, **kw) -> EnvConfig:

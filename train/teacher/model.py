@@ -16,7 +16,7 @@ from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
 from msta.policies.teacher.rma import RMAConfig, RMATeacher, mlp
-from msta.train.ppo import PPOConfig
+from msta.train.ppo_config import PPOConfig
 from msta.train.rsl_env import PRIVILEGED, PROPRIO
 
 

@@ -24,7 +24,7 @@ import json
 import os
 import pickle
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -36,53 +36,13 @@ from msta.collect.recorder import LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import REASONS
 from msta.collect.sim.env_config import EnvConfig
-from msta.data.checks import check_at_least, check_number
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 from msta.train.rsl_env import RslVecEnv
 from msta.train.state import flatten_optimizer_state, unflatten_optimizer_state
+from msta.train.teacher.config import WarmStartConfig
 
 _FALL = REASONS.index("fall")
-
-
-@dataclass
-class WarmStartConfig:
-    """Args:
-        iterations: imitation iterations (0 skips the warm start: PPO starts from noise).
-        steps: control steps per iteration (every robot; 50 per simulated second).
-        beta_decay: beta_k = max(beta_min, beta_decay ** k), the share of steps the gait
-            controller drives in iteration k (k = 0: all of them).
-        beta_min: floor of beta_k. The gait controller runs its own clock; a robot driven
-            mostly by the network drifts out of phase with it and the labels contradict
-            the robot's own gait, so the controller keeps driving part of the time.
-        action_noise: std (action units) of Gaussian noise added to every executed action
-            (DART): the robot visits states off the controller's own path while the labels
-            stay the controller's clean actions.
-        fit_steps: gradient steps per iteration (random mini-batches of the buffer). The
-            MLP needs ~40 passes over 90k samples to explain 93 % of the controller's action
-            variance on held-out robots (MSE 0.094 against a variance of 1.38).
-        batch_size: samples per gradient step.
-        lr: Adam learning rate.
-        buffer_size: newest samples kept for fitting.
-    """
-
-    iterations: int = 10
-    steps: int = 250
-    beta_decay: float = 1.0
-    beta_min: float = 0.0
-    action_noise: float = 0.3
-    fit_steps: int = 1000
-    batch_size: int = 2048
-    lr: float = 1e-3
-    buffer_size: int = 600_000
-
-    def __post_init__(self) -> None:
-        check_at_least(self, 0, "iterations")
-        check_at_least(self, 1, "steps", "fit_steps", "batch_size", "buffer_size")
-        for name in ("beta_decay", "beta_min"):
-            check_number(name, getattr(self, name), 0, 1)
-        check_number("action_noise", self.action_noise, 0)
-        check_number("lr", self.lr, 0, above=True)
 
 
 class _Buffer:
