@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test device-check repro bench bench-sim bench-data bench-train bench-learn bench-deploy bench-scale bench-threads venv clean-venv lint docs-terrain hub
+.PHONY: demo test device-check repro bench bench-sim bench-data bench-train bench-learn bench-deploy bench-scale bench-threads bench-startup venv clean-venv lint docs-terrain hub
 
 venv: $(STAMP)
 
@@ -46,7 +46,7 @@ DEVICE_OUT ?= $(if $(OUT),$(OUT),outputs)/device_check
 device-check: $(STAMP)
 	MUJOCO_GL=$${MUJOCO_GL:-egl} $(PY) -m msta.eval.apps.device_check --output_dir=$(DEVICE_OUT)
 
-bench: bench-sim bench-data bench-train bench-learn bench-deploy bench-scale bench-threads
+bench: bench-sim bench-data bench-train bench-learn bench-deploy bench-scale bench-threads bench-startup
 
 bench-sim: $(STAMP)
 	$(PY) -m msta.eval.bench.sim
@@ -77,6 +77,10 @@ bench-scale: $(STAMP)
 # count, on an idle machine and beside busy processes (~5 min on 2 cores).
 bench-threads: $(STAMP)
 	$(PY) -m msta.eval.bench.threads
+
+# every msta-* --help against a Python importing torch, and msta-train's first line
+bench-startup: $(STAMP)
+	$(PY) -m msta.eval.bench.startup
 
 docs-terrain: $(STAMP)
 	$(PY) -m msta.collect.sim.terrain_docs --docs docs/
