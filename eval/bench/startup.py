@@ -47,13 +47,14 @@ class StartupConfig:
 
 
 def commands() -> dict[str, list[str]]:
-    """Every ``msta-*`` console script of the installed distribution as a command line
-    running its entry point in this Python (``name -> argv``)."""
-    scripts = {e.name: e.value for e in metadata.entry_points(group="console_scripts")
-               if e.name.startswith("msta-") and e.module.startswith("msta.")}
-    if not scripts:  # an uninstalled tree: read pyproject.toml
-        pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+    """Every ``msta-*`` console script as a command line running its entry point in this
+    Python (``name -> argv``): the tree's pyproject.toml, else the installed distribution's."""
+    pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+    if pyproject.is_file():
         scripts = tomllib.loads(pyproject.read_text())["project"]["scripts"]
+    else:
+        scripts = {e.name: e.value for e in metadata.entry_points(group="console_scripts")
+                   if e.name.startswith("msta-") and e.module.startswith("msta.")}
     code = "import sys, {m}; sys.argv[0] = {n!r}; {m}.{f}()"
     return {name: [sys.executable, "-c", code.format(m=v.split(":")[0], f=v.split(":")[1],
                                                     n=name)]
@@ -61,9 +62,9 @@ def commands() -> dict[str, list[str]]:
 
 
 def wall(argv: list[str]) -> float:
-    """Seconds one run of ``argv`` takes (output discarded)."""
+    """Seconds one successful run of ``argv`` takes (output discarded; a failure raises)."""
     t = time.perf_counter()
-    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, check=False)
+    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, check=True)
     return time.perf_counter() - t
 
 

@@ -164,11 +164,11 @@ def test_resume_after_a_crash_is_bit_identical(synthetic_dataset, tmp_path, extr
 def test_ema_makes_the_final_weights_the_running_average(synthetic_dataset, tmp_path):
     """--ema_decay: the final checkpoint holds the running average of the weights after
     every step (decay min(d, (1+t)/(10+t)), from the initial weights), not the last step's."""
-    from msta.train import offline
+    from msta.train import stage1
 
     init: dict[str, torch.Tensor] = {}
     seen: list[dict[str, torch.Tensor]] = []
-    real_fit = offline.fit
+    real_fit = stage1.fit
 
     def spy_fit(policy, *a, **kw):
         init.update({k: v.detach().clone() for k, v in policy.named_parameters()})
@@ -178,11 +178,11 @@ def test_ema_makes_the_final_weights_the_running_average(synthetic_dataset, tmp_
         return real_fit(policy, *a, **{**kw, "on_step": grab})
 
     args = ("--steps=6", "--save_every=0", "--eval_every=0", "--lr=3e-3")
-    offline.fit = spy_fit
+    stage1.fit = spy_fit
     try:
         final = train(cfg_for(synthetic_dataset, tmp_path / "ema", *args, "--ema_decay=0.5"))
     finally:
-        offline.fit = real_fit
+        stage1.fit = real_fit
     # the average only reads the weights: the plain run with the same seed walks the same
     # path, and its final weights are the last raw step
     plain = load_file(str(train(cfg_for(synthetic_dataset, tmp_path / "plain", *args))
