@@ -59,6 +59,7 @@ Prepare = Callable[[StudentPolicy, Path], StudentPolicy]
 TRAINING_RECORD = "training.json"
 
 
+# ----- phases ----------------------------------------------------------------------------
 def student_actor(policy: StudentPolicy, n: int, spec: InputSpec,
                   mask_ratios: tuple[float, ...] = ()) -> StudentActor | SplitActor:
     return mask_split_actor(policy, n, spec, mask_ratios, name=policy.config.type)
@@ -171,6 +172,7 @@ def save_round(cfg: CorrectConfig, policy: StudentPolicy, r: int, out: Path) -> 
     return ckpt
 
 
+# ----- the round loop -------------------------------------------------------------------
 def correct(cfg: CorrectConfig, on_phase: PhaseHook | None = None,
             prepare: Prepare | None = None) -> CorrectProgress:
     """Run (or resume) stage 2; returns its progress.json record.
