@@ -55,6 +55,7 @@ from torch import Tensor, nn
 from msta.data.sensors import get
 from msta.policies.base import Absent, StudentPolicy, uniform
 from msta.policies.msta.configuration_msta import MSTAConfig
+from msta.policies.msta.dummy import draw_dummy_tokens
 from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
 from msta.policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
 from msta.policies.processor import Batch, Channels
@@ -112,7 +113,7 @@ class MSTATransformer(nn.Module):
             return sum(get(n).dim for n in self.scalar_sensors)
         return 1
 
-    def _table_of(self, name: str, ch: Tensor) -> Tensor:
+    def table_of(self, name: str, ch: Tensor) -> Tensor:
         """Value-table index of channels ``ch`` of sensor ``name`` (0 when shared)."""
         sensors_ = self.scalar_sensors
         if self.cfg.value_embedding == "channel":
@@ -131,7 +132,7 @@ class MSTATransformer(nn.Module):
         if self.cfg.value_embedding == "sensor":
             tables = torch.tensor([self.scalar_sensors.index(n) for n in names], dtype=torch.long)
         else:
-            tables = torch.cat([self._table_of(n, torch.arange(get(n).dim)) for n in names]
+            tables = torch.cat([self.table_of(n, torch.arange(get(n).dim)) for n in names]
                                or [torch.zeros(0, dtype=torch.long)])
         return (tables[:, None] * nb + torch.arange(nb)).flatten()  # (tables * nb,)
 
@@ -211,7 +212,7 @@ class MSTATransformer(nn.Module):
                 sid.append(torch.full_like(t, s))
                 step.append(t)
                 if scalar:
-                    offset.append(self._table_of(name, c) * self.cfg.num_bins)  # (T*c,)
+                    offset.append(self.table_of(name, c) * self.cfg.num_bins)  # (T*c,)
             return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
 
     def embed(self, inputs: MSTAInputs, mask_ratio: float,
@@ -256,7 +257,7 @@ class MSTATransformer(nn.Module):
             x, key_pad = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
         if D:
-            dummy = self._dummy_tokens(inputs, pos, sensor, B, dummy_tokens, generator)
+            dummy = draw_dummy_tokens(self, inputs, pos, sensor, B, dummy_tokens, generator)
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
         x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
         attn_mask = None
@@ -287,37 +288,6 @@ class MSTATransformer(nn.Module):
                 return tokens
             return torch.gather(tokens, 1, keep[..., None].expand(-1, -1, tokens.shape[-1]))
         return self.bin_embed(tokens if keep is None else torch.gather(tokens, 1, keep))
-
-    def _dummy_tokens(self, inputs: MSTAInputs, pos: Tensor, sensor: Tensor, B: int,
-                      dummy: int | Tensor, generator: torch.Generator | None) -> Tensor:
-        """D random tokens per sample (module docstring): (B, D, d), drawn from ``generator``
-        (``dummy`` = D) or given by uniforms (``dummy``: (B, D, 4)). Nothing is trained."""
-        dev = self.bin_embed.weight.device
-        if not inputs.channels:
-            raise ValueError("dummy tokens draw their values from the value tables of scalar "
-                             "inputs; this sample has none")
-        gen_dev = generator.device if generator is not None else dev
-        nb = self.cfg.num_bins
-        tables = torch.unique(torch.cat([  # (tables,) value tables of the present channels
-            self._table_of(n, c.to(dev)) for n, c in inputs.channels.items()]))
-
-        if isinstance(dummy, Tensor):
-            if dummy.dim() != 3 or dummy.shape[0] != B or dummy.shape[2] != 4:
-                raise ValueError(f"dummy token draws must be (batch={B}, D, 4) uniforms in "
-                                 f"[0, 1), got {tuple(dummy.shape)}")
-            u = dummy.to(dev, torch.float32)
-
-            def draw(high: int, k: int) -> Tensor:  # (B, D) in [0, high) from given uniforms
-                return (u[..., k] * high).long().clamp_(0, high - 1)
-        else:
-            D = dummy
-
-            def draw(high: int, k: int) -> Tensor:  # (B, D) uniform in [0, high)
-                return torch.randint(high, (B, D), generator=generator, device=gen_dev).to(dev)
-
-        rows = tables[draw(len(tables), 0)] * nb + draw(nb, 1)  # (B, D) rows of bin_embed
-        with torch.no_grad():
-            return self.bin_embed(rows) + pos[draw(len(pos), 2)] + sensor[draw(len(sensor), 3)]
 
     def readout_tokens(self) -> Tensor:
         """<S> (last) after the other readout tokens: (R, d)."""
