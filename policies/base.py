@@ -169,6 +169,12 @@ class StudentPolicy(nn.Module):
         return self.config.input_sensors
 
     @property
+    def target_columns(self) -> tuple[str, ...]:
+        """Dataset columns training reads at the window's newest step besides the inputs:
+        the action target (a student may add its own, e.g. MSTA's ``aux_target``)."""
+        return (self.config.action_key,)
+
+    @property
     def device(self) -> torch.device:
         return next(self.parameters()).device
 

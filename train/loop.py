@@ -296,10 +296,10 @@ def rank0_runs[T](run: Callable[[], T], batch_size: int) -> T:
 
 
 def load_windows(root: Path, policy: StudentPolicy, episodes: Sequence[int]) -> Any:
-    """A ``WindowDataset`` of the policy's sensors, window and action column."""
-    T, key = policy.config.history, policy.config.action_key
-    return WindowDataset(root, policy.required_sensors, T, extra_columns=(key,),
-                         episodes=episodes)
+    """A ``WindowDataset`` of the policy's sensors, window and target columns (the action,
+    and what else the policy trains on: ``policy.target_columns``)."""
+    return WindowDataset(root, policy.required_sensors, policy.config.history,
+                         extra_columns=policy.target_columns, episodes=episodes)
 
 
 #: Final validation loss (z-scored actions, unmasked) above which msta-train warns; the

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS
 from msta.policies.config import PolicyConfig, check_fraction, check_positive
 
 #: Choices of ``value_embedding``.
@@ -67,6 +68,11 @@ class MSTAConfig(PolicyConfig):
         state_tokens: learnable readout tokens appended to the sequence; the head reads them
             all, concatenated (1: the paper's single <S>; more widen what the attention can
             gather into the head; docs/msta_model.md measures them).
+        aux_target: a privileged sensor (e.g. ``base_lin_vel``) that training also asks the
+            readout tokens to predict, through a linear head of its own, from the dataset's
+            column of it (raw units): an auxiliary loss for estimating what the teacher
+            reads directly. Empty: none. Acting never uses it.
+        aux_weight: weight of that auxiliary MSE beside the action's.
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = PRESETS  # the module's PRESETS above
@@ -87,6 +93,8 @@ class MSTAConfig(PolicyConfig):
     value_init: str = "arc"
     init_std: float = 0.0
     state_tokens: int = 1
+    aux_target: str = ""
+    aux_weight: float = 1.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -105,7 +113,11 @@ class MSTAConfig(PolicyConfig):
                              f"got {self.value_embedding!r}")
         if self.value_init not in VALUE_INITS:
             raise ValueError(f"value_init must be one of {VALUE_INITS}, got {self.value_init!r}")
-        for name in ("init_std", "sensor_embed_std"):  # NaN would make every weight NaN
+        if self.aux_target and (self.aux_target not in SENSORS
+                                or SENSORS[self.aux_target].group != "privileged"):
+            raise ValueError(f"aux_target {self.aux_target!r} is not a privileged sensor; "
+                             f"one of {sorted(PRIVILEGED_SENSORS)}")
+        for name in ("init_std", "sensor_embed_std", "aux_weight"):  # NaN: every weight NaN
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")

@@ -50,6 +50,7 @@ from dataclasses import replace
 from typing import Any, Self
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor, nn
 
 from msta.data.sensors import get
@@ -57,7 +58,13 @@ from msta.policies.base import Absent, StudentPolicy, uniform
 from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.msta.dummy import draw_dummy_tokens
 from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
-from msta.policies.msta.removal import absent_tokens, additive_mask, encoded_keys, keep_per_sample
+from msta.policies.msta.removal import (
+    absent_tokens,
+    additive_mask,
+    complete_inputs,
+    encoded_keys,
+    keep_per_sample,
+)
 from msta.policies.processor import Batch, Channels
 from msta.policies.registry import register_policy
 from msta.policies.transformer import (
@@ -103,6 +110,8 @@ class MSTATransformer(nn.Module):
         self.head = (nn.Sequential(nn.Linear(d * R, h), nn.GELU(approximate="tanh"),
                                    nn.Linear(h, cfg.action_dim))
                      if h else nn.Linear(d * R, cfg.action_dim))
+        #: the auxiliary target's head (``aux_target``), on the same readout features
+        self.aux_head = nn.Linear(d * R, get(cfg.aux_target).dim) if cfg.aux_target else None
         self._pos_cache: dict[tuple, tuple[Tensor, ...]] = {}
         self._init_weights()
 
@@ -222,7 +231,7 @@ class MSTATransformer(nn.Module):
         (B, K + D + R, d), and a key mask (B, 1, 1, K + D + R) or None."""
         missing = None
         if self.mask_token is not None:
-            inputs, missing = self._complete(inputs)  # absent sensors/channels -> mask tokens
+            inputs, missing = complete_inputs(inputs, self.scalar_sensors)  # absent sensors/channels -> mask tokens
         names, encoded = list(inputs.bins), tuple(inputs.encoded)
         first = inputs.bins[names[0]] if names else inputs.encoded[encoded[0]]
         B, T = first.shape[:2]
@@ -305,29 +314,6 @@ class MSTATransformer(nn.Module):
         T = inputs.bins[names[0]].shape[1]
         return bins + self._row_offsets(inputs.channels, T)[None, :].to(bins.device)  # (B, N)
 
-    def _complete(self, inputs: MSTAInputs) -> tuple[MSTAInputs, dict[str, Tensor]]:
-        """Learnable-mask variant: every configured sensor and channel gets a token; the ones
-        absent from the input (a removed sensor, a dead joint encoder) are flagged missing and
-        later replaced by the mask token, as the paper's "w/ learnable mask" ablation does."""
-        any_bins = next(iter(inputs.bins.values()), None)  # (B, T, c)
-        if any_bins is None:  # only encoded sensors present: their (B, T), bins 0
-            any_bins = torch.zeros_like(next(iter(inputs.encoded.values()))[..., :1],
-                                        dtype=torch.long)
-        dev = any_bins.device
-        bins, channels, missing = {}, {}, {}
-        for name in self.scalar_sensors:  # an absent encoded sensor simply has no tokens
-            dim = get(name).dim
-            # built from the input's own shape, not written into: traceable with any batch
-            full = torch.zeros_like(any_bins[..., :1]).expand(-1, -1, dim)  # (B, T, dim)
-            absent = torch.ones(dim, dtype=torch.bool, device=dev)
-            if name in inputs.bins:
-                ch = inputs.channels[name].to(dev)
-                full = full.index_copy(2, ch, inputs.bins[name])
-                absent[ch] = False
-            bins[name], channels[name] = full, torch.arange(dim)
-            missing[name] = absent  # (dim,) per channel, repeated over time by the caller
-        return MSTAInputs(bins, channels, inputs.pad, inputs.encoded, inputs.absent), missing
-
     def _drop_scores(self, B: int, N: int, pad: Tensor | None,
                      generator: torch.Generator | None) -> Tensor:
         """Random keep scores (B, N) in [0, 1) (:func:`msta.policies.base.uniform`); padded tokens
@@ -368,14 +354,21 @@ class MSTATransformer(nn.Module):
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
     def forward(self, inputs: MSTAInputs, mask_ratio: float = 0.0,
-                generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
-                ) -> Tensor:
+                generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0,
+                with_aux: bool = False) -> Tensor | tuple[Tensor, Tensor]:
+        """(B, action_dim); with ``with_aux`` also the auxiliary target's prediction
+        (B, its dim) from the same readout features."""
         x, attn_mask = self.embed(inputs, mask_ratio, generator, dummy_tokens)  # (B, L, d)
         R, last = self.cfg.state_tokens, len(self.blocks) - 1
         for i, block in enumerate(self.blocks):
             # the head reads only the readout tokens: the last block computes only theirs
             x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
-        return self.head(self.ln_f(x).flatten(1))  # (B, action_dim) from <S> (+ R - 1)
+        features = self.ln_f(x).flatten(1)  # (B, R * d): <S> (+ R - 1)
+        if with_aux:
+            if self.aux_head is None:
+                raise ValueError("this MSTA student has no aux_target")
+            return self.head(features), self.aux_head(features)
+        return self.head(features)  # (B, action_dim)
 
 
 @register_policy("msta", kind="method")
@@ -398,18 +391,54 @@ class MSTAPolicy(StudentPolicy):
 
     def forward(self, batch: Batch, channels: Channels | None = None,
                 mask_ratio: float | None = None, generator: torch.Generator | None = None,
-                dummy_tokens: int | Tensor = 0, absent: Absent | None = None) -> Tensor:
+                dummy_tokens: int | Tensor = 0, absent: Absent | None = None,
+                with_aux: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """Raw batch -> model-space action (B, A); mask_ratio defaults to the config's in
         training mode and 0 in eval mode; ``dummy_tokens`` random tokens are appended to
         every sample (the stress test, see the module docstring; a (B, D, 4) tensor of
         uniforms fixes their draws); ``absent`` (sensor -> (B, dim) bool over the full
-        channels) removes a sample's channels (:mod:`msta.policies.msta.removal`)."""
+        channels) removes a sample's channels (:mod:`msta.policies.msta.removal`);
+        ``with_aux``: also the ``aux_target`` prediction (raw units)."""
         mask_ratio = self.resolve_mask_ratio(mask_ratio)
         inputs = self.processor.discretize(self.as_tensors(batch), channels)
         if absent is not None:
             first = next(iter((*inputs.bins.values(), *inputs.encoded.values())))
             inputs.absent = self.absent_masks(absent, first.shape[0])
-        return self.model(inputs, mask_ratio, generator, dummy_tokens)
+        return self.model(inputs, mask_ratio, generator, dummy_tokens, with_aux)
+
+    @property
+    def target_columns(self) -> tuple[str, ...]:
+        """The action column, and the ``aux_target``'s column when there is one."""
+        aux = self.config.aux_target
+        return (*super().target_columns, *((get(aux).column,) if aux else ()))
+
+    def loss(self, batch: Batch, channels: Channels | None = None,
+             mask_ratio: float | None = None, generator: torch.Generator | None = None,
+             dummy_tokens: int = 0, absent: Absent | None = None
+             ) -> tuple[Tensor, dict[str, float]]:
+        """:meth:`StudentPolicy.loss`; with ``aux_target`` the readout also predicts that
+        signal and ``aux_weight`` times its MSE (``aux_mse``) is added to the returned loss
+        (the ``loss`` metric stays the action's, comparable with other students)."""
+        if not self.config.aux_target:
+            return super().loss(batch, channels, mask_ratio, generator, dummy_tokens, absent)
+        key, column = self.target_columns
+        missing = [k for k in (key, column) if k not in batch]
+        if missing:
+            raise KeyError(f"batch has no {missing[0]!r} (aux_target="
+                           f"{self.config.aux_target!r} reads it); keys: {sorted(batch)}")
+        batch = self.as_tensors(batch)
+        if dummy_tokens:
+            self.check_dummy_tokens(dummy_tokens)
+        inputs = {k: v for k, v in batch.items() if k != column}  # the target is no input
+        pred, aux = self(inputs, channels, mask_ratio, generator, dummy_tokens, absent,
+                         with_aux=True)
+        action_loss = F.mse_loss(pred, self.processor.normalize_target(batch[key]))
+        aux_loss = F.mse_loss(aux, batch[column].to(aux.dtype))
+        with torch.no_grad():
+            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())
+        return action_loss + self.config.aux_weight * aux_loss, {
+            "loss": float(action_loss.detach()), "action_mse": float(raw),
+            "aux_mse": float(aux_loss.detach())}
 
     def with_inputs(self, sensors: Sequence[str], history: int,
                     stats: Mapping[str, Mapping[str, Any]] | None = None) -> Self:

@@ -12,9 +12,14 @@ tokens; the batch keeps the most any sample needs and hides the rest with the ke
 An encoded sensor (``SensorSpec.encoder_tokens``: an MLP reads all of a step's channels)
 loses all its tokens for a sample when any of its channels is absent (with
 ``learnable_mask`` they are hidden from attention, as a sensor left out has no tokens).
+
+With ``learnable_mask``, :func:`complete_inputs` first gives every configured sensor and
+channel a token and flags the ones the input lacks, for the mask token to replace.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import torch
 from torch import Tensor
@@ -23,7 +28,8 @@ from msta.data.sensors import get
 from msta.policies.base import uniform
 from msta.policies.msta.processor_msta import MSTAInputs
 
-__all__ = ["absent_tokens", "additive_mask", "encoded_keys", "keep_per_sample"]
+__all__ = ["absent_tokens", "additive_mask", "complete_inputs", "encoded_keys",
+           "keep_per_sample"]
 
 
 def absent_tokens(inputs: MSTAInputs, B: int, T: int) -> Tensor | None:
@@ -102,3 +108,29 @@ def keep_per_sample(gone: Tensor, pad: Tensor | None, mask_ratio: float,
     keep = torch.sort(scores, dim=1, descending=True, stable=True).indices[:, :K]  # (B, K)
     key_pad = torch.arange(K, device=dev)[None] >= r[:, None]  # (B, K)
     return keep, key_pad
+
+
+def complete_inputs(inputs: MSTAInputs, scalar_sensors: Sequence[str]
+                    ) -> tuple[MSTAInputs, dict[str, Tensor]]:
+    """Learnable-mask variant: every configured scalar sensor (``scalar_sensors``) and
+    channel gets a token; the ones absent from the input (a removed sensor, a dead joint
+    encoder) are flagged missing (``{sensor: (dim,) bool}``) and later replaced by the mask
+    token, as the paper's "w/ learnable mask" ablation does."""
+    any_bins = next(iter(inputs.bins.values()), None)  # (B, T, c)
+    if any_bins is None:  # only encoded sensors present: their (B, T), bins 0
+        any_bins = torch.zeros_like(next(iter(inputs.encoded.values()))[..., :1],
+                                    dtype=torch.long)
+    dev = any_bins.device
+    bins, channels, missing = {}, {}, {}
+    for name in scalar_sensors:  # an absent encoded sensor simply has no tokens
+        dim = get(name).dim
+        # built from the input's own shape, not written into: traceable with any batch
+        full = torch.zeros_like(any_bins[..., :1]).expand(-1, -1, dim)  # (B, T, dim)
+        absent = torch.ones(dim, dtype=torch.bool, device=dev)
+        if name in inputs.bins:
+            ch = inputs.channels[name].to(dev)
+            full = full.index_copy(2, ch, inputs.bins[name])
+            absent[ch] = False
+        bins[name], channels[name] = full, torch.arange(dim)
+        missing[name] = absent  # (dim,) per channel, repeated over time by the caller
+    return MSTAInputs(bins, channels, inputs.pad, inputs.encoded, inputs.absent), missing
