@@ -71,7 +71,7 @@ def stated_values(cell: str, count: int) -> list[Any] | None:
         return None
     values = []
     for part in parts:
-        if part in ("true", "false", "null"):
+        if part in ("true", "false", "null", '""'):  # '""': an empty text
             values.append(json.loads(part))
         elif re.fullmatch(r"\[[^\]]*\]", part):
             values.append([float(v) for v in part.strip("[]").split(",") if v.strip()])
