@@ -9,6 +9,7 @@ folder is not on sys.path.
 - :func:`running_hub`: a real msta hub server on 127.0.0.1 for the duration of a fixture.
 - :func:`record_gait`: a few gait-controller episodes recorded in the real simulator.
 - :func:`tiny_student`: a tiny student with large seeded random weights.
+- :func:`tiny_msta`: a tiny seeded MSTA student with flat statistics.
 """
 
 from __future__ import annotations
@@ -127,3 +128,19 @@ def tiny_student(name: str, overrides: dict, root: Path):
         for p in policy.parameters():
             p.add_(0.1 * torch.randn(p.shape, generator=gen))
     return policy.eval()
+
+
+def tiny_msta(history: int, mean: float = 0.0, action_std: float = 1.0, **overrides):
+    """A tiny MSTA student (``overrides`` on the ``tiny`` preset, window ``history``) with
+    seeded random weights and flat statistics: every input channel's mean ``mean`` and std 1,
+    the action's mean 0 and std ``action_std``."""
+    from msta.policies.factory import make_policy
+    from msta.policies.msta import MSTAConfig
+
+    torch.manual_seed(0)
+    cfg = MSTAConfig.from_preset("tiny", history=history, **overrides)
+    stats = {sensors.get(n).column: {"mean": [mean] * sensors.get(n).dim,
+                                     "std": [1.0] * sensors.get(n).dim}
+             for n in cfg.input_sensors}
+    stats["action"] = {"mean": [0.0] * 12, "std": [action_std] * 12}
+    return make_policy(cfg, stats)

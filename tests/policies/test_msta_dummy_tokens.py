@@ -9,13 +9,11 @@ from functools import partial
 import numpy as np
 import pytest
 import torch
-from msta_test_helpers import random_batch  # registered by tests/conftest.py
+from msta_test_helpers import random_batch, tiny_msta  # registered by tests/conftest.py
 
-from msta.data import sensors
 from msta.policies.actor import StudentActor
-from msta.policies.factory import make_policy
 from msta.policies.input_spec import InputSpec
-from msta.policies.msta import MSTAConfig, MSTAPolicy
+from msta.policies.msta import MSTAPolicy
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -24,13 +22,7 @@ T = 6
 
 def make(**overrides) -> MSTAPolicy:
     """A tiny random-weight MSTA student (seeded) with unit-scale statistics."""
-    torch.manual_seed(0)
-    cfg = MSTAConfig.from_preset("tiny", history=T, **overrides)
-    stats = {sensors.get(n).column: {"mean": [0.1] * sensors.get(n).dim,
-                                     "std": [1.0] * sensors.get(n).dim}
-             for n in cfg.input_sensors}
-    stats["action"] = {"mean": [0.0] * 12, "std": [0.5] * 12}
-    return make_policy(cfg, stats)
+    return tiny_msta(T, mean=0.1, action_std=0.5, **overrides)
 
 
 #: ``make_batch(B=4, seed=1)``: seeded readings of every student input (foot contacts 0/1)

@@ -6,11 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from msta_test_helpers import random_batch, random_episode  # registered by tests/conftest.py
+from msta_test_helpers import (  # registered by tests/conftest.py
+    random_batch,
+    random_episode,
+    tiny_msta,
+)
 
 from msta.data import sensors
 from msta.data.writer import DatasetWriter
-from msta.policies.factory import load_policy, make_policy
+from msta.policies.factory import load_policy
 from msta.policies.msta import MSTAConfig
 from msta.train.cli import parse_cli
 from msta.train.loop import load_windows
@@ -22,13 +26,7 @@ T = 5
 
 
 def tiny(**overrides):
-    torch.manual_seed(0)
-    cfg = MSTAConfig.from_preset("tiny", history=T, **overrides)
-    stats = {sensors.get(n).column: {"mean": [0.0] * sensors.get(n).dim,
-                                     "std": [1.0] * sensors.get(n).dim}
-             for n in cfg.input_sensors}
-    stats["action"] = {"mean": [0.0] * 12, "std": [1.0] * 12}
-    return make_policy(cfg, stats)
+    return tiny_msta(T, **overrides)
 
 
 def without_head(policy):
