@@ -261,11 +261,16 @@ class StudentPolicy(nn.Module):
         if key not in batch:
             raise KeyError(f"batch has no target {key!r}; keys: {sorted(batch)}")
         batch = self.as_tensors(batch)
-        target = self.processor.normalize_target(batch[key])  # (B, A)
         pred = self._predict(batch, channels, mask_ratio, generator, dummy_tokens, absent)
-        loss = F.mse_loss(pred, target)
+        return self.action_loss(pred, batch[key])
+
+    def action_loss(self, pred: Tensor, action: Tensor) -> tuple[Tensor, dict[str, float]]:
+        """MSE of model-space predictions ``pred`` (B, A) against the raw target ``action``
+        (B, A) in the processor's target space, and the metrics ``loss`` and
+        ``action_mse`` (raw units)."""
+        loss = F.mse_loss(pred, self.processor.normalize_target(action))
         with torch.no_grad():
-            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())
+            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), action.float())
         return loss, {"loss": float(loss.detach()), "action_mse": float(raw)}
 
     def save_pretrained(self, directory: str | Path) -> Path:

@@ -432,13 +432,10 @@ class MSTAPolicy(StudentPolicy):
         inputs = {k: v for k, v in batch.items() if k != column}  # the target is no input
         pred, aux = self(inputs, channels, mask_ratio, generator, dummy_tokens, absent,
                          with_aux=True)
-        action_loss = F.mse_loss(pred, self.processor.normalize_target(batch[key]))
+        action_loss, metrics = self.action_loss(pred, batch[key])
         aux_loss = F.mse_loss(aux, batch[column].to(aux.dtype))
-        with torch.no_grad():
-            raw = F.mse_loss(self.processor.unnormalize_action(pred.float()), batch[key].float())
-        return action_loss + self.config.aux_weight * aux_loss, {
-            "loss": float(action_loss.detach()), "action_mse": float(raw),
-            "aux_mse": float(aux_loss.detach())}
+        metrics["aux_mse"] = float(aux_loss.detach())
+        return action_loss + self.config.aux_weight * aux_loss, metrics
 
     def with_inputs(self, sensors: Sequence[str], history: int,
                     stats: Mapping[str, Mapping[str, Any]] | None = None) -> Self:
