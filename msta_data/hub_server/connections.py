@@ -162,6 +162,11 @@ class Admission:
                                 "(max_user_body_bytes); retry later")
         return None
 
+    def in_progress(self, user: str) -> tuple[int, int]:
+        """Requests of ``user`` in progress and the body bytes they hold."""
+        with self._lock:
+            return self._busy[("user", user)], self._bytes[("user", user)]
+
     def end(self, client: str, user: str | None, body_bytes: int) -> None:
         principal = ("address", client) if user is None else ("user", user)
         with self._lock:

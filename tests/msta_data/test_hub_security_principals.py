@@ -51,6 +51,13 @@ def _until(condition, wait_s: float = 10.0) -> None:
         time.sleep(0.02)
 
 
+def _held(srv, user: str, requests: int) -> None:
+    """Wait until ``user`` has ``requests`` requests in progress on the server. Polling with
+    the user's own requests instead would race: a poll that takes a slot while a slow commit's
+    headers arrive gets that commit refused."""
+    _until(lambda: srv.httpd.admission.in_progress(user)[0] == requests)
+
+
 # ------------------------------------------------------------------ request slots and bytes
 def test_one_user_with_64_slow_commits_leaves_other_users_and_anonymous_clients_served(tmp_path):
     """With the default limits alice holds 16 request slots (max_user_connections); her other
@@ -85,7 +92,7 @@ def test_body_bytes_in_progress_are_capped_per_user(tmp_path):
     big = [H.inline_file("big.bin", b"\0" * 225_000)]  # ~300 kB of base64
     slow = _slow_commit(srv, ALICE, "alice/m", 800_000)
     try:
-        _until(lambda: H.commit(srv, ALICE, "alice/m", big)[0] == 429)
+        _held(srv, "alice", 1)
         status, body = H.commit(srv, ALICE, "alice/m", big)
         assert status == 429 and "max_user_body_bytes" in json.loads(body)["error"]
         assert H.commit(srv, ALICE, "alice/m", [H.inline_file("small.txt", b"x")])[0] == 200
@@ -109,7 +116,8 @@ def test_an_lfs_upload_counts_for_the_user_whose_ticket_it_carries(tmp_path):
         puts[repo] = urlsplit(obj["actions"]["upload"]["href"]).path
     slow = [_slow_commit(srv, ALICE, "alice/m") for _ in range(2)]
     try:
-        _until(lambda: H.call(srv, "GET", "/api/whoami-v2", token=ALICE)[0] == 429)
+        _held(srv, "alice", 2)
+        assert H.call(srv, "GET", "/api/whoami-v2", token=ALICE)[0] == 429
         status, body, _ = H.call(srv, "PUT", puts["alice/m"], b"alice/m")
         assert status == 429 and b"user alice" in body and b"max_user_connections" in body
         assert H.call(srv, "PUT", puts["bob/m"], b"bob/m")[0] == 200
