@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import replace
 from typing import Any, Self
 
 import torch
@@ -57,6 +56,7 @@ from msta.data.sensors import get
 from msta.policies.base import Absent, StudentPolicy, uniform
 from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.msta.dummy import draw_dummy_tokens
+from msta.policies.msta.inputs_copy import with_inputs
 from msta.policies.msta.processor_msta import MSTAInputs, MSTAProcessor
 from msta.policies.msta.removal import (
     absent_tokens,
@@ -439,58 +439,5 @@ class MSTAPolicy(StudentPolicy):
 
     def with_inputs(self, sensors: Sequence[str], history: int,
                     stats: Mapping[str, Mapping[str, Any]] | None = None) -> Self:
-        """A copy that reads only ``sensors`` and trains on windows of ``history`` steps: its
-        config.json and processor.json name just those inputs, so it rolls out, trains,
-        evaluates and exports on them (msta-finetune's minimized observation). Every weight
-        is copied except the value tables, encoders and sensor embeddings of the dropped
-        sensors, so on the kept inputs the copy acts exactly as this policy (in the
-        learnable-mask ablation this policy fills absent sensors with mask tokens; the copy
-        has no tokens for the dropped ones).
-
-        A sensor this policy does not read (e.g. the ``height_map`` extension) is added after
-        the kept ones with fresh weights (value tables or encoder, and its sensor
-        embedding) and the normalization statistics of its column in ``stats``; until they
-        are trained its tokens are noise to the transformer.
-
-        Args:
-            sensors: registry student inputs; this policy's are kept in its config order,
-                new ones follow in the given order.
-            history: the copy's training window T (>= 1).
-            stats: dataset statistics (``column -> {"mean", "std"}``) covering every new
-                non-binary sensor.
-        """
-        inputs = self.config.input_sensors
-        new = tuple(dict.fromkeys(s for s in sensors if s not in inputs))
-        for name in new:
-            if not get(name).is_student_input:
-                raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student "
-                                 "input")
-        keep = tuple(s for s in inputs if s in sensors)
-        config = replace(self.config, input_sensors=(*keep, *new), history=history)
-        pdict = self.processor.to_dict()
-        pstats = dict(pdict["stats"])
-        for name in new:
-            col = get(name).column
-            if get(name).binary:
-                continue
-            if stats is None or col not in stats:
-                raise ValueError(f"no statistics for the new input {name!r} (column {col!r}); "
-                                 "pass the dataset's")
-            pstats[col] = {k: [float(v) for v in stats[col][k]] for k in ("mean", "std")}
-        processor = type(self.processor).from_dict(
-            {**pdict, "input_sensors": list(config.input_sensors), "stats": pstats})
-        copy = type(self)(config, processor).to(self.device)  # fresh weights for new sensors
-        target = copy.state_dict()
-        prefixes = ("model.sensor_embed.", "model.encoders.")
-        for k, v in self.state_dict().items():
-            if k.startswith(prefixes):
-                if k.split(".")[2] in keep:
-                    target[k] = v
-            elif k != "model.bin_embed.weight":
-                target[k] = v
-        rows = self.model.table_rows(keep).to(self.device)  # kept tables come first in the copy
-        table = target["model.bin_embed.weight"].clone()
-        table[:len(rows)] = self.model.bin_embed.weight.detach()[rows]
-        target["model.bin_embed.weight"] = table
-        copy.load_state_dict(target)
-        return copy.train(self.training)
+        """:func:`msta.policies.msta.inputs_copy.with_inputs` of this policy."""
+        return with_inputs(self, sensors, history, stats)
