@@ -112,7 +112,7 @@ LinearStd = Callable[[nn.Linear], float]
 
 
 def init_linears(modules: Iterable[nn.Module], std: float | LinearStd) -> None:
-    """Every ``nn.Linear`` inside ``modules`` (in order): weight ~ N(0, std), bias 0.
+    """Every ``nn.Linear`` inside ``modules`` (in order): weight ~ N(0, std), bias (if any) 0.
 
     Args:
         modules: searched with ``.modules()`` each.
@@ -122,7 +122,8 @@ def init_linears(modules: Iterable[nn.Module], std: float | LinearStd) -> None:
         for lin in m.modules():
             if isinstance(lin, nn.Linear):
                 nn.init.normal_(lin.weight, std=std(lin) if callable(std) else std)
-                nn.init.zeros_(lin.bias)
+                if lin.bias is not None:
+                    nn.init.zeros_(lin.bias)
 
 
 def scale_residuals(stack: Iterable[Block], std: float | LinearStd) -> None:

@@ -21,6 +21,8 @@ from msta.policies.config import PolicyConfig, check_fraction, check_positive
 VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
 #: Choices of ``value_init``.
 VALUE_INITS = ("sincos", "linear", "arc")
+#: Choices of ``attention``.
+ATTENTIONS = ("full", "step")
 
 #: Preset name -> field overrides of the (paper) defaults.
 PRESETS: dict[str, dict[str, Any]] = {
@@ -73,6 +75,15 @@ class MSTAConfig(PolicyConfig):
             column of it (raw units): an auxiliary loss for estimating what the teacher
             reads directly. Empty: none. Acting never uses it.
         aux_weight: weight of that auxiliary MSE beside the action's.
+        attention: ``full`` (the paper: every token attends to every token in every block)
+            or ``step``: the first ``num_layers - readout_layers`` blocks attend only within
+            one step's tokens (which carry no age), then ``readout_layers`` blocks update
+            only the readout tokens, which attend to every token with its age added to its
+            key and value. A step's tokens then depend on that step alone, so a robot
+            encodes only the newest step each control step and reuses the rest
+            (:class:`~msta.policies.msta.step_attention.StepStream`).
+        readout_layers: with ``attention`` = ``step``: how many of the ``num_layers``
+            blocks are readout blocks (1 to ``num_layers``).
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = PRESETS  # the module's PRESETS above
@@ -95,6 +106,8 @@ class MSTAConfig(PolicyConfig):
     state_tokens: int = 1
     aux_target: str = ""
     aux_weight: float = 1.0
+    attention: str = "full"
+    readout_layers: int = 1
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -108,6 +121,11 @@ class MSTAConfig(PolicyConfig):
         if self.dim % 4:
             raise ValueError(f"dim {self.dim} must be divisible by 4 (2-D sin-cos embedding)")
         check_fraction(dropout=self.dropout)
+        if self.attention not in ATTENTIONS:
+            raise ValueError(f"attention must be one of {ATTENTIONS}, got {self.attention!r}")
+        if not 1 <= self.readout_layers <= self.num_layers:
+            raise ValueError(f"readout_layers must be in [1, num_layers={self.num_layers}], "
+                             f"got {self.readout_layers}")
         if self.value_embedding not in VALUE_EMBEDDINGS:
             raise ValueError(f"value_embedding must be one of {VALUE_EMBEDDINGS}, "
                              f"got {self.value_embedding!r}")

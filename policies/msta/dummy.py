@@ -14,11 +14,11 @@ from msta.policies.msta.processor_msta import MSTAInputs
 
 def draw_dummy_tokens(model: Any, inputs: MSTAInputs, pos: Tensor, sensor: Tensor,
                       B: int, dummy: int | Tensor, generator: torch.Generator | None
-                      ) -> Tensor:
+                      ) -> tuple[Tensor, Tensor]:
     """D random tokens per sample of an ``MSTATransformer`` ``model``: (B, D, d), drawn from
     ``generator`` (``dummy`` = D) or given by uniforms (``dummy``: (B, D, 4)), from the value
     tables of the present channels, the layout's positions ``pos`` and the present sensors'
-    types ``sensor``. Nothing is trained."""
+    types ``sensor``, and the layout slot (B, D) whose position each took. Nothing is trained."""
     dev = model.bin_embed.weight.device
     if not inputs.channels:
         raise ValueError("dummy tokens draw their values from the value tables of scalar "
@@ -43,5 +43,6 @@ def draw_dummy_tokens(model: Any, inputs: MSTAInputs, pos: Tensor, sensor: Tenso
             return torch.randint(high, (B, D), generator=generator, device=gen_dev).to(dev)
 
     rows = tables[draw(len(tables), 0)] * nb + draw(nb, 1)  # (B, D) rows of bin_embed
+    slot = draw(len(pos), 2)  # (B, D)
     with torch.no_grad():
-        return model.bin_embed(rows) + pos[draw(len(pos), 2)] + sensor[draw(len(sensor), 3)]
+        return model.bin_embed(rows) + pos[slot] + sensor[draw(len(sensor), 3)], slot

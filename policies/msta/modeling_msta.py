@@ -65,6 +65,7 @@ from msta.policies.msta.removal import (
     encoded_keys,
     keep_per_sample,
 )
+from msta.policies.msta.step_attention import make_age_proj, step_features
 from msta.policies.processor import Batch, Channels
 from msta.policies.registry import register_policy
 from msta.policies.transformer import (
@@ -105,6 +106,8 @@ class MSTATransformer(nn.Module):
         self.extra_state_tokens = nn.Parameter(torch.zeros(R - 1, d)) if R > 1 else None
         self.mask_token = nn.Parameter(torch.zeros(d)) if cfg.learnable_mask else None
         self.blocks = make_blocks(cfg)
+        #: ``attention`` = ``step``: each readout block's map of a token's age to its key and value
+        self.age_proj = make_age_proj(cfg)
         self.ln_f = nn.LayerNorm(d)
         h = cfg.head_hidden_dim
         self.head = (nn.Sequential(nn.Linear(d * R, h), nn.GELU(approximate="tanh"),
@@ -215,9 +218,8 @@ class MSTATransformer(nn.Module):
             for s, (name, ch, scalar) in enumerate(groups):
                 t = torch.arange(T, device=dev).repeat_interleave(len(ch))  # (T*c,) oldest first
                 c = ch.repeat(T)  # (T*c,)
-                pos.append(
-                    sincos_2d(c.float(), (T - 1 - t).float(), self.cfg.dim, self.cfg.pos_base)
-                )
+                age = (T - 1 - t) if self.cfg.attention == "full" else torch.zeros_like(t)  # step: ages at readout
+                pos.append(sincos_2d(c.float(), age.float(), self.cfg.dim, self.cfg.pos_base))
                 sid.append(torch.full_like(t, s))
                 step.append(t)
                 if scalar:
@@ -229,6 +231,14 @@ class MSTATransformer(nn.Module):
               ) -> tuple[Tensor, Tensor | None]:
         """Tokens after masking, D dummy tokens, then the readout tokens (<S> last):
         (B, K + D + R, d), and a key mask (B, 1, 1, K + D + R) or None."""
+        return self.embed_steps(inputs, mask_ratio, generator, dummy_tokens)[:2]
+
+    def embed_steps(self, inputs: MSTAInputs, mask_ratio: float,
+                    generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
+                    ) -> tuple[Tensor, Tensor | None, Tensor | None, int]:
+        """:meth:`embed`; with ``attention`` = ``step`` also the age (B, K + D) of each token
+        before the readout tokens (None otherwise), and T when those are the whole token
+        layout of the T-step window in its order (nothing removed, no dummy; else 0)."""
         missing = None
         if self.mask_token is not None:
             inputs, missing = complete_inputs(inputs, self.scalar_sensors)  # absent sensors/channels -> mask tokens
@@ -256,18 +266,21 @@ class MSTATransformer(nn.Module):
         if self.mask_token is not None:  # absent tokens are replaced like missing ones
             pad = pad if gone is None else gone if pad is None else pad | gone
             x = self._replace_masked(tokens, static, pad, n_drop, generator)  # (B, N, d)
-            key_pad = encoded_keys(gone, inputs, T)  # None unless an encoded sensor is absent
+            key_pad, keep = encoded_keys(gone, inputs, T), None  # key_pad: None unless an encoded sensor is absent
         elif gone is not None and torch.jit.is_tracing() and not mask_ratio:
             x, key_pad = self._value(tokens) + static, gone if pad is None else gone | pad
+            keep = None
         elif gone is not None:  # per sample: (B, K, d), K the most any sample keeps
             keep, key_pad = keep_per_sample(gone, pad, mask_ratio, generator)
             x = self._gather(tokens, static, keep)
         else:
-            x, key_pad = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
+            x, key_pad, keep = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
+        ages = self._ages(T - 1 - step, keep, B)  # (B, K) or None
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
         if D:
-            dummy = draw_dummy_tokens(self, inputs, pos, sensor, B, dummy_tokens, generator)
+            dummy, slot = draw_dummy_tokens(self, inputs, pos, sensor, B, dummy_tokens, generator)
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
+            ages = None if ages is None else torch.cat([ages, T - 1 - step[slot]], dim=1)
         x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
         attn_mask = None
         if key_pad is not None and key_pad.any():
@@ -277,7 +290,16 @@ class MSTATransformer(nn.Module):
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
             if torch.jit.is_tracing():  # exported: 0 / -inf added to the scores (cheaper)
                 attn_mask = additive_mask(attn_mask, x.dtype)
-        return x, attn_mask
+        whole = T if keep is None and not D and self.mask_token is None else 0
+        return x, attn_mask, ages, whole
+
+    def _ages(self, age: Tensor, keep: Tensor | None, B: int) -> Tensor | None:
+        """The kept tokens' ages (B, K) from the layout's ``age`` (N,), which step attention
+        reads (None in full attention)."""
+        if self.cfg.attention != "step":
+            return None
+        age = age[None].expand(B, -1)  # (B, N)
+        return age if keep is None else torch.gather(age, 1, keep)
 
     def _encode(self, inputs: MSTAInputs, rows: Tensor | None, B: int, T: int) -> Tensor:
         """Every token's value (B, N, d): the scalar tokens' table rows, then each encoded
@@ -322,16 +344,19 @@ class MSTATransformer(nn.Module):
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
     def _remove_masked(self, tokens: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
-                       generator: torch.Generator | None) -> tuple[Tensor, Tensor | None]:
+                       generator: torch.Generator | None
+                       ) -> tuple[Tensor, Tensor | None, Tensor | None]:
+        """Kept tokens (B, K, d), their key padding (B, K) or None, and their indices (B, K)
+        into the layout (None: all N kept)."""
         B, N = tokens.shape[:2]
         if pad is not None:  # padding every sample shares is removed even beyond round(αN)
             n_drop = max(n_drop, int(pad.sum(1).min()))
         if n_drop == 0:
-            return self._value(tokens) + static, pad  # (B, N, d)
+            return self._value(tokens) + static, pad, None  # (B, N, d)
         scores = self._drop_scores(B, N, pad, generator)  # (B, N)
         keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
         return self._gather(tokens, static, keep), (
-            torch.gather(pad, 1, keep) if pad is not None else None)
+            torch.gather(pad, 1, keep) if pad is not None else None), keep
 
     def _gather(self, tokens: Tensor, static: Tensor, keep: Tensor) -> Tensor:
         """The ``keep`` (B, K) tokens' values plus their position and sensor type: (B, K, d)."""
@@ -358,12 +383,15 @@ class MSTATransformer(nn.Module):
                 with_aux: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """(B, action_dim); with ``with_aux`` also the auxiliary target's prediction
         (B, its dim) from the same readout features."""
-        x, attn_mask = self.embed(inputs, mask_ratio, generator, dummy_tokens)  # (B, L, d)
-        R, last = self.cfg.state_tokens, len(self.blocks) - 1
-        for i, block in enumerate(self.blocks):
-            # the head reads only the readout tokens: the last block computes only theirs
-            x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
-        features = self.ln_f(x).flatten(1)  # (B, R * d): <S> (+ R - 1)
+        x, attn_mask, ages, whole = self.embed_steps(inputs, mask_ratio, generator, dummy_tokens)
+        if self.cfg.attention == "step":
+            features = step_features(self, x, attn_mask, ages, whole)  # (B, R * d)
+        else:
+            R, last = self.cfg.state_tokens, len(self.blocks) - 1
+            for i, block in enumerate(self.blocks):
+                # the head reads only the readout tokens: the last block computes only theirs
+                x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
+            features = self.ln_f(x).flatten(1)  # (B, R * d): <S> (+ R - 1)
         if with_aux:
             if self.aux_head is None:
                 raise ValueError("this MSTA student has no aux_target")

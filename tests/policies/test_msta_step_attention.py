@@ -1,0 +1,102 @@
+"""MSTA with per-step attention (``--policy.attention=step``): the cached control step equals the
+whole window's action, ages matter, removal and training work, bad settings are one line."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
+
+from msta.data import sensors
+from msta.policies.msta import MSTAConfig
+from msta.policies.msta.step_attention import StepStream, step_features
+
+T = 5
+
+
+def sequence(policy, steps: int, batch: int = 2, seed: int = 1) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {n: torch.randn(batch, steps, sensors.get(n).dim, generator=g)
+            for n in policy.config.input_sensors}
+
+
+@pytest.mark.parametrize("layers", [(3, 1), (2, 2)], ids=["2step-1readout", "0step-2readout"])
+def test_the_stream_acts_as_the_window_from_the_first_step_on(layers):
+    """Each control step of StepStream (newest step encoded, older ones cached) gives the
+    policy's action on the window ending there: shorter windows at the episode's start,
+    then the last T steps."""
+    num_layers, readout = layers
+    policy = tiny_msta(T, attention="step", num_layers=num_layers, readout_layers=readout,
+                       state_tokens=2).eval()
+    seq = sequence(policy, 2 * T + 1)
+    stream = StepStream(policy)
+    actions = []
+    for t in range(2 * T + 1):
+        got = stream.step({n: v[:, t] for n, v in seq.items()})
+        with torch.no_grad():
+            want = policy({n: v[:, max(0, t - T + 1):t + 1] for n, v in seq.items()})
+        torch.testing.assert_close(got, want, atol=1e-5, rtol=0)
+        actions.append(got)
+    assert not torch.allclose(actions[-1], actions[-2], atol=1e-4)  # it reads its inputs
+    stream.reset()
+    first = stream.step({n: v[:, 0] for n, v in seq.items()})
+    torch.testing.assert_close(first, actions[0], atol=1e-6, rtol=0)
+
+
+def test_the_readout_tells_steps_apart_by_their_age():
+    """Steps' tokens carry no age, the readout adds it: the same readings in another order
+    give another action (a window read as a bag of steps would give the same one)."""
+    policy = tiny_msta(T, attention="step", num_layers=2).eval()
+    seq = sequence(policy, T)
+    with torch.no_grad():
+        a = policy(seq)
+        b = policy({n: v.flip(1) for n, v in seq.items()})
+    assert not torch.allclose(a, b, atol=1e-4)
+
+
+def test_training_with_removal_and_dummy_tokens_reaches_every_weight():
+    """Random removal (the training mask), dummy tokens and per-sample absent channels go
+    through the masked per-step blocks: finite loss, a gradient on every weight of the
+    per-step and readout blocks and on the age maps."""
+    policy = tiny_msta(T, attention="step", num_layers=2, state_tokens=2).train()
+    seq = sequence(policy, T, batch=4)
+    absent = {"joint_pos": torch.zeros(4, 12, dtype=torch.bool)}
+    absent["joint_pos"][0, :6] = True
+    out = policy(seq, mask_ratio=0.5, generator=torch.Generator().manual_seed(0),
+                 dummy_tokens=3, absent=absent)
+    assert out.shape == (4, 12) and torch.isfinite(out).all()
+    out.square().mean().backward()
+    for name, p in policy.model.named_parameters():
+        if name.startswith(("blocks.", "age_proj.")) and "mlp.3" not in name:
+            assert p.grad is not None and p.grad.abs().sum() > 0, name
+
+
+def test_the_whole_window_and_the_masked_path_agree():
+    """Without removal the per-step blocks run on T groups of a step's tokens; the masked
+    path (all tokens, each step kept to itself by the mask: the one training's removal
+    takes) gives the same action on the same tokens."""
+    policy = tiny_msta(T, attention="step", num_layers=3, state_tokens=2).eval()
+    seq = sequence(policy, T, batch=3)
+    with torch.no_grad():
+        grouped = policy(seq)
+        inputs = policy.processor.discretize(policy.as_tensors(seq))
+        x, mask, ages, whole = policy.model.embed_steps(inputs, 0.0)
+        assert whole == T
+        masked = policy.model.head(step_features(policy.model, x, mask, ages, 0))
+    torch.testing.assert_close(masked, grouped, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize(("kw", "message"), [
+    ({"attention": "local"}, "attention must be one of"),
+    ({"readout_layers": 5}, "readout_layers must be in [1, num_layers=4]"),
+    ({"readout_layers": 0}, "readout_layers must be in"),
+])
+def test_bad_settings_are_one_line(kw, message):
+    with pytest.raises(ValueError, match=message.replace("[", r"\[")) as err:
+        MSTAConfig(**kw)
+    assert "\n" not in str(err.value)
+
+
+def test_a_stream_needs_step_attention():
+    with pytest.raises(ValueError, match="attention='step'"):
+        StepStream(tiny_msta(T))
