@@ -92,6 +92,9 @@ class DeployedStudent(nn.Module):
                  absent: Sequence[str] = ()) -> None:
         super().__init__()
         self.policy = policy.eval()
+        # the wrapper too: torch.onnx.export restores the wrapper's own mode afterwards, and
+        # a wrapper left in training mode would switch the policy to training with it
+        self.eval()
         self.sensors = tuple(sensors)
         self.absent = tuple(absent)
         if self.absent:

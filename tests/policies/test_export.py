@@ -21,9 +21,10 @@ from msta.policies.export_files import ExportParityError
 from msta.policies.input_spec import MINIMIZED_SENSORS
 
 REPO = Path(__file__).resolve().parents[2]
-#: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant) and every
-#: baseline and reference learner
-CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True})] + [
+#: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant, per-step
+#: attention) and every baseline and reference learner
+CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),
+         ("msta", {"attention": "step", "num_layers": 2, "state_tokens": 2})] + [
     (name, {}) for name in BASELINES + REFERENCES]
 IDS = [n + "".join(f"-{k}" for k in o) for n, o in CASES]
 FIXED_T = ("rma_tcn", "mlp")  # learners that only run at their training window length
@@ -51,6 +52,7 @@ def test_export_matches_the_eager_student(name, overrides, which, recorded, tmp_
                "random": random_windows(policy, names, T, 16)}
     spec = export_student(policy, tmp_path, which, T, windows=windows)
 
+    assert not policy.training  # the export leaves the student as it found it (eval mode)
     assert spec["parity_ok"] and spec["parity_max_abs_diff"] <= 1e-5
     assert {(p["format"], p["windows"]) for p in spec["parity"]} == {
         (f, w) for f in ("torchscript", "onnx") for w in ("recorded", "random")}
