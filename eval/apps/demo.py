@@ -110,15 +110,16 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
-               mask: float = MSTAConfig.mask_ratio, aux_target: str = "", **loop: float
-               ) -> Path:
+               mask: float = MSTAConfig.mask_ratio, aux_target: str = "",
+               attention: str = "full", readout_layers: int = 1, **loop: float) -> Path:
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
-          f"ratio {mask:g} ==")
+          f"ratio {mask:g}" + (f", {attention} attention" if attention != "full" else "") + " ==")
     from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
 
     return train(TrainConfig(
-        dataset=dataset, policy=MSTAConfig.from_preset("cpu", history=history, mask_ratio=mask,
-                                                       aux_target=aux_target),
+        dataset=dataset, policy=MSTAConfig.from_preset(
+            "cpu", history=history, mask_ratio=mask, aux_target=aux_target, attention=attention,
+            readout_layers=readout_layers),
         output_dir=str(out / "stage1"),
         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
         steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
@@ -281,6 +282,9 @@ class DemoConfig:
         train_mask_ratio: stage-1 training mask ratio (the paper's 0.75).
         aux_target: a privileged signal the student also learns to predict in both stages
             (``--policy.aux_target`` of msta-train, e.g. ``base_lin_vel``); empty = none.
+        attention: the student's ``--policy.attention``: ``full`` (the paper's) or ``step``
+            (per-step blocks, then readout blocks over every step; docs/msta_model.md).
+        readout_layers: with ``step`` attention, how many of the student's blocks read out.
         rounds: stage-2 rounds (0: stage 1 only).
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
@@ -319,6 +323,8 @@ class DemoConfig:
     train_steps: int = 4000
     train_mask_ratio: float = MSTAConfig.mask_ratio
     aux_target: str = ""
+    attention: str = "full"
+    readout_layers: int = 1
     rounds: int = 7
     correct_steps: int = 1300
     correct_episodes: int = 32
@@ -340,7 +346,8 @@ class DemoConfig:
                        "envs_per_type", "eval_trials", "num_threads")
         if self.select_trials < 0:
             raise ValueError(f"select_trials={self.select_trials} must be >= 0 (0: no selection)")
-        MSTAConfig(aux_target=self.aux_target)  # a bad --aux_target fails here, in one line
+        MSTAConfig.from_preset("cpu", aux_target=self.aux_target, attention=self.attention,
+                               readout_layers=self.readout_layers)  # a bad one fails here, in one line
         for name in ("episode_length_s", "select_episode_length_s", "teacher_seconds",
                      "eval_episode_length_s"):
             if not getattr(self, name) > 0:
@@ -379,7 +386,8 @@ def main(argv: list[str] | None = None) -> None:
             hub_dataset = step_push(dataset)
         with timed("step 4"):
             stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads,
-                                cfg.history, cfg.train_mask_ratio, cfg.aux_target, **loop)
+                                cfg.history, cfg.train_mask_ratio, cfg.aux_target,
+                                cfg.attention, cfg.readout_layers, **loop)
         best = 0
         if cfg.rounds:
             with timed("step 5"):
