@@ -148,7 +148,7 @@ def test_the_wheel_holds_only_msta(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     assert {n.split("/")[0] for n in names} == {"msta", wheel.name.split("-py")[0] + ".dist-info"}
     for must in ("msta/data/sensors.py", "msta/train/offline.py", "msta/eval/apps/demo.py",
-                 "msta/collect/sim/assets/a1.xml",
+                 "msta/collect/sim/assets/a1.xml", "msta/data/robots/a1.toml",
                  "msta/policies/teacher/checkpoints/rma_ppo/model.safetensors"):
         assert must in names
 
