@@ -15,15 +15,13 @@ key and value,
 scalar token exactly as in the paper's model (a removed token is absent from both stages),
 and any sensor subset and any window length work the same way.
 
-At deployment :class:`StepStream` encodes only the newest step each control step and keeps
+At deployment :class:`~msta.policies.msta.step_stream.StepStream` encodes only the newest step each control step and keeps
 every past step's ``W_k LN(x_j)``, ``W_v LN(x_j)`` per readout block: the ages move, the
 cached numbers do not, so the action equals the whole window's (up to float rounding).
 """
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Mapping
 from typing import Any
 
 import torch
@@ -32,7 +30,7 @@ from torch import Tensor, nn
 
 from msta.policies.transformer import Block, sincos_1d
 
-__all__ = ["StepStream", "age_code", "step_features", "token_kv"]
+__all__ = ["age_code", "make_age_proj", "readout_block", "step_features", "token_kv"]
 
 
 def age_code(model: Any, ages: Tensor) -> Tensor:
@@ -134,56 +132,3 @@ def make_age_proj(cfg: Any) -> nn.ModuleList | None:
         return None
     return nn.ModuleList(nn.Linear(cfg.dim, 2 * cfg.dim, bias=False)
                          for _ in range(cfg.readout_layers))
-
-
-class StepStream:
-    """An MSTA ``step`` policy acting one control step at a time on a robot: each
-    :meth:`step` encodes the newest step's tokens only and reuses the cached keys and values
-    of the last ``history - 1`` steps. Its action equals the policy's model output on the
-    window of those steps (float rounding aside); the first steps of an episode act on the
-    shorter window, as the policy does on a padded one.
-
-    Args:
-        policy: an :class:`~msta.policies.msta.modeling_msta.MSTAPolicy` whose config has
-            ``attention`` = ``step``.
-        history: steps in the window (default: the policy's training window).
-        channels: the channels read (sensor -> indices; default: all of every input).
-    """
-
-    def __init__(self, policy: Any, history: int | None = None,
-                 channels: Mapping[str, Any] | None = None) -> None:
-        cfg = policy.config
-        if cfg.attention != "step":
-            raise ValueError(f"StepStream needs an MSTA policy with attention='step', this one "
-                             f"has {cfg.attention!r}")
-        self.policy, self.model = policy, policy.model
-        self.history = history or cfg.history
-        self.channels = channels
-        self._cache: deque[list[Tensor]] = deque(maxlen=self.history)
-        self._n_step = cfg.num_layers - cfg.readout_layers
-
-    def reset(self) -> None:
-        """Forget the cached steps (a new episode)."""
-        self._cache.clear()
-
-    @torch.inference_mode()
-    def step(self, readings: Mapping[str, Any]) -> Tensor:
-        """One control step: ``readings`` maps each input sensor to this step's values
-        (B, dim); returns the model-space action (B, action_dim) on the window ending here."""
-        batch = {k: torch.as_tensor(v)[:, None] for k, v in readings.items()}  # (B, 1, dim)
-        inputs = self.policy.processor.discretize(self.policy.as_tensors(batch), self.channels)
-        x = self.model.embed_steps(inputs, 0.0)[0]
-        R = self.model.cfg.state_tokens
-        tokens = x[:, :-R]  # (B, n, d): this step's tokens (all of them: no removal)
-        for block in self.model.blocks[:self._n_step]:
-            tokens = block(tokens, None)
-        self._cache.append([token_kv(b, tokens) for b in self.model.blocks[self._n_step:]])
-        m, n = len(self._cache), tokens.shape[1]
-        code = age_code(self.model, torch.arange(m - 1, -1, -1, device=x.device))  # (m, d)
-        readout = x[:, -R:]
-        for i, (block, proj) in enumerate(zip(self.model.blocks[self._n_step:],
-                                              self.model.age_proj, strict=True)):
-            age = proj(code).repeat_interleave(n, dim=0)  # (m·n, 2d): one row per step, oldest first
-            kv = torch.cat([c[i] for c in self._cache], dim=1) + age  # (B, m·n, 2d)
-            readout = readout_block(block, kv, readout, None)
-        return self.model.head(self.model.ln_f(readout).flatten(1))

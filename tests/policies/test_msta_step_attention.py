@@ -9,7 +9,8 @@ from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
 
 from msta.data import sensors
 from msta.policies.msta import MSTAConfig
-from msta.policies.msta.step_attention import StepStream, step_features
+from msta.policies.msta.step_attention import step_features
+from msta.policies.msta.step_stream import StepStream
 
 T = 5
 
@@ -20,16 +21,17 @@ def sequence(policy, steps: int, batch: int = 2, seed: int = 1) -> dict[str, tor
             for n in policy.config.input_sensors}
 
 
-@pytest.mark.parametrize("layers", [(3, 1), (2, 2)], ids=["2step-1readout", "0step-2readout"])
-def test_the_stream_acts_as_the_window_from_the_first_step_on(layers):
-    """Each control step of StepStream (newest step encoded, older ones cached) gives the
-    policy's action on the window ending there: shorter windows at the episode's start,
-    then the last T steps."""
+@pytest.mark.parametrize(("layers", "traced"), [((3, 1), False), ((2, 2), False), ((3, 1), True)],
+                         ids=["2step-1readout", "0step-2readout", "traced"])
+def test_the_stream_acts_as_the_window_from_the_first_step_on(layers, traced):
+    """Each control step of StepStream (newest step encoded, older ones cached; eager or
+    frozen TorchScript) gives the policy's action on the window ending there: shorter
+    windows at the episode's start, then the last T steps; reset starts a new episode."""
     num_layers, readout = layers
     policy = tiny_msta(T, attention="step", num_layers=num_layers, readout_layers=readout,
                        state_tokens=2).eval()
     seq = sequence(policy, 2 * T + 1)
-    stream = StepStream(policy)
+    stream = StepStream(policy, batch=2, traced=traced)
     actions = []
     for t in range(2 * T + 1):
         got = stream.step({n: v[:, t] for n, v in seq.items()})
@@ -100,3 +102,15 @@ def test_bad_settings_are_one_line(kw, message):
 def test_a_stream_needs_step_attention():
     with pytest.raises(ValueError, match="attention='step'"):
         StepStream(tiny_msta(T))
+
+
+def test_a_stream_reads_a_sensor_subset():
+    """A stream built for some sensors acts as the policy does on windows of those alone."""
+    policy = tiny_msta(T, attention="step", num_layers=2).eval()
+    names = ("joint_pos", "gravity", "command")
+    seq = {n: v for n, v in sequence(policy, T).items() if n in names}
+    stream = StepStream(policy, sensors=names, batch=2)
+    for t in range(T):
+        got = stream.step({n: v[:, t] for n, v in seq.items()})
+    with torch.no_grad():
+        torch.testing.assert_close(got, policy(seq), atol=1e-5, rtol=0)
