@@ -5,9 +5,9 @@ paper's full attention timed before it, one thread, batch 1.
 Two ways to answer a control step: the whole window each call (the runtimes of the first
 part: eager, TorchScript and ONNX Runtime files from ``msta-export``, parity-checked), and
 :class:`~msta.policies.msta.step_stream.StepStream`, which encodes only the newest step
-and reuses the cached keys and values of the older ones (eager PyTorch, and its two parts
-as frozen TorchScript; each stream's actions are checked against the whole window's
-before it is timed). The speed-up is the paper
+and reuses the cached keys and values of the older ones (its two parts in eager PyTorch, as
+frozen TorchScript and on ONNX Runtime; each stream's actions are checked against the
+whole window's before it is timed). The speed-up is the paper
 attention's best runtime over the step design's best way, both measured in this run.
 """
 
@@ -22,7 +22,7 @@ import torch
 from msta.policies.export import random_windows, resolve_sensors
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig
-from msta.policies.msta.step_stream import StepStream
+from msta.policies.msta.step_stream import RUNTIMES, StepStream
 
 #: |stream - window| action difference the stream must stay within before it is timed
 STREAM_TOLERANCE = 1e-4
@@ -31,14 +31,14 @@ Timer = Callable[[Callable[[], object], float], tuple[float, float, int]]
 Runtimes = Callable[..., tuple[dict[str, Callable[[], object]], dict]]
 
 
-def stream_call(policy, names: Sequence[str], T: int, traced: bool
+def stream_call(policy, names: Sequence[str], T: int, runtime: str
                 ) -> tuple[Callable[[], object], float]:
-    """A callable answering one control step through a :class:`StepStream` (``traced``:
-    frozen TorchScript parts) whose cache holds T steps (a robot in mid-episode), and the
+    """A callable answering one control step through a :class:`StepStream` on ``runtime``
+    whose cache holds T steps (a robot in mid-episode), and the
     largest action difference to the whole-window forward (over the T steps of 4 random
     windows, each window's actions from its first step on)."""
     windows = random_windows(policy, names, T, 4, seed=1)
-    stream = StepStream(policy, T, names, traced=traced)
+    stream = StepStream(policy, T, names, runtime=runtime)
     diff = 0.0
     for i in range(4):
         stream.reset()
@@ -66,16 +66,16 @@ def bench_step(cfg: MSTAConfig, observations: Mapping[str, tuple[Sequence[str], 
         fns, parity = runtimes(policy, names, T, out / obs)
         fns = {rt: fn for rt, fn in fns.items() if rt == "eager" or "error" not in parity}
         diff = 0.0
-        for traced in (False, True):
-            stream, d = stream_call(policy, names, T, traced)
+        for runtime in RUNTIMES:
+            stream, d = stream_call(policy, names, T, runtime)
             diff = max(diff, d)
             if d <= STREAM_TOLERANCE:
-                fns["stream (TorchScript)" if traced else "stream (eager)"] = stream
+                fns[f"stream {runtime}"] = stream
         rows = {}
         for rt, fn in fns.items():
             med, p90, n = time_call(fn, seconds)
             rows[rt] = {"median_ms": med, "p90_ms": p90, "calls": n}
-            print(f"  {obs:<11} {rt:<20} {med:>8.2f} ms median {p90:>8.2f} ms p90 {n:>6} calls")
+            print(f"  {obs:<11} {rt:<22} {med:>8.2f} ms median {p90:>8.2f} ms p90 {n:>6} calls")
         best = min(rows, key=lambda rt: rows[rt]["median_ms"])
         results["observations"][obs] = {"runtimes": rows, "best": best, "parity": parity,
                                         "stream_max_abs_diff": diff,

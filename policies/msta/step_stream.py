@@ -8,23 +8,29 @@ for every readout block (before their age); the **readout** takes the last T ste
 keys and values, adds each step's age and runs the readout blocks and the head. The cache
 is a ring of T slots, oldest first; slots before the episode's first step are hidden from
 attention, so the first steps act on the shorter window exactly as the policy does on a
-padded one. ``traced=True`` runs both parts as frozen TorchScript (traced once at
-construction), which removes most of PyTorch's per-call Python overhead at batch 1.
+padded one. ``runtime`` picks what runs the two parts: ``eager`` PyTorch, ``torchscript``
+(traced once at construction and frozen) or ``onnxruntime`` (exported once to ONNX, run on
+ONNX Runtime's CPU provider); the last two remove most of the per-call overhead at batch 1.
 """
 
 from __future__ import annotations
 
+import io
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import torch
 from torch import Tensor, nn
 
 from msta.data.sensors import get
+from msta.policies.export_files import ONNX_OPSET
 from msta.policies.msta.step_attention import age_code, readout_block, token_kv
 
-__all__ = ["StepStream"]
+__all__ = ["RUNTIMES", "StepStream"]
+
+#: What may run a stream's two parts.
+RUNTIMES = ("eager", "torchscript", "onnxruntime")
 
 
 class _Encoder(nn.Module):
@@ -76,16 +82,19 @@ class StepStream:
         sensors: the sensors read, in the order :meth:`step` is given them (default: every
             input of the policy).
         batch: robots stepped at once (the readings' first dimension).
-        traced: run the encoder and the readout as frozen TorchScript.
+        runtime: one of :data:`RUNTIMES` for the encoder and the readout (``onnxruntime``
+            uses as many threads as torch).
     """
 
     def __init__(self, policy: Any, history: int | None = None,
                  sensors: Sequence[str] | None = None, batch: int = 1,
-                 traced: bool = False) -> None:
+                 runtime: str = "eager") -> None:
         cfg = policy.config
         if cfg.attention != "step":
             raise ValueError(f"StepStream needs an MSTA policy with attention='step', this one "
                              f"has {cfg.attention!r}")
+        if runtime not in RUNTIMES:
+            raise ValueError(f"runtime must be one of {RUNTIMES}, got {runtime!r}")
         self.policy = policy.eval()
         self.history = history or cfg.history
         self.sensors = tuple(sensors or cfg.input_sensors)
@@ -104,11 +113,12 @@ class StepStream:
                                     kv.shape[3]),
                        torch.zeros(batch, self.history * self.tokens_per_step, dtype=torch.bool,
                                    device=dev))
-        if traced:
+        if runtime != "eager":
+            compiled = _frozen if runtime == "torchscript" else _onnx
             with torch.no_grad():
-                self.encoder = _frozen(self.encoder, one)
-                self.readout = _frozen(self.readout, (self._empty[0], self.age,
-                                                      ~self._empty[1]))
+                self.encoder = compiled(self.encoder, one, self.sensors)
+                self.readout = compiled(self.readout, (self._empty[0], self.age, ~self._empty[1]),
+                                        ("kv", "age", "visible"))
         self.reset()
 
     def reset(self) -> None:
@@ -128,10 +138,32 @@ class StepStream:
         return self.readout(self._kv, self.age, self._visible)
 
 
-def _frozen(module: nn.Module, example: tuple[Tensor, ...]) -> Any:
-    """``module`` traced on ``example`` and frozen for inference (TorchScript)."""
+def _frozen(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]) -> Any:
+    """``module`` traced on ``example`` and frozen for inference (TorchScript); ``names``
+    (of the inputs) are unused here."""
     with warnings.catch_warnings():
         # TracerWarnings name the eager path's Python checks, which the graph leaves out
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
         traced = torch.jit.trace(module, example, check_trace=False)
     return torch.jit.optimize_for_inference(torch.jit.freeze(traced))
+
+
+def _onnx(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]
+          ) -> Callable[..., Tensor]:
+    """``module`` exported to ONNX (inputs ``names``, traced on ``example``) and a function
+    running it on ONNX Runtime's CPU provider: tensors in, a tensor out."""
+    import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
+
+    buffer = io.BytesIO()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # TracerWarnings: the eager path's Python checks
+        torch.onnx.export(module, example, buffer, dynamo=False, input_names=list(names),
+                          output_names=["out"], opset_version=ONNX_OPSET)
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = options.inter_op_num_threads = torch.get_num_threads()
+    session = ort.InferenceSession(buffer.getvalue(), options, providers=["CPUExecutionProvider"])
+
+    def run(*inputs: Tensor) -> Tensor:
+        feed = {n: x.numpy() for n, x in zip(names, inputs, strict=True)}
+        return torch.from_numpy(session.run(None, feed)[0])
+    return run

@@ -21,17 +21,18 @@ def sequence(policy, steps: int, batch: int = 2, seed: int = 1) -> dict[str, tor
             for n in policy.config.input_sensors}
 
 
-@pytest.mark.parametrize(("layers", "traced"), [((3, 1), False), ((2, 2), False), ((3, 1), True)],
-                         ids=["2step-1readout", "0step-2readout", "traced"])
-def test_the_stream_acts_as_the_window_from_the_first_step_on(layers, traced):
-    """Each control step of StepStream (newest step encoded, older ones cached; eager or
-    frozen TorchScript) gives the policy's action on the window ending there: shorter
+@pytest.mark.parametrize(("layers", "runtime"), [
+    ((3, 1), "eager"), ((2, 2), "eager"), ((3, 1), "torchscript"), ((3, 1), "onnxruntime")],
+    ids=["2step-1readout", "0step-2readout", "torchscript", "onnxruntime"])
+def test_the_stream_acts_as_the_window_from_the_first_step_on(layers, runtime):
+    """Each control step of StepStream (newest step encoded, older ones cached; in each
+    runtime) gives the policy's action on the window ending there: shorter
     windows at the episode's start, then the last T steps; reset starts a new episode."""
     num_layers, readout = layers
     policy = tiny_msta(T, attention="step", num_layers=num_layers, readout_layers=readout,
                        state_tokens=2).eval()
     seq = sequence(policy, 2 * T + 1)
-    stream = StepStream(policy, batch=2, traced=traced)
+    stream = StepStream(policy, batch=2, runtime=runtime)
     actions = []
     for t in range(2 * T + 1):
         got = stream.step({n: v[:, t] for n, v in seq.items()})
@@ -99,9 +100,11 @@ def test_bad_settings_are_one_line(kw, message):
     assert "\n" not in str(err.value)
 
 
-def test_a_stream_needs_step_attention():
+def test_a_stream_needs_step_attention_and_a_known_runtime():
     with pytest.raises(ValueError, match="attention='step'"):
         StepStream(tiny_msta(T))
+    with pytest.raises(ValueError, match="runtime must be one of"):
+        StepStream(tiny_msta(T, attention="step", num_layers=2), runtime="tensorrt")
 
 
 def test_a_stream_reads_a_sensor_subset():
