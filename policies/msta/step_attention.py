@@ -98,9 +98,12 @@ def step_features(model: Any, x: Tensor, attn_mask: Tensor | None, ages: Tensor,
         same = same | (index[:, None] == index[None, :])  # a hidden token attends to itself only
         for block in model.blocks[:n_step]:
             tokens = block(tokens, same[:, None])
-    code = age_code(model, ages)  # (B, L, d)
+    # each age's code and offsets once, then looked up per token (ages are small integers)
+    code = age_code(model, torch.arange(int(ages.max()) + 1 if ages.numel() else 1,
+                                        device=x.device))  # (ages, d)
     for block, proj in zip(model.blocks[n_step:], model.age_proj, strict=True):
-        readout = readout_block(block, token_kv(block, tokens) + proj(code), readout, visible)
+        offset = F.embedding(ages, proj(code))  # (B, L, 2d)
+        readout = readout_block(block, token_kv(block, tokens) + offset, readout, visible)
     return model.ln_f(readout).flatten(1)
 
 
