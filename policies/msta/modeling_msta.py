@@ -33,6 +33,10 @@ instead be a (B, D, 4) tensor of uniform numbers in [0, 1) that fixes the four d
 bin, slot, sensor) of each dummy: the same observation then gives the same action, which
 PPO needs when it re-evaluates its rollout (msta-finetune-ppo ``--dummy_tokens``).
 
+Per-step attention (``attention`` = ``step``, :mod:`~msta.policies.msta.step_attention`):
+the same tokens without their age, blocks that attend within one step, then readout blocks
+over every token with its age added to key and value.
+
 Encoded sensors (``SensorSpec.encoder_tokens`` = k > 0, e.g. the ``height_map`` extension):
 each step's channels (clipped z-scores) go through a small MLP (dim -> 2d -> k·d) to k
 tokens, which then are tokens like any other: position code over (token index j, age),
@@ -282,6 +286,7 @@ class MSTATransformer(nn.Module):
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
             ages = None if ages is None else torch.cat([ages, T - 1 - step[slot]], dim=1)
         x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
+        whole = T if keep is None and not D and self.mask_token is None else 0
         attn_mask = None
         if key_pad is not None and key_pad.any():
             # (B, L) True = may be attended to; dummy and readout tokens are always visible
@@ -290,7 +295,6 @@ class MSTATransformer(nn.Module):
             attn_mask = keep[:, None, None, :]  # (B, 1, 1, K + D + R)
             if torch.jit.is_tracing():  # exported: 0 / -inf added to the scores (cheaper)
                 attn_mask = additive_mask(attn_mask, x.dtype)
-        whole = T if keep is None and not D and self.mask_token is None else 0
         return x, attn_mask, ages, whole
 
     def _ages(self, age: Tensor, keep: Tensor | None, B: int) -> Tensor | None:
