@@ -15,9 +15,10 @@ key and value,
 scalar token exactly as in the paper's model (a removed token is absent from both stages),
 and any sensor subset and any window length work the same way.
 
-At deployment :class:`~msta.policies.msta.step_stream.StepStream` encodes only the newest step each control step and keeps
-every past step's ``W_k LN(x_j)``, ``W_v LN(x_j)`` per readout block: the ages move, the
-cached numbers do not, so the action equals the whole window's (up to float rounding).
+At deployment :class:`~msta.policies.msta.step_stream.StepStream` encodes only the newest
+step each control step and keeps every past step's ``W_k LN(x_j)``, ``W_v LN(x_j)`` per
+readout block: the ages move, the cached numbers do not, so the action equals the whole
+window's (up to float rounding).
 """
 
 from __future__ import annotations
