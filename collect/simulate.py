@@ -2,15 +2,17 @@
 
     msta-sim --teacher.type=zero --seconds=5 --env.num_envs=64 --output_dir=outputs/sim
     msta-sim --teacher.type=gait --env.terrain.types='[flat,stairs_up]'
+    msta-sim --robot=specs/my_robot.toml --teacher.type=zero
 
 The teacher is chosen as everywhere else (``--teacher.type``, ``--teacher.path``: the same
 :class:`~msta.policies.teacher.config.TeacherConfig` as msta-collect, msta-correct and msta-eval);
-``zero`` holds the default pose.
+``zero`` holds the default pose. ``--robot`` names the robot the simulator builds (a shipped
+robot or a spec file, docs/robots.md; ``--env.robot`` is read as ``--robot``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from msta.collect.rollout import film, run
@@ -24,6 +26,9 @@ from msta.policies.teacher.config import TeacherConfig, build_teacher
 @dataclass
 class SimRunConfig:
     """Args:
+        robot: the simulated robot: a shipped robot's name (``a1``) or the path of a
+            ``.toml`` spec file (docs/robots.md); sets ``env.robot``. The control fields
+            left unset (``--env.control.*``) take this robot's values.
         env: simulator configuration.
         teacher: the teacher that drives (``--teacher.type=gait``; ``zero`` holds the
             default pose).
@@ -34,6 +39,7 @@ class SimRunConfig:
         progress: show a progress bar.
     """
 
+    robot: str = "a1"
     env: EnvConfig = field(default_factory=lambda: EnvConfig(num_envs=64))
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     seconds: float = 5.0
@@ -41,6 +47,10 @@ class SimRunConfig:
     image: bool = True
     video: bool = False
     progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.env.robot != self.robot:  # EnvConfig loads and checks the robot (one line)
+            self.env = replace(self.env, robot=self.robot)
 
 
 def simulate(cfg: SimRunConfig) -> str:
@@ -51,7 +61,7 @@ def simulate(cfg: SimRunConfig) -> str:
     steps = max(1, int(round(cfg.seconds / env.dt)))
     summary = run(env, policy, steps, progress=cfg.progress)
     table = summary.table()
-    print(f"\nteacher={cfg.teacher.type}  envs={env.num_envs}  {cfg.seconds:.1f} s each "
+    print(f"\nrobot={env.robot.name}  teacher={cfg.teacher.type}  envs={env.num_envs}  {cfg.seconds:.1f} s each "
           f"({steps * env.num_envs:,} env steps); episode ends by reason "
           f"{dict(zip(('running', 'fall', 'timeout', 'nan'), env.resets_by_reason.tolist()))}")
     print(table)
@@ -68,7 +78,7 @@ def simulate(cfg: SimRunConfig) -> str:
 
 def main(argv: list[str] | None = None) -> None:
     """Console entry point (``msta-sim``)."""
-    simulate(parse_config(SimRunConfig, argv, "msta-sim"))
+    simulate(parse_config(SimRunConfig, argv, "msta-sim", aliases={"env.robot": "robot"}))
 
 
 if __name__ == "__main__":

@@ -174,6 +174,10 @@ def load_progress(out: Path, cfg: CorrectConfig, root: Path) -> CorrectProgress:
         saved["policy"] = {"path": saved["policy"]}
     if "T" in (saved.get("rollout") or {}):  # before --rollout.T was named --rollout.history
         saved["rollout"] = {("history" if k == "T" else k): v for k, v in saved["rollout"].items()}
+    if isinstance(saved.get("env"), dict) and "robot" not in saved["env"]:
+        # before --env.robot: the A1, its control numbers written out; compare those in force
+        saved["env"] = {**saved["env"], "robot": "a1"}
+        encoded = {**encoded, "env": draccus.encode(cfg.env.resolved())}
     bad = [k for k in cfg.RESUME_FIELDS if saved.get(k, RESUME_LEGACY.get(k)) != encoded.get(k)]
     if bad:
         raise ValueError(f"--resume=true with different {bad} than {path}")

@@ -1,6 +1,7 @@
-"""Batched A1 locomotion environment on MuJoCo (numpy in, numpy out).
+"""Batched legged-robot locomotion environment on MuJoCo (numpy in, numpy out).
 
-N environments share one scene (robot + terrain heightfield) and are stepped together by
+N environments share one scene (the robot ``cfg.robot`` names + terrain heightfield; the
+A1 by default) and are stepped together by
 ``mujoco.rollout`` on a persistent thread pool: every control step is ``decimation``
 physics steps with a constant position target. Observations are named by the sensor
 registry (``msta_data/sensors.py``); environments reset automatically on a fall, a physics
@@ -30,19 +31,17 @@ from msta.collect.sim.randomization import build_pool
 from msta.collect.sim.rewards import RewardInputs, compute_rewards, soft_limits
 from msta.collect.sim.terrain import Terrain, sample_initial, update_levels
 from msta.data.math3d import quat_to_mat, world_to_body, yaw_of, yaw_quat
-from msta.data.robot import DEFAULT_POSE, NUM_JOINTS, SPAWN_HEIGHT
 from msta.data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 
 PROPRIO = ("joint_pos", "joint_vel", "ang_vel", "gravity", "foot_contact")
 #: Episode end reasons reported in ``StepResult.reason``.
 REASONS = ("running", "fall", "timeout", "nan")
-CONTACT_THRESHOLD = 1.0  # N
 #: Salt of the sourced sensors' noise streams (``QuadrupedEnv.seed_sources``).
 SOURCE_SALT = 0x5E45
 #: Salt of the per-environment generators of ``QuadrupedEnv.reset(streams=...)``.
 STREAM_SALT = 0x7E57
 #: The configuration classes live in env_config.py; importing them from here keeps working.
-__all__ = ["CONTACT_THRESHOLD", "PROPRIO", "REASONS", "STREAM_SALT", "ControlConfig",
+__all__ = ["PROPRIO", "REASONS", "STREAM_SALT", "ControlConfig",
            "EnvConfig", "NoiseConfig", "QuadrupedEnv", "StepResult"]
 
 
@@ -72,24 +71,27 @@ class QuadrupedEnv:
     """Batched environments. See the module docstring.
 
     Args:
-        cfg: the environment configuration.
+        cfg: the environment configuration; ``self.cfg`` is its :meth:`EnvConfig.resolved`
+            copy (every ``control`` field a number) and ``self.robot`` the robot's description.
     """
 
     def __init__(self, cfg: EnvConfig | None = None) -> None:
-        self.cfg = cfg = cfg or EnvConfig()
+        self.cfg = cfg = (cfg or EnvConfig()).resolved()
+        self.robot = cfg.robot_description
+        self._default_pose = np.array(self.robot.default_pose, dtype=np.float64)
         self.num_envs = n = cfg.num_envs
         self.rng = np.random.default_rng(cfg.seed)
         self.seed_sources(cfg.seed)
         self.terrain = Terrain(cfg.terrain, seed=cfg.seed)
         self.model = robot.build_model(self.terrain.hfield_spec(), timestep=cfg.control.sim_dt,
-                                      collision=cfg.collision)
+                                      collision=cfg.collision, robot=self.robot)
         self.layout = robot.state_layout(self.model)
         self.pool, self.pool_params = build_pool(
             self.model, cfg.randomization, cfg.control.kp, cfg.control.kd, self.rng)
         nthread = cfg.nthread or os.cpu_count() or 1
         self._runner = rollout.Rollout(nthread=nthread)
         self._datas = [mujoco.MjData(self.model) for _ in range(nthread)]
-        self._template = robot.default_state(self.model)
+        self._template = robot.default_state(self.model, self.robot)
         self.soft_limits = soft_limits(robot.joint_limits(self.model),
                                        cfg.rewards.soft_dof_pos_limit)
         self.dt = cfg.dt
@@ -120,9 +122,10 @@ class QuadrupedEnv:
         self._control = np.zeros((n, d, self.model.nu))
         self.variant = np.zeros(n, dtype=np.int64)
         self._models = [self.pool[0]] * n
-        self.action = np.zeros((n, NUM_JOINTS))
-        self.last_action = np.zeros((n, NUM_JOINTS))
-        self.last_joint_vel = np.zeros((n, NUM_JOINTS))
+        nj = self.robot.num_joints
+        self.action = np.zeros((n, nj))
+        self.last_action = np.zeros((n, nj))
+        self.last_joint_vel = np.zeros((n, nj))
         self.air_time = np.zeros((n, 4))
         self.last_contact = np.zeros((n, 4), dtype=bool)
         self.episode_step = np.zeros(n, dtype=np.int64)
@@ -219,7 +222,7 @@ class QuadrupedEnv:
         a = self._check_action(action)
         self.last_action[:] = self.action
         self.action[:] = a
-        target = DEFAULT_POSE + self.cfg.control.action_scale * a
+        target = self._default_pose + self.cfg.control.action_scale * a
         self._control[:] = target[:, None, :]
         t_before = self.state[:, 0].copy()
         self._runner.rollout(self._models, self._datas, self.state, self._control,
@@ -240,8 +243,9 @@ class QuadrupedEnv:
     # ------------------------------------------------------------------ internals
     def _check_action(self, action: np.ndarray) -> np.ndarray:
         a = np.asarray(action, dtype=np.float64)
-        if a.shape != (self.num_envs, NUM_JOINTS):
-            raise ValueError(f"action has shape {a.shape}, expected ({self.num_envs}, {NUM_JOINTS})")
+        if a.shape != (self.num_envs, self.robot.num_joints):
+            raise ValueError(f"action has shape {a.shape}, expected "
+                             f"({self.num_envs}, {self.robot.num_joints})")
         bad = ~np.isfinite(a).all(axis=1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
@@ -257,7 +261,8 @@ class QuadrupedEnv:
             rew[k][blown] = 0.0
         self.episode_step += 1
         self.episode_return += rew["total"]
-        fell = (m["trunk_contact"] > CONTACT_THRESHOLD) | (m["gravity"][:, 2] > cfg.fall_gravity_z)
+        fell = ((m["trunk_contact"] > self.robot.contact_threshold)
+                | (m["gravity"][:, 2] > cfg.fall_gravity_z))
         terminated = (fell & ~blown) | blown
         truncated = (self.episode_step >= self.max_steps) & ~terminated
         reason = np.zeros(self.num_envs, dtype=np.int64)
@@ -359,7 +364,7 @@ class QuadrupedEnv:
         st = np.tile(self._template, (n, 1))
         lay = self.layout
         ground = self.terrain.height_at(xy[:, None, :] + self._footprint()[None]).max(axis=1)
-        st[:, lay.base_pos] = np.column_stack([xy, ground + SPAWN_HEIGHT])
+        st[:, lay.base_pos] = np.column_stack([xy, ground + self.robot.spawn_height])
         st[:, lay.base_quat] = yaw_quat(yaw)
         self.state[ids] = st
         self.variant[ids] = rng.integers(0, len(self.pool), n)
@@ -414,8 +419,8 @@ class QuadrupedEnv:
             "base_lin_vel": world_to_body(rot, state[:, lay.base_linvel]),
             "base_ang_vel": state[:, lay.base_angvel].copy(),
             "gravity": -rot[:, 2, :],
-            "foot_contact": (sens[:, :, robot.SENS_FOOT].max(axis=1) > CONTACT_THRESHOLD
-                             ).astype(np.float64),
+            "foot_contact": (sens[:, :, robot.SENS_FOOT].max(axis=1)
+                             > self.robot.contact_threshold).astype(np.float64),
             "trunk_contact": sens[:, -1, robot.SENS_TRUNK],
             "leg_collisions": sens[:, -1, robot.SENS_LEG_COLLISION],
             "torques": sens[:, :, robot.SENS_TORQUE].mean(axis=1),

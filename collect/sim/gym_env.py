@@ -113,7 +113,8 @@ class _View:
             get(s)  # KeyError naming the unknown sensor
         self.sim = QuadrupedEnv(cfg)
         self.actions = actions
-        self._map = ActionMap(joint_limits(self.sim.model), cfg.control.action_scale)
+        self._map = ActionMap(joint_limits(self.sim.model), self.sim.cfg.control.action_scale,
+                              self.sim.robot.default_pose)
         self._bounds = observation_bounds(self.sim, actions)
         self.render_mode, self._size = render_mode, (height, width)
         self._renderer: Any = None
@@ -195,7 +196,8 @@ class _View:
         if self._renderer is None:
             h, w = self._size
             self._renderer = PatchRenderer(self.sim.model, self.sim.terrain,
-                                           self.sim.cfg.collision, h, w, shadows=self.shadows)
+                                           self.sim.cfg.collision, h, w, shadows=self.shadows,
+                                           robot=self.sim.robot)
             # MuJoCo's EGL backend terminates its display at exit (an atexit hook registered
             # with the first context); a renderer freed after that prints EGL errors, so an
             # env left open closes its renderer at exit, before that hook runs.

@@ -12,6 +12,7 @@ import mujoco
 import numpy as np
 
 from msta.collect.sim.robot import build_model
+from msta.data.robot import A1, RobotDescription
 
 GL_HELP = (
     "MuJoCo offscreen rendering needs an OpenGL backend. Set MUJOCO_GL=egl (needs libEGL, "
@@ -87,10 +88,12 @@ class PatchRenderer:
         height, width: frame size.
         radius: half the patch's side (m).
         shadows: draw shadows (with software OpenGL they take most of a frame's time).
+        robot: the env's robot description (``QuadrupedEnv.robot``).
     """
 
     def __init__(self, env_model: mujoco.MjModel, terrain: Any, collision: str, height: int,
-                 width: int, radius: float = 8.0, shadows: bool = True) -> None:
+                 width: int, radius: float = 8.0, shadows: bool = True,
+                 robot: RobotDescription = A1) -> None:
         self.terrain, self.radius = terrain, float(radius)
         heights, hs = terrain.heights, terrain.cfg.horizontal_scale
         self.lo = float(heights.min())
@@ -104,7 +107,8 @@ class PatchRenderer:
         self.model = build_model({"nrow": self.n, "ncol": self.n, "data": data,
                                   "pos": (0.0, 0.0, self.lo),
                                   "size": (side, side, self.elevation, terrain.cfg.base_depth)},
-                                 timestep=env_model.opt.timestep, collision=collision)
+                                 timestep=env_model.opt.timestep, collision=collision,
+                                 robot=robot)
         self.model.stat.extent = env_model.stat.extent
         self.light_pos = self.model.light_pos.copy()  # the shadows' frame follows the light
         self.renderer = make_renderer(self.model, height, width)

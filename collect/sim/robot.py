@@ -1,17 +1,21 @@
-"""A1-class scene assembly (robot MJCF + terrain heightfield); the MuJoCo side of msta.data.robot."""
+"""Scene assembly (a robot description's MJCF + terrain heightfield); the MuJoCo side of
+msta.data.robot.
+
+What the simulator needs of a robot's MJCF (the shipped A1's ``assets/a1.xml`` is the
+example; docs/robots.md): a free joint first, then the hinge joints in the description's
+``joints`` order, one position actuator per joint in that order, a body ``trunk``, the
+sensors in the order of ``SENS_*`` below (touch sensors ``<foot>_touch`` first, in ``feet``
+order) and, for the "full" collision set, thigh and calf geoms named like their joints.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from importlib import resources
 
 import mujoco
 import numpy as np
 
-from msta.data.robot import CALF_COLLISION_FULL, DEFAULT_POSE, NUM_JOINTS, SIM_DT, SPAWN_HEIGHT
-from msta.data.sensors import FOOT_NAMES, JOINT_NAMES, LEGS
-
-ASSET = "a1.xml"
+from msta.data.robot import A1, RobotDescription
 
 # Sensor layout of the MJCF (see assets/a1.xml): 4 foot touches, trunk touch,
 # 4 thigh touches, 4 calf touches, 12 actuator forces.
@@ -73,22 +77,26 @@ def check_collision_set(name: str) -> None:
         raise ValueError(f"collision={name!r} is not one of {COLLISION_SETS}")
 
 
-def build_model(hfield: dict | None, timestep: float = SIM_DT,
-                collision: str = "fast") -> mujoco.MjModel:
+def build_model(hfield: dict | None, timestep: float | None = None, collision: str = "fast",
+                robot: RobotDescription = A1) -> mujoco.MjModel:
     """Compile the robot with a terrain heightfield (or a plane when ``hfield`` is None).
 
     Args:
         hfield: ``Terrain.hfield_spec()``: nrow, ncol, size (rx, ry, elevation, base),
             pos (x, y, z), data (nrow, ncol) in [0, 1].
-        timestep: physics step (s).
+        timestep: physics step (s); None: the robot's ``sim_dt``.
         collision: one of ``COLLISION_SETS``.
+        robot: the robot's description: its MJCF file, torque limit (the actuators' force
+            range) and calf collision length.
     """
     check_collision_set(collision)
-    xml = resources.files("msta.collect.sim").joinpath("assets", ASSET).read_text()
-    spec = mujoco.MjSpec.from_string(xml)
-    spec.option.timestep = timestep
+    spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
+    spec.option.timestep = robot.sim_dt if timestep is None else timestep
+    for actuator in spec.actuators:
+        actuator.forcerange = [-robot.torque_limit, robot.torque_limit]
+        actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     if collision == "full":
-        _full_leg_collisions(spec)
+        _full_leg_collisions(spec, robot)
     if hfield is None:
         spec.worldbody.add_geom(name="terrain", type=mujoco.mjtGeom.mjGEOM_PLANE,
                                 size=[0, 0, 0.05], contype=1, conaffinity=2, material="ground")
@@ -102,17 +110,18 @@ def build_model(hfield: dict | None, timestep: float = SIM_DT,
         _add_surround(spec, hfield)
     _add_visuals(spec)
     model = spec.compile()
-    _check_names(model)
+    _check_names(model, robot)
     return model
 
 
-def _full_leg_collisions(spec: mujoco.MjSpec) -> None:
-    """Whole-calf and thigh capsules collide with the terrain (the "full" set)."""
-    for leg in LEGS:
-        thigh = spec.geom(f"{leg}_thigh")
+def _full_leg_collisions(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
+    """Whole-calf and thigh capsules (geoms named like the thigh and calf joints) collide
+    with the terrain (the "full" set)."""
+    for thigh_name, calf_name in zip(robot.joints[1::3], robot.joints[2::3], strict=True):
+        thigh = spec.geom(thigh_name)
         thigh.contype, thigh.conaffinity = 2, 1
-        calf = spec.geom(f"{leg}_calf")
-        calf.fromto = [0.0, 0.0, 0.0, 0.0, 0.0, -CALF_COLLISION_FULL]
+        calf = spec.geom(calf_name)
+        calf.fromto = [0.0, 0.0, 0.0, 0.0, 0.0, -robot.calf_collision_full]
 
 
 def _add_surround(spec: mujoco.MjSpec, hfield: dict, reach: float = 100.0) -> None:
@@ -143,22 +152,34 @@ def _add_visuals(spec: mujoco.MjSpec) -> None:
     spec.visual.global_.offheight = 720
 
 
-def _check_names(model: mujoco.MjModel) -> None:
-    joints = [model.joint(i + 1).name for i in range(NUM_JOINTS)]
-    if tuple(joints) != JOINT_NAMES:
-        raise RuntimeError(f"robot joint order {joints} differs from the registry {JOINT_NAMES}")
-    foot_sensors = [model.sensor(i).name for i in range(4)]
-    if foot_sensors != [f"{f}_touch" for f in FOOT_NAMES]:
-        raise RuntimeError(f"foot sensor order {foot_sensors} differs from {FOOT_NAMES}")
+def _check_names(model: mujoco.MjModel, robot: RobotDescription) -> None:
+    """One-line ``ValueError`` naming the MJCF unless its joints after the free joint and
+    its actuators' joints are exactly the description's ``joints``, and its first sensors
+    the feet's touch sensors, in order (the simulator's state and sensor layout)."""
+    joints = tuple(model.joint(i).name for i in range(1, model.njnt))
+    driven = tuple(model.joint(int(model.actuator_trnid[i, 0])).name for i in range(model.nu))
+    feet = tuple(model.sensor(i).name for i in range(min(len(robot.feet), model.nsensor)))
+    for what, got, want in (("joints after the free joint", joints, robot.joints),
+                            ("actuators' joints", driven, robot.joints),
+                            ("first sensors", feet, tuple(f"{f}_touch" for f in robot.feet))):
+        if got != want:
+            raise ValueError(f"{robot.mjcf_path}: the {what} are {list(got)}; the robot "
+                             f"{robot.name!r} needs {list(want)} in this order")
 
 
-def default_state(model: mujoco.MjModel) -> np.ndarray:
-    """Full-physics state of the robot standing in the default pose at the origin."""
+def default_state(model: mujoco.MjModel, robot: RobotDescription = A1) -> np.ndarray:
+    """Full-physics state of the robot standing in its default pose at the origin, its
+    trunk ``spawn_height`` above it.
+
+    Args:
+        model: the compiled scene (:func:`build_model`).
+        robot: the robot's description (default pose, spawn height).
+    """
     data = mujoco.MjData(model)
-    data.qpos[:3] = (0.0, 0.0, SPAWN_HEIGHT)
+    data.qpos[:3] = (0.0, 0.0, robot.spawn_height)
     data.qpos[3:7] = (1.0, 0.0, 0.0, 0.0)
-    data.qpos[7:] = DEFAULT_POSE
-    data.ctrl[:] = DEFAULT_POSE
+    data.qpos[7:] = robot.default_pose
+    data.ctrl[:] = robot.default_pose
     mujoco.mj_forward(model, data)
     out = np.zeros(mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS))
     mujoco.mj_getState(model, data, out, mujoco.mjtState.mjSTATE_FULLPHYSICS)
@@ -166,8 +187,8 @@ def default_state(model: mujoco.MjModel) -> np.ndarray:
 
 
 def joint_limits(model: mujoco.MjModel) -> np.ndarray:
-    """(12, 2) joint position limits in registry order."""
-    return np.array(model.jnt_range[1:13], dtype=np.float64)
+    """(nu, 2) joint position limits of the actuated joints, in the robot's joint order."""
+    return np.array(model.jnt_range[1:1 + model.nu], dtype=np.float64)
 
 
 __all__ = [

@@ -9,7 +9,7 @@ observation noise (registry half-width x ``--env.noise.scale``).
 ========================  ==========================================================
 sensor                    range
 ========================  ==========================================================
-joint_pos                 the model's joint range (``a1.xml``) +- ``JOINT_POS_MARGIN``
+joint_pos                 the MJCF's joint range (``a1.xml``'s) +- ``JOINT_POS_MARGIN``
 joint_vel                 +- ``JOINT_VEL_MAX``
 ang_vel, base_ang_vel     +- ``ANG_VEL_MAX``
 gravity, orientation      [-1, 1] (unit vectors)
@@ -31,8 +31,8 @@ turned at up to 33.5 rad/s and moved at up to 4.7 m/s, and stood 0.05-0.89 m abo
 ground below it. Readings beyond a range are clipped to it.
 
 The normalized action (``ActionMap``): ``a`` in [-1, 1] per joint; 0 is the default pose
-(``msta.data.robot.DEFAULT_POSE``), +1 the joint's upper stop and -1 its lower stop, linear on
-each side. It maps to the simulator's action ``(target - default) / action_scale``, so a
+(the robot description's ``default_pose``), +1 the joint's upper stop and -1 its lower stop,
+linear on each side. It maps to the simulator's action ``(target - default) / action_scale``, so a
 normalized action and the simulator action of the same joint target move the robot alike.
 """
 
@@ -42,7 +42,6 @@ import numpy as np
 
 from msta.collect.sim.randomization import nominal_params
 from msta.collect.sim.robot import joint_limits
-from msta.data.robot import DEFAULT_POSE, NUM_JOINTS
 from msta.data.sensors import SENSORS, get
 
 #: rad past a joint stop still inside the joint_pos range (0.51 rad measured; module docstring).
@@ -66,11 +65,14 @@ class ActionMap:
     Args:
         limits: (12, 2) joint ranges (``msta.collect.sim.robot.joint_limits``).
         action_scale: the simulator's ``control.action_scale``.
+        default_pose: (12,) the robot's default pose (its description's ``default_pose``).
     """
 
-    def __init__(self, limits: np.ndarray, action_scale: float) -> None:
-        self.up = (limits[:, 1] - DEFAULT_POSE) / action_scale    # (12,) simulator units of +1
-        self.down = (DEFAULT_POSE - limits[:, 0]) / action_scale  # (12,) simulator units of -1
+    def __init__(self, limits: np.ndarray, action_scale: float,
+                 default_pose: np.ndarray) -> None:
+        pose = np.asarray(default_pose, dtype=np.float64)
+        self.up = (limits[:, 1] - pose) / action_scale    # (12,) simulator units of +1
+        self.down = (pose - limits[:, 0]) / action_scale  # (12,) simulator units of -1
 
     def to_sim(self, a: np.ndarray) -> np.ndarray:
         """(..., 12) normalized actions (clipped to [-1, 1]) -> simulator actions."""
@@ -87,7 +89,8 @@ def action_bounds(sim, mode: str) -> tuple[np.ndarray, np.ndarray]:
     if mode not in ACTION_MODES:
         raise ValueError(f"actions={mode!r}; expected one of {list(ACTION_MODES)}")
     lim = 1.0 if mode == "normalized" else sim.cfg.control.clip_actions
-    return np.full(NUM_JOINTS, -lim), np.full(NUM_JOINTS, lim)
+    nj = sim.robot.num_joints
+    return np.full(nj, -lim), np.full(nj, lim)
 
 
 def _ranges(sim) -> dict[str, tuple[np.ndarray | float, np.ndarray | float]]:

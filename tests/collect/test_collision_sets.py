@@ -7,6 +7,7 @@ import pytest
 from msta.collect.sim import robot
 from msta.collect.sim.env_config import EnvConfig
 from msta.data.robot import CALF_COLLISION_FULL
+from msta.data.sensors import FOOT_NAMES
 
 
 def _colliding(model: mujoco.MjModel) -> set[str]:
@@ -43,7 +44,7 @@ def _lower_shin_contacts(collision: str) -> set[str]:
 
 def test_fast_set_is_feet_trunk_and_upper_calves():
     fast = _colliding(robot.build_model(None))
-    assert fast == {"trunk", *robot.FOOT_NAMES, "FL_calf", "FR_calf", "RL_calf", "RR_calf"}
+    assert fast == {"trunk", *FOOT_NAMES, "FL_calf", "FR_calf", "RL_calf", "RR_calf"}
     full_model = robot.build_model(None, collision="full")
     full = _colliding(full_model)
     assert full == fast | {"FL_thigh", "FR_thigh", "RL_thigh", "RR_thigh"}

@@ -7,11 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from msta.collect.sim import robot
 from msta.collect.sim.env import REASONS, QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
+from msta.data.robot import A1
 from msta.data.sensors import SENSORS
 
 
@@ -209,7 +209,7 @@ def test_ground_continues_beyond_the_terrain_grid():
     env.reset()
     lay = env.layout
     x_far = env.terrain.x0 - 5.0
-    env.state[0, lay.base_pos] = [x_far, 1.0, robot.SPAWN_HEIGHT]
+    env.state[0, lay.base_pos] = [x_far, 1.0, A1.spawn_height]
     for _ in range(50):
         res = env.step(np.zeros((1, 12)))
         assert not res.done[0]

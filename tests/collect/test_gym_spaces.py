@@ -20,7 +20,7 @@ from msta.collect.sim.gym_env import MstaEnv, MstaVectorEnv
 from msta.collect.sim.robot import joint_limits
 from msta.collect.sim.spaces import JOINT_POS_MARGIN, ActionMap
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data.robot import ACTION_SCALE, DEFAULT_POSE
+from msta.data.robot import A1, ACTION_SCALE, DEFAULT_POSE
 from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
@@ -68,7 +68,8 @@ def test_spaces_state_the_robots_ranges():
     assert env.action_space == gym.spaces.Box(-1.0, 1.0, (12,), np.float32)
     assert env.observation_space["last_action"] == env.action_space
     raw = MstaEnv(cfg, actions="simulator")
-    assert raw.action_space.high.tolist() == [cfg.control.clip_actions] * 12
+    assert raw.action_space.high.tolist() == [raw.sim.cfg.control.clip_actions] * 12
+    assert raw.sim.cfg.control.clip_actions == A1.clip_actions  # unset: the robot's
     assert raw.observation_space["last_action"] == raw.action_space
     with pytest.raises(ValueError, match="actions='raw'; expected one of"):
         MstaEnv(cfg, actions="raw")

@@ -16,6 +16,7 @@ from msta.collect.sim.randomization import (
     nominal_params,
 )
 from msta.collect.sim.terrain import TerrainConfig
+from msta.data.robot import DEFAULT_POSE
 from msta.data.sensors import DYNAMICS_NAMES
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
@@ -37,7 +38,7 @@ def _params(**kw) -> np.ndarray:
 def _stand_height(model: mujoco.MjModel, seconds: float = 1.5) -> float:
     data = mujoco.MjData(model)
     mujoco.mj_setState(model, data, robot.default_state(model), mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    data.ctrl[:] = robot.DEFAULT_POSE
+    data.ctrl[:] = DEFAULT_POSE
     for _ in range(int(seconds / model.opt.timestep)):
         mujoco.mj_step(model, data)
     return float(data.qpos[2])
@@ -75,7 +76,7 @@ def test_friction_changes_sliding(base_model):
         m = apply_params(base_model, _params(friction=mu), 30, 0.7)
         d = mujoco.MjData(m)
         mujoco.mj_setState(m, d, robot.default_state(m), mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        d.ctrl[:] = robot.DEFAULT_POSE
+        d.ctrl[:] = DEFAULT_POSE
         for _ in range(200):
             mujoco.mj_step(m, d)
         d.qvel[0] = 1.5

@@ -4,11 +4,21 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
+import draccus
 import pytest
 
+from msta.collect.sim.env_config import ControlConfig
+from msta.policies.checkpoint import PolicyPath
 from msta.train.config import STAGE2_MASK_RATIO, training_mask_ratio
-from msta.train.correct_progress import PROGRESS_FORMAT, CorrectProgress, RoundRecord
+from msta.train.correct_config import CorrectConfig
+from msta.train.correct_progress import (
+    PROGRESS_FORMAT,
+    CorrectProgress,
+    RoundRecord,
+    load_progress,
+)
 
 #: progress.json as msta-correct wrote it before the typed records (a run killed in round 2,
 #: with a key this version does not know at both levels).
@@ -65,3 +75,24 @@ def test_a_record_leaves_out_what_is_still_at_its_default():
 ])
 def test_one_rule_decides_the_training_mask_ratio(requested, config, stage, expected):
     assert training_mask_ratio(requested, config, stage) == expected
+
+
+def test_a_run_from_before_env_robot_resumes_on_the_numbers_in_force(tmp_path):
+    """progress.json written before ``--env.robot``: no robot (the A1) and every control
+    number written out; the same numbers resume, other ones do not."""
+    cfg = CorrectConfig(policy=PolicyPath("ckpt"), dataset="ds", output_dir=str(tmp_path),
+                        resume=True)
+    old = draccus.encode(cfg)
+    old["env"] = {k: v for k, v in old["env"].items() if k != "robot"} | {
+        "control": draccus.encode(cfg.env.resolved())["control"]}
+
+    def resume(config: CorrectConfig) -> None:
+        (tmp_path / "progress.json").write_text(json.dumps(
+            {"format": PROGRESS_FORMAT, "config": old, "dataset": "ds", "rounds": {}}))
+        load_progress(tmp_path, config, tmp_path)
+
+    resume(cfg)
+    old["env"]["control"]["kp"] = 25.0
+    with pytest.raises(ValueError, match=r"different \['env'\]"):
+        resume(cfg)
+    resume(replace(cfg, env=replace(cfg.env, control=ControlConfig(kp=25.0))))
