@@ -308,8 +308,8 @@ THIGH_OFFSET_Y = np.array(A1.thigh_offset_y, dtype=np.float64)
 #: Trunk height above flat ground in the default pose, plus a small drop margin.
 SPAWN_HEIGHT = A1.spawn_height
 
-# Control defaults: the simulator's ControlConfig starts from these and the teachers plan
-# with them (paper: PD gains 30 / 0.7, 50 Hz control over a 200 Hz physics step).
+# The A1's control numbers, which the teachers plan with (the simulator reads the
+# description it is given; paper: PD gains 30 / 0.7, 50 Hz control over a 200 Hz physics step).
 #: Position gain of the joint actuators.
 KP = A1.kp
 #: Damping gain of the joint actuators.
