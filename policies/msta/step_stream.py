@@ -100,7 +100,7 @@ class StepStream:
         self.sensors = tuple(sensors or cfg.input_sensors)
         self.encoder: Any = _Encoder(self.policy, self.sensors).eval()
         self.readout: Any = _Readout(self.policy).eval()
-        dev = next(policy.parameters()).device
+        self.device = dev = next(policy.parameters()).device
         one = tuple(torch.zeros(batch, get(n).dim, device=dev) for n in self.sensors)
         with torch.inference_mode():
             kv = self.encoder(*one)  # (B, readout_layers, n, 2d)
@@ -129,7 +129,7 @@ class StepStream:
     def step(self, readings: Mapping[str, Any]) -> Tensor:
         """One control step: ``readings`` maps each of :attr:`sensors` to this step's values
         (B, dim); returns the model-space action (B, action_dim) on the window ending here."""
-        new = self.encoder(*(torch.as_tensor(readings[n], dtype=torch.float32)
+        new = self.encoder(*(torch.as_tensor(readings[n], dtype=torch.float32, device=self.device)
                              for n in self.sensors))  # (B, layers, n, 2d)
         n = self.tokens_per_step
         self._kv = torch.cat([self._kv[:, :, n:], new], dim=2)
@@ -164,6 +164,6 @@ def _onnx(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]
     session = ort.InferenceSession(buffer.getvalue(), options, providers=["CPUExecutionProvider"])
 
     def run(*inputs: Tensor) -> Tensor:
-        feed = {n: x.numpy() for n, x in zip(names, inputs, strict=True)}
-        return torch.from_numpy(session.run(None, feed)[0])
+        feed = {n: x.cpu().numpy() for n, x in zip(names, inputs, strict=True)}
+        return torch.from_numpy(session.run(None, feed)[0]).to(inputs[0].device)
     return run
