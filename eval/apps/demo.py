@@ -293,6 +293,8 @@ class DemoConfig:
             physical sensor (msta-train's ``--sensor_dropout``); 0 = off.
         unmasked_share: both stages: share of the optimizer steps that train with every
             token instead of the stage's mask (msta-train's ``--unmasked_share``); 0 = off.
+        ema_decay: both stages: the result is an exponential moving average of the weights
+            with this decay per step (msta-train's ``--ema_decay``); 0 = off.
         rollout_mask_ratios: test-time mask ratios the stage-2 student drives at, spread
             over the round's environments (msta-correct's option; the default: half of
             them with half of the tokens removed, so the rounds also hold the states the
@@ -332,6 +334,7 @@ class DemoConfig:
     rollout_mask_ratios: tuple[float, ...] = STAGE2_ROLLOUT_MASK_RATIOS
     sensor_dropout: float = 0.0
     unmasked_share: float = 0.0
+    ema_decay: float = 0.0
     select_trials: int = 0
     select_episode_length_s: float = 5.0
     teacher_seconds: float = 8.0
@@ -362,6 +365,8 @@ class DemoConfig:
             raise ValueError(f"sensor_dropout={self.sensor_dropout} must be in [0, 1]")
         if not 0.0 <= self.unmasked_share <= 1.0:
             raise ValueError(f"unmasked_share={self.unmasked_share} must be in [0, 1]")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
 
@@ -380,7 +385,8 @@ def main(argv: list[str] | None = None) -> None:
         dataset = step_collect(out, cfg.episodes, cfg.episode_length_s, cfg.teacher,
                                cfg.action_noise)
     server = start_hub(out)
-    loop = {"sensor_dropout": cfg.sensor_dropout, "unmasked_share": cfg.unmasked_share}
+    loop = {"sensor_dropout": cfg.sensor_dropout, "unmasked_share": cfg.unmasked_share,
+            "ema_decay": cfg.ema_decay}
     try:
         with timed("step 3"):
             hub_dataset = step_push(dataset)
