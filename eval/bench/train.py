@@ -26,7 +26,7 @@ from msta.data import sensors
 from msta.data.cli import parse_config
 from msta.policies.factory import make_policy
 from msta.policies.msta import MSTAConfig, MSTAPolicy
-from msta.policies.msta.modeling_msta import num_kept
+from msta.policies.msta.removal import num_kept
 
 BATCH = 64
 ALPHAS = (0.0, 0.5, 0.75)

@@ -68,6 +68,7 @@ from msta.policies.msta.removal import (
     complete_inputs,
     encoded_keys,
     keep_per_sample,
+    num_kept,
 )
 from msta.policies.msta.step_attention import make_age_proj, step_features
 from msta.policies.processor import Batch, Channels
@@ -80,12 +81,7 @@ from msta.policies.transformer import (
     sincos_2d,
 )
 
-__all__ = ["MSTAPolicy", "MSTATransformer", "num_kept"]
-
-
-def num_kept(num_tokens: int, mask_ratio: float) -> int:
-    """Tokens kept per sample after removing round(mask_ratio * N) (at least one)."""
-    return max(1, num_tokens - round(mask_ratio * num_tokens))
+__all__ = ["MSTAPolicy", "MSTATransformer"]
 
 
 class MSTATransformer(nn.Module):
@@ -347,6 +343,13 @@ class MSTATransformer(nn.Module):
         scores = uniform(B, N, generator, self.bin_embed.weight.device)
         return scores.masked_fill(pad, -1.0) if pad is not None else scores
 
+    def keep_draw(self, B: int, N: int, pad: Tensor | None, n_drop: int,
+                  generator: torch.Generator | None) -> Tensor:
+        """Test-time removal's draw: the indices (B, N - n_drop) of the tokens each sample
+        keeps, padded tokens removed first."""
+        scores = self._drop_scores(B, N, pad, generator)  # (B, N)
+        return torch.topk(scores, N - n_drop, dim=1, sorted=False).indices
+
     def _remove_masked(self, tokens: Tensor, static: Tensor, pad: Tensor | None, n_drop: int,
                        generator: torch.Generator | None
                        ) -> tuple[Tensor, Tensor | None, Tensor | None]:
@@ -357,8 +360,7 @@ class MSTATransformer(nn.Module):
             n_drop = max(n_drop, int(pad.sum(1).min()))
         if n_drop == 0:
             return self._value(tokens) + static, pad, None  # (B, N, d)
-        scores = self._drop_scores(B, N, pad, generator)  # (B, N)
-        keep = torch.topk(scores, N - n_drop, dim=1, sorted=False).indices  # (B, K)
+        keep = self.keep_draw(B, N, pad, n_drop, generator)  # (B, K)
         return self._gather(tokens, static, keep), (
             torch.gather(pad, 1, keep) if pad is not None else None), keep
 
@@ -382,20 +384,24 @@ class MSTATransformer(nn.Module):
         value = torch.where(masked[..., None], self.mask_token, self._value(tokens))  # (B, N, d)
         return value + static  # (B, N, d): position and sensor type are kept for masked tokens
 
+    def features(self, x: Tensor, attn_mask: Tensor | None, ages: Tensor | None,
+                 whole: int) -> Tensor:
+        """The readout features (B, R * d) the head reads, from :meth:`embed_steps`'s tokens,
+        key mask, ages and whole-layout T."""
+        if self.cfg.attention == "step":
+            return step_features(self, x, attn_mask, ages, whole)
+        R, last = self.cfg.state_tokens, len(self.blocks) - 1
+        for i, block in enumerate(self.blocks):
+            # the head reads only the readout tokens: the last block computes only theirs
+            x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
+        return self.ln_f(x).flatten(1)  # <S> (+ R - 1)
+
     def forward(self, inputs: MSTAInputs, mask_ratio: float = 0.0,
                 generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0,
                 with_aux: bool = False) -> Tensor | tuple[Tensor, Tensor]:
         """(B, action_dim); with ``with_aux`` also the auxiliary target's prediction
         (B, its dim) from the same readout features."""
-        x, attn_mask, ages, whole = self.embed_steps(inputs, mask_ratio, generator, dummy_tokens)
-        if self.cfg.attention == "step":
-            features = step_features(self, x, attn_mask, ages, whole)  # (B, R * d)
-        else:
-            R, last = self.cfg.state_tokens, len(self.blocks) - 1
-            for i, block in enumerate(self.blocks):
-                # the head reads only the readout tokens: the last block computes only theirs
-                x = block(x, attn_mask, R if i == last else None)  # (B, L, d); last: (B, R, d)
-            features = self.ln_f(x).flatten(1)  # (B, R * d): <S> (+ R - 1)
+        features = self.features(*self.embed_steps(inputs, mask_ratio, generator, dummy_tokens))
         if with_aux:
             if self.aux_head is None:
                 raise ValueError("this MSTA student has no aux_target")

@@ -20,6 +20,7 @@ channel a token and flags the ones the input lacks, for the mask token to replac
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -29,7 +30,33 @@ from msta.policies.base import uniform
 from msta.policies.msta.processor_msta import MSTAInputs
 
 __all__ = ["absent_tokens", "additive_mask", "complete_inputs", "encoded_keys",
-           "keep_per_sample"]
+           "keep_per_sample", "num_kept", "visible_tokens"]
+
+
+def num_kept(num_tokens: int, mask_ratio: float) -> int:
+    """Tokens kept per sample after removing round(mask_ratio * N) (at least one)."""
+    return max(1, num_tokens - round(mask_ratio * num_tokens))
+
+
+def visible_tokens(model: Any, inputs: MSTAInputs, mask_ratio: float,
+                   generator: torch.Generator | None) -> Tensor:
+    """(B, N) bool over a window's whole token layout, True = the tokens an
+    ``MSTATransformer`` (no mask token) keeps at test mask ``mask_ratio`` and does not hide
+    as padding: the same draw from ``generator`` as its forward, so a graph that takes
+    every token and hides the others from attention acts as the policy does."""
+    first = next(iter((*inputs.bins.values(), *inputs.encoded.values())))
+    B, T = first.shape[:2]
+    step = model.layout(inputs.channels, T, tuple(inputs.encoded))[2]  # (N,)
+    N = step.shape[0]
+    pad = inputs.pad[:, step] if inputs.pad is not None else None  # (B, N)
+    n_drop = N - num_kept(N, mask_ratio) if mask_ratio > 0 else 0
+    if pad is not None:  # padding every sample shares is removed even beyond round(αN)
+        n_drop = max(n_drop, int(pad.sum(1).min()))
+    visible = torch.ones(B, N, dtype=torch.bool, device=step.device)
+    if n_drop:
+        visible = torch.zeros_like(visible).scatter_(
+            1, model.keep_draw(B, N, pad, n_drop, generator), True)
+    return visible if pad is None else visible & ~pad
 
 
 def absent_tokens(inputs: MSTAInputs, B: int, T: int) -> Tensor | None:
@@ -82,7 +109,7 @@ def keep_per_sample(gone: Tensor, pad: Tensor | None, mask_ratio: float,
     """Which tokens each sample keeps when ``gone`` (B, N) are absent for it.
 
     Sample b keeps r_b of its present tokens: N_b - max(N_b - num_kept(N_b, α), padded_b)
-    (:func:`msta.policies.msta.modeling_msta.num_kept`), chosen at random (``generator``) when
+    (:func:`num_kept`), chosen at random (``generator``) when
     α > 0, all of them in layout order when α = 0 (no random draw).
 
     Returns:

@@ -9,8 +9,11 @@ keys and values, adds each step's age and runs the readout blocks and the head. 
 is a ring of T slots, oldest first; slots before the episode's first step are hidden from
 attention, so the first steps act on the shorter window exactly as the policy does on a
 padded one. ``runtime`` picks what runs the two parts: ``eager`` PyTorch, ``torchscript``
-(traced once at construction and frozen) or ``onnxruntime`` (exported once to ONNX, run on
-ONNX Runtime's CPU provider); the last two remove most of the per-call overhead at batch 1.
+(traced once at construction and frozen), ``onnxruntime`` (exported once to ONNX, run on
+ONNX Runtime's CPU provider) or ``onnxruntime-int8`` (the same graphs with the weights of
+their matrix products in int8 and activations quantized per call: ONNX Runtime's dynamic
+quantization, a small loss of precision); the last three remove most of the per-call
+overhead at batch 1.
 """
 
 from __future__ import annotations
@@ -26,11 +29,12 @@ from torch import Tensor, nn
 from msta.data.sensors import get
 from msta.policies.export_files import ONNX_OPSET
 from msta.policies.msta.step_attention import age_code, readout_block, token_kv
+from msta.policies.quantize import int8_graph
 
 __all__ = ["RUNTIMES", "StepStream"]
 
 #: What may run a stream's two parts.
-RUNTIMES = ("eager", "torchscript", "onnxruntime")
+RUNTIMES = ("eager", "torchscript", "onnxruntime", "onnxruntime-int8")
 
 
 class _Encoder(nn.Module):
@@ -82,7 +86,7 @@ class StepStream:
         sensors: the sensors read, in the order :meth:`step` is given them (default: every
             input of the policy).
         batch: robots stepped at once (the readings' first dimension).
-        runtime: one of :data:`RUNTIMES` for the encoder and the readout (``onnxruntime``
+        runtime: one of :data:`RUNTIMES` for the encoder and the readout (ONNX Runtime
             uses as many threads as torch).
     """
 
@@ -115,10 +119,11 @@ class StepStream:
                                    device=dev))
         if runtime != "eager":
             compiled = _frozen if runtime == "torchscript" else _onnx
+            int8 = runtime == "onnxruntime-int8"
             with torch.no_grad():
-                self.encoder = compiled(self.encoder, one, self.sensors)
+                self.encoder = compiled(self.encoder, one, self.sensors, int8)
                 self.readout = compiled(self.readout, (self._empty[0], self.age, ~self._empty[1]),
-                                        ("kv", "age", "visible"))
+                                        ("kv", "age", "visible"), int8)
         self.reset()
 
     def reset(self) -> None:
@@ -138,9 +143,10 @@ class StepStream:
         return self.readout(self._kv, self.age, self._visible)
 
 
-def _frozen(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]) -> Any:
+def _frozen(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str],
+            int8: bool = False) -> Any:
     """``module`` traced on ``example`` and frozen for inference (TorchScript); ``names``
-    (of the inputs) are unused here."""
+    (of the inputs) and ``int8`` (ONNX Runtime's) are unused here."""
     with warnings.catch_warnings():
         # TracerWarnings name the eager path's Python checks, which the graph leaves out
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
@@ -148,10 +154,11 @@ def _frozen(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]
     return torch.jit.optimize_for_inference(torch.jit.freeze(traced))
 
 
-def _onnx(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]
-          ) -> Callable[..., Tensor]:
-    """``module`` exported to ONNX (inputs ``names``, traced on ``example``) and a function
-    running it on ONNX Runtime's CPU provider: tensors in, a tensor out."""
+def _onnx(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str],
+          int8: bool = False) -> Callable[..., Tensor]:
+    """``module`` exported to ONNX (inputs ``names``, traced on ``example``), its weights
+    quantized to int8 when ``int8`` (:func:`msta.policies.quantize.int8_graph`), and a
+    function running it on ONNX Runtime's CPU provider: tensors in, a tensor out."""
     import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
     buffer = io.BytesIO()
@@ -159,9 +166,10 @@ def _onnx(module: nn.Module, example: tuple[Tensor, ...], names: Sequence[str]
         warnings.simplefilter("ignore")  # TracerWarnings: the eager path's Python checks
         torch.onnx.export(module, example, buffer, dynamo=False, input_names=list(names),
                           output_names=["out"], opset_version=ONNX_OPSET)
+    graph = int8_graph(buffer.getvalue()) if int8 else buffer.getvalue()
     options = ort.SessionOptions()
     options.intra_op_num_threads = options.inter_op_num_threads = torch.get_num_threads()
-    session = ort.InferenceSession(buffer.getvalue(), options, providers=["CPUExecutionProvider"])
+    session = ort.InferenceSession(graph, options, providers=["CPUExecutionProvider"])
 
     def run(*inputs: Tensor) -> Tensor:
         feed = {n: x.cpu().numpy() for n, x in zip(names, inputs, strict=True)}

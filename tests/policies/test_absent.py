@@ -13,7 +13,7 @@ from msta.policies.actor import SplitActor, StudentActor
 from msta.policies.baselines import GRUPolicy
 from msta.policies.factory import make_policy
 from msta.policies.input_spec import InputSpec
-from msta.policies.msta.modeling_msta import num_kept
+from msta.policies.msta.removal import num_kept
 from msta.policies.registry import get_config_class
 
 T = 6

@@ -46,6 +46,20 @@ def test_the_stream_acts_as_the_window_from_the_first_step_on(layers, runtime):
     torch.testing.assert_close(first, actions[0], atol=1e-6, rtol=0)
 
 
+def test_the_int8_stream_is_close_to_the_window_but_not_equal():
+    """``onnxruntime-int8`` runs the stream's two parts with int8 weights: its actions move
+    by a little (quantization), and still follow the inputs."""
+    policy = tiny_msta(T, attention="step", num_layers=3, readout_layers=1).eval()
+    seq = sequence(policy, T + 2)
+    stream = StepStream(policy, batch=2, runtime="onnxruntime-int8")
+    for t in range(T + 2):
+        got = stream.step({n: v[:, t] for n, v in seq.items()})
+    with torch.no_grad():
+        want = policy({n: v[:, -T:] for n, v in seq.items()})
+    diff = float((got - want).abs().max())
+    assert 0 < diff < 0.2 * float(want.abs().max()), diff
+
+
 def test_the_readout_tells_steps_apart_by_their_age():
     """Steps' tokens carry no age, the readout adds it: the same readings in another order
     give another action (a window read as a bag of steps would give the same one)."""

@@ -27,10 +27,17 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
     for obs, tokens in (("full", 15 * 49 + 1), ("minimized", 7 * 30 + 1)):
         r = results["observations"][obs]
         assert r["tokens"] == tokens
-        assert set(r["runtimes"]) == {"eager", "torchscript", "onnxruntime"}
+        assert set(r["runtimes"]) == {"eager", "torchscript", "onnxruntime", "onnxruntime-int8"}
         assert r["parity"]["parity_max_abs_diff"] <= 1e-5
+        # int8 moves the actions (reported), so it is timed but never the fp32 best
+        assert 0 < r["parity"]["int8_max_abs_diff"] < 1.0
         assert all(v["median_ms"] > 0 and v["calls"] >= 20 for v in r["runtimes"].values())
-        assert r["best"] in r["runtimes"]
+        assert r["best"] in r["runtimes"] and r["best"] != "onnxruntime-int8"
+        step = results["step"]["observations"][obs]
+        assert step["best"] in step["runtimes"] and not step["best"].endswith("int8")
+        assert step["int8"]["runtime"].endswith("int8") and 0 < step["int8"]["max_abs_diff"] < 1.0
+        assert abs(step["int8"]["speedup"] * step["int8"]["median_ms"]
+                   - r["runtimes"][r["best"]]["median_ms"]) < 1e-9
     g = results["guard"]  # the guard and guard + student, against the plain student
     student = results["observations"]["full"]["runtimes"]["onnxruntime"]["median_ms"]
     assert g["student_ms"] == student and g["parity_max_abs_diff"] <= 1e-5
@@ -41,6 +48,9 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
         assert abs(r["ratio_to_student"] - r["median_ms"] / student) < 1e-12
     assert g["runtimes"]["guard + student"]["median_ms"] > g["runtimes"]["guard"]["median_ms"]
     assert any(line.startswith("guard + student (full, 1 core, batch 1): ") for line in lines)
+    assert sum(re.match(r"(full|minimized): int8 \(ONNX Runtime dynamic quantization\) paper "
+                        r"attention \d+\.\d\d ms, step attention", line) is not None
+               for line in lines) == 2
 
 
 def test_flops_count_the_readout_only_last_block():
