@@ -13,6 +13,9 @@ existing dataset is verified (every committed file against the sha256 recorded a
 before it is extended, and a damaged one is refused with one line naming the file. A
 dataset left empty by a run that recorded nothing is reused by the next run.
 
+The dataset records the simulated robot (``--env.robot``'s name, ``meta/msta.json``'s
+``robot``); ``--resume`` on a dataset of another robot is refused in one line.
+
 Episodes carry the per-sensor columns only; the writer adds ``observation.state`` and
 ``observation.environment_state`` for stock LeRobot policies (:mod:`msta.data.derived`).
 """
@@ -38,7 +41,14 @@ from msta.data.errors import DatasetError, DirectoryLockedError
 from msta.data.features import load_info
 from msta.data.layout import LOCK_NAME
 from msta.data.lerobot_edits import UNKNOWN
-from msta.data.msta_json import add_recording, differences, recorded_settings
+from msta.data.msta_json import (
+    ROBOT,
+    add_recording,
+    check_robot,
+    differences,
+    meta_robot,
+    recorded_settings,
+)
 from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -166,6 +176,17 @@ def check_same_settings(cfg: CollectConfig, writer: DatasetWriter,
             "settings are kept in meta/msta.json)")
 
 
+def check_same_robot(writer: DatasetWriter, robot: str) -> None:
+    """``--resume`` on a dataset of another robot than ``robot`` (the name of the one
+    ``--env.robot`` simulates): one line naming both (:func:`msta.data.msta_json.check_robot`).
+    A dataset that holds no episode yet takes the robot of the run that fills it."""
+    if writer.num_episodes:
+        check_robot(meta_robot(writer.msta_meta), robot, str(writer.root), "--env.robot")
+    elif meta_robot(writer.msta_meta) != robot:
+        writer.msta_meta[ROBOT] = writer.info["robot_type"] = robot
+        writer.meta_changed()
+
+
 def collect(cfg: CollectConfig) -> Path:
     """Record (or extend) the dataset; returns its root (checks: module docstring)."""
     root = Path(cfg.root)
@@ -184,6 +205,8 @@ def collect(cfg: CollectConfig) -> Path:
             cfg.num_envs, seed, cfg.episode_length_s)
         revision = teacher_revision(cfg.teacher)
         settings = recording_settings(cfg, revision)
+        if writer is not None:
+            check_same_robot(writer, cfg.env.robot_description.name)
         if writer is not None and have:
             check_same_settings(cfg, writer, settings)
         teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
@@ -193,7 +216,7 @@ def collect(cfg: CollectConfig) -> Path:
         if writer is None:
             from msta.data.writer import DatasetWriter  # lazy: pandas and pyarrow (--help)
 
-            writer = DatasetWriter.create(root, cfg.repo_id,
+            writer = DatasetWriter.create(root, cfg.repo_id, robot=env.robot.name,
                                           sensors=(*DEFAULT_RECORDED, *cfg.extra),
                                           flush_every_frames=cfg.flush_every_frames)
     except BaseException:

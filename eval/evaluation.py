@@ -19,6 +19,7 @@ from msta.collect.sim.render import save_video
 from msta.data.budget import deadline_after
 from msta.data.locate import locate, reads_as_hub_id
 from msta.data.locking import hold_directory
+from msta.data.robot import LEGACY_ROBOT
 from msta.data.sensors import STUDENT_SENSORS
 from msta.eval import report
 from msta.eval.eval_config import EvalConfig
@@ -32,6 +33,7 @@ from msta.eval.scenarios import (
 from msta.eval.sensor_faults import is_fault_run, load_guard
 from msta.eval.trial_env import make_env, torch_eval_settings
 from msta.policies.actor import StudentActor
+from msta.policies.config import check_trained_on
 from msta.policies.teacher.base import teacher_names
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
@@ -79,6 +81,25 @@ def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
     return entries
 
 
+def eval_robot(cfg: EvalConfig, entries: list[PolicyEntry]) -> str:
+    """The robot msta-eval simulates: ``--robot``, refusing in one line a checkpoint trained
+    on another; empty: the one robot the student checkpoints were trained on (the A1 for
+    teachers alone; checkpoints that name several robots are refused in one line)."""
+    students = [e for e in entries if e.kind == "student"]
+    if cfg.robot:
+        for e in students:
+            check_trained_on(e.obj.config.robots, cfg.robot_name, f"--policies entry {e.source}",
+                             "--robot")
+        return cfg.robot
+    named = sorted({r for e in students for r in e.obj.config.robots})
+    if len(named) > 1:
+        trained = "; ".join(f"{e.source}: {', '.join(e.obj.config.robots)}" for e in students)
+        raise ValueError(f"the checkpoints were trained on robots {named} ({trained}): pick "
+                         "the simulated robot with --robot (each checkpoint must have been "
+                         "trained on it)")
+    return named[0] if named else LEGACY_ROBOT
+
+
 def plan(cfg: EvalConfig, entries: list[PolicyEntry]) -> list[tuple[PolicyEntry, Condition]]:
     """Every (policy, condition) pair, policies in --policies order."""
     suite = get_suite(cfg.suite)
@@ -111,6 +132,9 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     deadline = deadline_after(cfg.max_minutes)
     cfg.torch_device  # noqa: B018 - a bad or unavailable --device fails first, in one line
     entries = entries if entries is not None else load_entries(cfg)
+    robot = eval_robot(cfg, entries)
+    if robot != cfg.robot:  # the checkpoints' robot: a copy of cfg that names it
+        cfg = replace(cfg, robot=robot)
     with hold_directory(cfg.output_dir, "another msta-eval run") as out:
         return _evaluate_locked(cfg, entries, out, deadline)
 

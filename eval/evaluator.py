@@ -24,6 +24,7 @@ from tqdm import tqdm
 
 from msta.data.budget import check_deadline
 from msta.data.revision import checkpoint_revision, content_revision
+from msta.data.robot import LEGACY_ROBOT
 from msta.eval.metrics import NotApplicable, TrialResults, aggregate, normalize, run_trials
 from msta.eval.scenarios import Condition, TrialConfig
 from msta.eval.sensor_faults import (
@@ -122,6 +123,8 @@ def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
     TrialConfig setting that changes a figure) and the reference teacher's revision."""
     names = {f.name for f in fields(TrialConfig)} | set(_RESOLVED)
     trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
+    if trials["robot"] == LEGACY_ROBOT:  # the A1's runs keep the digests they had before --robot
+        del trials["robot"]
     return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
 
 

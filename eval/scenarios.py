@@ -40,10 +40,10 @@ from typing import Any
 import numpy as np
 
 from msta.collect.faults import FaultSpec
-from msta.collect.sim.env_config import check_sizes
+from msta.collect.sim.env_config import check_sizes, load_sim_robot
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.checks import check_at_least
-from msta.data.robot import NUM_JOINTS
+from msta.data.robot import LEGACY_ROBOT, NUM_JOINTS
 from msta.eval.metrics import TrialLayout
 from msta.policies.input_spec import InputSpec
 
@@ -330,6 +330,10 @@ class TrialConfig:
     seed: int = 0
     """seeds the trials (tiles are pinned; spawns, commands, noise, pushes) and the
     students' test-time masks."""
+    robot: str = ""
+    """the simulated robot: a shipped robot's name or a .toml spec file's path (as
+    --env.robot, docs/robots.md); empty = msta-eval: the robot the evaluated checkpoints were
+    trained on (the A1 for teachers alone); msta-correct: the rounds' --env.robot."""
     noise: bool = True
     """observation noise on."""
     randomization: bool = True
@@ -362,6 +366,9 @@ class TrialConfig:
         self.envs = self.num_envs or suite.num_envs
         check_at_least(self, 1, "num_threads")
         check_sizes(self.envs, self.episode, self.nthread)
+        #: the simulated robot's name (``robot``'s; the A1 while ``robot`` is empty)
+        self.robot_name = load_sim_robot(self.robot, "robot").name if self.robot \
+            else LEGACY_ROBOT
 
     def layout(self) -> TrialLayout:
         """The trial layout these options describe."""
@@ -373,5 +380,5 @@ class TrialConfig:
         d = {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(self).items()
              if k not in _NOT_RESULTS}  # JSON-shaped: equal to itself read back
         d.update(trials=self.num_trials, terrains=self.terrain_list, levels=self.level_list,
-                 episode_length_s=self.episode, num_envs=self.envs)
+                 episode_length_s=self.episode, num_envs=self.envs, robot=self.robot_name)
         return d

@@ -15,14 +15,17 @@ from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
+from msta.data.robot import LEGACY_ROBOT
 from msta.eval.scenarios import TrialConfig
 
 
 def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
-    """The evaluation simulator: tiles pinned (curriculum off), only the evaluated terrain
-    columns built; :func:`msta.eval.metrics.start_trials` gives every trial its random stream."""
+    """The evaluation simulator of ``cfg.robot`` (the A1 when empty): tiles pinned (curriculum
+    off), only the evaluated terrain columns built; :func:`msta.eval.metrics.start_trials`
+    gives every trial its random stream."""
     return QuadrupedEnv(EnvConfig(
-        num_envs=num_envs, seed=cfg.seed, episode_length_s=cfg.episode, nthread=cfg.nthread,
+        robot=cfg.robot or LEGACY_ROBOT, num_envs=num_envs, seed=cfg.seed,
+        episode_length_s=cfg.episode, nthread=cfg.nthread,
         terrain=TerrainConfig(types=tuple(cfg.terrain_list), curriculum=False),
         commands=CommandConfig(use_heading=cfg.heading_commands),
         noise=NoiseConfig(enabled=cfg.noise),

@@ -26,7 +26,8 @@ columns and ``LeRobotDataset(..., episode_filter=lambda ep: ep["provenance/terra
 ``task_string(provenance)`` (``"a1 locomotion on <terrain>"``) so ``task_index`` groups
 episodes by terrain type.
 
-``meta/msta.json`` records the msta schema version and the sensor list; ``info.json`` is
+``meta/msta.json`` records the msta schema version, the robot and the sensor list
+(:mod:`msta.data.msta_json`); ``info.json`` is
 left exactly as lerobot writes it (lerobot warns about unknown keys there). Schema 1 (before
 the derived columns) is still read and appended to in its own layout, so every file of a
 dataset has the same columns.
@@ -56,7 +57,6 @@ MSTA_SCHEMA_VERSION = 2
 #: Schemas the writer appends to (each in its own layout) and the readers read.
 SCHEMA_VERSIONS: tuple[int, ...] = (1, 2)
 DEFAULT_FPS = 50
-DEFAULT_ROBOT_TYPE = "a1"
 
 #: lerobot's automatically filled columns (same dicts as ``lerobot.utils.constants``).
 LEROBOT_DEFAULT_FEATURES: dict[str, dict[str, Any]] = {

@@ -17,7 +17,9 @@ the structural checks every dataset without a manifest gets, re-derives:
 * ``meta/msta.json`` (:func:`derive_msta_meta`): the sensors are the registry sensors whose
   columns ``info.json`` declares, schema 2 when it has the derived columns (1 without);
   ``info.json``'s features must be exactly that schema's, else it is not an msta dataset and
-  nothing is changed. The repo id is ``local/<the root's name>``: LeRobot records none.
+  nothing is changed. The repo id is ``local/<the root's name>``: LeRobot records none. The
+  robot is ``info.json``'s ``robot_type`` (which LeRobot's tools keep and msta writes as the
+  robot's name), the A1 when it holds no name.
 * the ``provenance/*`` columns where an episode file lacks them or a merge left them empty
   (:func:`provenance_fixes`): the terrain from the episode's task text (``a1 locomotion on
   <terrain>``), every other field :data:`UNKNOWN` (``"unknown"``, or -1 for numbers): nothing on
@@ -48,6 +50,7 @@ from msta.data import layout as L
 from msta.data import sensors as registry
 from msta.data.errors import DatasetFormatError
 from msta.data.integrity import FileRecord
+from msta.data.robot import LEGACY_ROBOT
 
 logger = logging.getLogger(__name__)
 
@@ -80,8 +83,12 @@ def derive_msta_meta(root: str | Path, info: dict[str, Any]) -> dict[str, Any]:
             f"{root / L.INFO_PATH}: no {L.MSTA_META_PATH} and features that are not msta's "
             f"(schema {version} with sensors {sensors} differs in columns {bad}): not an msta "
             "dataset, nothing was changed")
+    robot = info.get("robot_type")
+    robot = robot if isinstance(robot, str) and robot.strip() and robot.isprintable() \
+        else LEGACY_ROBOT
     return {"msta_schema_version": version, "repo_id": f"local/{root.resolve().name}",
-            "sensors": sensors, "provenance_columns": list(F.PROVENANCE_COLUMNS)}
+            "robot": robot, "sensors": sensors,
+            "provenance_columns": list(F.PROVENANCE_COLUMNS)}
 
 
 _INT64 = (-(2**63), 2**63 - 1)

@@ -1,6 +1,11 @@
 """``meta/msta.json``: msta's own metadata of a dataset (schema version, recorded sensors,
 provenance columns) and the settings each recording session used.
 
+``robot`` is the name of the robot the dataset's episodes simulated
+(``RobotDescription.name``, also ``info.json``'s ``robot_type``); a dataset written before it
+was recorded has none and counts as the A1 (:data:`~msta.data.robot.LEGACY_ROBOT`).
+:func:`dataset_robot` reads it; :func:`check_robot` refuses another robot in one line.
+
 ``recordings`` is a list of blocks, one per change of settings, each ``{"from_episode": k,
 <settings>}``: an episode ``e`` that msta-collect recorded was recorded with the last block
 whose ``from_episode`` is at most ``e`` (stage 2's appended episodes, ``provenance/source``
@@ -20,8 +25,12 @@ from typing import Any
 from msta.data import features as F
 from msta.data import layout as L
 from msta.data.errors import DatasetFormatError
+from msta.data.lerobot_edits import derive_msta_meta, is_rewritten
+from msta.data.robot import LEGACY_ROBOT
 
 RECORDINGS = "recordings"
+#: ``meta/msta.json``'s key of the simulated robot's name.
+ROBOT = "robot"
 
 
 def read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
@@ -49,7 +58,46 @@ def read_msta_meta(root: Path, info: dict[str, Any]) -> dict[str, Any]:
             isinstance(b, dict) and isinstance(b.get("from_episode"), int) for b in blocks):
         raise DatasetFormatError(f"{msta_path}: '{RECORDINGS}' must be a list of objects with "
                                  "an integer 'from_episode'")
+    robot = msta_meta.get(ROBOT, LEGACY_ROBOT)
+    if not isinstance(robot, str) or not robot.strip() or not robot.isprintable():
+        raise DatasetFormatError(f"{msta_path}: '{ROBOT}' must be a robot's name, got "
+                                 f"{str(robot)[:80]!r}")
     return msta_meta
+
+
+def meta_robot(msta_meta: dict[str, Any]) -> str:
+    """The robot a dataset's ``meta/msta.json`` content records (the A1 when it records none)."""
+    return str(msta_meta.get(ROBOT, LEGACY_ROBOT))
+
+
+def dataset_robot(root: str | Path) -> str:
+    """The name of the robot whose episodes the dataset at ``root`` holds: ``meta/msta.json``'s
+    ``robot``; the A1 for a dataset written before robots were recorded; for a dataset
+    LeRobot's tools rewrote (no msta.json), ``info.json``'s ``robot_type``
+    (:func:`~msta.data.lerobot_edits.derive_msta_meta`).
+
+    Raises:
+        DatasetFormatError: the metadata cannot be read or is not msta's (file named).
+    """
+    root = Path(root)
+    info = F.load_info(root)
+    meta = derive_msta_meta(root, info) if is_rewritten(root) else read_msta_meta(root, info)
+    return meta_robot(meta)
+
+
+def check_robot(recorded: str, robot: str, what: str, option: str) -> None:
+    """One-line ``ValueError`` unless the dataset's robot ``recorded`` is ``robot``.
+
+    Args:
+        recorded: the dataset's robot (:func:`dataset_robot`).
+        robot: the robot that would be simulated or appended.
+        what: the dataset, as the message names it (its root).
+        option: the option that chose ``robot`` (``--env.robot``).
+    """
+    if recorded != robot:
+        raise ValueError(f"{what} holds episodes of robot {recorded!r}, not {robot!r} "
+                         f"({option}): give {option} the robot {recorded!r}, or choose a "
+                         f"dataset of {robot!r}")
 
 
 def recorded_settings(msta_meta: dict[str, Any], episodes: int) -> dict[str, Any] | None:

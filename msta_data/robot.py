@@ -29,7 +29,7 @@ from msta.data.sensors import JOINT_NAMES, LEGS, SENSORS
 ROBOTS_FOLDER = "robots"
 SPEC_SUFFIX = ".toml"
 #: Numbers that must be > 0 and the one that may be 0 (a pure P controller).
-_POSITIVE = ("kp", "action_scale", "clip_actions", "torque_limit", "velocity_limit",
+_POSITIVE = ("kp", "action_scale", "clip_actions", "velocity_limit",
              "spawn_height", "contact_threshold", "sim_dt", "thigh_length", "calf_length",
              "foot_radius", "calf_collision_full")
 _NON_NEGATIVE = ("kd",)
@@ -56,7 +56,8 @@ class RobotDescription:
         kd: damping gain of the joint PD controllers (N m s / rad).
         action_scale: joint target = default pose + ``action_scale`` * action (rad).
         clip_actions: actions are clipped to +-``clip_actions`` before scaling.
-        torque_limit: joint torque limit (N m).
+        torque_limit: joint torque limit (N m): one number for every joint, or one per joint
+            (e.g. the Go1's knees are geared for more torque than its hips and thighs).
         velocity_limit: joint velocity limit (rad/s).
         spawn_height: trunk height above flat ground at a reset (m).
         contact_threshold: touch-sensor force above which a foot is in contact (N).
@@ -68,7 +69,8 @@ class RobotDescription:
         calf_collision_full: calf collision capsule length in the "full" collision set (m).
         hip_offsets: (x, y) of each hip in the base frame (m), one pair per leg.
         thigh_offset_y: lateral offset of each thigh from its hip (m), one per leg.
-        sensors: names of :data:`msta.data.sensors.SENSORS` this robot has.
+        sensors: names of :data:`msta.data.sensors.SENSORS` this robot has (the simulator's
+            observations hold these and no others).
         spec_file: the spec file it was read from (``None`` when built in code); relative
             ``mjcf`` paths resolve from its folder. Not part of equality.
     """
@@ -83,7 +85,7 @@ class RobotDescription:
     kd: float
     action_scale: float
     clip_actions: float
-    torque_limit: float
+    torque_limit: float | tuple[float, ...]
     velocity_limit: float
     spawn_height: float
     contact_threshold: float
@@ -113,6 +115,7 @@ class RobotDescription:
         self._set("default_pose",
                   _vector("default_pose", self.default_pose, len(self.joints), "joint"))
         self._set("thigh_offset_y", _vector("thigh_offset_y", self.thigh_offset_y, legs, "leg"))
+        self._set("torque_limit", _limit("torque_limit", self.torque_limit, len(self.joints)))
         self._set("hip_offsets", _pairs("hip_offsets", self.hip_offsets, legs))
         unknown = [s for s in self.sensors if s not in SENSORS]
         if unknown:
@@ -125,6 +128,13 @@ class RobotDescription:
     def num_joints(self) -> int:
         """Actuated joints (= action channels)."""
         return len(self.joints)
+
+    @property
+    def joint_torque_limits(self) -> tuple[float, ...]:
+        """The torque limit (N m) of each joint, in ``joints`` order."""
+        if isinstance(self.torque_limit, tuple):
+            return self.torque_limit
+        return (self.torque_limit,) * len(self.joints)
 
     @property
     def control_dt(self) -> float:
@@ -221,6 +231,16 @@ def _vector(name: str, value: object, size: int, per: str) -> tuple[float, ...]:
     return tuple(out)
 
 
+def _limit(name: str, value: object, size: int) -> float | tuple[float, ...]:
+    """A number > 0, or ``size`` numbers > 0 (one per joint)."""
+    if isinstance(value, (int, float, bool)):
+        return _number(name, value, strict=True)
+    limits = _vector(name, value, size, "joint")
+    for i, v in enumerate(limits):
+        _number(f"{name}[{i}]", v, strict=True)
+    return limits
+
+
 def _pairs(name: str, value: object, size: int) -> tuple[tuple[float, float], ...]:
     """``size`` (x, y) pairs of finite floats, one per leg."""
     value = _sequence(name, value, "(x, y) pairs")
@@ -291,6 +311,9 @@ def _load_file(path: Path) -> RobotDescription:
 
 #: The shipped A1-class robot (msta_data/robots/a1.toml); the constants below are its numbers.
 A1 = load_robot("a1")
+#: The robot of a dataset or checkpoint that records none: msta simulated only the A1 before
+#: datasets (``meta/msta.json``'s ``robot``) and students (``PolicyConfig.robots``) said.
+LEGACY_ROBOT = A1.name
 
 #: Joints (= action channels) of the robot.
 NUM_JOINTS = A1.num_joints

@@ -4,14 +4,17 @@ The simulator's observations, the dataset's Parquet columns, the normalizer's ke
 the MSTA tokenizer's sensor-type vocabulary and the evaluation's "remove sensor X"
 experiments all read this registry. Adding a sensor is one entry here plus a producer
 (for a sensor read from a quantity the simulator already measures, ``source`` names it and
-the simulator produces it with the entry's noise; nothing else needs an edit).
+the simulator produces it with the entry's noise), and its name in the ``sensors`` of each
+robot description that has it; nothing else needs an edit.
 
-Extension sensors (``extension=True``, e.g. ``height_map``) are student inputs the paper's
-students do not read: default students, recorded datasets and ``observation.state`` leave
-them out; a dataset records them when asked (``msta-collect --extra_sensors=height_map``)
-and a student reads them when its ``input_sensors`` name them.
+Extension sensors (``extension=True``: ``height_map``, ``joint_torque``, ``base_accel``) are
+student inputs the paper's students do not read: default students, recorded datasets and
+``observation.state`` leave them out; a dataset records them when asked (``msta-collect
+--extra_sensors=height_map``) and a student reads them when its ``input_sensors`` name them.
+A robot offers the sensors its description lists (``RobotDescription.sensors``,
+docs/robots.md): the simulator's observations hold those and no others.
 
-Units are raw SI (rad, rad/s, m, m/s); nothing here is normalized.
+Units are raw SI (rad, rad/s, m, m/s, N m, m/s^2); nothing here is normalized.
 """
 
 from __future__ import annotations
@@ -125,6 +128,14 @@ def _specs() -> tuple[SensorSpec, ...]:
             description="onboard elevation map: the height scan with +-2 cm noise, as a student "
                         "extension input (MSTA: an MLP encodes each step's 187 points into 4 "
                         "tokens) (m)"),
+        SensorSpec("joint_torque", "proprio", JOINT_NAMES, 0.5, 10.0, extension=True,
+                   source="torques",
+                   description="joint torques: the actuators' force, mean over the control "
+                               "step (on the robot, the motor drivers' current estimate) (N m)"),
+        SensorSpec("base_accel", "proprio", XYZ, 0.2, 10.0, extension=True, source="accel",
+                   description="IMU accelerometer: specific force (acceleration minus gravity) "
+                               "at the IMU in the base frame, +9.81 on z standing still, mean "
+                               "over the control step; 0 in an episode's first frame (m/s^2)"),
     )
 
 

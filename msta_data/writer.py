@@ -73,6 +73,7 @@ from msta.data.inside import refuse_links
 from msta.data.layout import LOCK_NAME
 from msta.data.locking import lock_directory
 from msta.data.msta_json import read_msta_meta
+from msta.data.robot import LEGACY_ROBOT
 
 __all__ = ["LOCK_NAME", "DatasetWriter", "validate_episode"]
 
@@ -152,7 +153,7 @@ class DatasetWriter:
     # ----- construction ----------------------------------------------------------------
     @classmethod
     def create(cls, root: str | Path, repo_id: str, fps: int = F.DEFAULT_FPS,
-               robot_type: str = F.DEFAULT_ROBOT_TYPE, sensors: Sequence[str] | None = None,
+               robot: str = LEGACY_ROBOT, sensors: Sequence[str] | None = None,
                flush_every_frames: int = DEFAULT_FLUSH_EVERY_FRAMES,
                max_frames_per_file: int | None = None) -> DatasetWriter:
         """Start a new dataset at ``root`` (absent or an empty directory).
@@ -161,7 +162,7 @@ class DatasetWriter:
             root: dataset directory.
             repo_id: hub id, e.g. ``"local/a1_teacher"`` (recorded in ``meta/msta.json``).
             fps: control rate; msta uses 50.
-            robot_type: ``info.json`` robot type.
+            robot: the simulated robot's name (``robot_type`` and msta.json's ``robot``).
             sensors: registry names to record; ``None`` = every registry sensor.
             flush_every_frames: buffered frames that trigger a flush (crash loses at most
                 this many frames plus the episode in progress).
@@ -181,11 +182,11 @@ class DatasetWriter:
                 "codebase_version": F.CODEBASE_VERSION, "fps": int(fps), "features": feats,
                 "total_episodes": 0, "total_frames": 0, "total_tasks": 0, "chunks_size": 1000,
                 "data_files_size_in_mb": 100, "video_files_size_in_mb": 200,
-                "data_path": L.DATA_PATH, "video_path": None, "robot_type": robot_type,
+                "data_path": L.DATA_PATH, "video_path": None, "robot_type": robot,
                 "splits": {},
             }
             msta_meta = {"msta_schema_version": F.MSTA_SCHEMA_VERSION, "repo_id": repo_id,
-                         "sensors": list(F.resolve_sensors(sensors)),
+                         "robot": robot, "sensors": list(F.resolve_sensors(sensors)),
                          "provenance_columns": list(F.PROVENANCE_COLUMNS)}
             self = cls(root, lock_fd, info, msta_meta, flush_every_frames, max_frames_per_file)
             self._new_files[L.MSTA_META_PATH] = _atomic_json(root / L.MSTA_META_PATH, msta_meta)

@@ -3,8 +3,9 @@
 :class:`PolicyConfig` is a draccus choice type: a student's config subclasses it and is
 registered under the policy's name by :func:`msta.policies.registry.register_policy`, so
 ``--policy.type=<name>`` selects it and ``config.json`` records it as ``"type"``. The fields
-declared here (sensors, window length, mask ratio, action target, presets) exist on every
-student config, so code handed any student reads ``config.history`` directly.
+declared here (sensors, window length, mask ratio, action target, presets, the robots it was
+trained on) exist on every student config, so code handed any student reads
+``config.history`` directly.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any, ClassVar, Self
 import draccus
 
 from msta.data import sensors
+from msta.data.robot import LEGACY_ROBOT
 from msta.policies.checkpoint import (
     CONFIG_NAME,
     CheckpointError,
@@ -56,6 +58,33 @@ def check_student_sensors(names: tuple[str, ...]) -> None:
             raise ValueError(f"sensor {name!r} is privileged (teacher only), not a student input")
 
 
+def check_robot_names(names: tuple[str, ...]) -> None:
+    """Non-empty, no duplicates, every name a non-empty printable text (``robots``)."""
+    if not names or len(set(names)) != len(names):
+        raise ValueError(f"robots must name one robot or more, each once, got {list(names)}")
+    bad = [n for n in names if not isinstance(n, str) or not n.strip() or not n.isprintable()]
+    if bad:
+        raise ValueError(f"robots: {str(bad[0])[:80]!r} is not a robot's name")
+
+
+def check_trained_on(robots: tuple[str, ...], robot: str, what: str, option: str) -> None:
+    """One-line ``ValueError`` unless a student trained on ``robots`` (its config's) may run
+    ``robot``.
+
+    Args:
+        robots: the student's robots (``PolicyConfig.robots``).
+        robot: the name of the robot that would be simulated.
+        what: the checkpoint, as the message names it (``--policy.path=<dir>``).
+        option: the option that chose ``robot`` (``--env.robot``, ``--robot``).
+    """
+    if robot not in robots:
+        trained = ", ".join(repr(r) for r in robots)
+        which = f"robot {trained}" if len(robots) == 1 else f"robots {trained}"
+        pick = "the" if len(robots) == 1 else "one of the"
+        raise ValueError(f"{what} was trained on {which}, not {robot!r} ({option}): give "
+                         f"{option} {pick} {which}, or a checkpoint trained on {robot!r}")
+
+
 @dataclass
 class PolicyConfig(draccus.ChoiceRegistry):
     """Base of every student config (the fields below are shared by all of them).
@@ -72,6 +101,10 @@ class PolicyConfig(draccus.ChoiceRegistry):
         action_key: dataset column of the target action.
         action_dim: number of joint targets.
         normalize_action: train on z-scored actions (the processor maps back).
+        robots: names of the robots whose datasets trained the student
+            (``RobotDescription.name``); training writes them (msta-train: the dataset's robot,
+            a value given is replaced), msta-correct and msta-eval refuse another robot. A
+            config.json without the field: the A1.
     """
 
     #: Preset name -> field overrides of the defaults (``--policy.preset=<name>``).
@@ -88,10 +121,13 @@ class PolicyConfig(draccus.ChoiceRegistry):
     action_key: str = "action"
     action_dim: int = sensors.ACTION_DIM
     normalize_action: bool = True
+    robots: tuple[str, ...] = (LEGACY_ROBOT,)
 
     def __post_init__(self) -> None:
         self.input_sensors = tuple(self.input_sensors)
         check_student_sensors(self.input_sensors)
+        self.robots = tuple(self.robots)
+        check_robot_names(self.robots)
         check_positive(history=self.history, clip_std=self.clip_std, action_dim=self.action_dim)
         if not self.history <= MAX_HISTORY:
             raise ValueError(f"history must be <= {MAX_HISTORY} steps ({MAX_HISTORY // 50} s at "

@@ -10,10 +10,14 @@ folder is not on sys.path.
 - :func:`record_gait`: a few gait-controller episodes recorded in the real simulator.
 - :func:`tiny_student`: a tiny student with large seeded random weights.
 - :func:`tiny_msta`: a tiny seeded MSTA student with flat statistics.
+- :func:`write_robot_spec`: a second robot for tests, the A1's spec under another name.
+- :func:`as_before_robots`: a dataset's metadata as msta wrote it before datasets recorded
+  their robot.
 """
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,7 +26,10 @@ import numpy as np
 import torch
 
 from msta.data import features as F
+from msta.data import integrity as I
+from msta.data import layout as L
 from msta.data import sensors
+from msta.data.robot import A1
 
 
 def random_batch(B: int, steps: int, seed: int = 1, names: Sequence[str] | None = None
@@ -144,3 +151,38 @@ def tiny_msta(history: int, mean: float = 0.0, action_std: float = 1.0, **overri
              for n in cfg.input_sensors}
     stats["action"] = {"mean": [0.0] * 12, "std": [action_std] * 12}
     return make_policy(cfg, stats)
+
+
+def write_robot_spec(folder: Path, name: str = "other") -> Path:
+    """A robot named ``name`` for tests: a copy of the A1's spec file with that ``name`` and
+    its ``mjcf`` made absolute (the A1's MJCF), written as ``folder/<name>.toml``."""
+    lines = []
+    for line in A1.spec_file.read_text().splitlines():
+        key = line.split("=", 1)[0].strip()
+        if key == "name":
+            line = f"name = {json.dumps(name)}"
+        elif key == "mjcf":
+            line = f"mjcf = {json.dumps(str(A1.mjcf_path))}"
+        lines.append(line)
+    path = folder / f"{name}.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def as_before_robots(root: Path, robot_type: str = "a1") -> Path:
+    """Rewrite the dataset ``root`` as msta wrote it before datasets recorded their robot:
+    no ``robot`` in ``meta/msta.json``, ``info.json``'s ``robot_type`` ``robot_type``; the
+    checksum manifest records the two files' new bytes (the dataset stays intact)."""
+    for rel, key, value in ((L.MSTA_META_PATH, "robot", None),
+                            (L.INFO_PATH, "robot_type", robot_type)):
+        data = json.loads((root / rel).read_text())
+        data.pop(key)
+        if value is not None:
+            data[key] = value
+        (root / rel).write_text(json.dumps(data, indent=4))
+    gen = I.Manifest.load(root).committed
+    files = {**gen.files, **{rel: I.digest_file(root / rel, use_cache=False)
+                             for rel in (L.MSTA_META_PATH, L.INFO_PATH)}}
+    new = I.Generation(gen.total_episodes, gen.total_frames, files)
+    (root / L.MANIFEST_PATH).write_bytes(I.Manifest(new).dumps())
+    return root

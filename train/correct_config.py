@@ -39,9 +39,11 @@ class RoundEvalConfig(TrialConfig):
     random streams, metrics, normalization by the teacher and 95-percent intervals). Round r's
     figures are those of ``msta-eval --policies teacher,OUTPUT_DIR/round_<r>
     --scenarios token_removal`` with the same suite, trials, terrains, levels, episode_length_s,
-    seed and device type; the model card shows them too. The defaults (the quick suite: 5 trials, one 3 s
-    episode per paper terrain at level 1) keep a round's evaluation to a few seconds of
-    simulation; raise --eval.trials (and --eval.levels) for tighter intervals.
+    seed and device type; the model card shows them too. The trials simulate the rounds'
+    robot (``--env.robot``; ``--eval.robot`` may only be left empty or name that robot). The
+    defaults (the quick suite: 5 trials, one 3 s episode per paper terrain at level 1) keep a
+    round's evaluation to a few seconds of simulation; raise --eval.trials (and --eval.levels)
+    for tighter intervals.
     """
 
     enabled: bool = True
@@ -164,6 +166,12 @@ class CorrectConfig(LoopConfig, RayOptions):
             raise ValueError(f"recent_weight={self.recent_weight} must be in (0, 1]")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
+        robot = self.env.robot_description.name
+        if self.eval.robot and self.eval.robot_name != robot:
+            raise ValueError(f"eval.robot={self.eval.robot} simulates robot "
+                             f"{self.eval.robot_name!r}, the rounds robot {robot!r} "
+                             "(--env.robot): the per-round evaluation runs on the rounds' "
+                             "robot; leave --eval.robot empty")
         self.rollout_mask_ratios = tuple(float(r) for r in self.rollout_mask_ratios)
         bad = [r for r in self.rollout_mask_ratios if not 0.0 <= r < 1.0]
         if bad:

@@ -35,10 +35,12 @@ import draccus
 from msta.data.hub_eval import HEADLINE_FIGURES
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_checkpoint, locate_dataset
+from msta.data.msta_json import check_robot, dataset_robot
 from msta.data.windows import load_episode_table
 from msta.eval.metrics import headline
 from msta.eval.report import CI_NOTE, identical_groups, identical_line
 from msta.eval.report_cells import SHORT_TERRAIN, fmt_cell
+from msta.policies.config import check_trained_on
 from msta.policies.factory import load_config
 from msta.policies.teacher.config import teacher_revision
 from msta.train.correct_config import PROGRESS, RESUME_LEGACY, CorrectConfig
@@ -197,13 +199,18 @@ def check_output(cfg: CorrectConfig, out: Path) -> None:
 
 def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, dataset root), both checked before output_dir is touched; a
-    hub dataset is appended to through a copy in output_dir (:func:`own_dataset`)."""
+    hub dataset is appended to through a copy in output_dir (:func:`own_dataset`). The
+    dataset's robot, the checkpoint's and ``--env.robot``'s must agree (one line naming both
+    robots and the option otherwise)."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
-    load_config(ckpt)  # fails early, naming the directory, before output_dir is touched
+    config = load_config(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
-    if local.is_dir():  # a hub dataset copied by an earlier run
-        return ckpt, local
-    return ckpt, locate_dataset(cfg.dataset, "--dataset")
+    # a hub dataset copied by an earlier run, else the one --dataset names
+    root = local if local.is_dir() else locate_dataset(cfg.dataset, "--dataset")
+    robot = cfg.env.robot_description.name
+    check_robot(dataset_robot(root), robot, f"--dataset={cfg.dataset}", "--env.robot")
+    check_trained_on(config.robots, robot, f"--policy.path={cfg.policy.path}", "--env.robot")
+    return ckpt, root
 
 
 def own_dataset(cfg: CorrectConfig, out: Path, root: Path) -> Path:

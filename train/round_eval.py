@@ -12,6 +12,7 @@ on the same device type report the same figures.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,10 +35,15 @@ class RoundEvaluator:
         teacher: the reference teacher (msta-correct's labelling teacher).
         device: where the students run (msta-correct's training device, which msta-eval's
             default ``--device=auto`` also picks: the same figures in both).
+        robot: the robot the rounds simulate (``--env.robot``), simulated by the trials too;
+            empty: ``cfg.robot`` (the A1 when that is empty).
     """
 
-    def __init__(self, cfg: RoundEvalConfig, teacher: TeacherConfig, device: str = "cpu") -> None:
-        self.cfg, self.teacher_cfg, self.device = cfg, teacher, device
+    def __init__(self, cfg: RoundEvalConfig, teacher: TeacherConfig, device: str = "cpu",
+                 robot: str = "") -> None:
+        #: the trials, on the rounds' robot
+        self.cfg = replace(cfg, robot=robot) if robot and robot != cfg.robot else cfg
+        self.teacher_cfg, self.device = teacher, device
         self.cuda = torch.device(device).type == "cuda"
         self.ev: Any = None
 

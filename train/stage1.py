@@ -17,6 +17,7 @@ from msta.data.budget import deadline_after
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_dataset
 from msta.data.locking import hold_directory
+from msta.data.msta_json import dataset_robot
 from msta.data.stats import load_stats
 from msta.data.threads import run_threads
 from msta.data.windows import episode_split
@@ -110,6 +111,8 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
     policy = make_policy(cfg.policy, load_stats(root)).to(device)
+    # every checkpoint records the robot the dataset simulated (msta-correct, msta-eval check it)
+    policy.config.robots = (dataset_robot(root),)
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed)
     train_ds = load_windows(root, policy, train_eps)
     val_ds = load_windows(root, policy, val_eps) if val_eps else None

@@ -19,6 +19,7 @@ from msta.collect.sim.env import QuadrupedEnv
 from msta.data.budget import check_deadline, deadline_after
 from msta.data.features import load_info, sensor_column_to_name
 from msta.data.locking import hold_directory
+from msta.data.msta_json import check_robot, meta_robot
 from msta.data.threads import run_threads
 from msta.data.windows import episode_split, load_episode_table
 from msta.data.writer import DatasetWriter
@@ -106,10 +107,14 @@ def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision:
                       "frames": sum(len(f["action"]) for f, _ in episodes)}
 
 
-def append_episodes(root: Path, episodes: list[Episode]) -> int:
-    """Phase 3: one writer session, one flush (one commit); returns the new episode count."""
+def append_episodes(root: Path, episodes: list[Episode], robot: str | None = None) -> int:
+    """Phase 3: one writer session, one flush (one commit); returns the new episode count.
+    ``robot``: the name of the robot the episodes simulated; a dataset of another robot is
+    refused in one line (None: not checked)."""
     frames = sum(len(f["action"]) for f, _ in episodes)
     with DatasetWriter.open(root, flush_every_frames=frames + 1) as w:
+        if robot is not None:
+            check_robot(meta_robot(w.msta_meta), robot, str(root), "--env.robot")
         for f, prov in episodes:
             w.add_episode(f, prov)
         w.flush()
@@ -226,7 +231,8 @@ def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook:
         policy = prepare(policy, root)
         if not trained:
             ckpt = policy.save_pretrained(out / "start")
-    evaluator = RoundEvaluator(cfg.eval, cfg.teacher, str(device)) if cfg.eval.enabled else None
+    evaluator = (RoundEvaluator(cfg.eval, cfg.teacher, str(device), robot=cfg.env.robot)
+                 if cfg.eval.enabled else None)
     if evaluator and not trained and not prog.round(0).evaluated:
         evaluate_start(cfg, policy, ckpt, root, prog, evaluator)
     for r in range(1, cfg.rounds + 1):
@@ -247,7 +253,7 @@ def evaluate_start(cfg: CorrectConfig, policy: StudentPolicy, ckpt: Path, root: 
                                  episodes_after=int(load_info(root)["total_episodes"]),
                                  policy_revision=weights_revision(policy),
                                  eval=evaluator.student(ckpt),
-                                 eval_config=cfg.eval.resolved())
+                                 eval_config=evaluator.cfg.resolved())
     prog.teacher_eval = evaluator.teacher()
     prog.save()
     print_table(prog)
@@ -274,7 +280,7 @@ def append_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, r: int,
     rec.episodes_rolled_out = len(episodes)
     prog.save()
     hook("rolled_out", r)
-    total = append_episodes(root, episodes)
+    total = append_episodes(root, episodes, cfg.env.robot_description.name)
     hook("committed", r)
     rec.appended, rec.episodes_after, rec.rollout = True, total, stats
     print(f"round {r}: appended {len(episodes)} student episodes ({stats['frames']:,} "
@@ -302,7 +308,7 @@ def run_round(cfg: CorrectConfig, policy: StudentPolicy, root: Path, out: Path, 
         check_deadline(deadline, f"round {r}: trained")
     if evaluator is not None:
         rec.eval = evaluator.student(out / f"round_{r}")
-        rec.eval_config = cfg.eval.resolved()
+        rec.eval_config = evaluator.cfg.resolved()
         prog.teacher_eval = evaluator.teacher()
     rec.evaluated = True
     prog.save()

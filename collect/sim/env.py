@@ -4,8 +4,8 @@ N environments share one scene (the robot ``cfg.robot`` names + terrain heightfi
 A1 by default) and are stepped together by
 ``mujoco.rollout`` on a persistent thread pool: every control step is ``decimation``
 physics steps with a constant position target. Observations are named by the sensor
-registry (``msta_data/sensors.py``); environments reset automatically on a fall, a physics
-blow-up or the time limit.
+registry (``msta_data/sensors.py``) and are the sensors the robot's description lists;
+environments reset automatically on a fall, a physics blow-up or the time limit.
 
 Random draws (spawns, domain-randomization variants, commands, latency, pushes, observation
 noise) come from one generator seeded by ``cfg.seed``, or, after
@@ -86,6 +86,9 @@ class QuadrupedEnv:
         self.model = robot.build_model(self.terrain.hfield_spec(), timestep=cfg.control.sim_dt,
                                       collision=cfg.collision, robot=self.robot)
         self.layout = robot.state_layout(self.model)
+        #: Where the accelerometer (``base_accel``) sits in ``sensordata``; None: no such sensor.
+        self._accel = robot.imu_sensor(self.model, self.robot, "accel")
+        self._offered = frozenset(self.robot.sensors)
         self.pool, self.pool_params = build_pool(
             self.model, cfg.randomization, cfg.control.kp, cfg.control.kd, self.rng)
         nthread = cfg.nthread or os.cpu_count() or 1
@@ -413,7 +416,8 @@ class QuadrupedEnv:
                             pos[:, 1:2] + s[:, None] * px + c[:, None] * py], axis=-1)
         heights = self.terrain.height_at(scan_xy)                       # (N, 187)
         below = self.terrain.height_at(pos[:, :2])
-        return {
+        optional = {} if self._accel is None else {"accel": sens[:, :, self._accel].mean(axis=1)}
+        return optional | {
             "base_pos": pos, "yaw": yaw, "orientation": quat,
             "joint_pos": state[:, lay.joint_pos], "joint_vel": state[:, lay.joint_vel],
             "base_lin_vel": world_to_body(rot, state[:, lay.base_linvel]),
@@ -476,7 +480,7 @@ class QuadrupedEnv:
                   "dynamics"):
             obs[k] = m[k].astype(np.float32)
         for spec in SENSORS.values():  # sensors read from a measurement (e.g. height_map)
-            if spec.source:
+            if spec.source and spec.name in self._offered:
                 x = m[spec.source]
                 w = spec.noise * self.cfg.noise.scale if self.cfg.noise.enabled else 0.0
                 if w > 0 and self._source_streams is not None:  # one draw per row, own stream
@@ -486,4 +490,4 @@ class QuadrupedEnv:
                 elif w > 0:
                     x = x + self._source_rng.uniform(-w, w, x.shape)
                 obs[spec.name] = x.astype(np.float32)
-        return obs
+        return {k: v for k, v in obs.items() if k in self._offered}  # what the robot offers

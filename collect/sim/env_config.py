@@ -141,7 +141,7 @@ class EnvConfig:
                      why="times each sensor's noise half-width; larger drowns every reading")
         self.type_weights = tuple(self.type_weights)
         check_collision_set(self.collision)
-        self._robot = (self.robot, _load_robot(self.robot))
+        self._robot = (self.robot, load_sim_robot(self.robot))
         if self.type_weights and len(self.type_weights) != len(self.terrain.types):
             raise ValueError(f"type_weights {self.type_weights} must have one weight per "
                              f"terrain type {self.terrain.types}")
@@ -151,7 +151,7 @@ class EnvConfig:
         """The description ``robot`` names (loaded and checked at construction; loaded again
         if ``robot`` was changed since)."""
         if self._robot[0] != self.robot:
-            self._robot = (self.robot, _load_robot(self.robot))
+            self._robot = (self.robot, load_sim_robot(self.robot))
         return self._robot[1]
 
     def resolved(self) -> EnvConfig:
@@ -172,15 +172,20 @@ class EnvConfig:
         return int(round(self.episode_length_s / self.dt))
 
 
-def _load_robot(name_or_path: str) -> RobotDescription:
+def load_sim_robot(name_or_path: str, option: str = "env.robot") -> RobotDescription:
     """``load_robot`` with its one-line ``ValueError`` prefixed by the option, and a check
-    that the simulator's observations (sized by the sensor registry) fit the robot."""
+    that the simulator's observations (sized by the sensor registry) fit the robot.
+
+    Args:
+        name_or_path: a shipped robot's name or a spec file's path.
+        option: the option that named it, as messages name it (msta-eval: ``robot``).
+    """
     try:
         description = load_robot(name_or_path)
     except ValueError as err:
-        raise ValueError(f"env.robot={name_or_path}: {err}") from None
+        raise ValueError(f"{option}={name_or_path}: {err}") from None
     if (description.num_joints, len(description.feet)) != (len(JOINT_NAMES), len(LEGS)):
-        raise ValueError(f"env.robot={name_or_path}: the simulator's observations are sized "
+        raise ValueError(f"{option}={name_or_path}: the simulator's observations are sized "
                          f"for {len(JOINT_NAMES)} joints and {len(LEGS)} feet (the sensor "
                          f"registry's); {description.name} has {description.num_joints} "
                          f"joints and {len(description.feet)} feet")

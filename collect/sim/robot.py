@@ -5,7 +5,8 @@ What the simulator needs of a robot's MJCF (the shipped A1's ``assets/a1.xml`` i
 example; docs/robots.md): a free joint first, then the hinge joints in the description's
 ``joints`` order, one position actuator per joint in that order, a body ``trunk``, the
 sensors in the order of ``SENS_*`` below (touch sensors ``<foot>_touch`` first, in ``feet``
-order) and, for the "full" collision set, thigh and calf geoms named like their joints.
+order), for a robot that lists ``base_accel`` an ``accelerometer`` sensor at its IMU site
+(after those), and, for the "full" collision set, thigh and calf geoms named like their joints.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import mujoco
 import numpy as np
 
 from msta.data.robot import A1, RobotDescription
+from msta.data.sensors import SENSORS
 
 # Sensor layout of the MJCF (see assets/a1.xml): 4 foot touches, trunk touch,
 # 4 thigh touches, 4 calf touches, 12 actuator forces.
@@ -23,6 +25,11 @@ SENS_FOOT = slice(0, 4)
 SENS_TRUNK = 4
 SENS_LEG_COLLISION = slice(5, 13)
 SENS_TORQUE = slice(13, 25)
+#: Simulator measurements read from an optional MJCF sensor (a registry ``source``), with the
+#: MuJoCo sensor type that provides it at the robot's IMU site.
+MJCF_SOURCES: dict[str, mujoco.mjtSensor] = {
+    "accel": mujoco.mjtSensor.mjSENS_ACCELEROMETER,
+}
 
 
 @dataclass(frozen=True)
@@ -86,14 +93,14 @@ def build_model(hfield: dict | None, timestep: float | None = None, collision: s
             pos (x, y, z), data (nrow, ncol) in [0, 1].
         timestep: physics step (s); None: the robot's ``sim_dt``.
         collision: one of ``COLLISION_SETS``.
-        robot: the robot's description: its MJCF file, torque limit (the actuators' force
-            range) and calf collision length.
+        robot: the robot's description: its MJCF file, torque limits (the actuators' force
+            ranges) and calf collision length.
     """
     check_collision_set(collision)
     spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
     spec.option.timestep = robot.sim_dt if timestep is None else timestep
-    for actuator in spec.actuators:
-        actuator.forcerange = [-robot.torque_limit, robot.torque_limit]
+    for actuator, limit in zip(spec.actuators, robot.joint_torque_limits, strict=False):
+        actuator.forcerange = [-limit, limit]
         actuator.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
     if collision == "full":
         _full_leg_collisions(spec, robot)
@@ -111,7 +118,38 @@ def build_model(hfield: dict | None, timestep: float | None = None, collision: s
     _add_visuals(spec)
     model = spec.compile()
     _check_names(model, robot)
+    _check_sources(model, robot)
     return model
+
+
+def imu_sensor(model: mujoco.MjModel, robot: RobotDescription, source: str) -> slice | None:
+    """Where in ``sensordata`` the MJCF sensor behind the measurement ``source`` (a key of
+    ``MJCF_SOURCES``, e.g. ``"accel"``) at the robot's IMU site is, or None if it has none.
+
+    Args:
+        model: the compiled scene.
+        robot: the robot's description (its ``imu_site``).
+        source: the measurement's name.
+    """
+    site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, robot.imu_site)
+    for i in range(model.nsensor):
+        if (model.sensor_type[i] == MJCF_SOURCES[source] and model.sensor_objid[i] == site
+                and model.sensor_objtype[i] == mujoco.mjtObj.mjOBJ_SITE):
+            adr = int(model.sensor_adr[i])
+            return slice(adr, adr + int(model.sensor_dim[i]))
+    return None
+
+
+def _check_sources(model: mujoco.MjModel, robot: RobotDescription) -> None:
+    """One-line ``ValueError`` naming the MJCF if the robot lists a sensor read from an MJCF
+    sensor (``MJCF_SOURCES``) its MJCF lacks at the IMU site."""
+    for name in robot.sensors:
+        source = SENSORS[name].source
+        if source in MJCF_SOURCES and imu_sensor(model, robot, source) is None:
+            kind = MJCF_SOURCES[source].name.removeprefix("mjSENS_").lower()
+            raise ValueError(f"{robot.mjcf_path}: the robot {robot.name!r} lists the sensor "
+                             f"{name!r}, which needs an {kind} sensor at its IMU site "
+                             f"{robot.imu_site!r}; the MJCF has none")
 
 
 def _full_leg_collisions(spec: mujoco.MjSpec, robot: RobotDescription) -> None:
@@ -192,6 +230,7 @@ def joint_limits(model: mujoco.MjModel) -> np.ndarray:
 
 
 __all__ = [
-    "COLLISION_SETS", "SENS_FOOT", "SENS_LEG_COLLISION", "SENS_TORQUE", "SENS_TRUNK", "StateLayout",
-    "build_model", "check_collision_set", "default_state", "joint_limits", "state_layout",
+    "COLLISION_SETS", "MJCF_SOURCES", "SENS_FOOT", "SENS_LEG_COLLISION", "SENS_TORQUE",
+    "SENS_TRUNK", "StateLayout", "build_model", "check_collision_set", "default_state",
+    "imu_sensor", "joint_limits", "state_layout",
 ]

@@ -44,14 +44,14 @@ def test_default_observation_is_the_students_sensors_and_privileged_ones_on_requ
     assert obs.shape == flat_env.observation_space.shape == (49,)
     wide = MstaEnv(flat(), sensors=(*STUDENT_SENSORS, *PRIVILEGED_SENSORS, "height_map"))
     obs, _ = wide.reset(seed=0)
-    assert set(obs) == set(SENSORS) and wide.observation_space.contains(obs)
+    assert set(obs) == set(A1.sensors) and wide.observation_space.contains(obs)
     assert FlattenObservation(wide).observation_space.shape == (49 + 3 + 3 + 4 + 1 + 187 + 8
                                                                 + 187,)
 
 
 def test_spaces_state_the_robots_ranges():
     cfg = flat()
-    env = MstaEnv(cfg, sensors=tuple(SENSORS))
+    env = MstaEnv(cfg, sensors=A1.sensors)  # every sensor the A1 offers
     for name, box in env.observation_space.items():
         assert np.isfinite(box.low).all() and np.isfinite(box.high).all(), name
         assert (box.low < box.high).all(), name
@@ -90,8 +90,8 @@ def test_normalized_actions_span_the_joint_range_with_zero_the_default_pose():
 
 
 def test_a_normalized_action_moves_the_robot_as_the_simulator_action_of_its_target():
-    norm = MstaVectorEnv(flat(num_envs=2), sensors=tuple(SENSORS))
-    sim = MstaVectorEnv(flat(num_envs=2), sensors=tuple(SENSORS), actions="simulator")
+    norm = MstaVectorEnv(flat(num_envs=2), sensors=A1.sensors)
+    sim = MstaVectorEnv(flat(num_envs=2), sensors=A1.sensors, actions="simulator")
     a_obs, _ = norm.reset(seed=4)
     b_obs, _ = sim.reset(seed=4)
     norm.action_space.seed(1)
@@ -99,7 +99,7 @@ def test_a_normalized_action_moves_the_robot_as_the_simulator_action_of_its_targ
         a = 0.3 * norm.action_space.sample()
         a_obs, a_rew, a_term, _, _ = norm.step(a)
         b_obs, b_rew, b_term, _, _ = sim.step(norm._map.to_sim(a))
-        for k in SENSORS:
+        for k in A1.sensors:
             if k != "last_action":
                 np.testing.assert_array_equal(a_obs[k], b_obs[k], err_msg=k)
         np.testing.assert_allclose(a_obs["last_action"], a, atol=1e-6)  # in the action's units
@@ -114,7 +114,7 @@ def test_observations_stay_inside_their_spaces_under_random_actions():
     clipping did not act); a reading beyond a range is clipped to it."""
     terrain = TerrainConfig(num_levels=10, border=2.0, curriculum=False)
     vec = MstaVectorEnv(EnvConfig(num_envs=12, nthread=1, terrain=terrain),
-                        sensors=tuple(SENSORS))
+                        sensors=A1.sensors)
     obs, _ = vec.reset(seed=0, options={"level": np.full(12, 9)})
     assert vec.observation_space.contains(obs)
     vec.action_space.seed(0)

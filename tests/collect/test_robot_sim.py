@@ -125,7 +125,7 @@ def test_the_contact_threshold_is_the_robots(tmp_path):
 
 
 @pytest.mark.parametrize(("robot", "words"), [
-    ("b2", "env.robot=b2: unknown robot 'b2'; shipped robots: ['a1']"),
+    ("b2", "env.robot=b2: unknown robot 'b2'; shipped robots: ['a1', 'go1']"),
     ("{bad}", "kp = -1.0 must be > 0"),
     ("{legs}", "sized for 12 joints and 4 feet"),
     ("{missing}", "does not exist"),

@@ -68,7 +68,8 @@ def test_the_a1_spec_reproduces_the_constants_bit_for_bit():
     assert same(THIGH_OFFSET_Y, np.array(A1_THIGH_Y))
     assert A1.contact_threshold == 1.0 and A1.imu_site == "imu" and A1.name == "a1"
     assert A1.joints == JOINT_NAMES and A1.feet == FOOT_NAMES
-    assert A1.sensors == tuple(SENSORS)  # the A1 has every sensor of the registry
+    # every sensor of the registry but the Go1's joint torques and accelerometer
+    assert A1.sensors == tuple(s for s in SENSORS if s not in ("joint_torque", "base_accel"))
 
 
 def reference_feet(q: np.ndarray) -> np.ndarray:
@@ -93,7 +94,7 @@ def test_foot_positions_match_the_reference_on_random_joint_angles():
 
 
 def test_the_shipped_robots_load_by_name_and_name_their_mjcf():
-    assert robot_names() == ("a1",)
+    assert robot_names() == ("a1", "go1")
     for name in robot_names():
         assert load_robot(name).name == name
     assert load_robot("a1") == A1
@@ -184,7 +185,7 @@ def test_a_file_that_is_not_toml_and_a_missing_file_are_named(tmp_path):
 def test_an_unknown_robot_name_lists_the_shipped_ones():
     with pytest.raises(ValueError) as err:
         load_robot("b2")
-    assert str(err.value).startswith("unknown robot 'b2'; shipped robots: ['a1']")
+    assert str(err.value).startswith("unknown robot 'b2'; shipped robots: ['a1', 'go1']")
     assert "\n" not in str(err.value)
 
 

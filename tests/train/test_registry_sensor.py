@@ -1,11 +1,12 @@
-"""A sensor added to the registry, and nowhere else, flows through every stage: the
-simulator produces it, msta-collect records it, the processor and an MSTA student read it
+"""A sensor added to the registry, and nowhere else but the sensors of the robot that has it
+(its description's ``sensors``), flows through every stage: the simulator produces it, msta-collect records it, the processor and an MSTA student read it
 (one token per scalar or through an MLP encoder), msta-correct's rounds record it in the
 student's episodes, and msta-eval runs the student with and without it."""
 
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,10 +15,12 @@ import pytest
 import torch
 
 from msta.collect.record import CollectConfig, collect
+from msta.collect.sim import env_config
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data import sensors
+from msta.data.robot import RobotDescription, load_robot
 from msta.data.sensors import SensorSpec
 from msta.data.stats import load_stats
 from msta.data.windows import load_episode_table
@@ -54,6 +57,14 @@ def test_a_registry_added_sensor_flows_through_every_stage(tmp_path, monkeypatch
                        source="base_lin_vel", encoder_tokens=encoder_tokens,
                        description="a test sensor: the true base velocity")
     monkeypatch.setitem(sensors.SENSORS, "probe", probe)
+
+    def with_probe(name_or_path: str) -> RobotDescription:
+        """The robot the simulator builds, with the probe among its sensors (as a robot whose
+        spec file lists it)."""
+        robot = load_robot(name_or_path)
+        return replace(robot, sensors=(*robot.sensors, "probe"))
+
+    monkeypatch.setattr(env_config, "load_robot", with_probe)
 
     # dataset: recorded only when asked, equal to its source (no noise)
     root = collect(CollectConfig(teacher=TeacherConfig(type="gait"), episodes=4, num_envs=4,
