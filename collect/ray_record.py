@@ -36,6 +36,7 @@ from msta.collect.recorder import EpisodeBar, EpisodeRecorder, LabelledActor
 from msta.collect.rollout import Step, rollout
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
+from msta.data.robot import RobotDescription
 from msta.policies.teacher.config import build_teacher
 
 #: Salt of the per-slot tile generators (apart from the simulator's stream salts).
@@ -168,12 +169,14 @@ def record_on_workers(pool: RayPool, job: RecordJob, slots: int, first: int,
     return steps
 
 
-def teacher_factory(teacher_cfg: Any, noise: float, seed: int) -> ActorFactory:
+def teacher_factory(teacher_cfg: Any, noise: float, seed: int,
+                    robot: RobotDescription | None = None) -> ActorFactory:
     """msta-collect's block actor: a fresh teacher (stateful ones are sized per batch)
-    that drives and labels, with ``noise`` on what it executes (DART), seeded per block."""
+    for ``robot`` (``EnvConfig.teacher_robot``) that drives and labels, with ``noise`` on
+    what it executes (DART), seeded per block."""
     def make(block: int, n: int) -> LabelledActor:
 
-        return LabelledActor(build_teacher(teacher_cfg), noise=noise,
+        return LabelledActor(build_teacher(teacher_cfg, robot), noise=noise,
                              seed=block_seed(seed, block))
     return make
 
@@ -184,7 +187,8 @@ def collect_on_workers(cfg: Any, write: Callable[[dict[str, np.ndarray], int, in
     k = episode k, seeded by ``cfg.seed``; returns the env steps simulated."""
     env = replace(cfg.env, num_envs=cfg.num_envs, seed=cfg.seed,
                   episode_length_s=cfg.episode_length_s)
-    job = RecordJob(env, teacher_factory(cfg.teacher, cfg.action_noise, cfg.seed), sensors)
+    job = RecordJob(env, teacher_factory(cfg.teacher, cfg.action_noise, cfg.seed,
+                                         env.teacher_robot), sensors)
     pool = shared_pool(cfg.workers, cfg.ray_address)
     bar = EpisodeBar(None, cfg.episodes - have, cfg.progress, cfg.num_envs)
     frames = [0]

@@ -32,7 +32,7 @@ import numpy as np
 
 from msta.collect.ray_pool import RayOptions, check_ray_options, shared_pool
 from msta.collect.ray_record import collect_on_workers
-from msta.collect.recorder import LabelledActor, record_rollouts
+from msta.collect.recorder import LabelledActor, record_rollouts, recorded_sensors
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig, check_sizes
 from msta.collect.sim.terrain import TerrainConfig
@@ -49,7 +49,6 @@ from msta.data.msta_json import (
     meta_robot,
     recorded_settings,
 )
-from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
 from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
 
 if TYPE_CHECKING:
@@ -78,8 +77,9 @@ class CollectConfig(RayOptions):
             DART, states off the teacher's path labelled with the way back, recorded at the
             teacher's speed instead of a student's. 0 = the teacher's own path.
         extra_sensors: extension sensors to record too, a comma list (``height_map``: a
-            student input the paper's students do not read); a new dataset only (a resumed
-            one keeps its own sensors).
+            student input the paper's students do not read), each one the robot offers; a
+            new dataset only (a resumed one keeps its own sensors). Without it a dataset
+            records the default sensors the robot offers (on the A1 all of them).
         allow_mixed_settings: let ``resume`` append episodes recorded with other settings
             than the dataset's (teacher, its revision, episode length, terrains, levels,
             action noise); without it a difference is refused, each one named. The settings
@@ -108,11 +108,7 @@ class CollectConfig(RayOptions):
         return tuple(s.strip() for s in self.extra_sensors.split(",") if s.strip())
 
     def __post_init__(self) -> None:
-        for name in self.extra:
-            if name not in SENSORS or not SENSORS[name].extension:
-                raise ValueError(f"extra_sensors: {name!r} is not an extension sensor (the others "
-                                 f"are always recorded); extension sensors: "
-                                 f"{', '.join(EXTENSION_SENSORS)}")
+        recorded_sensors(self.env.robot_description, self.extra)  # one line if not offered
         checks.check_number("action_noise", self.action_noise, 0)
         check_ray_options(self.workers, self.ray_address)
         checks.check_at_least(self, 1, "episodes", "flush_every_frames")
@@ -203,13 +199,13 @@ def collect(cfg: CollectConfig) -> Path:
         env_cfg = cfg.env
         env_cfg.num_envs, env_cfg.seed, env_cfg.episode_length_s = (
             cfg.num_envs, seed, cfg.episode_length_s)
-        revision = teacher_revision(cfg.teacher)
+        revision = teacher_revision(cfg.teacher, robot := cfg.env.teacher_robot)
         settings = recording_settings(cfg, revision)
         if writer is not None:
-            check_same_robot(writer, cfg.env.robot_description.name)
+            check_same_robot(writer, robot.name)
         if writer is not None and have:
             check_same_settings(cfg, writer, settings)
-        teacher = build_teacher(cfg.teacher)  # teacher and simulator before any file
+        teacher = build_teacher(cfg.teacher, robot)  # teacher and simulator before any file
         env = QuadrupedEnv(env_cfg)
         if cfg.workers:  # the workers too: a cluster that does not answer creates no file
             shared_pool(cfg.workers, cfg.ray_address)
@@ -217,7 +213,7 @@ def collect(cfg: CollectConfig) -> Path:
             from msta.data.writer import DatasetWriter  # lazy: pandas and pyarrow (--help)
 
             writer = DatasetWriter.create(root, cfg.repo_id, robot=env.robot.name,
-                                          sensors=(*DEFAULT_RECORDED, *cfg.extra),
+                                          sensors=recorded_sensors(env.robot, cfg.extra),
                                           flush_every_frames=cfg.flush_every_frames)
     except BaseException:
         if writer is not None:

@@ -17,8 +17,31 @@ from tqdm import tqdm
 from msta.collect.rollout import Step, as_policy, rollout
 from msta.collect.sim.env import QuadrupedEnv, StepResult
 from msta.data.features import NON_SENSOR_FEATURES
-from msta.data.robot import NUM_JOINTS
-from msta.data.sensors import DEFAULT_RECORDED, SENSORS
+from msta.data.robot import NUM_JOINTS, RobotDescription
+from msta.data.sensors import DEFAULT_RECORDED, EXTENSION_SENSORS, SENSORS
+
+
+def recorded_sensors(robot: RobotDescription, extra: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """What a dataset of ``robot`` records: the default recorded sensors it offers
+    (``DEFAULT_RECORDED``; on the A1 all of them) plus ``extra``, in registry order.
+
+    Args:
+        robot: the simulated robot (its ``sensors``).
+        extra: extension sensors to record too (``msta-collect --extra_sensors``).
+    Raises:
+        ValueError: (one line) an extra that is not an extension sensor, or one the robot
+            does not offer (naming the robot and its sensors).
+    """
+    for name in extra:
+        if name not in SENSORS or not SENSORS[name].extension:
+            raise ValueError(f"extra_sensors: {name!r} is not an extension sensor (the others "
+                             f"are always recorded); extension sensors: "
+                             f"{', '.join(EXTENSION_SENSORS)}")
+        if name not in robot.sensors:
+            raise ValueError(f"extra_sensors: the robot {robot.name!r} does not offer "
+                             f"{name!r}; its sensors: {', '.join(robot.sensors)}")
+    wanted = {s for s in DEFAULT_RECORDED if s in robot.sensors} | set(extra)
+    return tuple(s for s in SENSORS if s in wanted)
 
 
 class EpisodeRecorder:
@@ -136,7 +159,8 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
             :class:`LabelledActor` (which then also labels; ``label`` must be None).
         episodes: how many finished episodes to emit (ignored with ``horizon``).
         write: called as ``write(frames, type_idx, level)`` per finished episode.
-        sensors: registry sensors to record (default: all but the extension sensors).
+        sensors: registry sensors to record (default: :func:`recorded_sensors` of the
+            simulated robot).
         label: the policy whose action is stored as the ``action`` label (default: actor).
         horizon: run this many control steps instead; every episode that ends is emitted,
             and at the end so is every episode still running, cut there (its last
@@ -147,7 +171,7 @@ def record_rollouts(env: QuadrupedEnv, actor: Any, episodes: int,
     Returns:
         environment steps taken.
     """
-    sensors = tuple(sensors or DEFAULT_RECORDED)
+    sensors = tuple(sensors or recorded_sensors(env.robot))
     if horizon is not None and horizon <= 0:
         raise ValueError(f"horizon={horizon} must be > 0")
     env.reset()

@@ -57,7 +57,7 @@ def simulate(cfg: SimRunConfig) -> str:
     """Run, print and return the Markdown summary table."""
     env = QuadrupedEnv(cfg.env)
     env.reset()
-    policy = build_teacher(cfg.teacher)
+    policy = build_teacher(cfg.teacher, cfg.env.teacher_robot)
     steps = max(1, int(round(cfg.seconds / env.dt)))
     summary = run(env, policy, steps, progress=cfg.progress)
     table = summary.table()

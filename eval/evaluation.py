@@ -31,7 +31,7 @@ from msta.eval.scenarios import (
     get_suite,
 )
 from msta.eval.sensor_faults import is_fault_run, load_guard
-from msta.eval.trial_env import make_env, torch_eval_settings
+from msta.eval.trial_env import make_env, torch_eval_settings, trial_robot
 from msta.policies.actor import StudentActor
 from msta.policies.config import check_trained_on
 from msta.policies.teacher.base import teacher_names
@@ -51,14 +51,10 @@ def local_name(path: Path) -> str:
 
 
 def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
-    """Resolve one --policies entry (teacher, teacher:<type>, directory or hub id)."""
-    if source == "teacher":
-        return PolicyEntry("teacher", source, "teacher", cfg.teacher.path,
-                           teacher_revision(cfg.teacher), build_teacher(cfg.teacher))
-    if source.startswith("teacher:"):
-        tcfg = TeacherConfig(type=source.split(":", 1)[1])
-        return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg),
-                           build_teacher(tcfg))
+    """Resolve one --policies entry (teacher, teacher:<type>, directory or hub id); a
+    teacher is built for ``cfg.robot`` (the A1 when empty)."""
+    if source == "teacher" or source.startswith("teacher:"):
+        return teacher_entry(source, cfg)
     try:  # msta's one path-or-hub rule (msta_data/locate.py)
         path = locate(source, "model", "--policies")
     except FileNotFoundError as e:
@@ -67,6 +63,23 @@ def load_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
     name = source if reads_as_hub_id(source) else local_name(Path(source))
     return student_entry(Path(path), name, source, cfg.matrix_map.get(source),
                          device=str(cfg.torch_device))
+
+
+def teacher_entry(source: str, cfg: EvalConfig) -> PolicyEntry:
+    """The --policies entry ``teacher`` (``--teacher.*``) or ``teacher:<type>``, built for
+    the robot of ``cfg`` (:func:`msta.eval.trial_env.trial_robot`).
+
+    Args:
+        source: the entry's text.
+        cfg: the evaluation's configuration.
+    """
+    robot = trial_robot(cfg)
+    if source == "teacher":
+        return PolicyEntry("teacher", source, "teacher", cfg.teacher.path,
+                           teacher_revision(cfg.teacher, robot), build_teacher(cfg.teacher, robot))
+    tcfg = TeacherConfig(type=source.split(":", 1)[1])
+    return PolicyEntry(tcfg.type, source, "teacher", "", teacher_revision(tcfg, robot),
+                       build_teacher(tcfg, robot))
 
 
 def load_entries(cfg: EvalConfig) -> list[PolicyEntry]:
@@ -135,6 +148,9 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     robot = eval_robot(cfg, entries)
     if robot != cfg.robot:  # the checkpoints' robot: a copy of cfg that names it
         cfg = replace(cfg, robot=robot)
+        for i, e in enumerate(entries):  # the teachers, built again for that robot
+            if e.kind == "teacher":
+                entries[i] = replace(teacher_entry(e.source, cfg), name=e.name)
     with hold_directory(cfg.output_dir, "another msta-eval run") as out:
         return _evaluate_locked(cfg, entries, out, deadline)
 
@@ -160,7 +176,8 @@ def _evaluate_locked(cfg: EvalConfig, entries: list[PolicyEntry], out: Path,
         "msta_eval_version": METRICS_VERSION,
         "config": cfg.resolved(),
         "reference": {"teacher": asdict(cfg.teacher),
-                      "revision": teacher_revision(cfg.teacher), **ev.reference},
+                      "revision": teacher_revision(cfg.teacher, trial_robot(cfg)),
+                      **ev.reference},
         "policies": [e.describe() for e in entries],
         "terrains": cfg.terrain_list,
         "levels": cfg.level_list,

@@ -34,7 +34,7 @@ from msta.eval.sensor_faults import (
     faulty_factory,
     is_fault_run,
 )
-from msta.eval.trial_env import make_env
+from msta.eval.trial_env import make_env, trial_robot
 from msta.eval.trials_pool import run_trials_on_workers
 from msta.policies.actor import StudentActor
 from msta.policies.factory import load_policy
@@ -125,7 +125,8 @@ def trial_fingerprint(cfg: TrialConfig, teacher: TeacherConfig) -> str:
     trials = {k: v for k, v in TrialConfig.resolved(cfg).items() if k in names}
     if trials["robot"] == LEGACY_ROBOT:  # the A1's runs keep the digests they had before --robot
         del trials["robot"]
-    return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher)], sort_keys=True)
+    return json.dumps([METRICS_VERSION, trials, teacher_revision(teacher, trial_robot(cfg))],
+                      sort_keys=True)
 
 
 def save_trials(res: TrialResults, path: Path, **extra: np.ndarray) -> None:
@@ -241,7 +242,7 @@ class Evaluator:
 
     def run_reference(self) -> dict[str, Any]:
         """Roll the reference teacher over every trial."""
-        teacher = build_teacher(self.teacher)
+        teacher = build_teacher(self.teacher, self.env.cfg.teacher_robot)
         self.reference_trials = self._run("reference teacher", lambda r, n: teacher,
                                           ("reference",))
         self.reference = aggregate(self.reference_trials, self.layout)

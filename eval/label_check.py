@@ -122,7 +122,7 @@ def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | 
                                  episode_length_s=steps * CONTROL_DT + 1.0,
                                  terrain=TerrainConfig(max_init_level=cfg.max_level)))
     env.reset()
-    teacher = build_teacher(cfg.teacher)
+    teacher = build_teacher(cfg.teacher, env.cfg.teacher_robot)
     if mode == "takeover follow":
         if not hasattr(teacher, "follow_robot"):
             return None

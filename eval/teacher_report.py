@@ -159,7 +159,7 @@ def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
                         noise=NoiseConfig(enabled=cfg.noise))
     env = QuadrupedEnv(env_cfg)
     env.reset(type_idx=np.zeros(n, dtype=np.int64), level=np.repeat(np.asarray(cfg.level_list), k))
-    teacher = build_teacher(cfg.teacher)
+    teacher = build_teacher(cfg.teacher, env.cfg.teacher_robot)
     per_env = math.ceil(cfg.episodes / k)
     done_eps = np.zeros(n, dtype=np.int64)
     episodes = TrialResults.zeros(n * per_env, env.max_steps)  # env e's j-th: e * per_env + j
@@ -302,7 +302,8 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
     steps = int(round(seconds / env.dt))
     every = max(1, steps // frames)
     hold_command(env.last_obs)
-    images = film(env, build_teacher(teacher or TeacherConfig()), min(steps, every * frames),
+    images = film(env, build_teacher(teacher or TeacherConfig(), env.cfg.teacher_robot),
+                  min(steps, every * frames),
                   every=every, first=every - 1, camera=camera,
                   on_step=lambda step: hold_command(step.res.obs))
     return save_strip(images, path, columns=len(images))

@@ -12,10 +12,10 @@ import torch
 
 from msta.collect.sim.commands import CommandConfig
 from msta.collect.sim.env import QuadrupedEnv
-from msta.collect.sim.env_config import EnvConfig, NoiseConfig
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig, load_sim_robot
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
-from msta.data.robot import LEGACY_ROBOT
+from msta.data.robot import LEGACY_ROBOT, RobotDescription
 from msta.eval.scenarios import TrialConfig
 
 
@@ -30,6 +30,17 @@ def make_env(cfg: TrialConfig, num_envs: int) -> QuadrupedEnv:
         commands=CommandConfig(use_heading=cfg.heading_commands),
         noise=NoiseConfig(enabled=cfg.noise),
         randomization=RandomizationConfig(enabled=cfg.randomization)))
+
+
+def trial_robot(cfg: TrialConfig) -> RobotDescription:
+    """The description of the robot :func:`make_env` simulates (``cfg.robot``, the A1 when
+    empty): what the evaluation's teachers are built for (its control numbers are the
+    robot's own).
+
+    Args:
+        cfg: the trials' settings.
+    """
+    return load_sim_robot(cfg.robot or LEGACY_ROBOT, "robot")
 
 
 @contextmanager

@@ -11,6 +11,9 @@ Extension sensors (``extension=True``: ``height_map``, ``joint_torque``, ``base_
 student inputs the paper's students do not read: default students, recorded datasets and
 ``observation.state`` leave them out; a dataset records them when asked (``msta-collect
 --extra_sensors=height_map``) and a student reads them when its ``input_sensors`` name them.
+``true_contact`` is a privileged extension: the simulator's own foot contacts, which the
+teachers read in place of ``foot_contact`` on a robot that offers no contact switches
+(``msta.policies.teacher.base.teacher_view``); recorded only when asked.
 A robot offers the sensors its description lists (``RobotDescription.sensors``,
 docs/robots.md): the simulator's observations hold those and no others.
 
@@ -53,8 +56,9 @@ class SensorSpec:
         scale: a typical magnitude, used for documentation and imported-teacher specs.
         binary: channel values are 0/1.
         description: one line for humans.
-        extension: a student input beyond the paper's seven: left out of the default
-            student inputs, of the default recorded sensors and of ``observation.state``.
+        extension: a signal beyond the paper's (a student input, or the privileged
+            ``true_contact``): left out of the default student inputs, of the default
+            recorded sensors and of ``observation.state``.
         source: the simulator measurement this sensor reads (plus uniform noise of
             half-width ``noise``), e.g. ``height_scan``; "" = the simulator produces it itself.
         encoder_tokens: how an MSTA student tokenizes it: 0 = one token per scalar (the
@@ -136,6 +140,11 @@ def _specs() -> tuple[SensorSpec, ...]:
                    description="IMU accelerometer: specific force (acceleration minus gravity) "
                                "at the IMU in the base frame, +9.81 on z standing still, mean "
                                "over the control step; 0 in an episode's first frame (m/s^2)"),
+        SensorSpec("true_contact", "privileged", FOOT_NAMES, 0.0, 1.0, binary=True,
+                   extension=True, source="foot_contact",
+                   description="the simulator's foot contact flags (0/1) at the end of the "
+                               "control step, without latency: the teachers' contacts on a "
+                               "robot that offers no foot_contact"),
     )
 
 
@@ -144,7 +153,8 @@ SENSORS: dict[str, SensorSpec] = {s.name: s for s in _specs()}
 #: The paper's 49 proprioceptive scalars, in the paper's order.
 STUDENT_SENSORS: tuple[str, ...] = tuple(
     s.name for s in SENSORS.values() if s.is_student_input and not s.extension)
-#: Student inputs beyond the paper's (read only when a student's config names them).
+#: Signals beyond the paper's: student inputs read only when a student's config names them,
+#: and the privileged ``true_contact``; each recorded only when asked.
 EXTENSION_SENSORS: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if s.extension)
 #: What a dataset records unless asked for more: everything but the extensions.
 DEFAULT_RECORDED: tuple[str, ...] = tuple(s.name for s in SENSORS.values() if not s.extension)

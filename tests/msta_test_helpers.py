@@ -18,6 +18,7 @@ folder is not on sys.path.
 from __future__ import annotations
 
 import json
+import tomllib
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -29,7 +30,7 @@ from msta.data import features as F
 from msta.data import integrity as I
 from msta.data import layout as L
 from msta.data import sensors
-from msta.data.robot import A1
+from msta.data.robot import A1, RobotDescription
 
 
 def random_batch(B: int, steps: int, seed: int = 1, names: Sequence[str] | None = None
@@ -153,19 +154,17 @@ def tiny_msta(history: int, mean: float = 0.0, action_std: float = 1.0, **overri
     return make_policy(cfg, stats)
 
 
-def write_robot_spec(folder: Path, name: str = "other") -> Path:
-    """A robot named ``name`` for tests: a copy of the A1's spec file with that ``name`` and
-    its ``mjcf`` made absolute (the A1's MJCF), written as ``folder/<name>.toml``."""
-    lines = []
-    for line in A1.spec_file.read_text().splitlines():
-        key = line.split("=", 1)[0].strip()
-        if key == "name":
-            line = f"name = {json.dumps(name)}"
-        elif key == "mjcf":
-            line = f"mjcf = {json.dumps(str(A1.mjcf_path))}"
-        lines.append(line)
+def write_robot_spec(folder: Path, name: str = "other", base: RobotDescription = A1,
+                     sensors: tuple[str, ...] | None = None) -> Path:
+    """A robot named ``name`` for tests: a copy of ``base``'s spec file (the A1's) with that
+    ``name``, its ``mjcf`` made absolute (``base``'s MJCF) and, when given, ``sensors``,
+    written as ``folder/<name>.toml``."""
+    data = tomllib.loads(base.spec_file.read_text())
+    data.update(name=name, mjcf=str(base.mjcf_path))
+    if sensors is not None:
+        data["sensors"] = list(sensors)
     path = folder / f"{name}.toml"
-    path.write_text("\n".join(lines) + "\n")
+    path.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in data.items()))
     return path
 
 

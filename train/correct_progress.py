@@ -255,7 +255,7 @@ def check_labeller(cfg: CorrectConfig, root: Path) -> str | None:
         return None
     recorded = sorted({str(v) for v in table[table["provenance/source"] == "teacher"][
         "provenance/policy_revision"] if v})
-    labeller = teacher_revision(cfg.teacher)
+    labeller = teacher_revision(cfg.teacher, cfg.env.teacher_robot)
     if not recorded or labeller in recorded:
         return None
     return (f"msta-correct: warning: the labels come from {labeller} (--teacher.type="

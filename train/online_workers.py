@@ -27,8 +27,8 @@ import numpy as np
 
 from msta.collect.ray_pool import RayOptions, block_seed, check_ray_options, shared_pool
 from msta.collect.ray_record import RecordJob, record_on_workers
-from msta.collect.recorder import LabelledActor
-from msta.data.sensors import DEFAULT_RECORDED
+from msta.collect.recorder import LabelledActor, recorded_sensors
+from msta.data.robot import RobotDescription
 from msta.policies.actor import mask_split_actor
 from msta.policies.base import StudentPolicy
 from msta.policies.input_spec import InputSpec
@@ -48,15 +48,18 @@ class StudentLabeller:
         ratios: test-time mask ratios spread over the environments.
         beta: DAgger mixing probability.
         seed: the round's seed of the coin flips.
+        robot: the simulated robot the teacher is built for (``EnvConfig.teacher_robot``).
     """
 
     def __init__(self, policy: StudentPolicy, teacher: TeacherConfig, follow_robot: bool,
-                 spec: InputSpec, ratios: tuple[float, ...], beta: float, seed: int) -> None:
+                 spec: InputSpec, ratios: tuple[float, ...], beta: float, seed: int,
+                 robot: RobotDescription | None = None) -> None:
         self.policy, self.teacher, self.follow_robot = policy, teacher, follow_robot
+        self.robot = robot
         self.spec, self.ratios, self.beta, self.seed = spec, ratios, beta, seed
 
     def __call__(self, block: int, n: int) -> LabelledActor:
-        teacher = build_teacher(self.teacher)
+        teacher = build_teacher(self.teacher, self.robot)
         if hasattr(teacher, "follow_robot"):
             teacher.follow_robot = self.follow_robot
         spec = replace(self.spec, seed=block_seed(self.spec.seed, block))
@@ -89,8 +92,9 @@ def drive_and_label_on_workers(cfg: Any, policy: StudentPolicy, r: int, revision
     student.eval()
     make = StudentLabeller(student, cfg.teacher, cfg.teacher_follows_robot,
                            replace(cfg.rollout, seed=cfg.rollout.seed + r),
-                           cfg.rollout_mask_ratios, beta, cfg.seed + r)
-    job = RecordJob(env, make, tuple(sensors or DEFAULT_RECORDED), horizon)
+                           cfg.rollout_mask_ratios, beta, cfg.seed + r, env.teacher_robot)
+    job = RecordJob(env, make, tuple(sensors or recorded_sensors(env.robot_description)),
+                    horizon)
     types = env.terrain.types
     episodes: list = []
     shares: list[np.ndarray] = []

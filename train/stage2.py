@@ -74,7 +74,7 @@ def drive_and_label(cfg: CorrectConfig, policy: StudentPolicy, r: int, revision:
     ``sensors``: the ones to record (the dataset's; None: the default recorded set)."""
     if cfg.workers:  # on Ray workers, seeded per slot (msta.train.online_workers)
         return drive_and_label_on_workers(cfg, policy, r, revision, sensors)
-    teacher = build_teacher(cfg.teacher)  # fresh: stateful teachers are sized per env batch
+    teacher = build_teacher(cfg.teacher, cfg.env.teacher_robot)  # fresh: sized per env batch
     if hasattr(teacher, "follow_robot"):
         teacher.follow_robot = cfg.teacher_follows_robot
 
@@ -217,7 +217,7 @@ def _correct_locked(cfg: CorrectConfig, out: Path, ckpt: Path, root: Path, hook:
     torch.set_num_threads(run_threads(out, cfg.num_threads, cfg.resume))
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
-    revision = teacher_revision(cfg.teacher)
+    revision = teacher_revision(cfg.teacher, cfg.env.teacher_robot)
     if prog.teacher_revision is None:
         prog.teacher_revision = revision
     trained = [r for r, rec in prog.rounds.items() if rec.trained]

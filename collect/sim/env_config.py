@@ -162,6 +162,15 @@ class EnvConfig:
         return out
 
     @property
+    def teacher_robot(self) -> RobotDescription:
+        """The robot's description with the control numbers in force (the set
+        ``control`` fields win): what a teacher built for this simulator plans with
+        (``msta.policies.teacher.config.build_teacher``)."""
+        control = self.control.resolve(self.robot_description)
+        return replace(self.robot_description,
+                       **{f.name: getattr(control, f.name) for f in fields(control)})
+
+    @property
     def dt(self) -> float:
         """Control period (s): ``sim_dt * decimation`` in force."""
         control = self.control.resolve(self.robot_description)

@@ -9,19 +9,27 @@ from pathlib import Path
 import numpy as np
 
 from msta.data.revision import content_revision, file_parts
-from msta.data.robot import NUM_JOINTS
+from msta.data.robot import A1, RobotDescription
 from msta.policies.teacher.base import Teacher, make_teacher, register_teacher, teacher_names
 
 
 @register_teacher("zero")
 class ZeroTeacher:
-    """Holds the default pose (action 0). A baseline and a fast stand-in for tests."""
+    """Holds the default pose (action 0). A baseline and a fast stand-in for tests.
+
+    Args:
+        robot: the robot it acts for (its joint count; None: the A1).
+    """
 
     name = "zero"
     sensors: tuple[str, ...] = ("joint_pos",)
 
+    def __init__(self, robot: RobotDescription | None = None) -> None:
+        self.num_joints = (robot or A1).num_joints
+
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        return np.zeros((len(obs["joint_pos"]), NUM_JOINTS), dtype=np.float32)
+        """(N, joints) zeros: the default pose."""
+        return np.zeros((len(obs["joint_pos"]), self.num_joints), dtype=np.float32)
 
     def reset(self, ids: np.ndarray) -> None:
         pass
@@ -75,21 +83,33 @@ class TeacherConfig:
         return f"{self.type} ({Path(self.path).name})" if self.path else self.type
 
 
-def build_teacher(cfg: TeacherConfig) -> Teacher:
-    """Instantiate the configured teacher."""
+def build_teacher(cfg: TeacherConfig, robot: RobotDescription | None = None) -> Teacher:
+    """Instantiate the configured teacher for a robot.
+
+    Args:
+        cfg: the teacher's options.
+        robot: the simulated robot, with the control numbers in force
+            (``EnvConfig.teacher_robot``); None: the A1.
+    """
     if cfg.type in PATH_ARGUMENT:
-        return make_teacher(cfg.type, **{PATH_ARGUMENT[cfg.type]: cfg.path})
-    return make_teacher(cfg.type)
+        return make_teacher(cfg.type, robot=robot, **{PATH_ARGUMENT[cfg.type]: cfg.path})
+    return make_teacher(cfg.type, robot=robot)
 
 
-def teacher_revision(cfg: TeacherConfig) -> str:
+def teacher_revision(cfg: TeacherConfig, robot: RobotDescription | None = None) -> str:
     """``<type>-<12 hex>`` (:func:`msta.data.revision.content_revision`): the type, then the
-    teacher's files (names and bytes) or, for a teacher without files, its config as JSON."""
+    teacher's files (names and bytes) or, for a teacher without files, its config as JSON
+    (built for ``robot``, as :func:`build_teacher`: the gait controller's numbers follow it).
+
+    Args:
+        cfg: the teacher's options.
+        robot: the simulated robot (None: the A1).
+    """
     parts: list[bytes | str] = [cfg.type]
     if cfg.path:
         parts += file_parts(cfg.path)
     else:
-        teacher = build_teacher(cfg)
+        teacher = build_teacher(cfg, robot)
         conf = getattr(teacher, "cfg", None) or getattr(teacher, "config", None)
         if conf is not None and is_dataclass(conf):
             parts.append(json.dumps(asdict(conf), sort_keys=True, default=str))

@@ -33,29 +33,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from msta.data.math3d import quat_to_mat, yaw_of
-from msta.data.robot import (
-    ACTION_SCALE,
-    CONTROL_DT,
-    DEFAULT_POSE,
-    FOOT_RADIUS,
-    HIP_OFFSETS,
-    KP,
-    NUM_JOINTS,
-    THIGH_OFFSET_Y,
-    foot_positions_body,
-)
+from msta.data.robot import A1, ACTION_SCALE, CONTROL_DT, KP, RobotDescription
 from msta.data.sensors import DYNAMICS_NAMES
-from msta.policies.teacher.base import check_obs, register_teacher
+from msta.policies.teacher.base import check_obs, register_teacher, teacher_view
 from msta.policies.teacher.gait_kinematics import foot_jacobian, leg_ik
-from msta.policies.teacher.gait_terrain import (
-    body_reference,
-    dilate,
-    ground_at,
-    ground_max_along,
-    roughness,
-    scan_grid,
-)
+from msta.policies.teacher.gait_state import GaitState, rot_rp
+from msta.policies.teacher.gait_terrain import ground_at, ground_max_along
 
 GRAVITY = 9.81
 #: Trot: diagonal pairs FL+RR and FR+RL half a cycle apart.
@@ -191,6 +174,16 @@ class GaitConfig:
         if not 0.0 <= self.swing_lift_frac < 0.5:
             raise ValueError(f"swing_lift_frac={self.swing_lift_frac} must be in [0, 0.5)")
 
+    @classmethod
+    def for_robot(cls, robot: RobotDescription) -> GaitConfig:
+        """The defaults with the robot's servo gain, action scale and control period (on
+        the A1 exactly the defaults).
+
+        Args:
+            robot: the robot the controller drives, with the control numbers in force.
+        """
+        return cls(kp=robot.kp, action_scale=robot.action_scale, dt=robot.control_dt)
+
 
 def _smooth(s: np.ndarray) -> np.ndarray:
     s = np.clip(s, 0.0, 1.0)
@@ -202,7 +195,11 @@ class GaitTeacher:
     """Trotting controller on privileged state (see the module docstring).
 
     Args:
-        config: controller parameters; defaults walk all terrains.
+        config: controller parameters; default :meth:`GaitConfig.for_robot` of ``robot``
+            (on the A1 the defaults, which walk all terrains).
+        robot: the robot it drives (leg geometry, default pose, foot radius; None: the A1),
+            with the control numbers in force. It reads ``foot_contact``, or on a robot
+            that offers none the simulator's ``true_contact`` (:func:`teacher_view`).
 
     Attributes:
         follow_robot: False (default) when the teacher drives: the stance feet slide along
@@ -216,22 +213,26 @@ class GaitTeacher:
     sensors: tuple[str, ...] = ("command", "foot_contact", "joint_pos", "base_lin_vel",
                                 "base_ang_vel", "orientation", "height_scan", "dynamics")
 
-    def __init__(self, config: GaitConfig | None = None) -> None:
-        self.cfg = config or GaitConfig()
+    def __init__(self, config: GaitConfig | None = None,
+                 robot: RobotDescription | None = None) -> None:
+        self.robot = robot = robot or A1
+        self.cfg = config or GaitConfig.for_robot(robot)
+        self._default_pose = np.array(robot.default_pose, dtype=np.float64)   # (joints,)
         self._n = 0
         self.phase = np.zeros(0)
         self.feet = np.zeros((0, 4, 3))      # current H-frame foot targets
         self.liftoff = np.zeros((0, 4, 3))   # H-frame foot position at lift-off
         self.stance = np.zeros((0, 4), dtype=bool)
         self.fresh = np.zeros(0, dtype=bool)
-        self.q_prev = np.zeros((0, NUM_JOINTS))
+        self.q_prev = np.zeros((0, robot.num_joints))
         self.reach = np.zeros((0, 4))          # extra downward reach of stance feet
         self.ref_cmd = np.zeros((0, 3))      # rate-limited command
         self.caution = np.zeros((0, 1))      # 0 flat-ground gait .. 1 rough-ground gait
         self.follow_robot = False
-        nominal = np.column_stack([HIP_OFFSETS[:, 0],
-                                   HIP_OFFSETS[:, 1] + THIGH_OFFSET_Y
-                                   + np.sign(THIGH_OFFSET_Y) * self.cfg.stance_width])
+        hips = np.array(robot.hip_offsets, dtype=np.float64)               # (4, 2)
+        thigh_y = np.array(robot.thigh_offset_y, dtype=np.float64)         # (4,)
+        nominal = np.column_stack([hips[:, 0], hips[:, 1] + thigh_y
+                                   + np.sign(thigh_y) * self.cfg.stance_width])
         self.nominal_xy = nominal                      # (4, 2)
 
     # ------------------------------------------------------------------ protocol
@@ -244,11 +245,12 @@ class GaitTeacher:
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """(N, 12) actions (offsets from the default pose in units of ``action_scale``)."""
+        obs = teacher_view(obs)
         n = check_obs(self, obs)
         if n != self._n:
             self._allocate(n)
         cfg = self.cfg
-        st = _State.from_obs(obs, cfg.slope_follow)
+        st = GaitState.from_obs(obs, self.robot, cfg.slope_follow)
         self.just_reset = self.fresh.copy()
         if self.fresh.any():
             self._init_feet(np.flatnonzero(self.fresh), st)
@@ -281,7 +283,7 @@ class GaitTeacher:
         tau = tau + cfg.damping_comp * kd[:, None] * qd
         target = q_des + tau / kp[:, None]
         self.phase = (self.phase + cfg.dt / cfg.period) % 1.0
-        return ((target - DEFAULT_POSE[None]) / cfg.action_scale).astype(np.float32)
+        return ((target - self._default_pose[None]) / cfg.action_scale).astype(np.float32)
 
     # ------------------------------------------------------------------ internals
     def _allocate(self, n: int) -> None:
@@ -291,21 +293,21 @@ class GaitTeacher:
         self.liftoff = np.zeros((n, 4, 3))
         self.stance = np.ones((n, 4), dtype=bool)
         self.fresh = np.ones(n, dtype=bool)
-        self.q_prev = np.tile(DEFAULT_POSE, (n, 1))
+        self.q_prev = np.tile(self._default_pose, (n, 1))
         self.reach = np.zeros((n, 4))
         self.ref_cmd = np.zeros((n, 3))
 
-    def _init_feet(self, ids: np.ndarray, st: _State) -> None:
+    def _init_feet(self, ids: np.ndarray, st: GaitState) -> None:
         self.phase[ids] = 0.0
         self.reach[ids] = 0.0
         self.ref_cmd[ids] = 0.0
         xy = np.broadcast_to(self.nominal_xy, (len(ids), 4, 2))
-        z = ground_at(st.grid[ids], xy) - st.ref[ids, None] - self.cfg.body_height + FOOT_RADIUS
+        z = ground_at(st.grid[ids], xy) - st.ref[ids, None] - self.cfg.body_height + self.robot.foot_radius
         self.feet[ids] = np.concatenate([xy, z[..., None]], axis=-1)
         self.liftoff[ids] = self.feet[ids]
         self.stance[ids] = True
 
-    def _follow(self, st: _State) -> None:
+    def _follow(self, st: GaitState) -> None:
         """Stance feet's planned xy pulled to within ``follow_gap`` of the measured feet."""
         actual = st.feet_actual[..., :2]                                   # (N, 4, 2)
         lead = self.feet[..., :2] - actual
@@ -314,27 +316,27 @@ class GaitTeacher:
         pulled = actual + lead * np.minimum(1.0, gap / np.maximum(dist, 1e-9))
         self.feet[..., :2] = np.where(self.stance[..., None], pulled, self.feet[..., :2])
 
-    def _sweep_velocity(self, st: _State) -> tuple[np.ndarray, np.ndarray]:
+    def _sweep_velocity(self, st: GaitState) -> tuple[np.ndarray, np.ndarray]:
         """Planar velocity (N, 2) and yaw rate (N,) the stance feet move the body at."""
         cfg = self.cfg
         err = np.clip(st.cmd[:, :2] - st.v[:, :2], -cfg.max_velocity_error, cfg.max_velocity_error)
         v = st.cmd[:, :2] + np.asarray(cfg.velocity_gain) * err
         return v, st.cmd[:, 2] + cfg.yaw_gain * (st.cmd[:, 2] - st.w[:, 2])
 
-    def _update_stance(self, st: _State, stance: np.ndarray) -> None:
+    def _update_stance(self, st: GaitState, stance: np.ndarray) -> None:
         cfg = self.cfg
         v, wz = self._sweep_velocity(st)
         p = self.feet[..., :2]
         dp = v[:, None, :] + wz[:, None, None] * np.stack([-p[..., 1], p[..., 0]], axis=-1)
         new_xy = p - cfg.dt * dp
         g = ground_at(st.grid, st.feet_actual[..., :2] if cfg.stance_ground == "actual" else new_xy)
-        z = g - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
+        z = g - st.ref[:, None] - cfg.body_height + self.robot.foot_radius
         upd = np.concatenate([new_xy, z[..., None]], axis=-1)
         self.feet = np.where(stance[..., None], upd, self.feet)
         lifting = ~stance & self.stance
         self.liftoff = np.where(lifting[..., None], self.feet, self.liftoff)
 
-    def _touchdown(self, st: _State) -> np.ndarray:
+    def _touchdown(self, st: GaitState) -> np.ndarray:
         """Raibert touchdown points (N, 4, 2) in the H frame."""
         cfg = self.cfg
         t_stance = cfg.duty * cfg.period
@@ -346,7 +348,7 @@ class GaitTeacher:
         off = np.clip(off, -cfg.max_step, cfg.max_step)
         return hips + off
 
-    def _update_swing(self, st: _State, stance: np.ndarray, leg_phase: np.ndarray) -> None:
+    def _update_swing(self, st: GaitState, stance: np.ndarray, leg_phase: np.ndarray) -> None:
         cfg = self.cfg
         t_swing = cfg.period * (1.0 - cfg.duty)
         s = np.clip((leg_phase - cfg.duty) / (1.0 - cfg.duty) + (cfg.dt + cfg.swing_lead) / t_swing,
@@ -363,7 +365,7 @@ class GaitTeacher:
         clear = np.maximum(g_here, g_ahead) + height * np.sin(np.pi * s) ** 0.5   # s in [0, 1]
         landing = _smooth((s - 0.75) / 0.25)
         zg = (1 - landing) * clear + landing * g_td
-        z = zg - st.ref[:, None] - cfg.body_height + FOOT_RADIUS
+        z = zg - st.ref[:, None] - cfg.body_height + self.robot.foot_radius
         sw = np.concatenate([xy, z[..., None]], axis=-1)
         self.feet = np.where(stance[..., None], self.feet, sw)
 
@@ -384,7 +386,7 @@ class GaitTeacher:
         w = np.where(stance, np.minimum(_smooth(sph / ramp), _smooth((1 - sph) / ramp)), 0.0)
         return np.maximum(w, 1e-3 * stance)
 
-    def _joint_targets(self, st: _State, weight: np.ndarray
+    def _joint_targets(self, st: GaitState, weight: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint angles (N, 12), foot Jacobians and the joint angles without attitude
         feedback (N, 12) for the H-frame feet.
@@ -399,14 +401,14 @@ class GaitTeacher:
         rp_cmd = st.rp_des + np.clip(corr, -cfg.max_attitude_correction, cfg.max_attitude_correction)
         feet = self.feet.copy()
         feet[..., 2] -= self.reach
-        feet_cmd = np.einsum("nji,nkj->nki", _rot_rp(rp_cmd), feet)
+        feet_cmd = np.einsum("nji,nkj->nki", rot_rp(rp_cmd), feet)
         feet_true = np.einsum("nji,nkj->nki", st.rot_rp, feet)
         feet_b = weight[..., None] * feet_cmd + (1.0 - weight[..., None]) * feet_true
-        q = leg_ik(feet_b)
-        feet_plan = np.einsum("nji,nkj->nki", _rot_rp(st.rp_des), self.feet)
-        return q, foot_jacobian(q), leg_ik(feet_plan)
+        q = leg_ik(feet_b, self.robot)
+        feet_plan = np.einsum("nji,nkj->nki", rot_rp(st.rp_des), self.feet)
+        return q, foot_jacobian(q, self.robot), leg_ik(feet_plan, self.robot)
 
-    def _feedforward(self, st: _State, w: np.ndarray, jac: np.ndarray) -> np.ndarray:
+    def _feedforward(self, st: GaitState, w: np.ndarray, jac: np.ndarray) -> np.ndarray:
         """Joint torques (N, 12) for the stance forces of a virtual-model balance law."""
         cfg = self.cfg
         share = w / np.maximum(w.sum(axis=1, keepdims=True), 1e-6)       # (N, 4)
@@ -428,66 +430,7 @@ class GaitTeacher:
             f[..., 2] += sign * m_rp[:, axis:axis + 1] * share * lev / denom
         f_b = np.einsum("nji,nkj->nki", st.rot_rp, f)          # ground force in base frame
         tau = -np.einsum("nkij,nki->nkj", jac, f_b)
-        return tau.reshape(st.n, 12)
-
-
-@dataclass
-class _State:
-    """Privileged state of one control step, in the frames the controller uses."""
-
-    n: int
-    cmd: np.ndarray        # (N, 3)
-    v: np.ndarray          # (N, 3) base velocity in H
-    w: np.ndarray          # (N, 3) base angular velocity in H
-    rot_rp: np.ndarray     # (N, 3, 3) base -> H (roll and pitch only)
-    rp: np.ndarray         # (N, 2) roll, pitch (rad)
-    grid: np.ndarray       # (N, 17, 11) height scan
-    dilated: np.ndarray    # (N, 17, 11) height scan, 3 x 3 max filter
-    ref: np.ndarray        # (N,) mean ground under the body, relative to the base
-    height: np.ndarray     # (N,) base height above ref
-    slope: np.ndarray      # (N, 2) ground gradient dz/dx, dz/dy in H
-    dyn: np.ndarray        # (N, 8)
-    rp_des: np.ndarray     # (N, 2) desired roll, pitch
-    feet_actual: np.ndarray  # (N, 4, 3) measured foot positions in H (joint angles + attitude)
-    roughness: np.ndarray  # (N,) largest second difference of the scan near the base (m)
-
-    @classmethod
-    def from_obs(cls, obs: dict[str, np.ndarray], slope_follow: float = 0.0) -> _State:
-        quat = np.asarray(obs["orientation"], dtype=np.float64)
-        quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
-        rot = quat_to_mat(quat)
-        yaw = yaw_of(quat)
-        c, s = np.cos(yaw), np.sin(yaw)
-        rz_t = np.zeros_like(rot)
-        rz_t[:, 0, 0], rz_t[:, 0, 1], rz_t[:, 1, 0], rz_t[:, 1, 1] = c, s, -s, c
-        rz_t[:, 2, 2] = 1.0
-        rot_rp = rz_t @ rot
-        v = np.einsum("nij,nj->ni", rot_rp, obs["base_lin_vel"].astype(np.float64))
-        w = np.einsum("nij,nj->ni", rot_rp, obs["base_ang_vel"].astype(np.float64))
-        roll = np.arctan2(rot_rp[:, 2, 1], rot_rp[:, 2, 2])
-        pitch = -np.arcsin(np.clip(rot_rp[:, 2, 0], -1, 1))
-        grid = scan_grid(obs["height_scan"])
-        ref = body_reference(grid)
-        gx = (grid[:, 11:14].mean(axis=(1, 2)) - grid[:, 3:6].mean(axis=(1, 2))) / 0.8
-        gy = (grid[:, :, 7:10].mean(axis=(1, 2)) - grid[:, :, 1:4].mean(axis=(1, 2))) / 0.6
-        return cls(n=len(quat), cmd=obs["command"].astype(np.float64), v=v, w=w, rot_rp=rot_rp,
-                   rp=np.column_stack([roll, pitch]), grid=grid, dilated=dilate(grid), ref=ref, height=-ref,
-                   slope=np.column_stack([gx, gy]), dyn=obs["dynamics"].astype(np.float64),
-                   rp_des=slope_follow * np.column_stack([np.arctan(gy), -np.arctan(gx)]),
-                   feet_actual=np.einsum("nij,nkj->nki", rot_rp, foot_positions_body(
-                       obs["joint_pos"].astype(np.float64)).reshape(len(quat), 4, 3)),
-                   roughness=roughness(grid))
-
-
-def _rot_rp(rp: np.ndarray) -> np.ndarray:
-    """(N, 2) roll, pitch -> (N, 3, 3) rotation Ry(pitch) Rx(roll) (base -> H)."""
-    cr, sr = np.cos(rp[:, 0]), np.sin(rp[:, 0])
-    cp, sp = np.cos(rp[:, 1]), np.sin(rp[:, 1])
-    out = np.zeros((len(rp), 3, 3))
-    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = cp, sp * sr, sp * cr
-    out[:, 1, 1], out[:, 1, 2] = cr, -sr
-    out[:, 2, 0], out[:, 2, 1], out[:, 2, 2] = -sp, cp * sr, cp * cr
-    return out
+        return tau.reshape(st.n, self.robot.num_joints)
 
 
 __all__ = ["GaitConfig", "GaitTeacher"]

@@ -28,9 +28,9 @@ import draccus
 import numpy as np
 import torch
 
-from msta.data.robot import ACTION_SCALE, DEFAULT_POSE
+from msta.data.robot import A1, DEFAULT_POSE, RobotDescription
 from msta.data.sensors import ACTION_DIM, FOOT_NAMES, JOINT_NAMES, LEGS, get
-from msta.policies.teacher.base import check_obs, register_teacher
+from msta.policies.teacher.base import check_obs, register_teacher, teacher_view
 
 Scalar = float | list[float]
 
@@ -289,11 +289,15 @@ class ActionConverter:
     Args:
         spec: the source's action convention (values in source joint order).
         joint_perm: ``source = msta[..., joint_perm]``.
-        msta_action_scale: msta's action scale (joint target = DEFAULT_POSE + scale * a).
+        msta_action_scale: msta's action scale (joint target = default pose + scale * a).
+        msta_default_pose: (12,) the simulated robot's default pose (msta order); also the
+            source's when ``spec.default_pose`` is unset.
     """
 
-    def __init__(self, spec: ActionSpec, joint_perm: np.ndarray, msta_action_scale: float) -> None:
+    def __init__(self, spec: ActionSpec, joint_perm: np.ndarray, msta_action_scale: float,
+                 msta_default_pose: np.ndarray = DEFAULT_POSE) -> None:
         self.perm = joint_perm
+        self.pose = np.asarray(msta_default_pose, dtype=np.float64)
         self.inv = np.argsort(joint_perm)
         scale = np.atleast_1d(np.asarray(spec.scale, dtype=np.float64))
         if scale.ndim != 1 or len(scale) not in (1, ACTION_DIM) or not np.all(scale != 0):
@@ -301,7 +305,7 @@ class ActionConverter:
                              f"{ACTION_DIM} non-zero values")
         self.scale = np.broadcast_to(scale, (ACTION_DIM,)).copy()
         if spec.default_pose is None:
-            self.default = DEFAULT_POSE[joint_perm].copy()
+            self.default = self.pose[joint_perm].copy()
         else:
             self.default = np.asarray(spec.default_pose, dtype=np.float64)
             if self.default.shape != (ACTION_DIM,):
@@ -317,11 +321,11 @@ class ActionConverter:
     def to_msta(self, out: np.ndarray) -> np.ndarray:
         """(N, 12) raw source output (source order) -> (N, 12) msta actions."""
         target = self.default + self.scale * np.clip(out.astype(np.float64), -self.clip, self.clip)
-        return ((target[:, self.inv] - DEFAULT_POSE) / self.msta_scale).astype(np.float32)
+        return ((target[:, self.inv] - self.pose) / self.msta_scale).astype(np.float32)
 
     def to_source(self, action: np.ndarray) -> np.ndarray:
         """(N, 12) msta actions -> (N, 12) source actions (source order), e.g. last_action."""
-        target = (DEFAULT_POSE + self.msta_scale * action.astype(np.float64))[:, self.perm]
+        target = (self.pose + self.msta_scale * action.astype(np.float64))[:, self.perm]
         return (target - self.default) / self.scale
 
 
@@ -334,15 +338,17 @@ class ImportedTeacher:
         spec: spec file path, or an :class:`ImportedSpec` (its model path is then taken
             relative to ``base_dir``).
         device: torch device for TorchScript files (ONNX runs on the CPU).
-        msta_action_scale: the simulator's ``control.action_scale``.
+        msta_action_scale: the simulator's ``control.action_scale`` (None: ``robot``'s).
         base_dir: directory relative model paths start from when ``spec`` is an object.
+        robot: the simulated robot (its default pose and action scale; None: the A1).
     """
 
     name = "imported"
 
     def __init__(self, spec: str | Path | ImportedSpec, device: str = "cpu",
-                 msta_action_scale: float = ACTION_SCALE,
-                 base_dir: str | Path = ".") -> None:
+                 msta_action_scale: float | None = None,
+                 base_dir: str | Path = ".", robot: RobotDescription | None = None) -> None:
+        robot = robot or A1
         if not isinstance(spec, ImportedSpec):
             base_dir = Path(spec).parent
             spec = load_spec(spec)
@@ -358,7 +364,10 @@ class ImportedTeacher:
         self.sensors = self.scaler.names
         self.joint_perm = joint_permutation(spec.joint_order)
         self.foot_perm = foot_permutation(self.joint_perm)
-        self.actions = ActionConverter(spec.action, self.joint_perm, msta_action_scale)
+        self.actions = ActionConverter(
+            spec.action, self.joint_perm,
+            robot.action_scale if msta_action_scale is None else msta_action_scale,
+            np.array(robot.default_pose, dtype=np.float64))
         self.input_dim = self.scaler.dim * spec.history
         self.backend = BACKENDS[_format_of(spec, self.path)](self.path, device)
         what = " + ".join(f"{s.name} {s.dim}" for s in spec.inputs)
@@ -370,15 +379,17 @@ class ImportedTeacher:
 
     @classmethod
     def from_spec(cls, path: str | Path, device: str = "cpu",
-                  msta_action_scale: float = ACTION_SCALE) -> ImportedTeacher:
+                  msta_action_scale: float | None = None,
+                  robot: RobotDescription | None = None) -> ImportedTeacher:
         """Load the teacher a spec file describes.
 
         Args:
             path: the spec file (.json / .yaml / .yml).
             device: torch device for TorchScript files.
-            msta_action_scale: the simulator's ``control.action_scale``.
+            msta_action_scale: the simulator's ``control.action_scale`` (None: ``robot``'s).
+            robot: the simulated robot (None: the A1).
         """
-        return cls(path, device=device, msta_action_scale=msta_action_scale)
+        return cls(path, device=device, msta_action_scale=msta_action_scale, robot=robot)
 
     def _to_source(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Registry observations in the source's joint/foot order and action convention."""
@@ -413,8 +424,10 @@ class ImportedTeacher:
         """(N, 12) float32 msta actions for a batch of registry observations.
 
         Args:
-            obs: registry-keyed (N, dim) arrays holding at least ``self.sensors``.
+            obs: registry-keyed (N, dim) arrays holding at least ``self.sensors`` (or, for
+                ``foot_contact``, its privileged copy: :func:`teacher_view`).
         """
+        obs = teacher_view(obs)
         check_obs(self, obs)
         x = self._stack(self.scaler(self._to_source(obs)))
         out = self.backend(np.ascontiguousarray(x))

@@ -28,9 +28,9 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from msta.data.robot import DEFAULT_POSE
+from msta.data.robot import DEFAULT_POSE, RobotDescription
 from msta.data.sensors import ACTION_DIM
-from msta.policies.teacher.base import check_obs, register_teacher
+from msta.policies.teacher.base import check_obs, register_teacher, teacher_view
 from msta.policies.teacher.imported import InputScaler, SignalSpec
 
 CONFIG_NAME = "config.json"
@@ -149,12 +149,16 @@ class RMATeacher(nn.Module):
             ``pretrained``.
         pretrained: a directory written by :meth:`save_pretrained` to load.
         device: torch device for inference.
+        robot: the simulated robot (None: the A1). The network's inputs and their scaling
+            are its config's (the shipped checkpoints' are the A1's); on a robot without
+            ``foot_contact`` it reads the simulator's ``true_contact`` (:func:`teacher_view`).
     """
 
     name = TYPE
 
     def __init__(self, config: RMAConfig | None = None, pretrained: str | Path | None = None,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device = "cpu",
+                 robot: RobotDescription | None = None) -> None:
         super().__init__()
         state = None
         if pretrained is not None:
@@ -192,8 +196,9 @@ class RMATeacher(nn.Module):
         """(N, 12) float32 actions for registry-keyed (N, dim) observations.
 
         Args:
-            obs: holds at least ``self.sensors``.
+            obs: holds at least ``self.sensors`` (``foot_contact`` or its privileged copy).
         """
+        obs = teacher_view(obs)
         check_obs(self, obs)
         priv = torch.from_numpy(self.priv_in(obs)).to(self.device)
         prop = torch.from_numpy(self.proprio_in(obs)).to(self.device)

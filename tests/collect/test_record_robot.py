@@ -6,14 +6,19 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 from msta_test_helpers import write_robot_spec  # registered by tests/conftest.py
 
 from msta.collect.record import CollectConfig, collect
+from msta.collect.recorder import recorded_sensors
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.msta_json import dataset_robot
+from msta.data.robot import load_robot
+from msta.data.sensors import DEFAULT_RECORDED
 from msta.data.writer import DatasetWriter
 from msta.policies.teacher.config import TeacherConfig
 
@@ -59,3 +64,30 @@ def test_an_empty_dataset_takes_the_robot_that_fills_it(tmp_path):
     DatasetWriter.create(tmp_path / "ds", "local/empty", robot="other").close()
     root = collect(tiny_cfg(tmp_path / "ds"))
     assert recorded(root) == ("a1", "a1", "a1")
+
+
+def test_the_go1_records_the_default_sensors_it_offers(tmp_path):
+    """No foot_contact column (the Go1 offers none), its extension sensors when asked, and the
+    A1's columns as they were."""
+    root = collect(tiny_cfg(tmp_path / "go1", robot="go1", extra_sensors="joint_torque,base_accel"))
+    features = json.loads((root / "meta/info.json").read_text())["features"]
+    assert recorded(root) == ("go1", "go1", "go1")
+    assert "observation.foot_contact" not in features
+    assert "privileged.true_contact" not in features  # the teachers' copy: recorded when asked
+    go1 = load_robot("go1")
+    assert recorded_sensors(go1, ("joint_torque", "base_accel")) == tuple(
+        json.loads((root / "meta/msta.json").read_text())["sensors"])
+    assert {"observation.joint_torque", "observation.base_accel"} <= set(features)
+    frames = pd.read_parquet(next((root / "data").rglob("*.parquet")))
+    assert np.isfinite(np.stack(frames["observation.joint_torque"])).all()
+    a1 = collect(tiny_cfg(tmp_path / "a1"))
+    a1_sensors = tuple(json.loads((a1 / "meta/msta.json").read_text())["sensors"])
+    assert a1_sensors == DEFAULT_RECORDED  # the A1 offers every default sensor
+
+
+def test_an_extra_sensor_the_robot_does_not_offer_is_one_line(tmp_path):
+    with pytest.raises(ValueError) as err:
+        tiny_cfg(tmp_path / "ds", robot="go1", extra_sensors="height_map")
+    msg = str(err.value)
+    assert "\n" not in msg and "'go1'" in msg and "'height_map'" in msg and "joint_torque" in msg
+    assert not (tmp_path / "ds").exists()

@@ -150,7 +150,7 @@ def test_the_a1s_sensors_datasets_and_students_are_unchanged():
                                "command", "last_action")
     assert PHYSICAL_SENSORS == STUDENT_SENSORS[:5]
     assert DEFAULT_RECORDED == tuple(s for s in A1_SENSORS if s != "height_map")
-    assert EXTENSION_SENSORS == ("height_map", "joint_torque", "base_accel")
+    assert EXTENSION_SENSORS == ("height_map", "joint_torque", "base_accel", "true_contact")
     assert all(SENSORS[s].group == "proprio" for s in ("joint_torque", "base_accel"))
     state = build_features(None, derived=True)[STATE_COLUMN]
     assert state["shape"] == (49,) and state["names"][-1] == "last_action.RR_calf"

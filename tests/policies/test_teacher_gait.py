@@ -18,6 +18,7 @@ from msta.data.sensors import HEIGHT_SCAN_X, HEIGHT_SCAN_Y, SENSORS
 from msta.policies.teacher.base import Teacher, make_teacher
 from msta.policies.teacher.gait import GaitConfig, GaitTeacher
 from msta.policies.teacher.gait_kinematics import foot_jacobian, leg_ik
+from msta.policies.teacher.gait_state import GaitState
 from msta.policies.teacher.gait_terrain import (
     dilate,
     ground_at,
@@ -210,8 +211,6 @@ def test_follow_robot_plans_stance_feet_from_where_they_are():
     """Another policy drives (a slower, scaled-down copy of the teacher's gait); the teacher
     shadows it. Its own plan drifts away from the feet; following the robot, a stance foot's
     plan starts at most ``follow_gap`` from the measured foot (plus one step of sweep)."""
-    from msta.policies.teacher.gait import _State
-
     drift = {}
     for gap in (None, 0.0, 0.03):
         env = _env(4, seed=3)
@@ -224,7 +223,7 @@ def test_follow_robot_plans_stance_feet_from_where_they_are():
             obs = env.step(0.7 * driver.act(obs)).obs
         was_stance = shadow.stance.copy()
         shadow.act(obs)
-        actual = _State.from_obs(obs).feet_actual[..., :2]
+        actual = GaitState.from_obs(obs).feet_actual[..., :2]
         gap_m = np.linalg.norm(shadow.feet[..., :2] - actual, axis=-1)[was_stance & shadow.stance]
         drift[gap] = float(gap_m.max())
     sweep = 0.05  # dt x the sweep velocity (<= 2.5 m/s)

@@ -36,7 +36,8 @@ def test_protocol_contract(teacher: RMATeacher) -> None:
     assert teacher.name == "rma"
     for name in teacher.sensors:
         get(name)  # a registry name
-    assert set(teacher.sensors) == set(STUDENT_SENSORS) | (set(PRIVILEGED_SENSORS) - {"base_height"})
+    assert set(teacher.sensors) == set(STUDENT_SENSORS) | (
+        set(PRIVILEGED_SENSORS) - {"base_height", "true_contact"})
     obs = random_obs(7)
     a = teacher.act(obs)
     assert a.shape == (7, 12) and a.dtype == np.float32 and np.all(np.isfinite(a))

@@ -118,7 +118,7 @@ def warm_start(env_cfg: EnvConfig, rma: RMAConfig, cfg: WarmStartConfig, out: Pa
     rng = np.random.default_rng(seed)
     vec = RslVecEnv(env_cfg, rma)
     net = RMATeacher(rma)
-    gait = build_teacher(TeacherConfig(type="gait"))
+    gait = build_teacher(TeacherConfig(type="gait"), env_cfg.teacher_robot)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
     buffer = _Buffer(cfg.buffer_size, (vec.priv_in.dim, vec.proprio_in.dim, 12))
     history: list[dict] = []
