@@ -34,16 +34,17 @@ import torch
 
 from msta.collect.rollout import Step, fell, rollout, step_quantities
 from msta.collect.sim.env import QuadrupedEnv
-from msta.collect.sim.env_config import EnvConfig
+from msta.collect.sim.env_config import EnvConfig, load_sim_robot
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.checks import check_at_least
 from msta.data.cli import parse_config, usage_error
 from msta.data.locate import locate_checkpoint
-from msta.data.robot import CONTROL_DT
+from msta.data.robot import LEGACY_ROBOT
 from msta.eval.intervals import ratio_interval
 from msta.eval.metrics import survival
 from msta.policies.actor import StudentActor
 from msta.policies.checkpoint import PolicyPath
+from msta.policies.config import check_trained_on
 from msta.policies.factory import load_policy
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 
@@ -57,6 +58,9 @@ class LabelCheckConfig:
         policy: the trained student (``--policy.path``: a checkpoint directory or a hub id
             ``user/name[@revision]``).
         teacher: the teacher whose labels are checked (``--teacher.type``, ``--teacher.path``).
+        robot: the simulated robot, the one the teacher is built for and the student was
+            trained on: a shipped robot's name (a1, go1) or a spec file's path
+            (docs/robots.md).
         robots: robots per row (every row drives the same robots).
         student_seconds: seconds the student drives before the teacher takes over.
         episode_length_s: episode length (s); the teacher drives from ``student_seconds`` on.
@@ -67,6 +71,7 @@ class LabelCheckConfig:
 
     policy: PolicyPath = field(default_factory=PolicyPath)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    robot: str = LEGACY_ROBOT
     robots: int = 60
     student_seconds: float = 3.0
     episode_length_s: float = 5.0
@@ -75,6 +80,7 @@ class LabelCheckConfig:
     num_threads: int = 1
 
     def __post_init__(self) -> None:
+        load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
         check_at_least(self, 1, "robots", "num_threads")
         if self.max_level < 0:
             raise ValueError(f"max_level={self.max_level} must be >= 0")
@@ -116,10 +122,11 @@ class TakeoverDriver:
 def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | None:
     """One row of ``mode`` (None: skipped): which robots fell (``fell``, each robot's first
     episode only) and their linear-tracking returns per step (``lin``)."""
-    switch = round(cfg.student_seconds / CONTROL_DT)
-    steps = round(cfg.episode_length_s / CONTROL_DT)
-    env = QuadrupedEnv(EnvConfig(num_envs=cfg.robots, seed=cfg.seed, nthread=1,
-                                 episode_length_s=steps * CONTROL_DT + 1.0,
+    dt = load_sim_robot(cfg.robot, "robot").control_dt
+    switch = round(cfg.student_seconds / dt)
+    steps = round(cfg.episode_length_s / dt)
+    env = QuadrupedEnv(EnvConfig(robot=cfg.robot, num_envs=cfg.robots, seed=cfg.seed, nthread=1,
+                                 episode_length_s=steps * dt + 1.0,
                                  terrain=TerrainConfig(max_init_level=cfg.max_level)))
     env.reset()
     teacher = build_teacher(cfg.teacher, env.cfg.teacher_robot)
@@ -154,6 +161,8 @@ def label_check(cfg: LabelCheckConfig, policy: Any = None) -> dict[str, dict[str
         policy: the loaded student (default: :func:`load_student` of ``cfg.policy.path``).
     """
     policy = load_student(cfg.policy.path) if policy is None else policy
+    check_trained_on(policy.config.robots, load_sim_robot(cfg.robot, "robot").name,
+                     f"--policy.path={cfg.policy.path}", "--robot")
     raw = {m: run_mode(m, policy, cfg) for m in MODES}
     ref = raw["teacher"]["lin"]
     rows = {}
@@ -188,6 +197,8 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(cfg.num_threads)
     try:
         policy = load_student(cfg.policy.path)
+        check_trained_on(policy.config.robots, load_sim_robot(cfg.robot, "robot").name,
+                         f"--policy.path={cfg.policy.path}", "--robot")
     except (ValueError, FileNotFoundError) as e:  # CheckpointError is a ValueError
         raise usage_error(f"{PROG}: error: {e}") from None
     print(render(label_check(cfg, policy)))

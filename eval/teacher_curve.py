@@ -28,9 +28,11 @@ from pathlib import Path
 import torch
 from tqdm import tqdm
 
+from msta.collect.sim.env_config import load_sim_robot
 from msta.collect.sim.terrain import TERRAIN_TYPES
 from msta.data.checks import check_at_least
 from msta.data.cli import parse_config
+from msta.data.robot import LEGACY_ROBOT
 from msta.eval.intervals import wilson_interval
 from msta.eval.teacher_report import TeacherReportConfig, evaluate, parse_levels
 from msta.policies.teacher.config import TeacherConfig, teacher_revision
@@ -45,6 +47,9 @@ class TeacherCurveConfig:
     """Args:
         run: an msta-train-teacher output directory (curve.json, snapshots/, init/ or
             warmstart/).
+        robot: the simulated robot, the one every teacher is built for: a shipped robot's
+            name (a1, go1) or a spec file's path (docs/robots.md); the run's teacher was
+            trained on one robot (its ``--env.robot``), name that one.
         terrains: comma-separated terrain types evaluated at ``level``.
         level: the terrain level of every evaluated tile.
         episodes: episodes per terrain type and checkpoint (rounded up to a multiple of
@@ -59,6 +64,7 @@ class TeacherCurveConfig:
     """
 
     run: str = "outputs/teacher"
+    robot: str = LEGACY_ROBOT
     terrains: str = "stairs_up,stairs_down,discrete"
     level: int = 4
     episodes: int = 50
@@ -70,6 +76,7 @@ class TeacherCurveConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
+        load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
         check_at_least(self, 1, "episodes", "envs_per_tile", "nthread")
         check_at_least(self, 0, "every")
         parse_levels(str(self.level))
@@ -121,7 +128,7 @@ def start_teacher(run: Path) -> TeacherConfig | None:
 
 def survival_of(teacher: TeacherConfig, cfg: TeacherCurveConfig) -> dict[str, float]:
     """Survival per terrain type at ``cfg.level`` for one teacher."""
-    rc = TeacherReportConfig(teacher=teacher, episodes=cfg.episodes,
+    rc = TeacherReportConfig(teacher=teacher, robot=cfg.robot, episodes=cfg.episodes,
                              envs_per_tile=cfg.envs_per_tile, terrains=cfg.terrains,
                              levels=str(cfg.level), episode_length_s=cfg.episode_length_s,
                              nthread=cfg.nthread, report="-", image="", progress=False)
@@ -136,8 +143,11 @@ def env_steps_at(run: Path) -> dict[int, int]:
 
 
 def settings_key(cfg: TeacherCurveConfig) -> dict:
-    return {"terrains": cfg.terrains, "level": cfg.level, "episodes": cfg.episodes_run,
-            "episode_length_s": cfg.episode_length_s}
+    """What a cache of ``curve_eval.json`` was evaluated at (the robot only when not the A1,
+    so that caches written before the option existed stay valid)."""
+    key = {"terrains": cfg.terrains, "level": cfg.level, "episodes": cfg.episodes_run,
+           "episode_length_s": cfg.episode_length_s}
+    return key if cfg.robot == LEGACY_ROBOT else {**key, "robot": cfg.robot}
 
 
 def build(cfg: TeacherCurveConfig) -> dict:

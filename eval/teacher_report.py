@@ -29,12 +29,13 @@ from tqdm import tqdm
 from msta.collect.rollout import Step, fell, film, rollout
 from msta.collect.sim.commands import CommandConfig
 from msta.collect.sim.env import QuadrupedEnv
-from msta.collect.sim.env_config import EnvConfig, NoiseConfig
+from msta.collect.sim.env_config import EnvConfig, NoiseConfig, load_sim_robot
 from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.render import save_strip, tracking_camera
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.checks import check_at_least
 from msta.data.cli import parse_config
+from msta.data.robot import LEGACY_ROBOT
 from msta.eval.metrics import TrialResults, summarize
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 
@@ -68,6 +69,8 @@ class TeacherReportConfig:
 
     Args:
         teacher: the teacher to report on (``--teacher.type``, ``--teacher.path``).
+        robot: the simulated robot, the one the teacher is built for: a shipped robot's name
+            (a1, go1) or a spec file's path (docs/robots.md).
         episodes: episodes per (terrain type, level) tile.
         envs_per_tile: environments pinned to each tile (at most ``episodes``); each runs
             ceil(episodes / envs_per_tile) episodes.
@@ -85,6 +88,7 @@ class TeacherReportConfig:
     """
 
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
+    robot: str = LEGACY_ROBOT
     episodes: int = 100
     envs_per_tile: int = 10
     terrains: str = ""
@@ -100,6 +104,7 @@ class TeacherReportConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
+        load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
         check_at_least(self, 1, "episodes", "envs_per_tile", "nthread", "columns")
         if not self.episode_length_s > 0:
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")
@@ -151,8 +156,8 @@ def _evaluate_type(cfg: TeacherReportConfig, terrain: str) -> Stats:
     :class:`msta.eval.metrics.TrialResults`, summarized per tile by :func:`msta.eval.metrics.summarize`."""
     k = cfg.envs_per_tile
     n = len(cfg.level_list) * k
-    env_cfg = EnvConfig(num_envs=n, seed=cfg.seed, episode_length_s=cfg.episode_length_s,
-                        nthread=cfg.nthread,
+    env_cfg = EnvConfig(robot=cfg.robot, num_envs=n, seed=cfg.seed,
+                        episode_length_s=cfg.episode_length_s, nthread=cfg.nthread,
                         terrain=TerrainConfig(types=(terrain,), columns_per_type=cfg.columns,
                                               curriculum=False),
                         randomization=RandomizationConfig(enabled=cfg.randomization),
@@ -207,7 +212,8 @@ def highest_level(stats: Stats, terrain: str, levels: tuple[int, ...],
 def render_markdown(stats: Stats, cfg: TeacherReportConfig, command: str,
                     seconds: float, image: str | None) -> str:
     """The report as Markdown (tables per terrain, summary, minimums)."""
-    lines = [f"# Teacher quality: `{cfg.teacher.type}`", "",
+    on = "" if cfg.robot == LEGACY_ROBOT else f" on `{cfg.robot}`"
+    lines = [f"# Teacher quality: `{cfg.teacher.type}`{on}", "",
              f"Regenerate: `{command}`", "",
              f"{cfg.episodes} episodes of {cfg.episode_length_s:g} s per terrain type and level "
              f"({cfg.envs_per_tile} environments per tile), each terrain type on its own grid "
@@ -236,8 +242,9 @@ def render_markdown(stats: Stats, cfg: TeacherReportConfig, command: str,
         for lv in cfg.level_list:
             r = stats[(t, lv)]
             lines.append(f"| {lv} | {r['episodes']} | {r['survival']:.1%} | "
-                         f"{r['lin_reward'] / (env_scale('lin')):.3f} | "
-                         f"{r['ang_reward'] / env_scale('ang'):.3f} | {r['lin_err']:.3f} | "
+                         f"{r['lin_reward'] / (env_scale('lin', cfg.robot)):.3f} | "
+                         f"{r['ang_reward'] / env_scale('ang', cfg.robot):.3f} | "
+                         f"{r['lin_err']:.3f} | "
                          f"{r['ang_err']:.3f} |")
         lines.append("")
     if image:
@@ -245,9 +252,14 @@ def render_markdown(stats: Stats, cfg: TeacherReportConfig, command: str,
     return "\n".join(lines)
 
 
-def env_scale(which: str) -> float:
-    """scale x dt of the default tracking rewards (to map them to [0, 1])."""
-    cfg = EnvConfig(num_envs=1)
+def env_scale(which: str, robot: str = LEGACY_ROBOT) -> float:
+    """scale x dt of the default tracking rewards (to map them to [0, 1]).
+
+    Args:
+        which: ``"lin"`` or ``"ang"``.
+        robot: the simulated robot (its control period is the dt).
+    """
+    cfg = EnvConfig(num_envs=1, robot=robot)
     s = cfg.rewards.scales
     return (s.tracking_lin_vel if which == "lin" else s.tracking_ang_vel) * cfg.dt
 
@@ -273,7 +285,8 @@ def _minimums(stats: Stats, cfg: TeacherReportConfig) -> list[str]:
 
 # ----------------------------------------------------------------------------- image
 def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int = 4,
-                  seconds: float = 6.0, frames: int = 6, seed: int = 0) -> Path:
+                  seconds: float = 6.0, frames: int = 6, seed: int = 0,
+                  robot: str = LEGACY_ROBOT) -> Path:
     """Image strip of the teacher walking out of the stairs-up pit (forward command).
 
     Args:
@@ -283,8 +296,9 @@ def render_stairs(path: Path, teacher: TeacherConfig | None = None, level: int =
         seconds: simulated time covered by the strip.
         frames: pictures in the strip.
         seed: simulator seed.
+        robot: the simulated robot, the one the teacher is built for.
     """
-    cfg = EnvConfig(num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
+    cfg = EnvConfig(robot=robot, num_envs=1, seed=seed, terrain=TerrainConfig(curriculum=False),
                     commands=CommandConfig(use_heading=False, resample_s=1e6),
                     randomization=RandomizationConfig(enabled=False),
                     noise=NoiseConfig(enabled=False), spawn_offset=0.0)
@@ -344,7 +358,8 @@ def main(argv: list[str] | None = None) -> None:
     stats = evaluate(cfg)
     image = None
     if cfg.image:
-        image = str(render_stairs(Path(cfg.image), cfg.teacher, seed=cfg.seed))
+        image = str(render_stairs(Path(cfg.image), cfg.teacher, seed=cfg.seed,
+                                  robot=cfg.robot))
     md = render_markdown(stats, cfg, command_line(cfg), time.time() - t0, image)
     out = Path(cfg.report)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,7 @@
     <output_dir>/student.pt      TorchScript (torch.jit.trace of the eager model)
     <output_dir>/student.onnx    ONNX (opset 17), runs in onnxruntime without torch
     <output_dir>/spec.json       what a robot program needs: input order, shapes, units,
-                                 the action convention, and the parity figures
+                                 the robot and its action convention, and the parity figures
 
 The exported graph is the whole student: raw sensor windows in (one float32 tensor
 ``(B, T, dim)`` per sensor, oldest step first, in the spec's order), the action out
@@ -14,8 +14,12 @@ action``). Normalization, binning and the action's un-normalization are inside, 
 processor's statistics; no masking (test-time masking is an experiment, not deployment).
 The sensor subset and T are fixed at export time (``--sensors=minimized``: the paper's
 minimized observation {command, joint_pos, gravity, last_action} at T = 7); the batch size
-is free. A window that starts before the episode does is filled by repeating the first
-reading (what the dataset reader does for padded steps).
+is free. The action convention's numbers (joint names, default pose, action scale, clip,
+gains, control period) and spec.json's ``robot`` are the description's of the robot the
+student was trained on (``PolicyConfig.robots``; ``--robot`` picks one of several, or gives
+the spec file of a robot that is not shipped: :func:`spec_robot`). A window that starts
+before the episode does is filled by repeating the first reading (what the dataset reader
+does for padded steps).
 
 The parity check runs at every export: eager model vs each exported file on recorded
 dataset windows (``--dataset``, default: the dataset the checkpoint was trained on when its
@@ -50,9 +54,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from msta.data import robot
 from msta.data import sensors as registry
+from msta.data.robot import RobotDescription, load_robot, robot_names
 from msta.policies.base import StudentPolicy
+from msta.policies.config import check_trained_on
 from msta.policies.export_files import (
     DEFAULT_TOLERANCE,
     FORMAT,
@@ -74,6 +79,7 @@ from msta.policies.input_spec import MINIMIZED_HISTORY, MINIMIZED_SENSORS
 __all__ = [
     "ABSENT_PREFIX", "DEFAULT_TOLERANCE", "FORMAT", "DeployedStudent", "ExportParityError",
     "absent_masks", "export_student", "random_windows", "recorded_windows", "resolve_sensors",
+    "spec_robot",
 ]
 
 
@@ -169,6 +175,33 @@ def recorded_windows(root: str | Path, sensors: Sequence[str], T: int, n: int
     return {name: np.ascontiguousarray(batch[name], dtype=np.float32) for name in sensors}
 
 
+def spec_robot(robots: Sequence[str], choice: str = "") -> RobotDescription:
+    """The robot whose numbers spec.json's ``action_convention`` holds (msta-export's
+    ``--robot``).
+
+    Args:
+        robots: the robots the student was trained on (``PolicyConfig.robots``).
+        choice: a shipped robot's name or a spec file's path, one of ``robots``; empty: the
+            one robot of ``robots``, which must then be a shipped robot.
+
+    Raises:
+        ValueError: (one line) several robots and no choice, a robot that is not shipped
+            and no spec file given, or a choice the student was not trained on.
+    """
+    if choice:
+        described = load_robot(choice)
+        check_trained_on(tuple(robots), described.name, "the checkpoint", "--robot")
+        return described
+    if len(robots) > 1:
+        raise ValueError(f"the checkpoint was trained on robots {', '.join(robots)}: pick the "
+                         "one the export is for with --robot")
+    if robots[0] not in robot_names():
+        raise ValueError(f"the checkpoint was trained on robot {robots[0]!r}, which is not a "
+                         f"shipped robot ({', '.join(robot_names())}): give its spec file "
+                         "with --robot=<path>.toml")
+    return load_robot(robots[0])
+
+
 def export_student(
     policy: StudentPolicy,
     output_dir: str | Path,
@@ -180,6 +213,7 @@ def export_student(
     source: Mapping[str, Any] | None = None,
     absent: Sequence[str] = (),
     guard_dir: str | Path | None = None,
+    robot: RobotDescription | None = None,
 ) -> dict[str, Any]:
     """Write the exported files and spec.json; return the spec.
 
@@ -197,6 +231,8 @@ def export_student(
             per-sample channel removal a guard's flags drive); () = none.
         guard_dir: a folder with a saved guard (:func:`msta.policies.guard_file.load_guard`) whose
             files are copied into ``output_dir`` and named in the spec.
+        robot: the robot the export is for (its name and action convention go into the
+            spec; None: :func:`spec_robot` of the student's robots).
 
     Raises:
         ExportParityError: an exported file's actions differ by more than ``tolerance``
@@ -205,6 +241,7 @@ def export_student(
     bad = [f for f in formats if f not in FORMATS]
     if bad or not formats:
         raise ValueError(f"formats must be some of {FORMATS}, got {list(formats)}")
+    robot = robot or spec_robot(policy.config.robots)
     policy = policy.cpu().float().eval()
     names = resolve_sensors(policy, sensors)
     T = int(history or (MINIMIZED_HISTORY if sensors == "minimized" else policy.config.history))
@@ -221,9 +258,15 @@ def export_student(
     runners = _write_formats(module, example, formats, out)
     parity = _parity(module, windows, runners)
     worst = max((p["max_abs_diff"] for p in parity), default=0.0)
-    spec = _spec(policy, names, T, formats, parity, worst, tolerance, source)
+    spec = _spec(policy, robot, names, T, formats, parity, worst, tolerance, source)
     spec |= removal_spec(module.absent, guard_dir, out)
+    return _write_spec(spec, out)
+
+
+def _write_spec(spec: dict[str, Any], out: Path) -> dict[str, Any]:
+    """Write ``out``/spec.json; then raise ExportParityError when the parity check failed."""
     (out / SPEC_NAME).write_text(json.dumps(spec, indent=1) + "\n")
+    worst, tolerance = spec["parity_max_abs_diff"], spec["parity_tolerance"]
     if not worst <= tolerance:
         raise ExportParityError(f"exported actions differ from the eager model's by {worst:.3g} "
                                 f"> tolerance {tolerance:g} (per file and window set: "
@@ -296,8 +339,8 @@ def _parity(module: DeployedStudent, windows: Mapping[str, Mapping[str, np.ndarr
     return rows
 
 
-def _spec(policy: StudentPolicy, names: Sequence[str], T: int, formats: Sequence[str],
-          parity: list[dict[str, Any]], worst: float, tolerance: float,
+def _spec(policy: StudentPolicy, robot: RobotDescription, names: Sequence[str], T: int,
+          formats: Sequence[str], parity: list[dict[str, Any]], worst: float, tolerance: float,
           source: Mapping[str, Any] | None) -> dict[str, Any]:
     stats = policy.processor.stats
     inputs = []
@@ -311,6 +354,7 @@ def _spec(policy: StudentPolicy, names: Sequence[str], T: int, formats: Sequence
     return {
         "format": FORMAT,
         "policy_type": policy.config.type,
+        "robot": robot.name,
         "files": {f: files[f] for f in formats},
         "inputs": inputs,
         "history": T,
@@ -320,10 +364,10 @@ def _spec(policy: StudentPolicy, names: Sequence[str], T: int, formats: Sequence
         "action_convention": {
             "joint_target": "default_pose + action_scale * clip(action, -clip_actions, "
                             "clip_actions)",
-            "default_pose": [float(v) for v in robot.DEFAULT_POSE],
-            "joint_names": list(robot.JOINT_NAMES),
-            "action_scale": robot.ACTION_SCALE, "clip_actions": robot.CLIP_ACTIONS,
-            "kp": robot.KP, "kd": robot.KD, "control_dt_s": robot.CONTROL_DT,
+            "default_pose": [float(v) for v in robot.default_pose],
+            "joint_names": list(robot.joints),
+            "action_scale": robot.action_scale, "clip_actions": robot.clip_actions,
+            "kp": robot.kp, "kd": robot.kd, "control_dt_s": robot.control_dt,
             "last_action": "feed this step's action back as next step's last_action input",
         },
         "statistics_note": "normalization is inside the graph; stats are listed for reference",

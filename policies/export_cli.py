@@ -52,6 +52,11 @@ class ExportConfig:
         absent_inputs: sensors that get an ``absent_<sensor>`` removal input: ``auto`` (the
             guarded sensors when the checkpoint has a guard, which is copied along; none
             otherwise), ``none``, or a comma list of exported sensors.
+        robot: the robot the export is for, whose numbers (joint names, default pose,
+            action scale, gains, control period) and name spec.json holds: a shipped robot's
+            name or a spec file's path, one the checkpoint was trained on (its config's
+            ``robots``); empty: the checkpoint's one robot (a robot that is not shipped is
+            given by its spec file; several: pick one).
     """
 
     policy: str = ""
@@ -66,6 +71,7 @@ class ExportConfig:
     tolerance: float = DEFAULT_TOLERANCE
     seed: int = 0
     absent_inputs: str = "auto"
+    robot: str = ""
 
     def __post_init__(self) -> None:
         if not self.policy:
@@ -105,11 +111,13 @@ def run(cfg: ExportConfig) -> dict[str, Any]:
         random_windows,
         recorded_windows,
         resolve_sensors,
+        spec_robot,
     )
     from msta.policies.factory import load_policy  # lazy: torch after parsing (--help at once)
 
     directory = Path(resolve_pretrained(cfg.policy, cfg.revision, policy_class=get_policy_class))
     policy = load_policy(directory)
+    robot = spec_robot(policy.config.robots, cfg.robot)  # before any work: a wrong robot fails
     names = resolve_sensors(policy, cfg.sensors)
     T = cfg.history or (MINIMIZED_HISTORY if cfg.sensors == "minimized" else policy.config.history)
     windows: dict[str, dict[str, np.ndarray]] = {}
@@ -126,13 +134,13 @@ def run(cfg: ExportConfig) -> dict[str, Any]:
     formats = [f.strip() for f in cfg.formats.split(",") if f.strip()]
     source = {"checkpoint": str(cfg.policy), "revision": cfg.revision, "dataset": dataset}
     absent, guard_dir = absent_inputs(cfg.absent_inputs, directory, names)
-    print(f"msta-export: {policy.config.type} student, {len(names)} sensors "
-          f"({', '.join(names)}), T = {T} -> {cfg.output_dir}"
+    print(f"msta-export: {policy.config.type} student for robot {robot.name}, {len(names)} "
+          f"sensors ({', '.join(names)}), T = {T} -> {cfg.output_dir}"
           + (f"; removal inputs for {', '.join(absent)}" if absent else "")
           + ("; with its guard" if guard_dir else ""))
     try:
         spec = export_student(policy, cfg.output_dir, cfg.sensors, T, formats, windows,
-                              cfg.tolerance, source, absent, guard_dir)
+                              cfg.tolerance, source, absent, guard_dir, robot)
     finally:
         _print_parity(Path(cfg.output_dir) / SPEC_NAME)
     return spec

@@ -22,7 +22,9 @@ from msta.policies.factory import load_config
 from msta.train.offline import main as train_main
 from msta.train.online import main as correct_main
 
-#: The student reads what the robot offers: no foot_contact, its torques and accelerometer.
+#: The student reads what the robot offers: no foot_contact, its torques and accelerometer
+#: (extension sensors, named because no default student reads them; the defaults alone would
+#: train too, without foot_contact: tests/train/test_robots.py).
 INPUTS = "[joint_pos,joint_vel,ang_vel,gravity,command,last_action,joint_torque,base_accel]"
 FLAT = ["--env.terrain.types=[flat]", "--env.terrain.num_levels=1",
         "--env.terrain.max_init_level=0", "--env.nthread=1"]

@@ -71,7 +71,7 @@ class StudentVecEnv(RslVecEnv):
 
     def __init__(self, env_cfg: EnvConfig, policy: StudentPolicy,
                  device: str | torch.device = "cpu", dummy_tokens: int = 0) -> None:
-        super().__init__(env_cfg, RMAConfig(), device)
+        super().__init__(env_cfg, RMAConfig.for_robot(env_cfg.robot_description), device)
         self.windows = StudentActor(policy, self.num_envs)
         self.dummy_tokens = int(dummy_tokens)
         self.dummy_rng = np.random.default_rng([int(env_cfg.seed), 0xD0])

@@ -21,6 +21,7 @@ every round.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 
 from msta.data.budget import TimeLimitReached, stop
@@ -29,12 +30,16 @@ from msta.train.train_config import TrainConfig
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    cfg = parse_cli(TrainConfig, argv, prog="msta-train")
+    args = list(sys.argv[1:] if argv is None else argv)
+    cfg = parse_cli(TrainConfig, args, prog="msta-train")
+    # inputs named on the command line must all be recorded; the default ones the dataset
+    # lacks are left out (msta.train.stage1.dataset_inputs)
+    given = any(a.partition("=")[0] == "--policy.input_sensors" for a in args)
     from msta.train.loop import rank0_runs  # lazy: torch after parsing (--help at once)
     from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
 
     try:  # under torchrun, rank 0 runs it and the others train with it (docs/scale.md)
-        rank0_runs(lambda: train(cfg), cfg.batch_size)
+        rank0_runs(lambda: train(cfg, inputs_given=given), cfg.batch_size)
     except USER_ERRORS as e:
         raise SystemExit(f"msta-train: error: {e}") from None
     except TimeLimitReached as e:

@@ -37,14 +37,15 @@ class RslVecEnv(VecEnv):
 
     Args:
         env_cfg: the simulator's configuration (``num_envs`` robots).
-        rma: the teacher whose input scaling the observation groups follow.
+        rma: the teacher whose input scaling the observation groups follow (default:
+            ``RMAConfig.for_robot`` of the simulated robot, its default pose).
         device: torch device of the returned tensors.
     """
 
     def __init__(self, env_cfg: EnvConfig, rma: RMAConfig | None = None,
                  device: str | torch.device = "cpu") -> None:
         self.sim = QuadrupedEnv(env_cfg)
-        self.rma = rma = rma or RMAConfig()
+        self.rma = rma = rma or RMAConfig.for_robot(env_cfg.robot_description)
         self.priv_in, self.proprio_in = InputScaler(rma.privileged), InputScaler(rma.proprio)
         self.num_envs = env_cfg.num_envs
         self.num_actions = NUM_JOINTS

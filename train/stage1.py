@@ -4,6 +4,7 @@ directory's checks, the resume check, and :func:`train`."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from collections.abc import Callable
@@ -13,7 +14,9 @@ from pathlib import Path
 import draccus
 import torch
 
+from msta.data import sensors
 from msta.data.budget import deadline_after
+from msta.data.features import load_info
 from msta.data.layout import LOCK_NAME
 from msta.data.locate import locate_dataset
 from msta.data.locking import hold_directory
@@ -21,6 +24,7 @@ from msta.data.msta_json import dataset_robot
 from msta.data.stats import load_stats
 from msta.data.threads import run_threads
 from msta.data.windows import episode_split
+from msta.policies.config import PolicyConfig
 from msta.policies.factory import make_policy, select_device
 from msta.train.config import training_mask_ratio
 from msta.train.loop import fit, load_windows, warn_if_not_learned
@@ -81,13 +85,52 @@ def check_resume_config(out: Path, cfg: TrainConfig) -> None:
                          f": saved {[saved.get(k) for k in bad]}, now {[now.get(k) for k in bad]}")
 
 
-def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | None = None
-          ) -> Path:
+def dataset_inputs(policy: PolicyConfig, root: Path, given: bool = False) -> PolicyConfig:
+    """The student config ``policy`` with inputs the dataset at ``root`` records.
+
+    A student left with its class's default inputs (the paper's seven) on a dataset that
+    lacks some of them (a Go1 dataset records no ``foot_contact``) reads the defaults the
+    dataset has, in their order, and one line says so; the config is returned unchanged when
+    the dataset records every input (an A1 dataset: the same student as before).
+
+    Args:
+        policy: the student's config.
+        root: the dataset root.
+        given: the inputs were named by the user (msta-train: ``--policy.input_sensors`` on
+            its command line): a sensor the dataset lacks is then an error even when they
+            equal the default.
+
+    Raises:
+        ValueError: (one line) named inputs the dataset does not record, or none of the
+            default inputs recorded.
+    """
+    have = load_info(root)["features"]
+    missing = [n for n in policy.input_sensors if sensors.get(n).column not in have]
+    if not missing:
+        return policy
+    robot = dataset_robot(root)
+    default = {f.name: f for f in dataclasses.fields(policy)}["input_sensors"].default
+    kept = tuple(n for n in policy.input_sensors if n not in missing)
+    lacks = f"the dataset {root} (robot {robot}) does not record {', '.join(missing)}"
+    if given or policy.input_sensors != default or not kept:
+        raise ValueError(f"--policy.input_sensors names {', '.join(missing)} but {lacks}; name "
+                         "inputs it records (or record them: msta-collect --extra_sensors)")
+    print(f"msta-train: {lacks}: the student reads the default inputs it records, "
+          f"--policy.input_sensors=[{','.join(kept)}]", flush=True)
+    return replace(policy, input_sensors=kept)
+
+
+def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | None = None,
+          inputs_given: bool = False) -> Path:
     """Run stage 1 and return ``output_dir/final``.
 
     Args:
         cfg: the parsed configuration.
         on_step: forwarded to :func:`fit` (tests use it to interrupt a run).
+        inputs_given: ``cfg.policy.input_sensors`` were named by the user (msta-train:
+            ``--policy.input_sensors`` on its command line), so the dataset must record each
+            of them; otherwise default inputs the dataset lacks are left out
+            (:func:`dataset_inputs`).
 
     The dataset is verified (``msta.data.locate.locate_dataset``) before ``output_dir`` is created; the
     run directory is then locked (``output_dir/.msta.lock``: a second msta-train on it gets
@@ -97,6 +140,13 @@ def train(cfg: TrainConfig, on_step: Callable[[int, dict[str, float]], None] | N
     out = Path(cfg.output_dir)
     root = locate_dataset(cfg.dataset, "--dataset")  # verified before anything is created
     with hold_directory(out, "another msta-train run"):
+        # the student as trained, before train_config.json is written or compared (--resume)
+        policy = dataset_inputs(cfg.policy, root, inputs_given)
+        robots = (dataset_robot(root),)  # every checkpoint records the dataset's robot
+        if policy.robots != robots:
+            policy = replace(policy, robots=robots)
+        if policy is not cfg.policy:  # an A1 dataset: the config as given
+            cfg = replace(cfg, policy=policy)
         return _train_locked(cfg, root, out, on_step, deadline)
 
 
@@ -110,9 +160,7 @@ def _train_locked(cfg: TrainConfig, root: Path, out: Path,
     torch.set_num_threads(run_threads(out, cfg.num_threads, resuming))
     device = select_device(cfg.device)
     seed_everything(cfg.seed)
-    policy = make_policy(cfg.policy, load_stats(root)).to(device)
-    # every checkpoint records the robot the dataset simulated (msta-correct, msta-eval check it)
-    policy.config.robots = (dataset_robot(root),)
+    policy = make_policy(cfg.policy, load_stats(root)).to(device)  # robots: the dataset's
     train_eps, val_eps = episode_split(root, cfg.val_fraction, cfg.seed)
     train_ds = load_windows(root, policy, train_eps)
     val_ds = load_windows(root, policy, val_eps) if val_eps else None

@@ -95,6 +95,8 @@ class QuadrupedEnv:
         self._runner = rollout.Rollout(nthread=nthread)
         self._datas = [mujoco.MjData(self.model) for _ in range(nthread)]
         self._template = robot.default_state(self.model, self.robot)
+        #: (legs + 1, 2) points a reset probes the ground at (robot.spawn_footprint)
+        self._footprint = robot.spawn_footprint(self.robot)
         self.soft_limits = soft_limits(robot.joint_limits(self.model),
                                        cfg.rewards.soft_dof_pos_limit)
         self.dt = cfg.dt
@@ -366,7 +368,7 @@ class QuadrupedEnv:
         yaw = rng.uniform(-np.pi, np.pi, n)
         st = np.tile(self._template, (n, 1))
         lay = self.layout
-        ground = self.terrain.height_at(xy[:, None, :] + self._footprint()[None]).max(axis=1)
+        ground = self.terrain.height_at(xy[:, None, :] + self._footprint[None]).max(axis=1)
         st[:, lay.base_pos] = np.column_stack([xy, ground + self.robot.spawn_height])
         st[:, lay.base_quat] = yaw_quat(yaw)
         self.state[ids] = st
@@ -391,9 +393,6 @@ class QuadrupedEnv:
                 self.meas[k][ids] = v
         self.commands.update_yaw_rate(fresh["yaw"], ids)
         self._hist[ids] = self._proprio(fresh, ids)[:, None, :]
-
-    def _footprint(self) -> np.ndarray:
-        return np.array([[0.2, 0.15], [0.2, -0.15], [-0.2, 0.15], [-0.2, -0.15], [0, 0]])
 
     def seed_sources(self, seed: int) -> None:
         """Reseed the noise of the sensors read from a measurement (registry ``source``, e.g.

@@ -1,6 +1,6 @@
-"""Gymnasium views of the batched simulator, registered as ``msta/A1-v0``.
+"""Gymnasium views of the batched simulator, registered as ``msta/A1-v0`` and ``msta/Go1-v0``.
 
-``import msta.collect.sim`` registers the id, the way Gymnasium's plugin packages do
+``import msta.collect.sim`` registers the ids, the way Gymnasium's plugin packages do
 (``import ale_py``, ``import gymnasium_robotics``; ``gym.register_envs(msta.collect.sim)`` keeps
 linters from dropping the import, ``gym.make("msta.collect.sim:msta/A1-v0")`` does the import
 itself). The package is what simulator users import anyway, and the registration names its
@@ -8,19 +8,25 @@ entry points as strings, so it costs only Gymnasium's import: MuJoCo and this mo
 when an env is made::
 
     import gymnasium as gym
-    import msta.collect.sim  # noqa: F401  (registers msta/A1-v0)
+    import msta.collect.sim  # noqa: F401  (registers msta/A1-v0, msta/Go1-v0)
 
     env = gym.make("msta/A1-v0", render_mode="rgb_array")           # MstaEnv, one robot
     envs = gym.make_vec("msta/A1-v0", num_envs=64,
                         vectorization_mode="vector_entry_point")    # MstaVectorEnv, batched
+    go1 = gym.make("msta/Go1-v0")                                   # the Go1 (robot="go1")
 
-Both take ``cfg`` (an ``EnvConfig``), ``sensors`` and ``actions`` as keyword arguments.
+Both take ``cfg`` (an ``EnvConfig``), ``sensors``, ``actions`` and ``robot`` as keyword
+arguments. ``msta/A1-v0`` simulates ``cfg.robot`` (the A1 by default; any robot description
+runs there); ``msta/Go1-v0`` is the same views with ``robot="go1"`` (a ``cfg`` naming another
+robot than the default is refused).
 
 Observations are a ``Dict`` space keyed by registry sensor name (``msta_data/sensors.py``),
 the names the simulator, the dataset columns and the policies use. By default they are the
-student's sensors (``STUDENT_SENSORS``: the paper's 49 scalars; ``FlattenObservation`` makes
-them one (49,) vector); ``sensors=`` names others too, e.g.
-``sensors=(*STUDENT_SENSORS, *PRIVILEGED_SENSORS)`` for a teacher's inputs or ``"height_map"``.
+student's sensors the robot offers (``STUDENT_SENSORS``: on the A1 the paper's 49 scalars,
+``FlattenObservation`` makes them one (49,) vector; the Go1 offers no ``foot_contact``: 45);
+``sensors=`` names others too, e.g. ``sensors=(*STUDENT_SENSORS, *PRIVILEGED_SENSORS)`` for a
+teacher's inputs or ``"height_map"``. A sensor the robot does not offer (its description's
+``sensors``) is refused in one line when the env is made.
 Every ``Box`` states a finite range (the joint range from the robot model, the config's
 command and randomization ranges, measured ranges where the physics has none: ``spaces.py``)
 and readings are clipped to it.
@@ -72,6 +78,7 @@ from __future__ import annotations
 
 import atexit
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any, ClassVar
 
@@ -87,11 +94,49 @@ from msta.collect.sim.render import PatchRenderer
 from msta.collect.sim.robot import joint_limits
 from msta.collect.sim.spaces import ACTION_MODES, ActionMap, action_bounds, observation_bounds
 from msta.collect.sim.terrain import sample_initial
-from msta.data.robot import NUM_JOINTS
+from msta.data.robot import NUM_JOINTS, RobotDescription
 from msta.data.sensors import STUDENT_SENSORS, get
 
 RESET_OPTIONS = ("type_idx", "level")
 INFO_KEYS = ("reason", "lin_vel_tracking", "ang_vel_tracking")
+
+
+def view_sensors(robot: RobotDescription, sensors: Sequence[str] | None) -> tuple[str, ...]:
+    """The sensors a view exposes: ``sensors``, each one the robot offers, or by default the
+    student's (``STUDENT_SENSORS``) that the robot offers (on the A1 all of them; on the Go1
+    all but ``foot_contact``).
+
+    Args:
+        robot: the simulated robot's description (its ``sensors``).
+        sensors: registry names, or None (empty) for the default.
+
+    Raises:
+        KeyError: a name the registry does not know (the message lists the known ones).
+        ValueError: (one line) a sensor the robot does not offer.
+    """
+    if not sensors:
+        return tuple(s for s in STUDENT_SENSORS if s in robot.sensors)
+    names = tuple(sensors)
+    for s in names:
+        get(s)  # KeyError naming the unknown sensor
+    missing = [s for s in names if s not in robot.sensors]
+    if missing:
+        raise ValueError(f"robot {robot.name!r} does not offer {', '.join(missing)} "
+                         f"(sensors=); it offers {', '.join(robot.sensors)}")
+    return names
+
+
+def robot_config(cfg: EnvConfig | None, robot: str | None) -> EnvConfig:
+    """``cfg`` (default ``EnvConfig()``) simulating ``robot`` when one is given (an id's
+    robot: ``msta/Go1-v0`` passes ``"go1"``); a ``cfg`` naming yet another robot is refused in
+    one line."""
+    cfg = cfg or EnvConfig()
+    if robot is None or cfg.robot == robot:
+        return cfg
+    if cfg.robot != EnvConfig.robot:
+        raise ValueError(f"robot={robot!r} but cfg.robot={cfg.robot!r}: give one of them (an "
+                         "id's robot: make msta/A1-v0 with cfg.robot instead)")
+    return replace(cfg, robot=robot)
 
 
 class _View:
@@ -103,14 +148,13 @@ class _View:
     def _setup(self, cfg: EnvConfig, sensors: tuple[str, ...] | None, render_mode: str | None,
                width: int, height: int, actions: str) -> gym.spaces.Dict:
         if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode={render_mode!r}; msta/A1-v0 renders 'rgb_array' only")
+            raise ValueError(f"render_mode={render_mode!r}; the msta envs render 'rgb_array' "
+                             "only")
         if width < 1 or height < 1:
             raise ValueError(f"render size {width}x{height} must be positive")
         if actions not in ACTION_MODES:
             raise ValueError(f"actions={actions!r}; expected one of {list(ACTION_MODES)}")
-        self.sensors = tuple(sensors) if sensors else STUDENT_SENSORS
-        for s in self.sensors:
-            get(s)  # KeyError naming the unknown sensor
+        self.sensors = view_sensors(cfg.robot_description, sensors)
         self.sim = QuadrupedEnv(cfg)
         self.actions = actions
         self._map = ActionMap(joint_limits(self.sim.model), self.sim.cfg.control.action_scale,
@@ -227,27 +271,31 @@ def _infos(res: StepResult, stepped: np.ndarray) -> dict[str, Any]:
 
 
 class MstaEnv(_View, gym.Env):
-    """One simulated robot as a ``gymnasium.Env`` (``gym.make("msta/A1-v0")``).
+    """One simulated robot as a ``gymnasium.Env`` (``gym.make("msta/A1-v0")``,
+    ``gym.make("msta/Go1-v0")``).
 
     After an episode ends, call ``reset()`` (stepping on raises): the observation of the
     ending step is the episode's last one (the simulator's ``final_obs``).
 
     Args:
         cfg: simulator config; ``num_envs`` and ``nthread`` are set to 1.
-        sensors: registry sensors to expose (default: the student's, ``STUDENT_SENSORS``;
-            name privileged ones or ``height_map`` to get them too).
+        sensors: registry sensors to expose, each one the robot offers (default: the
+            student's, ``STUDENT_SENSORS``, the robot offers; name privileged ones or
+            ``height_map`` to get them too).
         render_mode: None or "rgb_array" (``render()`` returns a (height, width, 3) uint8 frame).
         width, height: render size in pixels.
         actions: "normalized" (default: [-1, 1] per joint, 0 the default pose, +-1 the joint
             stops) or "simulator" (the simulator's and the datasets' action, +-clip_actions).
+        robot: the robot to simulate in place of ``cfg.robot``'s (``msta/Go1-v0`` passes
+            ``"go1"``; a ``cfg`` naming another robot than the default is refused).
     """
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 50}
 
     def __init__(self, cfg: EnvConfig | None = None, sensors: tuple[str, ...] | None = None,
                  render_mode: str | None = None, width: int = 480, height: int = 360,
-                 actions: str = "normalized") -> None:
-        cfg = replace(cfg or EnvConfig(), num_envs=1, nthread=1)
+                 actions: str = "normalized", robot: str | None = None) -> None:
+        cfg = replace(robot_config(cfg, robot), num_envs=1, nthread=1)
         self.observation_space = self._setup(cfg, sensors, render_mode, width, height, actions)
         self.action_space = self._action_box()
 
@@ -289,13 +337,15 @@ class MstaVectorEnv(_View, VectorEnv):
 
     Args:
         cfg: simulator config (``cfg.num_envs`` environments).
-        sensors: registry sensors to expose (default: the student's, ``STUDENT_SENSORS``).
+        sensors: registry sensors to expose (default: the student's the robot offers), as
+            ``MstaEnv``'s.
         num_envs: overrides ``cfg.num_envs`` (``gym.make_vec`` always passes it).
         autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``SAME_STEP`` (or their
             string values "NextStep", "SameStep").
         render_mode: None or "rgb_array" (``render()`` returns one frame per env).
         width, height: render size in pixels.
         actions: "normalized" (default) or "simulator", as ``MstaEnv``'s.
+        robot: the robot to simulate in place of ``cfg.robot``'s, as ``MstaEnv``'s.
     """
 
     metadata: ClassVar[dict] = {"autoreset_mode": AutoresetMode.NEXT_STEP,
@@ -305,13 +355,13 @@ class MstaVectorEnv(_View, VectorEnv):
                  num_envs: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  render_mode: str | None = None, width: int = 480, height: int = 360,
-                 actions: str = "normalized") -> None:
+                 actions: str = "normalized", robot: str | None = None) -> None:
         modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
         mode = next((m for m in modes if autoreset_mode in (m, m.value)), None)
         if mode is None:
             raise ValueError(f"autoreset_mode={autoreset_mode!r}; expected one of "
                              f"{[m.value for m in modes]}")
-        cfg = cfg or EnvConfig()
+        cfg = robot_config(cfg, robot)
         if num_envs is not None:
             cfg = replace(cfg, num_envs=num_envs)
         self.single_observation_space = self._setup(cfg, sensors, render_mode, width, height,

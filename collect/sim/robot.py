@@ -234,3 +234,24 @@ __all__ = [
     "SENS_TRUNK", "StateLayout", "build_model", "check_collision_set", "default_state",
     "imu_sensor", "joint_limits", "state_layout",
 ]
+
+
+#: The spawn ground probe's grid (m): the hips' extent is grown outward to a multiple of it.
+FOOTPRINT_GRID = 0.05
+
+
+def spawn_footprint(robot: RobotDescription) -> np.ndarray:
+    """(legs + 1, 2) base-frame (x, y) points where a reset probes the ground under a robot
+    (the spawn height counts from the highest): each leg's hip, at x its hip offset and at y
+    its hip offset plus its thigh's lateral offset (the leg's plane), grown outward to the
+    next multiple of ``FOOTPRINT_GRID`` (a margin for feet off the hips), and the base centre.
+    The A1: (+-0.2, +-0.15) and (0, 0).
+
+    Args:
+        robot: the simulated robot's description (``hip_offsets``, ``thigh_offset_y``).
+    """
+    hips = np.array(robot.hip_offsets, dtype=np.float64)                    # (legs, 2)
+    hips[:, 1] += np.array(robot.thigh_offset_y, dtype=np.float64)
+    steps = np.ceil(np.abs(hips) / FOOTPRINT_GRID - 1e-9)  # 1e-9: an exact multiple stays
+    points = np.sign(hips) * steps / round(1.0 / FOOTPRINT_GRID)  # k / 20 m: 0.15, not 3 x 0.05
+    return np.vstack([points, np.zeros((1, 2))])

@@ -28,7 +28,7 @@ import torch
 from safetensors.torch import load_file, save_file
 from torch import Tensor, nn
 
-from msta.data.robot import DEFAULT_POSE, RobotDescription
+from msta.data.robot import A1, RobotDescription
 from msta.data.sensors import ACTION_DIM
 from msta.policies.teacher.base import check_obs, register_teacher, teacher_view
 from msta.policies.teacher.imported import InputScaler, SignalSpec
@@ -59,11 +59,15 @@ def default_privileged() -> list[SignalSpec]:
     ]
 
 
-def default_proprio() -> list[SignalSpec]:
-    """o_t: the student's 49 scalars with legged_gym scales (joint_pos minus the default
-    pose, joint_vel x0.05, ang_vel x0.25, command x(2, 2, 0.25))."""
+def default_proprio(robot: RobotDescription = A1) -> list[SignalSpec]:
+    """o_t: the student's 49 scalars with legged_gym scales (joint_pos minus the robot's
+    default pose, joint_vel x0.05, ang_vel x0.25, command x(2, 2, 0.25)).
+
+    Args:
+        robot: the robot the teacher is for (its ``default_pose``; default the A1).
+    """
     return [
-        SignalSpec("joint_pos", offset=[float(v) for v in DEFAULT_POSE]),
+        SignalSpec("joint_pos", offset=[float(v) for v in robot.default_pose]),
         SignalSpec("joint_vel", scale=0.05),
         SignalSpec("ang_vel", scale=0.25),
         SignalSpec("gravity"),
@@ -79,7 +83,8 @@ class RMAConfig:
 
     Args:
         privileged: signals of e_t, in order (privileged registry sensors by default).
-        proprio: signals of o_t, in order (the 49 student scalars by default).
+        proprio: signals of o_t, in order (the 49 student scalars by default, joint angles
+            relative to the A1's default pose; :meth:`for_robot`: another robot's).
         encoder_hidden: hidden widths of the factor encoder mu (paper: 512, 256, 128).
         latent_dim: width of l_t (not stated in the paper; RMA used 8 for 17 factors, we
             encode 205 privileged values incl. a 187-point height scan).
@@ -107,6 +112,17 @@ class RMAConfig:
         # validates names, per-channel lengths and duplicates
         InputScaler(self.privileged)
         InputScaler(self.proprio)
+
+    @classmethod
+    def for_robot(cls, robot: RobotDescription, **overrides: Any) -> RMAConfig:
+        """The default config of a new teacher for ``robot``: its joint angles read relative
+        to that robot's default pose (the A1: ``RMAConfig()``).
+
+        Args:
+            robot: the simulated robot's description.
+            overrides: other fields of the config.
+        """
+        return cls(proprio=default_proprio(robot), **overrides)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with ``"type": "rma"``."""

@@ -8,6 +8,7 @@ import logging
 import os
 import subprocess
 import sys
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from lerobot.envs.utils import (
 from lerobot_env_msta import MstaA1EnvConfig  # installed by the Makefile's venv step
 from lerobot_env_msta.vector_env import VIDEO_OFF_WARNING, A1VectorEnv
 from msta.data import derived
+from msta.data.robot import load_robot
 from msta.data.sensors import SENSORS, STUDENT_SENSORS
 
 LEROBOT_EVAL = Path(sys.executable).with_name("lerobot-eval")
@@ -63,11 +65,44 @@ def test_only_the_robots_lerobot_keeps_are_filmed():
         env.close()
 
 
+def test_the_robot_option_takes_the_rate_and_the_sensors_from_its_description(tmp_path):
+    assert MstaA1EnvConfig().robot == "a1" and MstaA1EnvConfig().fps == 50  # the A1's 0.005 x 4
+    cfg = MstaA1EnvConfig(robot="go1", terrains=("flat",), levels=(0,), episode_length_s=0.1,
+                          video=False, randomization=False)
+    go1 = load_robot("go1")
+    assert cfg.fps == round(1 / (go1.sim_dt * go1.decimation)) == 50  # 0.004 s x 5
+    offered = [s for s in STUDENT_SENSORS if s != "foot_contact"]
+    width = sum(SENSORS[s].dim for s in offered)
+    assert env_to_policy_features(cfg)[derived.STATE_COLUMN].shape == (width,) == (45,)
+    env = cfg.create_envs(n_envs=2)["flat"][0]
+    try:
+        assert env.sim_env.sim.robot.name == "go1"
+        obs, _ = env.reset(seed=[1, 2])
+        raw = env.sim_env.sim.last_obs
+        np.testing.assert_array_equal(
+            obs["agent_pos"], np.concatenate([raw[s] for s in offered], axis=1))
+        assert env.observation_space.contains(obs)
+        obs, *_ = env.step(np.zeros((2, 12), np.float32))
+        assert obs["agent_pos"].shape == (2, width)
+    finally:
+        env.close()
+    # a robot whose description runs at another rate: its rate, and no other
+    data = tomllib.loads(go1.spec_file.read_text()) | {
+        "name": "slow", "mjcf": str(go1.mjcf_path), "decimation": 10}
+    spec = tmp_path / "slow.toml"
+    spec.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in data.items()))
+    assert MstaA1EnvConfig(robot=str(spec)).fps == 25
+    with pytest.raises(ValueError, match="fps=50: robot 'slow' runs at 25 Hz"):
+        MstaA1EnvConfig(robot=str(spec), fps=50)
+    with pytest.raises(ValueError, match="robot=b2: unknown robot 'b2'"):
+        MstaA1EnvConfig(robot="b2")
+
+
 @pytest.mark.parametrize(("option", "message"), [
     ({"terrains": ("ice",)}, "unknown terrain 'ice'"),
     ({"terrains": ()}, "terrains is empty"),
     ({"levels": (0, 10)}, r"levels \[0, 10\] must be levels in \[0, 10\)"),
-    ({"fps": 30}, "runs at 50 Hz"),
+    ({"fps": 30}, "robot 'a1' runs at 50 Hz"),
     ({"episode_length_s": 0.0}, "episode_length_s=0.0 must be > 0"),
     ({"platform_size": 9.0}, r"platform_size=9.0 must be in \[0, 8.0\] m"),
     ({"video_robots": -1}, "video_robots=-1 must be >= 0"),

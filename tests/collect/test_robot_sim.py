@@ -14,11 +14,20 @@ import pytest
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import ControlConfig, EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
-from msta.collect.sim.robot import build_model
+from msta.collect.sim.robot import build_model, spawn_footprint
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig
 from msta.collect.simulate import main as sim_main
-from msta.data.robot import A1, ACTION_SCALE, CLIP_ACTIONS, DECIMATION, KD, KP, SIM_DT
+from msta.data.robot import (
+    A1,
+    ACTION_SCALE,
+    CLIP_ACTIONS,
+    DECIMATION,
+    KD,
+    KP,
+    SIM_DT,
+    load_robot,
+)
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
                      curriculum=False)
@@ -163,3 +172,18 @@ def test_msta_sim_passes_robot_through(tmp_path, capsys):
         sim_main(["--env.robot=b2", f"--output_dir={tmp_path / 'out'}"])
     err = capsys.readouterr().err.strip()
     assert e.value.code == 2 and len(err.splitlines()) == 1 and "unknown robot 'b2'" in err
+
+
+def test_the_spawn_probe_is_derived_from_the_hips_and_the_a1s_is_as_before(tmp_path):
+    """A reset probes the ground at the hips grown out to 5 cm (and the base centre): on the
+    A1 exactly the points it probed before they were derived; a wider robot probes wider."""
+    before = np.array([[0.2, 0.15], [0.2, -0.15], [-0.2, 0.15], [-0.2, -0.15], [0, 0]])
+    assert np.array_equal(spawn_footprint(A1), before)  # the same numbers, bit for bit
+    assert np.array_equal(spawn_footprint(load_robot("go1")), before)  # 0.188 / 0.127 m
+    spec = write_spec(tmp_path, "wide", name="wide",
+                      hip_offsets=[[0.31, 0.1], [0.31, -0.1], [-0.25, 0.1], [-0.25, -0.1]])
+    wide = spawn_footprint(load_robot(spec))  # y: 0.1 + 0.08505 -> 0.2
+    np.testing.assert_array_equal(wide, [[0.35, 0.2], [0.35, -0.2], [-0.25, 0.2], [-0.25, -0.2],
+                                         [0, 0]])
+    env = QuadrupedEnv(EnvConfig(num_envs=1, nthread=1, terrain=FLAT, robot=str(spec)))
+    np.testing.assert_array_equal(env._footprint, wide)  # what its resets probe

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import pytest
+from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
 
+from msta.data.sensors import STUDENT_SENSORS
 from msta.eval.label_check import LabelCheckConfig, label_check, main, render
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.teacher.config import TeacherConfig
@@ -50,3 +52,24 @@ def test_clear_errors(args, message, tiny_ckpt, capsys):
         main(argv)
     err = capsys.readouterr().err
     assert exc.value.code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_robot_runs_the_env_and_the_teacher_on_that_robot(tmp_path, capsys):
+    """--robot=go1 simulates the Go1 and builds the teacher for it (the gait controller reads
+    the simulator's contacts there); a student trained on another robot is refused."""
+    no_contacts = tuple(s for s in STUDENT_SENSORS if s != "foot_contact")
+    go1_ckpt = tiny_msta(3, robots=("go1",), input_sensors=no_contacts).save_pretrained(
+        tmp_path / "go1")
+    cfg = LabelCheckConfig(policy=PolicyPath(str(go1_ckpt)), robot="go1", robots=2,
+                           student_seconds=0.04, episode_length_s=0.1, max_level=0,
+                           teacher=TeacherConfig(type="gait"))
+    rows = label_check(cfg)
+    assert rows["teacher"]["lin_tracking"] == pytest.approx(1.0)
+    assert all(r["robots"] == 2 for r in rows.values()) and "takeover follow" in rows
+    with pytest.raises(SystemExit):  # an A1 student on the Go1
+        main([f"--policy.path={tiny_msta(3).save_pretrained(tmp_path / 'a1')}", "--robot=go1"])
+    err = capsys.readouterr().err
+    assert "trained on robot 'a1', not 'go1' (--robot)" in err and len(err.strip().splitlines()) == 1
+    with pytest.raises(SystemExit):
+        main([f"--policy.path={go1_ckpt}", "--robot=b2"])
+    assert "robot=b2: unknown robot 'b2'" in capsys.readouterr().err

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tomllib
 
 import pytest
 import torch
@@ -11,6 +12,8 @@ import torch
 import msta.eval.teacher_curve as tc
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.terrain import TerrainConfig
+from msta.data.robot import A1
+from msta.policies.teacher.config import TeacherConfig
 from msta.train.ppo_config import PPOConfig
 from msta.train.teacher.config import TrainTeacherConfig, WarmStartConfig
 from msta.train.teacher.run import train_teacher
@@ -86,3 +89,24 @@ def test_a_directory_without_a_curve_is_a_one_line_error(tmp_path, capsys):
         tc.main([f"--run={tmp_path}"])
     assert e.value.code == 2
     assert "no curve.json" in capsys.readouterr().err
+
+
+def test_robot_is_the_robot_every_teacher_runs_on(tmp_path):
+    """--robot reaches the simulator: a limp robot (kp 0.5) falls where the A1 stands, and
+    its figures are cached apart from the A1's (whose cache key is as before)."""
+    (tmp_path / "curve.json").write_text("[]")
+    data = tomllib.loads(A1.spec_file.read_text()) | {"name": "limp", "mjcf": str(A1.mjcf_path),
+                                                     "kp": 0.5}
+    limp = tmp_path / "limp.toml"
+    limp.write_text("".join(f"{k} = {json.dumps(v)}\n" for k, v in data.items()))
+    common = {"run": str(tmp_path), "terrains": "flat", "level": 0, "episodes": 2,
+              "envs_per_tile": 2, "episode_length_s": 1.0, "nthread": 1, "image": "",
+              "progress": False}
+    a1, other = tc.TeacherCurveConfig(**common), tc.TeacherCurveConfig(**common, robot=str(limp))
+    zero = TeacherConfig(type="zero")
+    assert tc.survival_of(zero, a1) == {"flat": 1.0}
+    assert tc.survival_of(zero, other) == {"flat": 0.0}
+    assert "robot" not in tc.settings_key(a1)
+    assert tc.settings_key(other) == {**tc.settings_key(a1), "robot": str(limp)}
+    with pytest.raises(ValueError, match="robot=b2: unknown robot 'b2'"):
+        tc.TeacherCurveConfig(**common, robot="b2")

@@ -99,3 +99,29 @@ def test_the_stairs_strip_is_a_film_of_the_rollout_loop(tmp_path):
                             frames=3)
     strip = matplotlib.image.imread(path)
     assert strip.shape[:2] == (360, 3 * 480) and strip.std() > 0.02
+
+
+def test_robot_simulates_that_robot_and_builds_the_teacher_for_it():
+    """--robot=go1: the tile's figures are those of the gait teacher built for the Go1 on the
+    Go1 (the same rollout by hand); the report and its Regenerate line name the robot."""
+    cfg = tiny(robot="go1", teacher=TeacherConfig(type="gait"), episodes=1, envs_per_tile=1,
+               levels="0")
+    row = tr.evaluate(cfg)[("flat", 0)]
+    env = QuadrupedEnv(EnvConfig(robot="go1", num_envs=1, seed=cfg.seed, nthread=1,
+                                 episode_length_s=cfg.episode_length_s,
+                                 terrain=TerrainConfig(types=("flat",), columns_per_type=1,
+                                                       curriculum=False)))
+    env.reset(type_idx=np.zeros(1, dtype=np.int64), level=np.array([0]))
+    teacher = build_teacher(TeacherConfig(type="gait"), env.cfg.teacher_robot)
+    assert teacher.robot.name == "go1"
+    errs = []
+    rollout(env, teacher,
+            lambda s: errs.append(step_quantities(s)["vel_err"][0]) or bool(s.res.done[0]))
+    assert row["lin_err"] == pytest.approx(np.mean(errs), rel=1e-12)
+    assert tr.command_line(cfg).startswith(
+        "python -m msta.eval.teacher_report --teacher.type=gait --robot=go1 ")
+    md = tr.render_markdown({("flat", 0): row}, cfg, tr.command_line(cfg), 1.0, None)
+    assert md.startswith("# Teacher quality: `gait` on `go1`")
+    assert "--robot" not in tr.command_line(tiny())  # the A1: the line as before
+    with pytest.raises(ValueError, match="robot=b2: unknown robot 'b2'"):
+        tiny(robot="b2")

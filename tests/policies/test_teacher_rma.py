@@ -10,10 +10,10 @@ import torch
 
 from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
-from msta.data.robot import DEFAULT_POSE
+from msta.data.robot import A1, DEFAULT_POSE, load_robot
 from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, STUDENT_SENSORS, get
 from msta.policies.teacher.base import TEACHERS, Teacher, make_teacher
-from msta.policies.teacher.imported import SignalSpec
+from msta.policies.teacher.imported import InputScaler, SignalSpec
 from msta.policies.teacher.rma import RMAConfig, RMATeacher
 
 SMALL = {"encoder_hidden": (16, 8), "latent_dim": 4, "policy_hidden": (8,)}
@@ -210,3 +210,18 @@ def test_the_shipped_ppo_teacher_climbs_stairs_the_gait_controller_falls_on() ->
     ppo = stairs_survival(build_teacher(TeacherConfig(type="rma", path=str(SHIPPED_RMA_PPO))))
     gait = stairs_survival(build_teacher(TeacherConfig(type="gait")))
     assert ppo >= gait + 0.15, (ppo, gait)
+
+
+def test_a_new_teachers_joint_angles_are_relative_to_its_robots_default_pose():
+    """RMAConfig.for_robot: the A1's is RMAConfig() as before; the Go1's reads its joint
+    angles relative to the Go1's default pose (thigh 0.9, calf -1.8)."""
+    assert RMAConfig.for_robot(A1).to_dict() == RMAConfig().to_dict()
+    assert RMAConfig().proprio[0].offset == [float(v) for v in DEFAULT_POSE]
+    go1 = load_robot("go1")
+    cfg = RMAConfig.for_robot(go1, latent_dim=4)
+    joint_pos = next(s for s in cfg.proprio if s.name == "joint_pos")
+    assert joint_pos.offset == list(go1.default_pose) and cfg.latent_dim == 4
+    scaler = InputScaler(cfg.proprio)
+    obs = {s.name: np.zeros((1, get(s.name).dim)) for s in cfg.proprio}
+    obs["joint_pos"] = np.array([go1.default_pose])
+    assert np.abs(scaler(obs)[:, :12]).max() == 0.0  # the default pose reads 0

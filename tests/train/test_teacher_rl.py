@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from msta_test_helpers import write_robot_spec  # registered by tests/conftest.py
 from rsl_rl.env import VecEnv
 from rsl_rl.runners import OnPolicyRunner
 
@@ -288,3 +289,18 @@ def test_a_ppo_checkpoint_carrying_a_pickle_payload_is_refused_and_never_runs(tm
         train_teacher(cfg, log=lambda line: None)
     assert str(tmp_path / "ppo" / "model_1.pt") in str(err.value) and "\n" not in str(err.value)
     assert not marker.exists()
+
+
+def test_a_new_teacher_reads_joint_angles_relative_to_its_robots_default_pose(tmp_path):
+    """The training env of a robot with another default pose scales its joint angles by that
+    pose (RMAConfig.for_robot), not the A1's."""
+    pose = [0.05, 0.9, -1.6, -0.05, 0.9, -1.6, 0.05, 1.1, -1.6, -0.05, 1.1, -1.6]
+    spec = write_robot_spec(tmp_path, "posed")
+    spec.write_text(spec.read_text().replace(
+        next(ln for ln in spec.read_text().splitlines() if ln.startswith("default_pose")),
+        f"default_pose = {json.dumps(pose)}"))
+    env = RslVecEnv(small_env(n=2, seconds=0.2, robot=str(spec)))
+    assert env.rma.proprio[0].offset == pose
+    obs = env.get_observations()[PROPRIO].numpy()
+    np.testing.assert_allclose(obs[:, :12], env.raw_obs["joint_pos"] - np.array(pose), atol=1e-6)
+    assert RslVecEnv(small_env(n=2, seconds=0.2)).rma.to_dict() == RMAConfig().to_dict()

@@ -46,7 +46,7 @@ def _train_teacher_locked(cfg: TrainTeacherConfig, out: Path, log) -> Path:
     """:func:`train_teacher` once output_dir is locked."""
     torch.set_num_threads(resolve_threads(cfg.num_threads))
     torch.manual_seed(cfg.seed)
-    rma = RMAConfig()
+    rma = RMAConfig.for_robot(cfg.env.robot_description)  # its default pose
     resuming = cfg.ppo.iterations > 0 and latest_checkpoint(out / "ppo") is not None
     init_from = str(Path(cfg.init_from).resolve()) if cfg.init_from else ""
     record_path = out / "train_teacher.json"

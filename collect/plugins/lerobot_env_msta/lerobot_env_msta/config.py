@@ -3,10 +3,13 @@
 lerobot-eval builds the envs through :meth:`MstaA1EnvConfig.create_envs`: one task group
 per terrain type (lerobot-eval prints "Aggregated Metrics for <terrain>" and an overall
 line), each a batched :class:`~lerobot_env_msta.vector_env.A1VectorEnv` (all robots of a
-batch in one simulator, so ``--eval.use_async_envs`` changes nothing). The features are
-those of an msta dataset: ``agent_pos`` -> ``observation.state`` (the 49 student scalars),
-``environment_state`` -> ``observation.environment_state`` (the velocity command), and the
-12-dim action (the simulator's: offsets from the default pose in units of action_scale).
+batch in one simulator, so ``--eval.use_async_envs`` changes nothing). ``--env.robot`` names
+the simulated robot (the A1 by default; docs/robots.md): its description sets the control
+rate (``fps``) and which sensors there are. The features are those of an msta dataset of
+that robot: ``agent_pos`` -> ``observation.state`` (the student scalars the robot offers: the
+A1's 49, the Go1's 45 without foot contacts), ``environment_state`` ->
+``observation.environment_state`` (the velocity command), and the 12-dim action (the
+simulator's: offsets from the default pose in units of action_scale).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 
 from msta.collect.sim.terrain import LEGGED_GYM_TYPE_WEIGHTS, TERRAIN_TYPES, TerrainConfig
 from msta.data import derived
-from msta.data.robot import DECIMATION, SIM_DT
+from msta.data.robot import RobotDescription, load_robot
 from msta.data.sensors import ACTION_DIM, SENSORS
 
 if TYPE_CHECKING:
@@ -28,16 +31,28 @@ if TYPE_CHECKING:
 
 #: The paper's five terrain types (the default task groups).
 PAPER_TERRAINS: tuple[str, ...] = tuple(LEGGED_GYM_TYPE_WEIGHTS)
-#: Control rate of the simulator (Hz): 0.005 s physics steps x 4.
-CONTROL_FPS = int(round(1.0 / (SIM_DT * DECIMATION)))
 #: Env observation keys (what lerobot's ``preprocess_observation`` maps) -> dataset columns.
 OBS_KEYS: dict[str, str] = {"agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE}
 
 
-def observation_features() -> dict[str, PolicyFeature]:
+def control_fps(robot: RobotDescription) -> int:
+    """The robot's control rate (Hz): 1 / (``sim_dt`` x ``decimation``), the A1's 50.
+
+    Args:
+        robot: the simulated robot's description.
+    """
+    return int(round(1.0 / robot.control_dt))
+
+
+def observation_features(robot: RobotDescription | None = None) -> dict[str, PolicyFeature]:
     """``agent_pos`` / ``environment_state`` features: the derived columns of a dataset that
-    records every sensor (:mod:`msta.data.derived`, the same order and sizes)."""
-    columns = [s.column for s in SENSORS.values()]
+    records every sensor the robot offers (:mod:`msta.data.derived`, the same order and
+    sizes).
+
+    Args:
+        robot: the simulated robot's description (None: every registry sensor, the A1's).
+    """
+    columns = [s.column for s in SENSORS.values() if robot is None or s.name in robot.sensors]
     feats = derived.features(columns)
     kinds = {OBS_STATE: FeatureType.STATE, OBS_ENV_STATE: FeatureType.ENV}
     return {key: PolicyFeature(type=kinds[col], shape=tuple(feats[col]["shape"]))
@@ -47,7 +62,8 @@ def observation_features() -> dict[str, PolicyFeature]:
 @EnvConfig.register_subclass("msta_a1")
 @dataclass
 class MstaA1EnvConfig(EnvConfig):
-    """msta's A1 quadruped in MuJoCo on legged_gym terrains (``--env.type=msta_a1``).
+    """msta's quadruped in MuJoCo on legged_gym terrains (``--env.type=msta_a1``): the A1,
+    or the robot ``--env.robot`` names.
 
     An episode succeeds when the robot is still up at the time limit (the simulator's
     ``timeout`` end); the reward is the simulator's per-step reward (``collect/sim/rewards.py``).
@@ -58,8 +74,12 @@ class MstaA1EnvConfig(EnvConfig):
 
     task: str | None = "A1-v0"
     """a label only (lerobot logs it); the terrains are the tasks."""
-    fps: int = CONTROL_FPS
-    """control rate (Hz); fixed by the simulator (0.005 s physics steps x 4)."""
+    robot: str = "a1"
+    """the simulated robot: a shipped robot's name (a1, go1) or the path of a robot spec file
+    (docs/robots.md); its description sets the control rate and the sensors."""
+    fps: int = 0
+    """control rate (Hz); fixed by the robot (sim_dt x decimation of its description: the A1's
+    0.005 s x 4, 50 Hz). 0: the robot's; another value than the robot's is refused."""
     terrains: tuple[str, ...] = PAPER_TERRAINS
     """terrain types, one lerobot-eval task group each (``--eval.n_episodes`` per terrain);
     known: flat, smooth_slope, rough_slope, stairs_up, stairs_down, discrete."""
@@ -107,9 +127,16 @@ class MstaA1EnvConfig(EnvConfig):
 
     def __post_init__(self) -> None:
         self.terrains, self.levels = tuple(self.terrains), tuple(int(v) for v in self.levels)
-        if self.fps != CONTROL_FPS:
-            raise ValueError(f"fps={self.fps}: msta_a1 runs at {CONTROL_FPS} Hz (fixed by the "
-                             "simulator)")
+        try:
+            described = load_robot(self.robot)
+        except ValueError as e:
+            raise ValueError(f"robot={self.robot}: {e}") from None
+        rate = control_fps(described)
+        self.fps = self.fps or rate
+        if self.fps != rate:
+            raise ValueError(f"fps={self.fps}: robot {described.name!r} runs at {rate} Hz "
+                             "(fixed by its description's sim_dt x decimation)")
+        self.features = {**self.features, **observation_features(described)}
         if not self.terrains:
             raise ValueError("terrains is empty; name at least one terrain type")
         for t in self.terrains:
@@ -159,7 +186,7 @@ class MstaA1EnvConfig(EnvConfig):
         from msta.collect.sim.randomization import RandomizationConfig
 
         return SimConfig(
-            num_envs=num_envs, episode_length_s=self.episode_length_s, nthread=self.nthread,
+            robot=self.robot, num_envs=num_envs, episode_length_s=self.episode_length_s, nthread=self.nthread,
             terrain=TerrainConfig(types=(terrain,), curriculum=False,
                                   platform_size=self.platform_size),
             commands=CommandConfig(use_heading=self.heading_commands),

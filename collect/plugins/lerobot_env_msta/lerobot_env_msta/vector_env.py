@@ -3,7 +3,8 @@
 :class:`A1VectorEnv` wraps :class:`msta.collect.sim.gym_env.MstaVectorEnv` (one simulator, all
 robots of a batch, NEXT_STEP autoreset) and changes only what LeRobot reads:
 
-- observations ``{"agent_pos": (N, 49), "environment_state": (N, 3)}``, which lerobot's
+- observations ``{"agent_pos": (N, 49), "environment_state": (N, 3)}`` (the A1's; on a robot
+  that offers fewer student sensors, ``agent_pos`` holds those: the Go1's 45), which lerobot's
   ``preprocess_observation`` turns into ``observation.state`` / ``observation.environment_state``;
   built by :func:`msta.data.derived.derive`, the function that writes those columns into
   msta datasets, so a policy sees here what it was trained on;
@@ -26,9 +27,9 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from msta.collect.sim.env_config import EnvConfig as SimConfig
-from msta.collect.sim.gym_env import MstaVectorEnv
+from msta.collect.sim.gym_env import MstaVectorEnv, view_sensors
 from msta.data import derived
-from msta.data.sensors import STUDENT_SENSORS, get
+from msta.data.sensors import get
 
 #: Env observation key -> the msta dataset column it equals.
 OBS_COLUMNS: dict[str, str] = {"agent_pos": derived.STATE_COLUMN,
@@ -45,10 +46,11 @@ logger = logging.getLogger(__name__)
 
 
 class A1VectorEnv(VectorEnv):
-    """``num_envs`` A1 robots on one terrain type, as lerobot-eval expects a vector env.
+    """``num_envs`` robots on one terrain type, as lerobot-eval expects a vector env.
 
     Args:
-        cfg: the simulator config (``cfg.num_envs`` robots; its terrain has one type).
+        cfg: the simulator config (``cfg.num_envs`` robots of ``cfg.robot``; its terrain has
+            one type).
         task: the task label (the terrain type) returned by ``call("task")``.
         levels: terrain levels; episode k of a reset runs on ``levels[seed_k % len(levels)]``
             (random among them when the reset has no seed).
@@ -70,7 +72,9 @@ class A1VectorEnv(VectorEnv):
             raise ValueError(f"A1VectorEnv runs one terrain type, got {cfg.terrain.types}")
         self.levels = np.asarray(levels, dtype=np.int64)
         self.video, self.video_robots = video, int(video_robots)
-        self.sim_env = MstaVectorEnv(cfg, sensors=STUDENT_SENSORS, actions="simulator",
+        # the student sensors the robot offers (the A1: STUDENT_SENSORS), as its datasets hold
+        self.sensors = view_sensors(cfg.robot_description, None)
+        self.sim_env = MstaVectorEnv(cfg, sensors=self.sensors, actions="simulator",
                                      render_mode="rgb_array" if video else None,
                                      width=width, height=height)
         self.sim_env.shadows = shadows
@@ -81,7 +85,7 @@ class A1VectorEnv(VectorEnv):
         self._max_episode_steps = cfg.max_episode_steps
         self.render_mode = "rgb_array"
         self.metadata = {**type(self).metadata, "render_fps": int(round(1.0 / cfg.dt))}
-        columns = [get(s).column for s in STUDENT_SENSORS]
+        columns = [get(s).column for s in self.sensors]
         self._columns = (*columns, *derived.COLUMNS)
         sensor_space = self.sim_env.single_observation_space  # finite ranges (spaces.py)
         self.single_observation_space = gym.spaces.Dict({k: gym.spaces.Box(
@@ -92,16 +96,15 @@ class A1VectorEnv(VectorEnv):
         self.single_action_space = self.sim_env.single_action_space
         self.action_space = self.sim_env.action_space
 
-    @staticmethod
-    def _sources(key: str) -> list[str]:
+    def _sources(self, key: str) -> list[str]:
         """Registry sensors concatenated into env observation ``key``."""
-        by_column = {get(s).column: s for s in STUDENT_SENSORS}
+        by_column = {get(s).column: s for s in self.sensors}
         srcs = derived.sources(by_column)[OBS_COLUMNS[key]]
         return [by_column[c] for c in srcs]
 
     def _observe(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Simulator observations (sensor name -> (N, dim)) -> LeRobot's keys."""
-        cols = derived.derive({get(s).column: obs[s] for s in STUDENT_SENSORS}, self._columns)
+        cols = derived.derive({get(s).column: obs[s] for s in self.sensors}, self._columns)
         return {k: cols[c].astype(np.float32, copy=False) for k, c in OBS_COLUMNS.items()}
 
     def reset(self, *, seed: int | Sequence[int] | None = None,
