@@ -118,6 +118,10 @@ class OnnxMSTA:
         policy = self.policy
         with torch.inference_mode():
             tensors = policy.as_tensors(batch)
+            T = tensors[self.sensors[0]].shape[1]
+            if T != self.history:
+                raise ValueError(f"OnnxMSTA's graph takes windows of {self.history} steps, "
+                                 f"got {T}")
             visible = visible_tokens(policy.model, policy.processor.discretize(tensors),
                                      mask_ratio, generator)  # (B, N)
             feed = {n: tensors[n].float().numpy() for n in self.sensors}

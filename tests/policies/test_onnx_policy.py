@@ -54,5 +54,8 @@ def test_what_the_graph_cannot_do_is_refused() -> None:
     graph = OnnxMSTA(policy, num_threads=1)
     with pytest.raises(NotImplementedError, match="every channel"):
         graph.act(_batch(policy), channels={"joint_pos": [0, 1]})
+    short = {k: v[:, 1:] for k, v in _batch(policy).items()}
+    with pytest.raises(ValueError, match="windows of 3 steps, got 2"):
+        graph.act(short)
     with pytest.raises(ValueError, match="learnable_mask"):
         OnnxMSTA(tiny_msta(T, learnable_mask=True))
