@@ -147,9 +147,10 @@ def evaluate(cfg: EvalConfig, entries: list[PolicyEntry] | None = None) -> dict[
     entries = entries if entries is not None else load_entries(cfg)
     robot = eval_robot(cfg, entries)
     if robot != cfg.robot:  # the checkpoints' robot: a copy of cfg that names it
+        built_for = cfg.robot or LEGACY_ROBOT  # what load_entries built the teachers for
         cfg = replace(cfg, robot=robot)
-        for i, e in enumerate(entries):  # the teachers, built again for that robot
-            if e.kind == "teacher":
+        for i, e in enumerate(entries):  # the teachers, built again for another robot only
+            if e.kind == "teacher" and robot != built_for:
                 entries[i] = replace(teacher_entry(e.source, cfg), name=e.name)
     with hold_directory(cfg.output_dir, "another msta-eval run") as out:
         return _evaluate_locked(cfg, entries, out, deadline)
