@@ -36,6 +36,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env_config import EnvConfig
@@ -110,16 +111,19 @@ def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfi
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
-               mask: float = MSTAConfig.mask_ratio, aux_target: str = "",
-               attention: str = "full", readout_layers: int = 1, **loop: float) -> Path:
+               mask: float = MSTAConfig.mask_ratio, model: dict[str, Any] | None = None,
+               **loop: float) -> Path:
+    """Stage 1; ``model``: fields of the student's config over the ``cpu`` preset."""
+    model = model or {}
+    changed = "".join(f", {k} {v}" for k, v in model.items()
+                      if v != getattr(MSTAConfig, k))  # only what differs from the default
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
-          f"ratio {mask:g}" + (f", {attention} attention" if attention != "full" else "") + " ==")
+          f"ratio {mask:g}{changed} ==")
     from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
 
     return train(TrainConfig(
         dataset=dataset, policy=MSTAConfig.from_preset(
-            "cpu", history=history, mask_ratio=mask, aux_target=aux_target, attention=attention,
-            readout_layers=readout_layers),
+            "cpu", history=history, mask_ratio=mask, **model),
         output_dir=str(out / "stage1"),
         push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
         steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
@@ -285,6 +289,9 @@ class DemoConfig:
         attention: the student's ``--policy.attention``: ``full`` (the paper's) or ``step``
             (per-step blocks, then readout blocks over every step; docs/msta_model.md).
         readout_layers: with ``step`` attention, how many of the student's blocks read out.
+        tokens: the student's ``--policy.tokens``: ``scalar`` (the paper's, one token per
+            reading) or ``sensor`` (one token per sensor and step, removal still per
+            reading; docs/msta_model.md).
         rounds: stage-2 rounds (0: stage 1 only).
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
@@ -327,6 +334,7 @@ class DemoConfig:
     aux_target: str = ""
     attention: str = "full"
     readout_layers: int = 1
+    tokens: str = "scalar"
     rounds: int = 7
     correct_steps: int = 1300
     correct_episodes: int = 32
@@ -349,8 +357,7 @@ class DemoConfig:
                        "envs_per_type", "eval_trials", "num_threads")
         if self.select_trials < 0:
             raise ValueError(f"select_trials={self.select_trials} must be >= 0 (0: no selection)")
-        MSTAConfig.from_preset("cpu", aux_target=self.aux_target, attention=self.attention,
-                               readout_layers=self.readout_layers)  # a bad one fails here, in one line
+        MSTAConfig.from_preset("cpu", **self.model())  # a bad one fails here, in one line
         for name in ("episode_length_s", "select_episode_length_s", "teacher_seconds",
                      "eval_episode_length_s"):
             if not getattr(self, name) > 0:
@@ -369,6 +376,11 @@ class DemoConfig:
             raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
+
+    def model(self) -> dict[str, Any]:
+        """The student's config fields this demo sets over the ``cpu`` preset."""
+        return {"aux_target": self.aux_target, "attention": self.attention,
+                "readout_layers": self.readout_layers, "tokens": self.tokens}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -392,8 +404,7 @@ def main(argv: list[str] | None = None) -> None:
             hub_dataset = step_push(dataset)
         with timed("step 4"):
             stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads,
-                                cfg.history, cfg.train_mask_ratio, cfg.aux_target,
-                                cfg.attention, cfg.readout_layers, **loop)
+                                cfg.history, cfg.train_mask_ratio, cfg.model(), **loop)
         best = 0
         if cfg.rounds:
             with timed("step 5"):

@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS
+from msta.data.sensors import PRIVILEGED_SENSORS, SENSORS, get
 from msta.policies.config import PolicyConfig, check_fraction, check_positive
 
 #: Choices of ``value_embedding``.
@@ -23,6 +23,8 @@ VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
 VALUE_INITS = ("sincos", "linear", "arc")
 #: Choices of ``attention``.
 ATTENTIONS = ("full", "step")
+#: Choices of ``tokens``.
+TOKENS = ("scalar", "sensor")
 
 #: Preset name -> field overrides of the (paper) defaults.
 PRESETS: dict[str, dict[str, Any]] = {
@@ -84,6 +86,12 @@ class MSTAConfig(PolicyConfig):
             (:class:`~msta.policies.msta.step_attention.StepStream`).
         readout_layers: with ``attention`` = ``step``: how many of the ``num_layers``
             blocks are readout blocks (1 to ``num_layers``).
+        tokens: ``scalar`` (the paper: one token per scalar reading) or ``sensor``: one
+            token per sensor and step, an MLP of the step's readings of that sensor (each
+            reading's bin centre, 0 where removed, beside a presence bit per reading);
+            removal still acts on single readings, at the same ratio, and a token goes
+            only when every one of its readings is removed
+            (:mod:`~msta.policies.msta.sensor_tokens`). Full attention only.
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = PRESETS  # the module's PRESETS above
@@ -108,6 +116,7 @@ class MSTAConfig(PolicyConfig):
     aux_weight: float = 1.0
     attention: str = "full"
     readout_layers: int = 1
+    tokens: str = "scalar"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -126,6 +135,7 @@ class MSTAConfig(PolicyConfig):
         if not 1 <= self.readout_layers <= self.num_layers:
             raise ValueError(f"readout_layers must be in [1, num_layers={self.num_layers}], "
                              f"got {self.readout_layers}")
+        self._check_tokens()
         if self.value_embedding not in VALUE_EMBEDDINGS:
             raise ValueError(f"value_embedding must be one of {VALUE_EMBEDDINGS}, "
                              f"got {self.value_embedding!r}")
@@ -139,3 +149,17 @@ class MSTAConfig(PolicyConfig):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value}")
+
+    def _check_tokens(self) -> None:
+        """``tokens``: a known choice; ``sensor`` tokens only with what they support."""
+        if self.tokens not in TOKENS:
+            raise ValueError(f"tokens must be one of {TOKENS}, got {self.tokens!r}")
+        if self.tokens == "scalar":
+            return
+        if self.attention != "full" or self.learnable_mask:
+            raise ValueError("tokens='sensor' works with attention='full' and "
+                             "learnable_mask=false only")
+        coded = [n for n in self.input_sensors if get(n).encoder_tokens]
+        if coded:
+            raise ValueError(f"tokens='sensor' encodes every input itself; {coded[0]!r} has "
+                             "its own encoder (encoder_tokens): use tokens='scalar'")

@@ -37,6 +37,8 @@ Per-step attention (``attention`` = ``step``, :mod:`~msta.policies.msta.step_att
 the same tokens without their age, blocks that attend within one step, then readout blocks
 over every token with its age added to key and value.
 
+Sensor tokens (one per sensor and step, ``tokens`` = ``sensor``): :mod:`~msta.policies.msta.sensor_tokens`.
+
 Encoded sensors (``SensorSpec.encoder_tokens`` = k > 0, e.g. the ``height_map`` extension):
 each step's channels (clipped z-scores) go through a small MLP (dim -> 2d -> k·d) to k
 tokens, which then are tokens like any other: position code over (token index j, age),
@@ -70,6 +72,7 @@ from msta.policies.msta.removal import (
     keep_per_sample,
     num_kept,
 )
+from msta.policies.msta.sensor_tokens import make_encoders, sensor_embed_steps
 from msta.policies.msta.step_attention import make_age_proj, step_features
 from msta.policies.processor import Batch, Channels
 from msta.policies.registry import register_policy
@@ -92,10 +95,12 @@ class MSTATransformer(nn.Module):
         self.cfg = cfg
         d = cfg.dim
         #: inputs read one token per scalar (the paper's) / through an MLP encoder
-        self.scalar_sensors = tuple(n for n in cfg.input_sensors if not get(n).encoder_tokens)
+        sensor_tokens = cfg.tokens == "sensor"  # every input through its own encoder
+        self.scalar_sensors = () if sensor_tokens else tuple(
+            n for n in cfg.input_sensors if not get(n).encoder_tokens)
         self.encoded_sensors = tuple(n for n in cfg.input_sensors if get(n).encoder_tokens)
         self.bin_embed = nn.Embedding(cfg.num_bins * self._num_tables(), d)
-        self.encoders = nn.ModuleDict({
+        self.encoders = make_encoders(cfg.input_sensors, d) if sensor_tokens else nn.ModuleDict({
             n: nn.Sequential(nn.Linear(get(n).dim, 2 * d), nn.GELU(approximate="tanh"),
                              nn.Linear(2 * d, get(n).encoder_tokens * d))
             for n in self.encoded_sensors})
@@ -119,6 +124,8 @@ class MSTATransformer(nn.Module):
         self._init_weights()
 
     def _num_tables(self) -> int:
+        if self.cfg.tokens == "sensor":  # no value tables: encoders read bin centres
+            return 0
         if self.cfg.value_embedding == "sensor":
             return len(self.scalar_sensors)
         if self.cfg.value_embedding == "channel":
@@ -139,6 +146,8 @@ class MSTATransformer(nn.Module):
         order: (rows,). A model whose inputs are just ``names`` has exactly these tables."""
         nb = self.cfg.num_bins
         names = [n for n in names if n in self.scalar_sensors]  # encoded sensors: no table
+        if not self._num_tables():
+            return torch.zeros(0, dtype=torch.long)
         if self.cfg.value_embedding == "shared":
             return torch.arange(nb)
         if self.cfg.value_embedding == "sensor":
@@ -157,7 +166,9 @@ class MSTATransformer(nn.Module):
         # Value tables start smooth in the bin (neighbouring bins similar); trained after.
         bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
         with torch.no_grad():
-            if self.cfg.value_init == "linear":  # bin centre's z-score x a direction per table
+            if not self._num_tables():
+                code = self.bin_embed.weight  # sensor tokens: no tables to initialise
+            elif self.cfg.value_init == "linear":  # bin centre's z-score x a direction per table
                 nb, clip = self.cfg.num_bins, self.cfg.clip_std
                 z = -clip + (bins + 0.5) * (2 * clip / nb)  # (nb,)
                 w = torch.randn(self._num_tables(), 1, self.cfg.dim)  # (tables, 1, d)
@@ -239,6 +250,14 @@ class MSTATransformer(nn.Module):
         """:meth:`embed`; with ``attention`` = ``step`` also the age (B, K + D) of each token
         before the readout tokens (None otherwise), and T when those are the whole token
         layout of the T-step window in its order (nothing removed, no dummy; else 0)."""
+        if self.cfg.tokens == "sensor":
+            return sensor_embed_steps(self, inputs, mask_ratio, generator, dummy_tokens)
+        return self._embed_scalar_steps(inputs, mask_ratio, generator, dummy_tokens)
+
+    def _embed_scalar_steps(self, inputs: MSTAInputs, mask_ratio: float,
+                            generator: torch.Generator | None, dummy_tokens: int | Tensor
+                            ) -> tuple[Tensor, Tensor | None, Tensor | None, int]:
+        """:meth:`embed_steps` with the paper's tokens, one per scalar reading."""
         missing = None
         if self.mask_token is not None:
             inputs, missing = complete_inputs(inputs, self.scalar_sensors)  # absent sensors/channels -> mask tokens

@@ -64,9 +64,9 @@ class OnnxMSTA:
                  num_threads: int | None = None) -> None:
         import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
-        if policy.model.mask_token is not None:
-            raise ValueError("OnnxMSTA needs an MSTA policy that removes tokens "
-                             "(learnable_mask=false)")
+        if policy.model.mask_token is not None or policy.config.tokens != "scalar":
+            raise ValueError("OnnxMSTA needs an MSTA policy with scalar tokens that removes "
+                             "them (tokens='scalar', learnable_mask=false)")
         self.policy = policy.cpu().float().eval()
         self.config = policy.config
         self.int8 = int8
