@@ -74,6 +74,11 @@ class SignalSpec:
 class InputScaler:
     """Concatenate scaled registry signals into one (N, D) float32 vector.
 
+    It reads the observation as a teacher does (:func:`teacher_view`): on a robot without
+    ``foot_contact`` that input is the simulator's ``true_contact``, so every path that
+    builds a teacher's inputs from simulator observations (acting, the warm start,
+    ``RslVecEnv``'s groups) sees the same numbers.
+
     Args:
         signals: the signals, in input order.
     """
@@ -99,7 +104,8 @@ class InputScaler:
         return tuple(s.name for s in self.signals)
 
     def __call__(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """(N, D) float32 from registry-keyed (N, dim) arrays."""
+        """(N, D) float32 from registry-keyed (N, dim) arrays, read through :func:`teacher_view`."""
+        obs = teacher_view(obs)
         x = np.concatenate([np.asarray(obs[n], dtype=np.float64) for n in self.names], axis=1)
         x = np.clip((x - self.offset) * self.scale, -self.clip, self.clip)
         return x.astype(np.float32)

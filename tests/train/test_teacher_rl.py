@@ -304,3 +304,24 @@ def test_a_new_teacher_reads_joint_angles_relative_to_its_robots_default_pose(tm
     obs = env.get_observations()[PROPRIO].numpy()
     np.testing.assert_allclose(obs[:, :12], env.raw_obs["joint_pos"] - np.array(pose), atol=1e-6)
     assert RslVecEnv(small_env(n=2, seconds=0.2)).rma.to_dict() == RMAConfig().to_dict()
+
+
+def test_a_robot_without_foot_contact_trains_on_its_true_contact(tmp_path):
+    """The Go1 offers no foot_contact: the training groups, the warm start and PPO read its
+    privileged true_contact in its place, as the RMA teacher does when it acts."""
+    env = RslVecEnv(small_env(n=2, seconds=0.2, robot="go1"))
+    assert "foot_contact" not in env.raw_obs and "true_contact" in env.raw_obs
+    obs = env.step(torch.zeros(2, 12))[0]
+    assert obs[PRIVILEGED].shape == (2, 205) and obs[PROPRIO].shape == (2, 49)
+    assert all(bool(torch.isfinite(obs[g]).all()) for g in (PRIVILEGED, PROPRIO))
+    names, dims = env.proprio_in.names, env.proprio_in.dims
+    at = sum(dims[:names.index("foot_contact")])
+    np.testing.assert_array_equal(obs[PROPRIO][:, at:at + 4].numpy(), env.raw_obs["true_contact"])
+    cfg = TrainTeacherConfig(output_dir=str(tmp_path), num_threads=1, device="cpu",
+                             warmstart=WarmStartConfig(iterations=1, steps=5, fit_steps=2),
+                             ppo=PPOConfig(iterations=2, num_steps_per_env=4, save_interval=2,
+                                           critic_warmup=1),
+                             env=small_env(n=2, robot="go1"))
+    path = train_teacher(cfg, log=lambda s: None)   # the warm start, then PPO
+    teacher = build_teacher(TeacherConfig(type="rma", path=str(path)))
+    assert np.isfinite(teacher.act(env.raw_obs)).all()
