@@ -57,7 +57,10 @@ from msta.train.train_config import TrainConfig
 #: Comparison name -> (registered policy type, config overrides). Other registered policy
 #: types are accepted by name with no overrides.
 VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "msta_mask": ("msta", {"learnable_mask": True}),  # the paper's "MSTA w/ learnable mask"
+    # the paper's "MSTA w/ learnable mask" (the mask token replaces one scalar's token)
+    "msta_mask": ("msta", {"learnable_mask": True, "tokens": "scalar"}),
+    # MSTA with the paper's tokens, one per scalar reading, at the same preset
+    "msta_scalar": ("msta", {"tokens": "scalar"}),
 }
 #: The paper's Table I averages (normalized total reward at test masks 0 / 25 / 50 %).
 PAPER_TABLE_I: dict[str, tuple[float | None, ...]] = {

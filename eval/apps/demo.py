@@ -289,9 +289,9 @@ class DemoConfig:
         attention: the student's ``--policy.attention``: ``full`` (the paper's) or ``step``
             (per-step blocks, then readout blocks over every step; docs/msta_model.md).
         readout_layers: with ``step`` attention, how many of the student's blocks read out.
-        tokens: the student's ``--policy.tokens``: ``scalar`` (the paper's, one token per
-            reading) or ``sensor`` (one token per sensor and step, removal still per
-            reading; docs/msta_model.md).
+        tokens: the student's ``--policy.tokens``: ``sensor`` (the ``cpu`` preset's: one
+            token per sensor and step, removal still per reading) or ``scalar`` (the
+            paper's, one token per reading; docs/msta_model.md).
         rounds: stage-2 rounds (0: stage 1 only).
         correct_steps: stage-2 retraining steps per round.
         correct_episodes: stage-2 student episodes (10 s) per round.
@@ -334,7 +334,7 @@ class DemoConfig:
     aux_target: str = ""
     attention: str = "full"
     readout_layers: int = 1
-    tokens: str = "scalar"
+    tokens: str = MSTAConfig.PRESETS["cpu"]["tokens"]
     rounds: int = 7
     correct_steps: int = 1300
     correct_episodes: int = 32

@@ -72,6 +72,7 @@ from msta.eval.apps.demo import easy_terrain_dataset
 from msta.eval.apps.phases import PhaseLog
 from msta.eval.apps.repro_report import write_report
 from msta.eval.eval_config import EvalConfig
+from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
 from msta.train.config import STAGE2_ROLLOUT_MASK_RATIOS, check_optimizer
 
@@ -79,6 +80,9 @@ PROG = "msta-repro"
 #: The paper's seven students (msta-compare names).
 PAPER_POLICIES = ("msta", "msta_mask", "gru", "rma_tcn", "tert_concat", "tert_separate",
                   "tert_mask")
+#: Added to them where the scale's preset gives msta sensor tokens: MSTA with the paper's
+#: scalar tokens at the same preset, side by side.
+SCALAR_MSTA = "msta_scalar"
 
 
 @dataclass(frozen=True)
@@ -139,8 +143,9 @@ class ReproConfig:
         report_dir: where report.md and the evaluations' metrics and plots go (default
             ``output_dir/report``; the committed reference run: docs/reference).
         policies: comma-separated msta-compare names; empty = the paper's seven (msta,
-            msta_mask, gru, rma_tcn, tert_concat, tert_separate, tert_mask). The MSTA
-            experiments (sensors, joints, window, heatmap) need msta in the list.
+            msta_mask, gru, rma_tcn, tert_concat, tert_separate, tert_mask) and msta_scalar
+            (MSTA with the paper's scalar tokens where the preset's msta has sensor tokens).
+            The MSTA experiments (sensors, joints, window, heatmap) need msta in the list.
         teacher: records the dataset, labels stage 2 and is the evaluation's reference
             (default: the shipped PPO-trained RMA MLP, rma_ppo, the demo's teacher).
         optimizer: every student's optimizer, both stages (msta-compare's ``--optimizer``:
@@ -177,8 +182,13 @@ class ReproConfig:
         check_optimizer(self.optimizer)
         check_at_least(self, 0, "num_threads", "max_minutes")
         self.policy_list = [p.strip() for p in self.policies.split(",") if p.strip()] \
-            or list(PAPER_POLICIES)
+            or self.default_policies()
         compare_config(self, Path(self.output_dir))  # unknown names fail here
+
+    def default_policies(self) -> list[str]:
+        """The paper's seven, and msta_scalar where the preset's msta has sensor tokens."""
+        tokens = MSTAConfig.PRESETS[self.sizes.preset].get("tokens", MSTAConfig.tokens)
+        return [*PAPER_POLICIES, *([SCALAR_MSTA] if tokens == "sensor" else [])]
 
     @property
     def sizes(self) -> Scale:
@@ -328,7 +338,7 @@ def _study(cfg: ReproConfig, command: str, out: Path, prog: PhaseLog) -> Path:
     ccfg = compare_config(cfg, root)
     ckpts = {name: train_policy(ccfg, name, root, prog) for name in ccfg.policy_list}
     evals = {"table1": run_eval(cfg, "table1", list(ckpts.values()), "token_removal", prog)}
-    hard = [ckpts[n] for n in ("msta", "gru") if n in ckpts]
+    hard = [ckpts[n] for n in ("msta", SCALAR_MSTA, "gru") if n in ckpts]
     if hard:
         evals["levels34"] = run_eval(cfg, "levels34", hard, "token_removal", prog,
                                      levels=HARD_LEVELS)

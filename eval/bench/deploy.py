@@ -15,8 +15,12 @@ the eager model) before it is timed; a runtime that fails it is reported and not
 Next to each latency: the model's FLOPs per step (counted from the shapes), the rate that
 achieves, and the machine's fp32 matmul rate measured in the same run on one thread (the
 roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower precision).
-The last two lines are ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the
-best parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
+Then two cheaper designs at the same preset and windows, in the same run: per-step attention
+(:mod:`msta.eval.bench.deploy_step`) and sensor tokens (:mod:`msta.eval.bench.deploy_tokens`).
+``full speed-up vs paper attention: <x>`` and ``minimized speed-up vs paper attention: <x>``
+report the one that walks best in closed loop (``WINNER``). The last two lines are
+``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the paper attention's best
+parity-holding runtime's median. Goals: full <= 10 ms, minimized <= 1.5 ms.
 
 The sensor guard (docs/faults.md, "Deployment") at the full observation, batch 1,
 one core: ``guard``, :meth:`msta.policies.guard.SensorGuard.update` alone (numpy; synthetic
@@ -44,6 +48,7 @@ import torch
 from msta.data import sensors as registry
 from msta.data.cli import parse_config
 from msta.eval.bench.deploy_step import INT8, bench_step
+from msta.eval.bench.deploy_tokens import bench_tokens
 from msta.policies import guard as guard_mod
 from msta.policies.export import DeployedStudent, export_student, random_windows, resolve_sensors
 from msta.policies.export_files import ExportParityError
@@ -56,6 +61,9 @@ from msta.policies.onnx_runtime import OnnxStudent
 from msta.policies.quantize import write_int8
 
 GOALS_MS = {"full": 10.0, "minimized": 1.5}
+#: the design the closing speed-up lines report: the one that walks best in closed loop
+#: (docs/msta_model.md's table), a key of results.json
+WINNER = "tokens"
 #: the bar for guard + student at the full observation, one core, batch 1
 GUARD_BAR_MS = 20.0
 
@@ -245,17 +253,24 @@ def summary(results: dict, best: dict[str, str], rate: float) -> None:
 
 
 def speed_lines(results: dict, best: dict[str, str]) -> None:
-    """The int8 lines, then the last four lines the issue asks for (speed-ups, latencies)."""
+    """The int8 lines, each design's speed-ups, then the last four lines the issue asks for
+    (the winning design's speed-ups, the paper attention's latencies)."""
     for obs in ("full", "minimized"):
-        step = results["step"]["observations"][obs]
+        step, tok = (results[k]["observations"][obs] for k in ("step", "tokens"))
         print(f"{obs}: int8 (ONNX Runtime dynamic quantization) paper attention "
               f"{results['observations'][obs]['runtimes'][INT8]['median_ms']:.2f} ms, step "
-              f"attention {step['int8']['median_ms']:.2f} ms ({step['int8']['runtime']}), speed-up "
-              f"vs the fp32 paper attention {step['int8']['speedup']:.2f}; |int8 - fp32| action "
-              f"{step['int8']['max_abs_diff']:.1e} (accepted on closed loop only: "
-              "python -m msta.eval.bench.deploy_loop)")
-    for obs in ("full", "minimized"):
-        print(f"{obs} speed-up vs paper attention: {results['step']['observations'][obs]['speedup']:.2f}")
+              f"attention {step['int8']['median_ms']:.2f} ms ({step['int8']['runtime']}), sensor "
+              f"tokens {tok['int8']['median_ms']:.2f} ms; speed-ups vs the fp32 paper attention "
+              f"{step['int8']['speedup']:.2f} / {tok['int8']['speedup']:.2f}; |int8 - fp32| action "
+              f"{max(step['int8']['max_abs_diff'], tok['int8']['max_abs_diff']):.1e} (accepted on "
+              "closed loop only: python -m msta.eval.bench.deploy_loop)")
+    for design, key in (("step attention", "step"), ("sensor tokens", "tokens")):
+        r = results[key]["observations"]
+        print(f"{design} speed-up vs paper attention: full {r['full']['speedup']:.2f}, "
+              f"minimized {r['minimized']['speedup']:.2f}")
+    for obs in ("full", "minimized"):  # the winner in closed loop: sensor tokens
+        print(f"{obs} speed-up vs paper attention: "
+              f"{results[WINNER]['observations'][obs]['speedup']:.2f}")
     print(f"minimized latency (ms): {results['observations']['minimized']['runtimes'][best['minimized']]['median_ms']:.2f}")
     print(f"full latency (ms): {results['observations']['full']['runtimes'][best['full']]['median_ms']:.2f}")
 
@@ -264,7 +279,8 @@ def main(argv: list[str] | None = None) -> None:
     a = parse_config(BenchDeployConfig, argv, prog="python -m msta.eval.bench.deploy")
     torch.set_num_threads(1)
     torch.manual_seed(0)
-    cfg = MSTAConfig.from_preset(a.preset, **({"history": a.history} if a.history else {}))
+    cfg = MSTAConfig.from_preset(a.preset, tokens="scalar",  # the paper's tokens first
+                                 **({"history": a.history} if a.history else {}))
     policy = make_policy(cfg, synthetic_stats(cfg.input_sensors)).eval()
     rate = matmul_gflops()
     print(f"MSTA {a.preset} preset (d = {cfg.dim}, {cfg.num_layers} layers x {cfg.num_heads} "
@@ -297,8 +313,12 @@ def main(argv: list[str] | None = None) -> None:
                                        ["onnxruntime"]["median_ms"])
         paper_ms = {obs: results["observations"][obs]["runtimes"][best[obs]]["median_ms"]
                     for obs in observations}
-        results["step"] = bench_step(cfg, observations, synthetic_stats(cfg.input_sensors),
-                                     Path(tmp) / "step", a.seconds, time_call, runtimes, paper_ms)
+        stats = synthetic_stats(cfg.input_sensors)
+        results["step"] = bench_step(cfg, observations, stats, Path(tmp) / "step", a.seconds,
+                                     time_call, runtimes, paper_ms)
+        results["tokens"] = bench_tokens(cfg, observations, stats, Path(tmp) / "tokens",
+                                         a.seconds, time_call, runtimes, paper_ms, model_flops)
+        results["winner"] = WINNER
     out = Path(a.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n")

@@ -30,11 +30,12 @@ TOKENS = ("scalar", "sensor")
 PRESETS: dict[str, dict[str, Any]] = {
     # The paper: d = 128, 256 bins, T = 15, MLP ratio 2; 4 layers x 4 heads is our choice.
     "paper": {},
-    # The CPU demo: same tokenization, a quarter of the width-depth compute. A 256-wide head
-    # and sin-cos base 10 (ages and channel indices told apart at d = 64) fit better at the
-    # same time per step (docs/msta_model.md).
+    # The CPU demo: a quarter of the width-depth compute and one token per sensor and step
+    # (removal still per reading), which walks as well as the paper's scalar tokens at a
+    # fraction of a step's cost. A 256-wide head and sin-cos base 10 fit better at the same
+    # time per step (docs/msta_model.md).
     "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 256, "state_tokens": 8,
-            "pos_base": 10.0},
+            "pos_base": 10.0, "tokens": "sensor"},
     # Unit tests only.
     "tiny": {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32},
 }

@@ -64,7 +64,7 @@ def _readings(inputs: MSTAInputs, num_bins: int, clip: float
 
 
 def kept_readings(gone: Tensor, pad: Tensor | None, mask_ratio: float,
-          generator: torch.Generator | None) -> Tensor:
+                  generator: torch.Generator | None) -> Tensor:
     """(B, T, M) bool, the readings each sample keeps: all present unpadded ones at
     ``mask_ratio`` 0, else the scalar tokenization's draw over single readings."""
     B, T, M = gone.shape

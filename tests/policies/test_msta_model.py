@@ -277,7 +277,8 @@ def test_training_after_acting_in_inference_mode() -> None:
     assert policy.model.sensor_embed["joint_pos"].grad is not None
 
 
-def test_gradients_are_the_same_on_every_run_with_two_threads() -> None:
+@pytest.mark.parametrize("tokens", ["scalar", "sensor"])
+def test_gradients_are_the_same_on_every_run_with_two_threads(tokens) -> None:
     """The same batch, weights and removal seed give bit-identical gradients on 2 threads
     (the position rows of the kept tokens are gathered with index_select: the backward of
     ``static[keep]``, an accumulating index_put, summed rows in a varying order, so two runs
@@ -286,7 +287,7 @@ def test_gradients_are_the_same_on_every_run_with_two_threads() -> None:
     torch.set_num_threads(2)
     try:
         torch.manual_seed(0)
-        cfg = MSTAConfig.from_preset("cpu", history=4, mask_ratio=0.75)
+        cfg = MSTAConfig.from_preset("cpu", history=4, mask_ratio=0.75, tokens=tokens)
         policy = make_policy(cfg, stats_for(cfg)).train()
         batch = {**make_batch(B=64, steps=4), "action": torch.randn(64, 12)}
         grads = []

@@ -23,6 +23,10 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
     assert re.fullmatch(r"minimized latency \(ms\): \d+\.\d\d", lines[-2])
     assert re.fullmatch(r"full latency \(ms\): \d+\.\d\d", lines[-1])
     results = json.loads((tmp_path / "results.json").read_text())
+    for i, obs in ((-4, "full"), (-3, "minimized")):  # the winning design's speed-ups
+        speedup = results[results["winner"]]["observations"][obs]["speedup"]
+        assert lines[i] == f"{obs} speed-up vs paper attention: {speedup:.2f}"
+    results = json.loads((tmp_path / "results.json").read_text())
     assert results["matmul_gflops"] > 0
     for obs, tokens in (("full", 15 * 49 + 1), ("minimized", 7 * 30 + 1)):
         r = results["observations"][obs]
@@ -37,6 +41,12 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
         assert step["best"] in step["runtimes"] and not step["best"].endswith("int8")
         assert step["int8"]["runtime"].endswith("int8") and 0 < step["int8"]["max_abs_diff"] < 1.0
         assert abs(step["int8"]["speedup"] * step["int8"]["median_ms"]
+                   - r["runtimes"][r["best"]]["median_ms"]) < 1e-9
+        tok = results["tokens"]["observations"][obs]  # one token per sensor and step
+        assert tok["tokens"] == {"full": 15 * 7 + 1, "minimized": 7 * 4 + 1}[obs]
+        assert set(tok["runtimes"]) == set(r["runtimes"])
+        assert tok["parity"]["parity_max_abs_diff"] <= 1e-5 and tok["best"] != "onnxruntime-int8"
+        assert abs(tok["speedup"] * tok["runtimes"][tok["best"]]["median_ms"]
                    - r["runtimes"][r["best"]]["median_ms"]) < 1e-9
     g = results["guard"]  # the guard and guard + student, against the plain student
     student = results["observations"]["full"]["runtimes"]["onnxruntime"]["median_ms"]

@@ -88,7 +88,7 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     MSTAConfig (--policy.dim, --policy.mask_ratio, --policy.history, ...) with its default
     and checks; their descriptions are in `msta-train --help` (the same --policy.* options)
     and docs/msta_model.md. --policy.preset=cpu starts from msta's cpu preset (d 64, 2
-    layers, 4 heads, a 256-wide head, 8 state tokens, sin-cos base 10); the defaults are the
+    layers, 4 heads, a 256-wide head, 8 state tokens, sin-cos base 10, sensor tokens); the defaults are the
     paper preset.
     """
 
@@ -107,6 +107,9 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     """learnable readout tokens the head reads (paper 1, cpu 8)."""
     pos_base: float | None = None
     """base of the sin-cos frequencies (paper 10000, cpu 10)."""
+    tokens: str | None = None
+    """scalar: one token per reading (paper); sensor: one per sensor and step, removal still
+    per reading (cpu)."""
     state_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
     """sensors concatenated in observation.state, in order; lerobot-train reads them from the
     dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
