@@ -35,7 +35,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     # fraction of a step's cost. A 256-wide head and sin-cos base 10 fit better at the same
     # time per step (docs/msta_model.md).
     "cpu": {"dim": 64, "num_layers": 2, "num_heads": 4, "head_hidden_dim": 256, "state_tokens": 8,
-            "pos_base": 10.0, "tokens": "sensor"},
+            "pos_base": 10.0, "tokens": "sensor", "complete_share": 0.25},
     # Unit tests only.
     "tiny": {"dim": 32, "num_layers": 1, "num_heads": 2, "head_hidden_dim": 32},
 }
@@ -93,6 +93,10 @@ class MSTAConfig(PolicyConfig):
             removal still acts on single readings, at the same ratio, and a token goes
             only when every one of its readings is removed
             (:mod:`~msta.policies.msta.sensor_tokens`). Full attention only.
+        complete_share: with sensor tokens: the share of training samples that keep every
+            reading (the others lose ``mask_ratio`` of theirs), so the encoders also learn
+            complete tokens; test-time removal is unaffected. 0 = none; scalar tokens
+            ignore it (each is one reading, complete or removed).
     """
 
     PRESETS: ClassVar[dict[str, dict[str, Any]]] = PRESETS  # the module's PRESETS above
@@ -118,6 +122,7 @@ class MSTAConfig(PolicyConfig):
     attention: str = "full"
     readout_layers: int = 1
     tokens: str = "scalar"
+    complete_share: float = 0.0
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -155,6 +160,8 @@ class MSTAConfig(PolicyConfig):
         """``tokens``: a known choice; ``sensor`` tokens only with what they support."""
         if self.tokens not in TOKENS:
             raise ValueError(f"tokens must be one of {TOKENS}, got {self.tokens!r}")
+        if not 0.0 <= self.complete_share < 1.0:
+            raise ValueError(f"complete_share must be in [0, 1), got {self.complete_share}")
         if self.tokens == "scalar":
             return
         if self.attention != "full" or self.learnable_mask:

@@ -10,7 +10,10 @@ v the readings' bin centres (z-scores in [-clip_std, clip_std]; a binary reading
 ``channels`` leaving it out, by ``absent`` for that sample, or a padded step). Removal draws
 single readings exactly as the scalar tokenization removes tokens (round(α·n_b) of sample
 b's n_b present readings, padded steps first, :func:`~msta.policies.msta.removal.keep_per_sample`);
-a token none of whose readings is left is hidden from attention. A window of T steps with
+a token none of whose readings is left is hidden from attention. In training a share of the
+samples (``complete_share``) keeps every reading instead: trained only on tokens that lack
+three quarters of their readings, the encoders met complete ones first at test mask 0 (the
+unmasked validation loss stayed well above the scalar tokens'). A window of T steps with
 S sensors is S·T tokens (7 · 15 = 105 where scalar tokens are 47 · 15 = 705), so a step
 costs a fraction of the scalar layout's attention and MLPs; any subset of sensors, readings
 and any T still work, since identity comes from the encoder, the sensor type and the age.
@@ -27,6 +30,7 @@ import torch
 from torch import Tensor, nn
 
 from msta.data.sensors import get
+from msta.policies.base import uniform
 from msta.policies.msta.processor_msta import MSTAInputs
 from msta.policies.msta.removal import additive_mask, keep_per_sample
 from msta.policies.transformer import sincos_2d
@@ -64,18 +68,25 @@ def _readings(inputs: MSTAInputs, num_bins: int, clip: float
 
 
 def kept_readings(gone: Tensor, pad: Tensor | None, mask_ratio: float,
-                  generator: torch.Generator | None) -> Tensor:
+                  generator: torch.Generator | None, complete_share: float = 0.0) -> Tensor:
     """(B, T, M) bool, the readings each sample keeps: all present unpadded ones at
-    ``mask_ratio`` 0, else the scalar tokenization's draw over single readings."""
+    ``mask_ratio`` 0, else the scalar tokenization's draw over single readings; with
+    ``complete_share`` > 0 each sample keeps all of them with that probability instead
+    (training's complete tokens, drawn after the removal from the same ``generator``)."""
     B, T, M = gone.shape
     pad_r = pad[:, :, None].expand(B, T, M) if pad is not None else None
+    every = ~gone if pad_r is None else ~gone & ~pad_r
     if not mask_ratio:
-        return ~gone if pad_r is None else ~gone & ~pad_r
+        return every
     flat_pad = pad_r.reshape(B, T * M) if pad_r is not None else None
     keep, key_pad = keep_per_sample(gone.reshape(B, T * M), flat_pad, mask_ratio, generator)
     kept = torch.zeros(B, T * M + 1, dtype=torch.bool, device=gone.device)
     kept.scatter_(1, keep.masked_fill(key_pad, T * M), True)  # slots beyond r_b: a spare column
-    return kept[:, :T * M].view(B, T, M)
+    kept = kept[:, :T * M].view(B, T, M)
+    if complete_share:
+        whole = uniform(B, 1, generator, gone.device) < complete_share  # (B, 1)
+        kept = torch.where(whole[..., None], every, kept)
+    return kept
 
 
 def sensor_embed_steps(model: Any, inputs: MSTAInputs, mask_ratio: float,
@@ -88,7 +99,9 @@ def sensor_embed_steps(model: Any, inputs: MSTAInputs, mask_ratio: float,
     B, T = inputs.bins[names[0]].shape[:2]
     values, gone = _readings(inputs, cfg.num_bins, cfg.clip_std)
     widths = [v.shape[-1] for v in values]
-    kept = kept_readings(torch.cat(gone, -1), inputs.pad, mask_ratio, generator).split(widths, -1)
+    share = cfg.complete_share if model.training else 0.0  # test-time removal stays exact
+    kept = kept_readings(torch.cat(gone, -1), inputs.pad, mask_ratio, generator,
+                         share).split(widths, -1)
     tokens, present = [], []
     for name, v, k in zip(names, values, kept, strict=True):
         m = k.to(v.dtype)

@@ -88,6 +88,23 @@ def test_removal_draws_single_readings_at_the_scalar_ratio():
     assert tokens.any(-1).any() and not tokens.all(-1).any()
     everything = kept_readings(gone, None, 0.0, None)
     assert torch.equal(everything, ~gone)
+    # training's complete tokens: about that share of samples keeps every reading
+    many = torch.zeros(400, 2, 10, dtype=torch.bool)
+    mixed = kept_readings(many, None, 0.75, torch.Generator().manual_seed(1), 0.25)
+    whole = mixed.flatten(1).all(1)
+    assert 60 < int(whole.sum()) < 140  # ~100 of 400
+    assert (mixed[~whole].flatten(1).sum(1) == num_kept(20, 0.75)).all()
+
+
+def test_complete_tokens_are_trained_only(policy):
+    """``complete_share`` acts in training mode only: test-time removal stays exact."""
+    seq = windows(policy)
+    shared = tiny_msta(T, tokens="sensor", complete_share=0.9).eval()
+    plain = tiny_msta(T, tokens="sensor").eval()
+    with torch.no_grad():
+        a = shared(seq, mask_ratio=0.5, generator=torch.Generator().manual_seed(3))
+        b = plain(seq, mask_ratio=0.5, generator=torch.Generator().manual_seed(3))
+    torch.testing.assert_close(a, b, atol=0, rtol=0)
 
 
 def test_training_with_removal_and_dummy_tokens_reaches_every_weight():
@@ -132,6 +149,7 @@ def test_a_copy_on_fewer_inputs_acts_the_same_and_a_saved_one_loads(policy, tmp_
     ({"tokens": "sensor", "attention": "step"}, "attention='full'"),
     ({"tokens": "sensor", "learnable_mask": True}, "learnable_mask=false"),
     ({"tokens": "sensor", "input_sensors": ("joint_pos", "height_map")}, "'height_map'"),
+    ({"tokens": "sensor", "complete_share": 1.0}, r"complete_share must be in \[0, 1\)"),
 ])
 def test_bad_settings_are_one_line(kw, message):
     with pytest.raises(ValueError, match=message) as err:

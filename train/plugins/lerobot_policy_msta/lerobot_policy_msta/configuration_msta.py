@@ -110,6 +110,8 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
     tokens: str | None = None
     """scalar: one token per reading (paper); sensor: one per sensor and step, removal still
     per reading (cpu)."""
+    complete_share: float | None = None
+    """sensor tokens: share of training samples that keep every reading (paper 0, cpu 0.25)."""
     state_sensors: tuple[str, ...] = sensors.STUDENT_SENSORS
     """sensors concatenated in observation.state, in order; lerobot-train reads them from the
     dataset's feature names (every msta dataset: the 7 student sensors, 49 scalars)."""
