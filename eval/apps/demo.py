@@ -115,8 +115,9 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
                **loop: float) -> Path:
     """Stage 1; ``model``: fields of the student's config over the ``cpu`` preset."""
     model = model or {}
+    preset = MSTAConfig.PRESETS["cpu"]
     changed = "".join(f", {k} {v}" for k, v in model.items()
-                      if v != getattr(MSTAConfig, k))  # only what differs from the default
+                      if v != preset.get(k, getattr(MSTAConfig, k)))  # what the preset lacks
     print(f"\n== 4. msta-train: stage 1, MSTA cpu preset at T = {history}, {steps} steps, mask "
           f"ratio {mask:g}{changed} ==")
     from msta.train.stage1 import train  # lazy: torch after parsing (--help at once)
