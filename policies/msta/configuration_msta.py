@@ -166,7 +166,7 @@ class MSTAConfig(PolicyConfig):
             return
         if self.attention != "full" or self.learnable_mask:
             raise ValueError("tokens='sensor' works with attention='full' and "
-                             "learnable_mask=false only")
+                             "learnable_mask=false only (set tokens='scalar' for the others)")
         coded = [n for n in self.input_sensors if get(n).encoder_tokens]
         if coded:
             raise ValueError(f"tokens='sensor' encodes every input itself; {coded[0]!r} has "
