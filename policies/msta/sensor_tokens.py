@@ -31,6 +31,7 @@ from torch import Tensor, nn
 
 from msta.data.sensors import get
 from msta.policies.base import uniform
+from msta.policies.msta.dummy import dummy_draw
 from msta.policies.msta.processor_msta import MSTAInputs
 from msta.policies.msta.removal import additive_mask, keep_per_sample
 from msta.policies.transformer import sincos_2d
@@ -132,21 +133,7 @@ def _dummies(x: Tensor, pos: Tensor, sensor: Tensor, dummy: int | Tensor,
     a random slot's position, a random sensor's type; ``dummy`` = D or (B, D, 4) uniforms
     that fix the draws (the fourth unused)."""
     B, N, d = x.shape
-    if isinstance(dummy, Tensor):
-        if dummy.dim() != 3 or dummy.shape[0] != B or dummy.shape[2] != 4:
-            raise ValueError(f"dummy token draws must be (batch={B}, D, 4) uniforms in "
-                             f"[0, 1), got {tuple(dummy.shape)}")
-        u = dummy.to(x.device, torch.float32)
-
-        def draw(high: int, k: int) -> Tensor:  # (B, D) in [0, high) from given uniforms
-            return (u[..., k] * high).long().clamp_(0, high - 1)
-    else:
-        gen_dev = generator.device if generator is not None else x.device
-
-        def draw(high: int, k: int) -> Tensor:  # (B, D) uniform in [0, high)
-            return torch.randint(high, (B, dummy), generator=generator,
-                                 device=gen_dev).to(x.device)
-
+    draw = dummy_draw(B, dummy, generator, x.device)
     with torch.no_grad():
         value = torch.gather(x, 1, draw(N, 0)[..., None].expand(-1, -1, d))  # (B, D, d)
         return value + pos[draw(N, 1)] + sensor[draw(len(sensor), 2)]
