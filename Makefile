@@ -20,9 +20,13 @@ $(STAMP): pyproject.toml
 	if [ -z "$$PYBIN" ]; then echo "error: msta needs Python 3.12 (lerobot>=0.5 requires it). Install it (e.g. 'pyenv install 3.12') and re-run." >&2; exit 1; fi; \
 	echo "using $$PYBIN"; \
 	[ -x $(PY) ] || "$$PYBIN" -m venv $(VENV); \
-	$(PY) -m pip install --quiet --upgrade pip; \
-	$(PY) -m pip install --quiet -e ".[dev]" -e collect/plugins/lerobot_env_msta \
-	  -e train/plugins/lerobot_policy_msta; \
+	$(PY) -m pip install --quiet --upgrade pip || { sleep 30; $(PY) -m pip install --quiet --upgrade pip; }; \
+	for attempt in 1 2 3; do \
+	  $(PY) -m pip install --quiet --resume-retries 20 -e ".[dev]" -e collect/plugins/lerobot_env_msta \
+	    -e train/plugins/lerobot_policy_msta && break; \
+	  if [ $$attempt -eq 3 ]; then echo "error: pip install failed 3 times (see above); re-run make when the package index answers" >&2; exit 1; fi; \
+	  echo "pip install failed (attempt $$attempt of 3, often a dropped download); retrying in 30 s" >&2; sleep 30; \
+	done; \
 	touch $(STAMP)
 
 demo: $(STAMP)
