@@ -7,6 +7,8 @@ in ONNX Runtime. The graph takes the window's every token and a (B, N) ``visible
 the tokens the policy would remove (its own random draw from the same generator, and the
 padding before an episode's first step) are hidden from attention instead of dropped, which
 gives the same action up to float rounding (the readout only reads what it can attend to).
+Sensor tokens (``tokens='sensor'``) take the kept readings (B, T, M) in place of
+``visible``: the policy's own draw over single readings, a token with none left hidden.
 With ``int8`` the graph's matrix products run with int8 weights
 (:func:`msta.policies.quantize.int8_graph`), so an evaluation of it measures what
 quantization costs in closed loop.
@@ -25,6 +27,7 @@ from torch import Tensor, nn
 from msta.data.sensors import get
 from msta.policies.export_files import ONNX_OPSET
 from msta.policies.msta.removal import additive_mask, visible_tokens
+from msta.policies.msta.sensor_tokens import draw_readings, sensor_embed_steps
 from msta.policies.quantize import int8_graph
 
 __all__ = ["OnnxMSTA"]
@@ -49,12 +52,26 @@ class _VisibleGraph(nn.Module):
         return model.head(model.features(x, mask, ages, 0))
 
 
+class _KeptGraph(_VisibleGraph):
+    """Sensor tokens: raw windows and ``kept`` (B, T, M) bool, the readings kept (every
+    channel of every sensor, ``sensors`` order) -> the model-space action (B, A); a token
+    with no reading kept is out of every attention."""
+
+    def forward(self, *inputs: Tensor) -> Tensor:
+        *windows, kept = inputs
+        model = self.policy.model
+        tensors = self.policy.processor.discretize(
+            self.policy.as_tensors(dict(zip(self.sensors, windows, strict=True))))
+        return model.head(model.features(*sensor_embed_steps(model, tensors, 0.0, None, 0,
+                                                             kept=kept)))
+
+
 class OnnxMSTA:
     """An MSTA policy (eval mode, CPU) with its network as an ONNX Runtime graph.
 
     Args:
         policy: an :class:`~msta.policies.msta.modeling_msta.MSTAPolicy` without
-            ``learnable_mask``.
+            ``learnable_mask`` (scalar or sensor tokens).
         history: the window T the graph is built for (default: the policy's).
         int8: quantize the graph's matrix-product weights to int8.
         num_threads: ONNX Runtime's intra-op threads (default: torch's).
@@ -64,21 +81,26 @@ class OnnxMSTA:
                  num_threads: int | None = None) -> None:
         import onnxruntime as ort  # lazy: onnxruntime loads only where an ONNX graph runs
 
-        if policy.model.mask_token is not None or policy.config.tokens != "scalar":
-            raise ValueError("OnnxMSTA needs an MSTA policy with scalar tokens that removes "
-                             "them (tokens='scalar', learnable_mask=false)")
+        if policy.model.mask_token is not None:
+            raise ValueError("OnnxMSTA needs an MSTA policy that removes its tokens "
+                             "(learnable_mask=false)")
         self.policy = policy.cpu().float().eval()
         self.config = policy.config
         self.int8 = int8
         self.history = int(history or policy.config.history)
         self.sensors = tuple(policy.required_sensors)
-        graph = _VisibleGraph(self.policy, self.sensors).eval()
+        #: sensor tokens take the kept readings (B, T, M), scalar ones the visible tokens (B, N)
+        self.by_reading = policy.config.tokens == "sensor"
+        graph = (_KeptGraph if self.by_reading else _VisibleGraph)(self.policy, self.sensors)
         example = tuple(torch.zeros(1, self.history, get(n).dim) for n in self.sensors)
-        n_tokens = self.policy.model.layout(self.policy.processor.discretize(
-            self.policy.as_tensors(dict(zip(self.sensors, example, strict=True)))).channels,
-            self.history)[2].shape[0]
-        example += (torch.ones(1, n_tokens, dtype=torch.bool),)
-        names = [*self.sensors, "visible"]
+        if self.by_reading:
+            mask = torch.ones(1, self.history, sum(get(n).dim for n in self.sensors))
+        else:
+            mask = torch.ones(1, self.policy.model.layout(self.policy.processor.discretize(
+                self.policy.as_tensors(dict(zip(self.sensors, example, strict=True)))
+            ).channels, self.history)[2].shape[0])
+        example += (mask.bool(),)
+        names = [*self.sensors, "kept" if self.by_reading else "visible"]
         buffer = io.BytesIO()
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")  # TracerWarnings: the eager path's Python checks
@@ -122,9 +144,12 @@ class OnnxMSTA:
             if T != self.history:
                 raise ValueError(f"OnnxMSTA's graph takes windows of {self.history} steps, "
                                  f"got {T}")
-            visible = visible_tokens(policy.model, policy.processor.discretize(tensors),
-                                     mask_ratio, generator)  # (B, N)
+            inputs = policy.processor.discretize(tensors)
             feed = {n: tensors[n].float().numpy() for n in self.sensors}
-            feed["visible"] = visible.numpy()
+            if self.by_reading:  # (B, T, M)
+                feed["kept"] = draw_readings(policy.model, inputs, mask_ratio, generator).numpy()
+            else:  # (B, N)
+                feed["visible"] = visible_tokens(policy.model, inputs, mask_ratio,
+                                                 generator).numpy()
             action = torch.from_numpy(self.session.run(None, feed)[0])  # (B, A) model space
             return policy.processor.unnormalize_action(action)

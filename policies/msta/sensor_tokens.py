@@ -36,7 +36,7 @@ from msta.policies.msta.processor_msta import MSTAInputs
 from msta.policies.msta.removal import additive_mask, keep_per_sample
 from msta.policies.transformer import sincos_2d
 
-__all__ = ["kept_readings", "make_encoders", "sensor_embed_steps"]
+__all__ = ["draw_readings", "kept_readings", "make_encoders", "sensor_embed_steps"]
 
 
 def make_encoders(names: tuple[str, ...], dim: int) -> nn.ModuleDict:
@@ -90,19 +90,36 @@ def kept_readings(gone: Tensor, pad: Tensor | None, mask_ratio: float,
     return kept
 
 
+def draw_readings(model: Any, inputs: MSTAInputs, mask_ratio: float,
+                  generator: torch.Generator | None) -> Tensor:
+    """(B, T, M) bool, the readings the model keeps (M: every channel of the present sensors,
+    ``inputs.bins`` order): :func:`kept_readings` with the model's ``complete_share`` in
+    training (none in eval mode, so test-time removal stays exact). The forward's own draw:
+    a deployment graph fed these acts as the model does from the same ``generator``."""
+    gone = _readings(inputs, model.cfg.num_bins, model.cfg.clip_std)[1]
+    return _draw(model, torch.cat(gone, -1), inputs.pad, mask_ratio, generator)
+
+
+def _draw(model: Any, gone: Tensor, pad: Tensor | None, mask_ratio: float,
+          generator: torch.Generator | None) -> Tensor:
+    """:func:`kept_readings` with the model's ``complete_share`` in training mode only."""
+    share = model.cfg.complete_share if model.training else 0.0
+    return kept_readings(gone, pad, mask_ratio, generator, share)
+
+
 def sensor_embed_steps(model: Any, inputs: MSTAInputs, mask_ratio: float,
-                       generator: torch.Generator | None, dummy_tokens: int | Tensor
-                       ) -> tuple[Tensor, Tensor | None, None, int]:
+                       generator: torch.Generator | None, dummy_tokens: int | Tensor,
+                       kept: Tensor | None = None) -> tuple[Tensor, Tensor | None, None, int]:
     """:meth:`MSTATransformer.embed_steps` with sensor tokens: the tokens, D dummies and the
-    readout tokens (B, S·T + D + R, d), the key mask (B, 1, 1, ·) or None, no ages, 0."""
+    readout tokens (B, S·T + D + R, d), the key mask (B, 1, 1, ·) or None, no ages, 0;
+    ``kept`` (B, T, M) bool fixes the readings kept (else :func:`draw_readings`)."""
     cfg = model.cfg
     names = list(inputs.bins)
     B, T = inputs.bins[names[0]].shape[:2]
     values, gone = _readings(inputs, cfg.num_bins, cfg.clip_std)
-    widths = [v.shape[-1] for v in values]
-    share = cfg.complete_share if model.training else 0.0  # test-time removal stays exact
-    kept = kept_readings(torch.cat(gone, -1), inputs.pad, mask_ratio, generator,
-                         share).split(widths, -1)
+    if kept is None:
+        kept = _draw(model, torch.cat(gone, -1), inputs.pad, mask_ratio, generator)
+    kept = kept.split([v.shape[-1] for v in values], -1)
     tokens, present = [], []
     for name, v, k in zip(names, values, kept, strict=True):
         m = k.to(v.dtype)

@@ -10,7 +10,6 @@ from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
 
 from msta.data import sensors
 from msta.policies.msta import MSTAConfig, MSTAPolicy
-from msta.policies.msta.onnx_policy import OnnxMSTA
 from msta.policies.msta.removal import num_kept
 from msta.policies.msta.sensor_tokens import kept_readings
 
@@ -155,8 +154,3 @@ def test_bad_settings_are_one_line(kw, message):
     with pytest.raises(ValueError, match=message) as err:
         MSTAConfig(**kw)
     assert "\n" not in str(err.value)
-
-
-def test_the_onnx_graph_refuses_sensor_tokens(policy):
-    with pytest.raises(ValueError, match="tokens='scalar'"):
-        OnnxMSTA(policy)

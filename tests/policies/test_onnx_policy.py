@@ -26,10 +26,13 @@ def _batch(policy, n: int = 6, seed: int = 0) -> dict[str, np.ndarray]:
     return batch
 
 
-@pytest.mark.parametrize("attention", ["full", "step"])
+DESIGNS = [{"attention": "full"}, {"attention": "step"}, {"tokens": "sensor"}]
+
+
+@pytest.mark.parametrize("design", DESIGNS, ids=["full", "step", "sensor_tokens"])
 @pytest.mark.parametrize("mask_ratio", [0.0, 0.5])
-def test_the_fp32_graph_acts_as_the_policy(attention: str, mask_ratio: float) -> None:
-    policy = tiny_msta(T, attention=attention).eval()
+def test_the_fp32_graph_acts_as_the_policy(design: dict, mask_ratio: float) -> None:
+    policy = tiny_msta(T, **design).eval()
     graph = OnnxMSTA(policy, num_threads=1)
     batch = _batch(policy)
     want = policy.act(batch, mask_ratio=mask_ratio, generator=torch.Generator().manual_seed(3))
@@ -40,8 +43,9 @@ def test_the_fp32_graph_acts_as_the_policy(attention: str, mask_ratio: float) ->
         assert not torch.allclose(other, want, atol=1e-4)
 
 
-def test_the_int8_graph_is_close_but_not_equal() -> None:
-    policy = tiny_msta(T).eval()
+@pytest.mark.parametrize("design", DESIGNS[::2], ids=["scalar_tokens", "sensor_tokens"])
+def test_the_int8_graph_is_close_but_not_equal(design: dict) -> None:
+    policy = tiny_msta(T, **design).eval()
     batch = _batch(policy, n=32, seed=1)
     want = policy.act(batch)
     got = OnnxMSTA(policy, int8=True, num_threads=1).act(batch)
