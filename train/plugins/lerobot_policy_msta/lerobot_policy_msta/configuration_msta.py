@@ -216,11 +216,23 @@ class MSTAConfig(PreTrainedConfig, NativeMSTAConfig):
 
         Args:
             features: the dataset's ``info.json`` features.
+
+        msta's default inputs that the dataset lacks (a robot without foot-contact switches)
+        are left out, with one line on stderr, as msta-train does; other inputs must all be
+        there.
         """
         if OBS_STATE not in features:
             raise ValueError(f"the dataset has no {OBS_STATE} (msta datasets of schema >= 2 "
                              "have it; append to an old one with msta-collect to add it)")
         self.state_sensors = state_layout(list(features[OBS_STATE]["names"]))
+        missing = [n for n in self.input_sensors if n not in self.state_sensors]
+        kept = tuple(n for n in self.input_sensors if n not in missing)
+        if missing and kept and self.input_sensors == _NATIVE_DEFAULTS["input_sensors"]:
+            # msta-train's rule: a robot without a default sensor (the Go1's foot contacts)
+            print(f"msta policy: the dataset's {OBS_STATE} lacks {', '.join(missing)}: the "
+                  f"student reads the default inputs it has, --policy.input_sensors="
+                  f"[{','.join(kept)}]", file=sys.stderr, flush=True)
+            self.input_sensors = kept
         self.__post_init__()
 
     def msta_features(self) -> tuple[dict[str, PolicyFeature], dict[str, PolicyFeature]]:

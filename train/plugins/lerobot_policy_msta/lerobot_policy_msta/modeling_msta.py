@@ -31,6 +31,7 @@ from torch import Tensor
 from lerobot_policy_msta.configuration_msta import MSTAConfig
 from lerobot_policy_msta.history import STATE_PAD, attach
 from msta.data import sensors
+from msta.data.msta_json import dataset_robot
 from msta.policies.msta import MSTAInputs, MSTAProcessor, MSTATransformer
 from msta.train.optim import parameter_groups
 
@@ -52,7 +53,8 @@ class MSTAPolicy(PreTrainedPolicy):
         config: an :class:`MSTAConfig` whose features hold ``observation.state``.
         dataset_stats: unused (normalization is the processors'); lerobot passes it.
         dataset_meta: the dataset lerobot-train trains on (its ``make_policy`` passes it): its
-            windows are registered for the preprocessor (:func:`~.history.attach`).
+            windows are registered for the preprocessor (:func:`~.history.attach`), and its
+            robot becomes the config's ``robots`` (what msta-eval and msta-correct check).
 
     Building it sets torch's CPU threads to ``config.cpu_threads()``.
     """
@@ -68,6 +70,7 @@ class MSTAPolicy(PreTrainedPolicy):
         torch.set_num_threads(config.cpu_threads())
         if dataset_meta is not None:
             attach(dataset_meta.root, config.state_sensors, config.history)
+            config.robots = (dataset_robot(dataset_meta.root),)  # as msta-train records it
         self.model = MSTATransformer(config.to_native())
         self.binner = identity_binner(config)
         offsets, start = {}, 0
