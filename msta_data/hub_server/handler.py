@@ -8,7 +8,8 @@ found (404/405), the token is checked (401; 400 for two Authorization headers), 
 body size is checked against the route's limit, smaller for anonymous requests (413, nothing
 read), a request slot is taken for the request's principal (its user, or its address without a
 token: 503 when the server has none left, 429 when the principal's share of slots or body bytes
-is used; connection closed), and only then the endpoint reads the body, bounded in size (413)
+is used; connection closed, after reading off for up to 2 s what the client still sends, so
+it gets the answer rather than a reset), and only then the endpoint reads the body, bounded in size (413)
 and pace (408). After another error answer a body of at most ``max_anonymous_body_bytes`` (``max_body_bytes`` for users) is drained, at the
 same pace, so keep-alive clients keep their connection; larger or broken ones close it. A full
 disk is a 507. Logged lines carry the method, the path without its query string (LFS upload tickets
@@ -23,6 +24,8 @@ import io
 import json
 import logging
 import re
+import socket
+import time
 from collections.abc import Iterator
 from http.server import BaseHTTPRequestHandler
 from typing import TYPE_CHECKING, Any
@@ -53,6 +56,9 @@ _BAD_HEADER_VALUE = re.compile(r"[\x00-\x08\x0a-\x1f\x7f]")  # CR, LF (folded li
 _CONTENT_LENGTH = re.compile(r"[0-9]{1,18}")
 _DISK_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 _CLOSING = {408: b"408 Request Timeout", 431: b"431 Request Header Fields Too Large"}
+#: after an answer that closes the connection while the client may still be sending its
+#: body: how long and how much of it is read and dropped before the socket closes
+LINGER_S, LINGER_BYTES = 2.0, 16 << 20
 
 
 def escape_controls(text: str) -> str:
@@ -67,6 +73,24 @@ def redact(path: str) -> str:
     return escape_controls(_TICKET_PATH.sub(r"/lfs/\1/<ticket>", path)[:1000])
 
 
+def linger(sock: Any, seconds: float = LINGER_S, max_bytes: int = LINGER_BYTES) -> None:
+    """Close the sending side, then read and drop what the client still sends (until it
+    closes, ``seconds`` pass or ``max_bytes`` arrive). A socket closed with unread input
+    answers a reset, which can reach the client before it reads the answer just sent (a 429
+    or 413 would then look like a broken connection to it)."""
+    deadline = time.monotonic() + seconds
+    try:
+        sock.shutdown(socket.SHUT_WR)
+        while max_bytes > 0 and (left := deadline - time.monotonic()) > 0:
+            sock.settimeout(left)
+            data = sock.recv(min(max_bytes, 1 << 16))
+            if not data:
+                return
+            max_bytes -= len(data)
+    except OSError:  # reset, or timed out
+        pass
+
+
 class HubHandler(BaseHTTPRequestHandler):
     """Parses a request, checks limits, authenticates it, dispatches it to a route and answers."""
 
@@ -76,12 +100,19 @@ class HubHandler(BaseHTTPRequestHandler):
     timeout: float | None = None  # socket timeout, set from Limits.read_timeout_s by the server
     _slot: tuple[str | None, int] | None = None  # the request slot taken: (user or None, body bytes)
     _reader: BodyReader | None = None  # the current request's body, once a slot is taken
+    _linger = False  # closing with the body maybe still coming: read it off first (linger)
 
     def setup(self) -> None:
         super().setup()
         self.rfile.close()  # reads go through SocketInput and its deadlines instead
         self.conn = SocketInput(self.connection, self.app.limits.read_timeout_s)
         self.rfile = io.BufferedReader(self.conn)
+
+    def finish(self) -> None:
+        """Flush the answer; linger (:func:`linger`) when the client may still be sending."""
+        super().finish()
+        if self._linger:
+            linger(self.connection)
 
     def handle_one_request(self) -> None:
         """Wait for a request (read_timeout_s), read its line and headers against their own
@@ -162,6 +193,7 @@ class HubHandler(BaseHTTPRequestHandler):
             drain = limits.max_body_bytes if user is not None else limits.max_anonymous_body_bytes
             if self._reader is None or not self._reader.drain(drain):  # small bodies: keep-alive
                 self.close_connection = True
+                self._linger = self._reader is not None and self._reader.left_unread
             self._send(response)
         finally:
             self._reader = None

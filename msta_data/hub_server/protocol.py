@@ -232,6 +232,11 @@ class BodyReader(io.RawIOBase):
                 raise self._fail(400, "malformed chunked request body (no CRLF after a chunk)")
         return len(data)
 
+    @property
+    def left_unread(self) -> bool:
+        """Part of the body may still be on the connection (not read to its end)."""
+        return not self._eof and (self._chunked or self._remaining > 0)
+
     def drain(self, max_bytes: int) -> bool:
         """Read and discard what is left if that is at most ``max_bytes``; False when the
         connection must be closed instead (broken stream, or too much left)."""

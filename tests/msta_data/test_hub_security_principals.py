@@ -104,6 +104,22 @@ def test_body_bytes_in_progress_are_capped_per_user(tmp_path):
     srv.stop()
 
 
+def test_a_refused_client_still_sending_its_body_reads_the_429(tmp_path):
+    """A body refused unread (alice's byte budget in use) and larger than the sockets' buffers:
+    the server reads off what she still sends before it closes, so her client gets the 429
+    and not a reset while sending (the race a smaller refused body met now and then)."""
+    srv = H.start_server(tmp_path / "hub", max_user_body_bytes=1 << 20)
+    H.create_repo(srv, ALICE, "m")
+    slow = _slow_commit(srv, ALICE, "alice/m", 800_000)
+    try:
+        _held(srv, "alice", 1)
+        status, body = H.commit(srv, ALICE, "alice/m", [H.inline_file("big.bin", b"\0" * (6 << 20))])
+        assert status == 429 and "max_user_body_bytes" in json.loads(body)["error"]
+    finally:
+        slow.close()
+    srv.stop()
+
+
 def test_an_lfs_upload_counts_for_the_user_whose_ticket_it_carries(tmp_path):
     """A PUT carries no token but a ticket: alice at her cap of 2 slots gets 429 for an upload
     with her ticket, while bob's upload is served."""
