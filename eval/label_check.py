@@ -1,6 +1,6 @@
 """Are a teacher's labels sound on the states a student drives into? (stage 2's premise)
 
-    python -m msta.eval.label_check --policy.path=outputs/demo/stage1/final --robots=60 \\
+    python -m msta.eval.label_check --policy.path=outputs/demo/stage1/final --num_envs=60 \\
         --student_seconds=3 --episode_length_s=5
 
 The student drives every robot for ``--student_seconds`` while the teacher sees every
@@ -61,7 +61,7 @@ class LabelCheckConfig:
         robot: the simulated robot, the one the teacher is built for and the student was
             trained on: a shipped robot's name (a1, go1) or a spec file's path
             (docs/robots.md).
-        robots: robots per row (every row drives the same robots).
+        num_envs: robots simulated per row (every row drives the same robots).
         student_seconds: seconds the student drives before the teacher takes over.
         episode_length_s: episode length (s); the teacher drives from ``student_seconds`` on.
         max_level: robots start on terrain levels 0..max_level.
@@ -72,7 +72,7 @@ class LabelCheckConfig:
     policy: PolicyPath = field(default_factory=PolicyPath)
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     robot: str = LEGACY_ROBOT
-    robots: int = 60
+    num_envs: int = 60
     student_seconds: float = 3.0
     episode_length_s: float = 5.0
     max_level: int = 2
@@ -81,7 +81,7 @@ class LabelCheckConfig:
 
     def __post_init__(self) -> None:
         load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
-        check_at_least(self, 1, "robots", "num_threads")
+        check_at_least(self, 1, "num_envs", "num_threads")
         if self.max_level < 0:
             raise ValueError(f"max_level={self.max_level} must be >= 0")
         if not 0 < self.student_seconds < self.episode_length_s:
@@ -125,7 +125,7 @@ def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | 
     dt = load_sim_robot(cfg.robot, "robot").control_dt
     switch = round(cfg.student_seconds / dt)
     steps = round(cfg.episode_length_s / dt)
-    env = QuadrupedEnv(EnvConfig(robot=cfg.robot, num_envs=cfg.robots, seed=cfg.seed, nthread=1,
+    env = QuadrupedEnv(EnvConfig(robot=cfg.robot, num_envs=cfg.num_envs, seed=cfg.seed, nthread=1,
                                  episode_length_s=steps * dt + 1.0,
                                  terrain=TerrainConfig(max_init_level=cfg.max_level)))
     env.reset()
@@ -134,15 +134,15 @@ def run_mode(mode: str, policy: Any, cfg: LabelCheckConfig) -> dict[str, Any] | 
         if not hasattr(teacher, "follow_robot"):
             return None
         teacher.follow_robot = True
-    driver = TakeoverDriver(mode, teacher, StudentActor(policy, cfg.robots), switch)
-    alive, lin = np.ones(cfg.robots, dtype=bool), np.zeros(cfg.robots)
+    driver = TakeoverDriver(mode, teacher, StudentActor(policy, cfg.num_envs), switch)
+    alive, lin = np.ones(cfg.num_envs, dtype=bool), np.zeros(cfg.num_envs)
 
     def on_step(step: Step) -> None:
         lin[alive] += step_quantities(step)["lin"][alive]
         alive[fell(step.res)] = False    # a fallen robot scores nothing afterwards
 
     rollout(env, driver, on_step, max_steps=steps, reset_done=False)
-    return {"fell": ~alive, "robots": cfg.robots, "lin": lin / steps}
+    return {"fell": ~alive, "robots": cfg.num_envs, "lin": lin / steps}
 
 
 def load_student(spec: str) -> Any:

@@ -12,7 +12,7 @@ from msta.policies.teacher.config import TeacherConfig
 
 
 def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):
-    cfg = LabelCheckConfig(policy=PolicyPath(str(tiny_ckpt)), robots=3, student_seconds=0.2,
+    cfg = LabelCheckConfig(policy=PolicyPath(str(tiny_ckpt)), num_envs=3, student_seconds=0.2,
                            episode_length_s=0.4, max_level=0,
                            teacher=TeacherConfig(type="gait"))  # has follow_robot
     rows = label_check(cfg)
@@ -29,7 +29,7 @@ def test_rows_share_robots_and_the_teacher_is_the_reference(tiny_ckpt, capsys):
 
 
 def test_the_command_line_prints_the_table(tiny_ckpt, capsys):
-    main([f"--policy.path={tiny_ckpt}", "--teacher.type=zero", "--robots=2",
+    main([f"--policy.path={tiny_ckpt}", "--teacher.type=zero", "--num_envs=2",
           "--student_seconds=0.04", "--episode_length_s=0.1", "--max_level=0"])
     out = capsys.readouterr().out
     assert "| takeover reset | 2 |" in out
@@ -42,7 +42,7 @@ def test_the_command_line_prints_the_table(tiny_ckpt, capsys):
     (["--policy=x"], "--policy is a group of options; give --policy.path=..."),
     (["--student_seconds=5", "--episode_length_s=3"],
      "need 0 < student_seconds < episode_length_s"),
-    (["--robots=0"], "robots=0 must be >= 1"),
+    (["--num_envs=0"], "num_envs=0 must be >= 1"),
     (["--teacher.type=nope"], "unknown teacher type 'nope'"),
 ])
 def test_clear_errors(args, message, tiny_ckpt, capsys):
@@ -60,7 +60,7 @@ def test_robot_runs_the_env_and_the_teacher_on_that_robot(tmp_path, capsys):
     no_contacts = tuple(s for s in STUDENT_SENSORS if s != "foot_contact")
     go1_ckpt = tiny_msta(3, robots=("go1",), input_sensors=no_contacts).save_pretrained(
         tmp_path / "go1")
-    cfg = LabelCheckConfig(policy=PolicyPath(str(go1_ckpt)), robot="go1", robots=2,
+    cfg = LabelCheckConfig(policy=PolicyPath(str(go1_ckpt)), robot="go1", num_envs=2,
                            student_seconds=0.04, episode_length_s=0.1, max_level=0,
                            teacher=TeacherConfig(type="gait"))
     rows = label_check(cfg)

@@ -46,7 +46,7 @@ SCRIPTS = {
     "python -m msta.eval.bench.data": (bench_data_main, "--frames", "--frames=0"),
     "python -m msta.eval.bench.deploy": (bench_deploy_main, "--preset", "--preset=huge"),
     "msta-export": (export_main, "--sensors", "--tolerance=0"),
-    "python -m msta.eval.label_check": (label_check_main, "--student_seconds", "--robots=0"),
+    "python -m msta.eval.label_check": (label_check_main, "--student_seconds", "--num_envs=0"),
     "python -m msta.eval.report": (report_main, "--output_dir", "--metrics=/no/such/metrics.json"),
     "python -m msta.eval.teacher_report": (teacher_report_main, "--envs_per_tile", "--levels=3-12"),
 }
