@@ -23,7 +23,11 @@ TOKEN = "hf_cpu_alice_0041"
 #: a fraction of a second of CPU
 BIG_CARD = json.dumps({"content": "---\n" + "".join(f"k{i}: v\n" for i in range(49_000))
                        + "---\n", "repoType": "dataset"}).encode()
-ANONYMOUS = 8  # the default --max_anonymous_per_client
+#: anonymous load clients: one below the default --max_anonymous_per_client (8). A client's
+#: next request can reach the server before it has released the slot of the answer that
+#: client just read; at the cap that request is a 429 (Retry-After 1, which huggingface_hub
+#: retries). The load here is about the parser slots, which 7 clients fill as 8 do.
+ANONYMOUS = 7
 
 
 @pytest.fixture
@@ -70,7 +74,7 @@ def _call(port: int, method: str, path: str, body: bytes | None = None,
 
 
 def test_a_users_card_never_waits_behind_anonymous_cards(port):
-    """Eight anonymous clients parse large valid cards without pause (validate-yaml); a
+    """Seven anonymous clients parse large valid cards without pause (validate-yaml); a
     user's repo_info, which parses its small card, is answered in less than twice the time
     one of those anonymous requests takes alone (0.2 s against 0.55 s here). It used to
     queue behind them for the two parser slots shared by all: about four anonymous parses
@@ -81,7 +85,10 @@ def test_a_users_card_never_waits_behind_anonymous_cards(port):
 
     def load() -> None:
         while not stop.is_set():
-            statuses.append(_call(port, "POST", "/api/validate-yaml", BIG_CARD)[0])
+            try:
+                statuses.append(_call(port, "POST", "/api/validate-yaml", BIG_CARD)[0])
+            except OSError:  # a broken connection fails the test below, not the thread alone
+                statuses.append(-1)
 
     threads = [threading.Thread(target=load, daemon=True) for _ in range(ANONYMOUS)]
     for t in threads:
