@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from msta.collect.record import CollectConfig, collect
-from msta.collect.sim.env_config import EnvConfig
+from msta.collect.sim.env_config import EnvConfig, load_sim_robot
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig, simulate
 from msta.data.checks import check_at_least
@@ -67,7 +67,8 @@ OUTPUTS_SIGN = frozenset({"hub", "hub_cache", "pulled", "verdict.txt"})
 
 def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: float,
                          repo_id: str, teacher: TeacherConfig | None = None,
-                         action_noise: float = 0.0, extra_sensors: str = "") -> Path:
+                         action_noise: float = 0.0, extra_sensors: str = "",
+                         robot: str = "a1") -> Path:
     """The demo's teacher dataset: a teacher (default: msta's default teacher,
     :class:`~msta.policies.teacher.config.TeacherConfig`'s) on terrain levels 0-2, seed 0,
     up to 64 robots at once (``make demo``, ``msta-repro``, ``make device-check``,
@@ -81,19 +82,28 @@ def easy_terrain_dataset(root: str | Path, episodes: int, episode_length_s: floa
         teacher: the recording teacher (None: ``TeacherConfig()``).
         action_noise: ``CollectConfig.action_noise`` (DART).
         extra_sensors: ``CollectConfig.extra_sensors`` (e.g. ``"height_map"``).
+        robot: the simulated robot (``EnvConfig.robot``).
     """
     return collect(CollectConfig(
         teacher=teacher or TeacherConfig(), episodes=episodes, num_envs=min(episodes, 64),
         repo_id=repo_id, root=str(root), episode_length_s=episode_length_s, seed=0,
-        env=EnvConfig(terrain=TerrainConfig(max_init_level=2)), action_noise=action_noise,
+        env=EnvConfig(robot=robot, terrain=TerrainConfig(max_init_level=2)),
+        action_noise=action_noise,
         extra_sensors=extra_sensors, progress=False))
 
 
-def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig) -> None:
+def robot_name(robot: str) -> str:
+    """The name ``--robot`` gives the demo's datasets and models (``a1_teacher``,
+    ``msta_a1``): the spec's ``name``."""
+    return load_sim_robot(robot, "robot").name
+
+
+def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: TeacherConfig,
+                 robot: str) -> None:
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
     cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
-                                     terrain=terrain),
+                                     terrain=terrain, robot=robot),
                        teacher=teacher, seconds=seconds,
                        output_dir=str(out / "teacher"), progress=False)
     print(f"\n== 1. the {teacher.type} teacher on every terrain type ({envs_per_type} robots per type, "
@@ -102,17 +112,18 @@ def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: Teacher
 
 
 def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfig,
-                 noise: float) -> Path:
+                 noise: float, robot: str) -> Path:
     print(f"\n== 2. msta-collect: {episodes} {teacher.type} teacher episodes of up to "
           f"{seconds:.0f} s" + (f", noise of std {noise:g} on its executed actions (DART)"
                                 if noise else "") + " ==")
-    return easy_terrain_dataset(out / "datasets" / "a1_teacher", episodes, seconds,
-                                "demo/a1_teacher", teacher, action_noise=noise)
+    name = robot_name(robot)
+    return easy_terrain_dataset(out / "datasets" / f"{name}_teacher", episodes, seconds,
+                                f"demo/{name}_teacher", teacher, action_noise=noise, robot=robot)
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
                mask: float = MSTAConfig.mask_ratio, model: dict[str, Any] | None = None,
-               **loop: float) -> Path:
+               robot: str = "a1", **loop: float) -> Path:
     """Stage 1; ``model``: fields of the student's config over the ``cpu`` preset."""
     model = model or {}
     preset = MSTAConfig.PRESETS["cpu"]
@@ -126,7 +137,7 @@ def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
         dataset=dataset, policy=MSTAConfig.from_preset(
             "cpu", history=history, mask_ratio=mask, **model),
         output_dir=str(out / "stage1"),
-        push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
+        push_to=f"{HUB_USER}/msta_{robot_name(robot)}", num_threads=threads,
         steps=steps, batch_size=64, warmup_steps=min(100, steps // 5),
         eval_every=max(steps // 2, 1), save_every=steps, progress=False, **loop))
 
@@ -143,9 +154,9 @@ def start_hub(out: Path):
 
 def step_push(dataset: Path) -> str:
     print("\n== 3. local hub: push the dataset ==")
-    sha = push_dataset(dataset, f"{HUB_USER}/a1_teacher")
-    print(f"dataset  {HUB_USER}/a1_teacher  commit {sha[:12]} (tag v3.0)")
-    return f"datasets/{HUB_USER}/a1_teacher@{sha}"
+    sha = push_dataset(dataset, f"{HUB_USER}/{dataset.name}")
+    print(f"dataset  {HUB_USER}/{dataset.name}  commit {sha[:12]} (tag v3.0)")
+    return f"datasets/{HUB_USER}/{dataset.name}@{sha}"
 
 
 #: Rounds are compared on msta-eval trials with this seed (the final test uses seed 0).
@@ -169,7 +180,8 @@ def round_scores(progress: dict) -> dict[int, float]:
 def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, mask: float, threads: int, select_trials: int,
                  select_s: float, teacher: TeacherConfig,
-                 rollout_masks: tuple[float, ...] = (), **loop: float) -> int:
+                 rollout_masks: tuple[float, ...] = (), robot: str = "a1",
+                 **loop: float) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
     best on the selection trials (DAgger promises a good policy among its iterates, not
     that the last is best). ``select_trials=0``: no round evaluation (it costs about as
@@ -181,7 +193,8 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
           "labels every step; retrain "
           f"{steps} steps at lr 1e-3, mask ratio {mask:g}) ==")
     cfg = CorrectConfig(policy=PolicyPath(str(stage1)), dataset=dataset, output_dir=str(out / "stage2"),
-                        push_to=f"{HUB_USER}/msta_a1", num_threads=threads,
+                        push_to=f"{HUB_USER}/msta_{robot_name(robot)}", num_threads=threads,
+                        env=EnvConfig(robot=robot),
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask, teacher=teacher, rollout_mask_ratios=rollout_masks,
@@ -208,19 +221,20 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
 
 
 def step_eval(out: Path, best: int, trials: int, episode_length_s: float, threads: int,
-              teacher: TeacherConfig) -> dict:
+              teacher: TeacherConfig, robot: str = "a1") -> dict:
     tag = f"stage2-r{best}" if best else "stage1"
     print(f"\n== 6. pull the {tag} checkpoint by tag and evaluate it (msta-eval: test masks "
           f"0 / 25 / 50 %, {trials} trials of {episode_length_s:g} s over the five terrains at levels "
           "0-2) ==")
-    pulled = pull(f"{HUB_USER}/msta_a1@{tag}", out / "pulled" / tag)
+    pulled = pull(f"{HUB_USER}/msta_{robot_name(robot)}@{tag}", out / "pulled" / tag)
     print(f"pulled to {pulled}")
     from msta.eval.evaluation import evaluate  # lazy: torch after parsing (--help at once)
 
     metrics = evaluate(EvalConfig(policies=f"teacher,{pulled}", suite="quick",
                                   scenarios="token_removal", output_dir=str(out / "eval"),
                                   trials=trials, levels="0,1,2", episode_length_s=episode_length_s,
-                                  num_threads=threads, progress=False, teacher=teacher))
+                                  num_threads=threads, progress=False, teacher=teacher,
+                                  robot=robot))
     report = out / "eval" / "report.md"
     if report.exists():
         print(report.read_text())
@@ -315,6 +329,10 @@ class DemoConfig:
         eval_trials: msta-eval trials per test mask (spread over 5 terrains x levels 0-2).
         eval_episode_length_s: msta-eval episode length (s).
         num_threads: torch threads for training and evaluation.
+        robot: the simulated robot, a shipped robot's name (``a1``, ``go1``) or a spec
+            file's path (docs/robots.md); names the datasets and models
+            (``<robot>_teacher``, ``msta_<robot>``). Another robot than the A1 needs a teacher
+            of its own (the shipped RMA teachers were trained on the A1).
         teacher: the teacher that records, labels the stage-2 rounds and is the evaluation's
             reference. Default: the shipped PPO-trained RMA MLP
             (policies/teacher/checkpoints/rma_ppo; memoryless, so its labels on the
@@ -351,6 +369,7 @@ class DemoConfig:
     eval_trials: int = 100
     eval_episode_length_s: float = 5.0
     num_threads: int = 2
+    robot: str = "a1"
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
 
     def __post_init__(self) -> None:
@@ -377,6 +396,12 @@ class DemoConfig:
             raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
+        name = robot_name(self.robot)
+        if name != "a1" and self.teacher.a1_checkpoint:
+            raise ValueError(f"robot={self.robot}: the teacher {self.teacher.path} was trained on "
+                             f"the A1; give {name}'s own (--teacher.path=<dir of "
+                             f"msta-train-teacher --env.robot={self.robot}>) or "
+                             "--teacher.type=gait")
 
     def model(self) -> dict[str, Any]:
         """The student's config fields this demo sets over the ``cpu`` preset."""
@@ -393,10 +418,10 @@ def main(argv: list[str] | None = None) -> None:
     t0 = time.time()
     with timed("step 1"):
         step_teacher(out, seconds=cfg.teacher_seconds, envs_per_type=cfg.envs_per_type,
-                     teacher=cfg.teacher)
+                     teacher=cfg.teacher, robot=cfg.robot)
     with timed("step 2"):
         dataset = step_collect(out, cfg.episodes, cfg.episode_length_s, cfg.teacher,
-                               cfg.action_noise)
+                               cfg.action_noise, cfg.robot)
     server = start_hub(out)
     loop = {"sensor_dropout": cfg.sensor_dropout, "unmasked_share": cfg.unmasked_share,
             "ema_decay": cfg.ema_decay}
@@ -405,7 +430,8 @@ def main(argv: list[str] | None = None) -> None:
             hub_dataset = step_push(dataset)
         with timed("step 4"):
             stage1 = step_train(out, hub_dataset, cfg.train_steps, cfg.num_threads,
-                                cfg.history, cfg.train_mask_ratio, cfg.model(), **loop)
+                                cfg.history, cfg.train_mask_ratio, cfg.model(),
+                                robot=cfg.robot, **loop)
         best = 0
         if cfg.rounds:
             with timed("step 5"):
@@ -413,10 +439,10 @@ def main(argv: list[str] | None = None) -> None:
                                     cfg.correct_episodes, cfg.correct_mask_ratio,
                                     cfg.num_threads, cfg.select_trials,
                                     cfg.select_episode_length_s, cfg.teacher,
-                                    cfg.rollout_mask_ratios, **loop)
+                                    cfg.rollout_mask_ratios, robot=cfg.robot, **loop)
         with timed("step 6"):
             metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
-                                cfg.num_threads, cfg.teacher)
+                                cfg.num_threads, cfg.teacher, cfg.robot)
     finally:
         server.stop()
     _, line = verdict(metrics)

@@ -78,6 +78,13 @@ class TeacherConfig:
             raise FileNotFoundError(f"teacher path {self.path!r} does not exist")
 
     @property
+    def a1_checkpoint(self) -> bool:
+        """Whether this is one of the shipped RMA checkpoints, which were trained on the A1
+        (their joint angles read relative to the A1's default pose): a command for another
+        robot refuses them where it trains a student for that robot (msta-demo)."""
+        return bool(self.path) and Path(self.path).resolve() in (SHIPPED_RMA, SHIPPED_RMA_PPO)
+
+    @property
     def label(self) -> str:
         """The teacher as reports name it: ``rma (rma_ppo)``, ``gait``."""
         return f"{self.type} ({Path(self.path).name})" if self.path else self.type

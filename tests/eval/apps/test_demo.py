@@ -106,3 +106,31 @@ def test_verdict_applies_the_walking_bar():
         assert not walks and "does NOT walk yet" in line
     walks, line = verdict({"runs": []})
     assert not walks and "evaluation failed" in line
+
+
+def test_demo_runs_on_another_robot(tmp_path, capsys):
+    """--robot=go1: every step simulates the Go1 (its gait controller records, labels and
+    is the reference), and the datasets, models and evaluation name and record it."""
+    out = tmp_path / "demo"
+    main([f"--output_dir={out}", "--robot=go1", "--teacher.type=gait", "--episodes=3",
+          "--episode_length_s=0.5", "--train_steps=2", "--rounds=1", "--correct_steps=2",
+          "--correct_episodes=2", "--teacher_seconds=0.4", "--envs_per_type=1",
+          "--eval_trials=5", "--eval_episode_length_s=0.3", "--num_threads=1",
+          "--history=2", "--action_noise=0"])
+    text = capsys.readouterr().out
+    meta = json.loads((out / "datasets" / "go1_teacher" / "meta" / "msta.json").read_text())
+    assert meta["robot"] == "go1"
+    for ckpt in (out / "stage1" / "final", out / "stage2" / "round_1"):
+        config = json.loads((ckpt / "config.json").read_text())
+        assert config["robots"] == ["go1"]
+        assert "foot_contact" not in config["input_sensors"]  # the Go1 has no contact switches
+    assert "demo/msta_go1@stage2-r1" in text and "dataset  demo/go1_teacher  commit" in text
+    assert json.loads((out / "eval" / "metrics.json").read_text())["config"]["robot"] == "go1"
+
+
+def test_demo_refuses_the_a1_teacher_on_another_robot(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main([f"--output_dir={tmp_path / 'demo'}", "--robot=go1"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "robot=go1: the teacher" in err and "rma_ppo was trained on the A1" in err
+    assert not (tmp_path / "demo").exists()
