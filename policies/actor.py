@@ -56,6 +56,7 @@ class StudentActor:
                      for s in self.sensors}
         self.pad = np.ones((num_envs, self.history), dtype=bool)
         self.fresh = np.ones(num_envs, dtype=bool)
+        self.offered_checked = False
         self.generator = torch.Generator().manual_seed(spec.seed)
 
     def reset(self, ids: np.ndarray) -> None:
@@ -80,10 +81,27 @@ class StudentActor:
 
     def window(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Push this step's observation and return the batch the policy sees."""
+        if not self.offered_checked:
+            self._drop_unoffered(obs)
         self._push(obs)
         batch = {s: self.hist[s] for s in self.sensors}
         batch["pad"] = self.pad
         return batch
+
+    def _drop_unoffered(self, obs: dict[str, np.ndarray]) -> None:
+        """At the first step: inputs the simulated robot does not offer (a student trained on
+        several robots, ``msta-train --more_datasets``, reads the sensors of each) are removed
+        for good, as a dropped sensor is (``supports_absent`` students: msta's all are)."""
+        missing = [s for s in self.sensors if s not in obs]
+        if missing:
+            self.policy.check_absent()
+        if len(missing) == len(self.sensors):
+            raise ValueError(f"the simulated robot offers none of the student's inputs "
+                             f"{list(self.sensors)}")
+        self.sensors = tuple(s for s in self.sensors if s not in missing)
+        for s in missing:
+            self.hist.pop(s)
+        self.offered_checked = True
 
     def act(self, obs: dict[str, np.ndarray],
             absent: dict[str, np.ndarray] | None = None) -> np.ndarray:

@@ -22,7 +22,7 @@ from msta.train.ddp import FitJob, Group, current, join, launched, leave
 from msta.train.optim import WeightEMA, make_optimizer, make_scheduler
 from msta.train.sampling import WindowSampler
 from msta.train.state import restore_checkpoint, save_checkpoint
-from msta.train.step import draw_sensor_dropout, draw_step_mask, train_step, validate
+from msta.train.step import batch_absent, draw_sensor_dropout, draw_step_mask, train_step, validate
 
 CSV_FIELDS = ("step", "lr", "loss", "action_mse", "grad_norm", "samples_per_s",
               "val_loss", "val_loss_unmasked", "val_action_mse")
@@ -140,9 +140,10 @@ def _one_step(policy: StudentPolicy, train_ds: Any, cfg: LoopConfig,
     """One optimizer step (and the weight average's); the result is the average at the end."""
     t0 = time.perf_counter()
     rows = run.sampler.next_batch()  # the global batch: the same for any number of processes
-    batch = train_ds.get_batch(rows if run.group is None else run.group.shard(rows))
-    absent = draw_sensor_dropout(policy, len(batch[policy.config.action_key]),
-                                 cfg.sensor_dropout, run.gen) if cfg.sensor_dropout else None
+    rows = rows if run.group is None else run.group.shard(rows)
+    batch = train_ds.get_batch(rows)
+    absent = batch_absent(train_ds, rows, draw_sensor_dropout(
+        policy, len(rows), cfg.sensor_dropout, run.gen) if cfg.sensor_dropout else None)
     mask = draw_step_mask(run.mask_ratio, cfg.unmasked_share, run.gen)
     metrics = train_step(policy, run.optimizer, run.scheduler, batch, cfg.grad_clip,
                          mask, run.gen, dummy_tokens=cfg.dummy_tokens,

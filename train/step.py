@@ -95,6 +95,22 @@ def draw_sensor_dropout(policy: StudentPolicy, batch_size: int, rate: float,
             for i, s in enumerate(sensors)}
 
 
+def batch_absent(dataset: Any, indices: np.ndarray,
+                 dropout: Mapping[str, torch.Tensor] | None = None
+                 ) -> dict[str, torch.Tensor] | None:
+    """The channels removed from a batch: those of the samples whose dataset does not record
+    them (a :class:`~msta.data.window_union.WindowUnion`'s ``absent_of``; a single dataset has
+    none) joined with ``dropout``'s (:func:`draw_sensor_dropout`); None when nothing is."""
+    fn = getattr(dataset, "absent_of", None)
+    got = fn(indices) if fn is not None else None
+    if got is None:
+        return dict(dropout) if dropout else None
+    out = {s: torch.from_numpy(m) for s, m in got.items()}
+    for s, m in (dropout or {}).items():
+        out[s] = out[s].to(m.device) | m if s in out else m
+    return out
+
+
 def draw_step_mask(mask_ratio: float, unmasked_share: float,
                    generator: torch.Generator) -> float:
     """This step's training mask: 0 (every token) with probability ``unmasked_share``, else
@@ -133,8 +149,9 @@ def validate(policy: StudentPolicy, dataset: Any, batch_size: int, max_samples: 
         for lo in range(0, len(idx), batch_size):
             part = idx[lo:lo + batch_size]
             batch = dataset.get_batch(part)
-            _, m0 = policy.loss(batch, mask_ratio=0.0)
-            _, mm = policy.loss(batch, mask_ratio=mask_ratio, generator=gen)
+            gone = {"absent": a} if (a := batch_absent(dataset, part)) else {}
+            _, m0 = policy.loss(batch, mask_ratio=0.0, **gone)
+            _, mm = policy.loss(batch, mask_ratio=mask_ratio, generator=gen, **gone)
             sums["loss"] += mm["loss"] * len(part)
             sums["loss_unmasked"] += m0["loss"] * len(part)
             sums["action_mse"] += m0["action_mse"] * len(part)

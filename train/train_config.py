@@ -13,13 +13,20 @@ from msta.train.config import LoopConfig
 from msta.train.push import check_push_to
 
 #: Fields that must match the saved train_config.json when resuming.
-RESUME_FIELDS = ("dataset", "policy", "batch_size", "seed", "val_fraction", "mask_ratio")
+RESUME_FIELDS = ("dataset", "more_datasets", "policy", "batch_size", "seed", "val_fraction", "mask_ratio")
+#: Values of RESUME_FIELDS in train_config.json files written before the field existed.
+RESUME_LEGACY = {"more_datasets": []}
 
 
 @dataclass
 class TrainConfig(LoopConfig):
     """Args:
         dataset: local dataset root, or a hub id ``[datasets/]user/name[@revision]``.
+        more_datasets: further datasets trained on together with ``dataset``, of the same
+            robot or of others (``[a,b]``): one student for several robots (docs/robots.md).
+            Each sample reads the inputs its dataset records; an input another dataset lacks
+            is removed from that dataset's samples, which only an MSTA student can do. The
+            checkpoint records every dataset's robot.
         policy: the student (``--policy.type=msta``, ``--policy.preset=cpu``,
             ``--policy.<field>=...``).
         output_dir: where checkpoints and metrics go (must be new unless ``resume``).
@@ -33,6 +40,7 @@ class TrainConfig(LoopConfig):
     """
 
     dataset: str = ""
+    more_datasets: tuple[str, ...] = ()
     policy: PolicyConfig = field(default_factory=MSTAConfig)
     output_dir: str = "outputs/train/msta"
     resume: bool = False
