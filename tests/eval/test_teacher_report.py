@@ -62,6 +62,7 @@ def test_the_command_line_writes_the_report_with_its_regenerate_line(tmp_path, c
             f"--envs_per_tile=2 --terrains=flat --levels=0-1 --episode_length_s=0.1 "
             f"--nthread=1 --columns=1 --report={out} --image=''`") in md
     assert "| 1 | 2 | 100.0% |" in md and f"wrote {out}" in capsys.readouterr().out
+    assert "| survival L0-1 | mean abs(v err) L0-1 |" in md  # the levels it averaged
     gait = tr.TeacherReportConfig(teacher=TeacherConfig(type="gait"))
     assert tr.command_line(gait) == (
         "python -m msta.eval.teacher_report --teacher.type=gait --episodes=100 --envs_per_tile=10")
