@@ -332,7 +332,9 @@ class DemoConfig:
         robot: the simulated robot, a shipped robot's name (``a1``, ``go1``) or a spec
             file's path (docs/robots.md); names the datasets and models
             (``<robot>_teacher``, ``msta_<robot>``). Another robot than the A1 needs a teacher
-            of its own (the shipped RMA teachers were trained on the A1).
+            of its own (the shipped ``rma_ppo`` was trained on the A1): the Go1 takes its
+            shipped ``go1_ppo`` by default; a robot of your own, ``--teacher.path`` or
+            ``--teacher.type=gait``.
         teacher: the teacher that records, labels the stage-2 rounds and is the evaluation's
             reference. Default: the shipped PPO-trained RMA MLP
             (policies/teacher/checkpoints/rma_ppo; memoryless, so its labels on the
@@ -397,11 +399,16 @@ class DemoConfig:
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
         name = robot_name(self.robot)
-        if name != "a1" and self.teacher.a1_checkpoint:
+        own = self.teacher.for_robot(name)
+        if own is None:
             raise ValueError(f"robot={self.robot}: the teacher {self.teacher.path} was trained on "
                              f"the A1; give {name}'s own (--teacher.path=<dir of "
                              f"msta-train-teacher --env.robot={self.robot}>) or "
                              "--teacher.type=gait")
+        if own is not self.teacher:
+            print(f"msta-demo: robot {name} takes its shipped teacher {own.label}, not "
+                  f"{self.teacher.label} (trained on the A1)", flush=True)
+            self.teacher = own
 
     def model(self) -> dict[str, Any]:
         """The student's config fields this demo sets over the ``cpu`` preset."""

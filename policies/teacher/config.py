@@ -46,6 +46,10 @@ SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
 #: obstacles better than the gait controller, whose labels contradict a student-driven robot
 #: (docs/teacher_quality.md, ``produced_by.json`` in the folder).
 SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
+#: PPO-trained RMA teachers shipped for the other shipped robots (robot name -> checkpoint):
+#: the Go1's, ``msta-train-teacher --env.robot=go1`` (``produced_by.json`` in the folder;
+#: docs/robots.md). Commands take them with ``--teacher.path``; msta-demo ``--robot`` by default.
+SHIPPED_ROBOT_RMA = {"go1": Path(__file__).resolve().parent / "checkpoints" / "go1_ppo"}
 
 
 @dataclass
@@ -83,6 +87,15 @@ class TeacherConfig:
         (their joint angles read relative to the A1's default pose): a command for another
         robot refuses them where it trains a student for that robot (msta-demo)."""
         return bool(self.path) and Path(self.path).resolve() in (SHIPPED_RMA, SHIPPED_RMA_PPO)
+
+    def for_robot(self, robot: str) -> TeacherConfig | None:
+        """The teacher for ``robot`` (a spec's name): this one, unless it is one of the A1's
+        shipped checkpoints (:attr:`a1_checkpoint`) and ``robot`` is another; then the robot's
+        shipped teacher (``SHIPPED_ROBOT_RMA``), or None where msta ships none."""
+        if robot == "a1" or not self.a1_checkpoint:
+            return self
+        own = SHIPPED_ROBOT_RMA.get(robot)
+        return TeacherConfig(type="rma", path=str(own)) if own is not None else None
 
     @property
     def label(self) -> str:

@@ -8,8 +8,10 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from msta_test_helpers import write_robot_spec  # registered by conftest.py
 
-from msta.eval.apps.demo import main
+from msta.eval.apps.demo import DemoConfig, main
+from msta.policies.teacher.config import SHIPPED_ROBOT_RMA, TeacherConfig
 
 
 @pytest.mark.parametrize("teacher,select", [("gait", 5), ("rma", 0)])
@@ -128,9 +130,18 @@ def test_demo_runs_on_another_robot(tmp_path, capsys):
     assert json.loads((out / "eval" / "metrics.json").read_text())["config"]["robot"] == "go1"
 
 
-def test_demo_refuses_the_a1_teacher_on_another_robot(tmp_path, capsys):
+def test_demo_takes_the_robots_own_teacher(tmp_path, capsys):
+    """The Go1 takes its shipped teacher in place of the A1's; a robot msta ships no teacher
+    for is refused in one line with the A1's, before anything is written."""
+    go1 = DemoConfig(robot="go1")
+    assert go1.teacher == TeacherConfig(type="rma", path=str(SHIPPED_ROBOT_RMA["go1"]))
+    assert "robot go1 takes its shipped teacher rma (go1_ppo)" in capsys.readouterr().out
+    assert DemoConfig(robot="go1", teacher=TeacherConfig(type="gait")).teacher.type == "gait"
+    assert DemoConfig().teacher == TeacherConfig()  # the A1: rma_ppo
+    (tmp_path / "mine").mkdir()
+    spec = write_robot_spec(tmp_path / "mine", name="mine")
     with pytest.raises(SystemExit):
-        main([f"--output_dir={tmp_path / 'demo'}", "--robot=go1"])
+        main([f"--output_dir={tmp_path / 'demo'}", f"--robot={spec}"])
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert "robot=go1: the teacher" in err and "rma_ppo was trained on the A1" in err
+    assert f"robot={spec}: the teacher" in err and "rma_ppo was trained on the A1" in err
     assert not (tmp_path / "demo").exists()
