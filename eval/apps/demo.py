@@ -42,6 +42,7 @@ from msta.collect.record import CollectConfig, collect
 from msta.collect.sim.env_config import EnvConfig, load_sim_robot
 from msta.collect.sim.terrain import TerrainConfig
 from msta.collect.simulate import SimRunConfig, simulate
+from msta.data import sensors
 from msta.data.checks import check_at_least
 from msta.data.cli import parse_config
 from msta.data.hub_pull import pull
@@ -112,13 +113,14 @@ def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: Teacher
 
 
 def step_collect(out: Path, episodes: int, seconds: float, teacher: TeacherConfig,
-                 noise: float, robot: str) -> Path:
+                 noise: float, robot: str, extra: str = "") -> Path:
     print(f"\n== 2. msta-collect: {episodes} {teacher.type} teacher episodes of up to "
           f"{seconds:.0f} s" + (f", noise of std {noise:g} on its executed actions (DART)"
                                 if noise else "") + " ==")
     name = robot_name(robot)
     return easy_terrain_dataset(out / "datasets" / f"{name}_teacher", episodes, seconds,
-                                f"demo/{name}_teacher", teacher, action_noise=noise, robot=robot)
+                                f"demo/{name}_teacher", teacher, action_noise=noise, robot=robot,
+                                extra_sensors=extra)
 
 
 def step_train(out: Path, dataset: str, steps: int, threads: int, history: int,
@@ -329,6 +331,9 @@ class DemoConfig:
         eval_trials: msta-eval trials per test mask (spread over 5 terrains x levels 0-2).
         eval_episode_length_s: msta-eval episode length (s).
         num_threads: torch threads for training and evaluation.
+        extra_inputs: comma-separated sensors the robot offers beyond the paper's inputs,
+            recorded and read by the student besides them (the Go1's ``joint_torque,base_accel``;
+            docs/robots.md); empty: the paper's inputs the robot offers.
         robot: the simulated robot, a shipped robot's name (``a1``, ``go1``) or a spec
             file's path (docs/robots.md); names the datasets and models
             (``<robot>_teacher``, ``msta_<robot>``). Another robot than the A1 needs a teacher
@@ -371,6 +376,7 @@ class DemoConfig:
     eval_trials: int = 100
     eval_episode_length_s: float = 5.0
     num_threads: int = 2
+    extra_inputs: str = ""
     robot: str = "a1"
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
 
@@ -411,9 +417,20 @@ class DemoConfig:
             self.teacher = own
 
     def model(self) -> dict[str, Any]:
-        """The student's config fields this demo sets over the ``cpu`` preset."""
-        return {"aux_target": self.aux_target, "attention": self.attention,
-                "readout_layers": self.readout_layers, "tokens": self.tokens}
+        """The student's config fields this demo sets over the ``cpu`` preset (the inputs only
+        with ``extra_inputs``: the paper's the robot offers, then those)."""
+        fields = {"aux_target": self.aux_target, "attention": self.attention,
+                  "readout_layers": self.readout_layers, "tokens": self.tokens}
+        if self.extra_inputs:
+            offers = load_sim_robot(self.robot, "robot").sensors
+            extra = tuple(s.strip() for s in self.extra_inputs.split(",") if s.strip())
+            more = sorted(s for s in set(offers) - set(sensors.STUDENT_SENSORS)
+                          if sensors.get(s).is_student_input)  # never a privileged signal
+            if not set(extra) <= set(more):
+                raise ValueError(f"extra_inputs={self.extra_inputs}: the robot {self.robot} "
+                                 f"offers {', '.join(more) or 'no input'} beyond the paper's")
+            fields["input_sensors"] = tuple(s for s in sensors.STUDENT_SENSORS if s in offers) + extra
+        return fields
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -428,7 +445,7 @@ def main(argv: list[str] | None = None) -> None:
                      teacher=cfg.teacher, robot=cfg.robot)
     with timed("step 2"):
         dataset = step_collect(out, cfg.episodes, cfg.episode_length_s, cfg.teacher,
-                               cfg.action_noise, cfg.robot)
+                               cfg.action_noise, cfg.robot, cfg.extra_inputs)
     server = start_hub(out)
     loop = {"sensor_dropout": cfg.sensor_dropout, "unmasked_share": cfg.unmasked_share,
             "ema_decay": cfg.ema_decay}

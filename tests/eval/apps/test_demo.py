@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 from msta_test_helpers import write_robot_spec  # registered by conftest.py
 
+from msta.data import sensors
 from msta.eval.apps.demo import DemoConfig, main
 from msta.policies.teacher.config import SHIPPED_ROBOT_RMA, TeacherConfig
 
@@ -118,14 +119,18 @@ def test_demo_runs_on_another_robot(tmp_path, capsys):
           "--episode_length_s=0.5", "--train_steps=2", "--rounds=1", "--correct_steps=2",
           "--correct_episodes=2", "--teacher_seconds=0.4", "--envs_per_type=1",
           "--eval_trials=5", "--eval_episode_length_s=0.3", "--num_threads=1",
-          "--history=2", "--action_noise=0"])
+          "--history=2", "--action_noise=0", "--extra_inputs=joint_torque,base_accel"])
     text = capsys.readouterr().out
     meta = json.loads((out / "datasets" / "go1_teacher" / "meta" / "msta.json").read_text())
     assert meta["robot"] == "go1"
     for ckpt in (out / "stage1" / "final", out / "stage2" / "round_1"):
         config = json.loads((ckpt / "config.json").read_text())
         assert config["robots"] == ["go1"]
-        assert "foot_contact" not in config["input_sensors"]  # the Go1 has no contact switches
+        # the Go1 has no contact switches; it reads its torques and accelerometer too
+        assert config["input_sensors"] == [s for s in sensors.STUDENT_SENSORS
+                                           if s != "foot_contact"] + ["joint_torque", "base_accel"]
+    info = json.loads((out / "stage2" / "dataset" / "meta" / "info.json").read_text())
+    assert {"observation.joint_torque", "observation.base_accel"} <= set(info["features"])
     assert "demo/msta_go1@stage2-r1" in text and "dataset  demo/go1_teacher  commit" in text
     assert json.loads((out / "eval" / "metrics.json").read_text())["config"]["robot"] == "go1"
 
@@ -138,6 +143,10 @@ def test_demo_takes_the_robots_own_teacher(tmp_path, capsys):
     assert "robot go1 takes its shipped teacher rma (go1_ppo)" in capsys.readouterr().out
     assert DemoConfig(robot="go1", teacher=TeacherConfig(type="gait")).teacher.type == "gait"
     assert DemoConfig().teacher == TeacherConfig()  # the A1: rma_ppo
+    for extra in ("height_map", "joint_torque,true_contact"):  # not offered; privileged
+        with pytest.raises(ValueError, match=f"extra_inputs={extra}: the robot go1 offers "
+                           "base_accel, joint_torque beyond the paper's"):
+            DemoConfig(robot="go1", extra_inputs=extra)
     (tmp_path / "mine").mkdir()
     spec = write_robot_spec(tmp_path / "mine", name="mine")
     with pytest.raises(SystemExit):
