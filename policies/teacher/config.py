@@ -81,18 +81,14 @@ class TeacherConfig:
         if self.path and not Path(self.path).exists():
             raise FileNotFoundError(f"teacher path {self.path!r} does not exist")
 
-    @property
-    def a1_checkpoint(self) -> bool:
-        """Whether this is one of the shipped RMA checkpoints, which were trained on the A1
-        (their joint angles read relative to the A1's default pose): a command for another
-        robot refuses them where it trains a student for that robot (msta-demo)."""
-        return bool(self.path) and Path(self.path).resolve() in (SHIPPED_RMA, SHIPPED_RMA_PPO)
-
     def for_robot(self, robot: str) -> TeacherConfig | None:
         """The teacher for ``robot`` (a spec's name): this one, unless it is one of the A1's
-        shipped checkpoints (:attr:`a1_checkpoint`) and ``robot`` is another; then the robot's
-        shipped teacher (``SHIPPED_ROBOT_RMA``), or None where msta ships none."""
-        if robot == "a1" or not self.a1_checkpoint:
+        shipped RMA checkpoints (their joint angles read relative to the A1's default pose)
+        and ``robot`` is another; then the robot's shipped teacher (``SHIPPED_ROBOT_RMA``),
+        or None where msta ships none."""
+        trained_on_a1 = bool(self.path) and Path(self.path).resolve() in (SHIPPED_RMA,
+                                                                          SHIPPED_RMA_PPO)
+        if robot == "a1" or not trained_on_a1:
             return self
         own = SHIPPED_ROBOT_RMA.get(robot)
         return TeacherConfig(type="rma", path=str(own)) if own is not None else None
