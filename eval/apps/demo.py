@@ -51,6 +51,7 @@ from msta.data.hub_server.app import ServerConfig
 from msta.data.hub_server.server import HubServer
 from msta.data.output_dirs import command_output_dir
 from msta.eval.eval_config import EvalConfig
+from msta.eval.scenarios import split_csv
 from msta.policies.checkpoint import PolicyPath
 from msta.policies.msta import MSTAConfig
 from msta.policies.teacher.config import TeacherConfig
@@ -423,7 +424,7 @@ class DemoConfig:
                   "readout_layers": self.readout_layers, "tokens": self.tokens}
         if self.extra_inputs:
             offers = load_sim_robot(self.robot, "robot").sensors
-            extra = tuple(s.strip() for s in self.extra_inputs.split(",") if s.strip())
+            extra = tuple(split_csv(self.extra_inputs))
             more = sorted(s for s in set(offers) - set(sensors.STUDENT_SENSORS)
                           if sensors.get(s).is_student_input)  # never a privileged signal
             if not set(extra) <= set(more):
