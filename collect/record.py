@@ -109,6 +109,7 @@ class CollectConfig(RayOptions):
 
     def __post_init__(self) -> None:
         recorded_sensors(self.env.robot_description, self.extra)  # one line if not offered
+        self.teacher = self.teacher.on_robot(self.env.robot, "msta-collect", "--env.robot")
         checks.check_number("action_noise", self.action_noise, 0)
         check_ray_options(self.workers, self.ray_address)
         checks.check_at_least(self, 1, "episodes", "flush_every_frames")

@@ -51,6 +51,7 @@ class SimRunConfig:
     def __post_init__(self) -> None:
         if self.env.robot != self.robot:  # EnvConfig loads and checks the robot (one line)
             self.env = replace(self.env, robot=self.robot)
+        self.teacher = self.teacher.on_robot(self.robot, "msta-sim")
 
 
 def simulate(cfg: SimRunConfig) -> str:

@@ -60,6 +60,8 @@ class EvalConfig(TrialConfig, RayOptions):
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.robot:  # empty: the checkpoints' robot, resolved by evaluate (a copy naming it)
+            self.teacher = self.teacher.on_robot(self.robot, "msta-eval")
         suite = get_suite(self.suite)
         self.policy_list = split_csv(self.policies)
         if not self.policy_list:

@@ -81,6 +81,7 @@ class LabelCheckConfig:
 
     def __post_init__(self) -> None:
         load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
+        self.teacher = self.teacher.on_robot(self.robot, "label_check")
         check_at_least(self, 1, "num_envs", "num_threads")
         if self.max_level < 0:
             raise ValueError(f"max_level={self.max_level} must be >= 0")

@@ -105,6 +105,7 @@ class TeacherReportConfig:
 
     def __post_init__(self) -> None:
         load_sim_robot(self.robot, "robot")  # a bad robot: one line, before anything runs
+        self.teacher = self.teacher.on_robot(self.robot, "teacher_report")
         check_at_least(self, 1, "episodes", "envs_per_tile", "nthread", "columns")
         if not self.episode_length_s > 0:
             raise ValueError(f"episode_length_s={self.episode_length_s} must be > 0")

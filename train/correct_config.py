@@ -167,6 +167,7 @@ class CorrectConfig(LoopConfig, RayOptions):
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError(f"val_fraction={self.val_fraction} must be in [0, 1)")
         robot = self.env.robot_description.name
+        self.teacher = self.teacher.on_robot(self.env.robot, "msta-correct", "--env.robot")
         if self.eval.robot and self.eval.robot_name != robot:
             raise ValueError(f"eval.robot={self.eval.robot} simulates robot "
                              f"{self.eval.robot_name!r}, the rounds robot {robot!r} "

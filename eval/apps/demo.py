@@ -405,17 +405,7 @@ class DemoConfig:
             raise ValueError(f"ema_decay={self.ema_decay} must be in [0, 1)")
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
-        name = robot_name(self.robot)
-        own = self.teacher.for_robot(name)
-        if own is None:
-            raise ValueError(f"robot={self.robot}: the teacher {self.teacher.path} was trained on "
-                             f"the A1; give {name}'s own (--teacher.path=<dir of "
-                             f"msta-train-teacher --env.robot={self.robot}>) or "
-                             "--teacher.type=gait")
-        if own is not self.teacher:
-            print(f"msta-demo: robot {name} takes its shipped teacher {own.label}, not "
-                  f"{self.teacher.label} (trained on the A1)", flush=True)
-            self.teacher = own
+        self.teacher = self.teacher.on_robot(self.robot, "msta-demo")
 
     def model(self) -> dict[str, Any]:
         """The student's config fields this demo sets over the ``cpu`` preset (the inputs only

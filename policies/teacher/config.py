@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from msta.data.revision import content_revision, file_parts
-from msta.data.robot import A1, RobotDescription
+from msta.data.robot import A1, RobotDescription, load_robot
 from msta.policies.teacher.base import Teacher, make_teacher, register_teacher, teacher_names
 
 
@@ -48,7 +48,8 @@ SHIPPED_RMA = Path(__file__).resolve().parent / "checkpoints" / "rma_dart"
 SHIPPED_RMA_PPO = Path(__file__).resolve().parent / "checkpoints" / "rma_ppo"
 #: PPO-trained RMA teachers shipped for the other shipped robots (robot name -> checkpoint):
 #: the Go1's, ``msta-train-teacher --env.robot=go1`` (``produced_by.json`` in the folder;
-#: docs/robots.md). Commands take them with ``--teacher.path``; msta-demo ``--robot`` by default.
+#: docs/robots.md). Every command simulating such a robot takes it in place of the A1's
+#: (:meth:`TeacherConfig.on_robot`).
 SHIPPED_ROBOT_RMA = {"go1": Path(__file__).resolve().parent / "checkpoints" / "go1_ppo"}
 
 
@@ -92,6 +93,21 @@ class TeacherConfig:
             return self
         own = SHIPPED_ROBOT_RMA.get(robot)
         return TeacherConfig(type="rma", path=str(own)) if own is not None else None
+
+    def on_robot(self, robot: str, prog: str, option: str = "--robot") -> TeacherConfig:
+        """The teacher ``prog`` runs on ``robot`` (``option``'s value: a shipped robot's name
+        or a spec file's path): :meth:`for_robot`'s, a swap said in one printed line; a
+        one-line error where this one was trained on the A1 and msta ships none for it."""
+        name = load_robot(robot).name
+        own = self.for_robot(name)
+        if own is None:
+            raise ValueError(f"{option}={robot}: the teacher {self.path} was trained on the "
+                             f"A1; give {name}'s own (--teacher.path=<dir of "
+                             f"msta-train-teacher --env.robot={robot}>) or --teacher.type=gait")
+        if own is not self:
+            print(f"{prog}: robot {name} takes its shipped teacher {own.label}, not "
+                  f"{self.label} (trained on the A1)", flush=True)
+        return own
 
     @property
     def label(self) -> str:

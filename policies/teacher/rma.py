@@ -155,6 +155,17 @@ def mlp(sizes: list[int], activation: str) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
+def check_pose(config: RMAConfig, robot: RobotDescription, source: str) -> None:
+    """A one-line error when ``config`` reads joint angles about another default pose than
+    ``robot``'s: a teacher trained on another robot (the A1's shipped ones on the Go1)."""
+    pose = next((s.offset for s in config.proprio if s.name == "joint_pos"), None)
+    if isinstance(pose, list | tuple) and not np.allclose(pose, robot.default_pose, atol=1e-6):
+        raise ValueError(f"the rma teacher {source} reads joint angles about the default pose "
+                         f"{[round(float(v), 3) for v in pose]}, not robot {robot.name!r}'s "
+                         f"{list(robot.default_pose)}: it was trained on another robot; give "
+                         f"{robot.name}'s own (one msta-train-teacher trained on it)")
+
+
 @register_teacher(TYPE)
 class RMATeacher(nn.Module):
     """RMA teacher: a torch module (``forward`` on scaled tensors) and a Teacher
@@ -182,6 +193,8 @@ class RMATeacher(nn.Module):
                 raise ValueError("pass either config or pretrained, not both")
             config, state = _read_checkpoint(Path(pretrained))
         self.config = config = config or RMAConfig()
+        if robot is not None:
+            check_pose(config, robot, str(pretrained or "config"))
         self.priv_in = InputScaler(config.privileged)
         self.proprio_in = InputScaler(config.proprio)
         self.encoder = mlp([self.priv_in.dim, *config.encoder_hidden, config.latent_dim],

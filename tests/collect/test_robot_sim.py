@@ -28,6 +28,7 @@ from msta.data.robot import (
     SIM_DT,
     load_robot,
 )
+from msta.policies.teacher.config import TeacherConfig
 
 FLAT = TerrainConfig(types=("flat",), num_levels=1, max_init_level=0, border=2.0,
                      curriculum=False)
@@ -162,7 +163,7 @@ def test_an_mjcf_whose_joints_differ_from_the_spec_is_refused_when_built(tmp_pat
 
 def test_msta_sim_passes_robot_through(tmp_path, capsys):
     spec = str(write_spec(tmp_path, **OTHER))
-    assert SimRunConfig(robot=spec).env.robot == spec
+    assert SimRunConfig(robot=spec, teacher=TeacherConfig(type="zero")).env.robot == spec
     assert SimRunConfig().env.robot == "a1"
     sim_main([f"--robot={spec}", "--teacher.type=zero", "--seconds=0.1", "--env.num_envs=2",
               "--env.terrain.types=[flat]", "--env.terrain.num_levels=1", "--image=false",

@@ -38,7 +38,8 @@ def test_a_checkpoint_of_another_robot_is_refused_in_one_line(tiny_ckpt, tmp_pat
     spec = write_robot_spec(tmp_path)  # the A1's spec named "other"
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as stop:
-        main([f"--policies=teacher,{tiny_ckpt}", f"--robot={spec}", f"--output_dir={out}",
+        main([f"--policies=teacher,{tiny_ckpt}", f"--robot={spec}", "--teacher.type=gait",
+              f"--output_dir={out}",
               "--scenarios=token_removal", "--trials=1", "--episode_length_s=0.2",
               "--terrains=flat", "--levels=0", "--progress=false", "--device=cpu"])
     assert stop.value.code == 2

@@ -10,9 +10,16 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import pytest
+from msta_test_helpers import write_robot_spec  # registered by tests/conftest.py
 
 from msta.data import cli
-from msta.policies.teacher.config import SHIPPED_RMA, SHIPPED_RMA_PPO, TeacherConfig
+from msta.data.robot import load_robot
+from msta.policies.teacher.config import (
+    SHIPPED_RMA,
+    SHIPPED_RMA_PPO,
+    SHIPPED_ROBOT_RMA,
+    TeacherConfig,
+)
 
 
 def _collect(argv: Sequence[str]) -> Any:
@@ -71,6 +78,38 @@ def test_each_command_defaults_to_the_shipped_ppo_teacher(command):
     assert parse(["--teacher.type=gait"]).teacher == TeacherConfig(type="gait", path="")
     assert parse(["--teacher.type=rma"]).teacher == TeacherConfig(type="rma",
                                                                   path=str(SHIPPED_RMA_PPO))
+
+
+#: the commands above that simulate a robot other than the A1, with the option naming it
+ROBOT_OPTION = {"msta-collect": "--env.robot", "msta-correct": "--env.robot", "msta-sim": "--robot",
+                "msta-eval": "--robot", "demo": "--robot", "label_check": "--robot",
+                "teacher_report": "--robot"}
+
+
+@pytest.mark.parametrize("command", sorted(ROBOT_OPTION))
+def test_on_the_go1_each_command_takes_its_shipped_teacher(command, capsys):
+    """The A1's shipped checkpoints read joint angles about the A1's pose: on the Go1 the
+    default teacher (or either of them named) becomes the Go1's, said in one line; another
+    teacher is kept."""
+    go1 = TeacherConfig(type="rma", path=str(SHIPPED_ROBOT_RMA["go1"]))
+    option = ROBOT_OPTION[command]
+    for named in ([], [f"--teacher.path={SHIPPED_RMA}"]):
+        assert COMMANDS[command]([f"{option}=go1", *named]).teacher == go1
+        assert "robot go1 takes its shipped teacher rma (go1_ppo)" in capsys.readouterr().out
+    assert COMMANDS[command]([f"{option}=go1", "--teacher.type=gait"]).teacher == TeacherConfig(
+        type="gait")
+    assert COMMANDS[command]([option + "=a1"]).teacher == TeacherConfig()
+    assert "takes its shipped teacher" not in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", sorted(ROBOT_OPTION))
+def test_the_a1s_teacher_on_a_robot_msta_ships_none_for_is_refused(command, tmp_path, capsys):
+    spec = write_robot_spec(tmp_path, "longlegs", base=load_robot("go1"))
+    with pytest.raises(SystemExit):
+        COMMANDS[command]([f"{ROBOT_OPTION[command]}={spec}"])
+    err = capsys.readouterr().err
+    assert f"{ROBOT_OPTION[command]}={spec}: the teacher {SHIPPED_RMA_PPO} was trained on the A1" \
+        in err and "--teacher.type=gait" in err
 
 
 def _option_help(help_text: str, flag: str) -> str:

@@ -17,7 +17,13 @@ from msta.collect.sim.randomization import RandomizationConfig
 from msta.collect.sim.terrain import TerrainConfig
 from msta.data.robot import A1, load_robot
 from msta.policies.teacher.base import make_teacher, teacher_view
-from msta.policies.teacher.config import TeacherConfig, build_teacher, teacher_revision
+from msta.policies.teacher.config import (
+    SHIPPED_RMA,
+    SHIPPED_RMA_PPO,
+    TeacherConfig,
+    build_teacher,
+    teacher_revision,
+)
 from msta.policies.teacher.gait import GaitConfig, GaitTeacher
 from msta.policies.teacher.gait_kinematics import leg_ik, max_reach
 
@@ -79,9 +85,20 @@ def test_a_robot_without_any_contacts_is_refused_in_one_line(tmp_path: Path):
 @pytest.mark.parametrize("kind", ["gait", "rma"])
 def test_every_teacher_acts_on_the_go1(kind: str):
     env = flat_env("go1", n=2)
-    teacher = build_teacher(TeacherConfig(type=kind), env.cfg.teacher_robot)
+    teacher = build_teacher(TeacherConfig(type=kind).for_robot("go1"), env.cfg.teacher_robot)
     a = teacher.act(env.reset())
     assert a.shape == (2, 12) and np.isfinite(a).all()
+
+
+@pytest.mark.parametrize("path", [SHIPPED_RMA, SHIPPED_RMA_PPO])
+def test_an_a1_checkpoint_is_refused_on_the_go1_in_one_line(path: Path):
+    """Its joint angles read about the A1's pose: on the Go1 it would act on offsets of
+    0.1-0.3 rad in every joint, so it is refused wherever it is built."""
+    with pytest.raises(ValueError) as err:
+        build_teacher(TeacherConfig(type="rma", path=str(path)), GO1)
+    msg = str(err.value)
+    assert "\n" not in msg and str(path) in msg and "not robot 'go1'" in msg
+    assert build_teacher(TeacherConfig(type="rma", path=str(path)), A1) is not None
 
 
 def test_the_gait_teacher_walks_the_go1_on_flat_ground():
