@@ -201,7 +201,7 @@ def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     """(checkpoint directory, dataset root), both checked before output_dir is touched; a
     hub dataset is appended to through a copy in output_dir (:func:`own_dataset`). The
     dataset's robot, the checkpoint's and ``--env.robot``'s must agree (one line naming both
-    robots and the option otherwise)."""
+    robots and the option otherwise); a checkpoint of several robots is refused in one line."""
     ckpt = locate_checkpoint(cfg.policy.path, "--policy.path")  # msta's one path-or-hub-id rule
     config = load_config(ckpt)  # fails early, naming the directory, before output_dir is touched
     local = out / "dataset"
@@ -210,6 +210,12 @@ def resolve_inputs(cfg: CorrectConfig, out: Path) -> tuple[Path, Path]:
     robot = cfg.env.robot_description.name
     check_robot(dataset_robot(root), robot, f"--dataset={cfg.dataset}", "--env.robot")
     check_trained_on(config.robots, robot, f"--policy.path={cfg.policy.path}", "--env.robot")
+    if len(config.robots) > 1:  # its rounds would retrain it on one robot's episodes alone
+        raise ValueError(f"--policy.path={cfg.policy.path} was trained on robots "
+                         f"{', '.join(config.robots)}; msta-correct retrains on {robot}'s "
+                         "episodes alone, so its rounds would not be a student of them all: "
+                         "correct each robot's own student, then train one of them all "
+                         "with msta-train --more_datasets")
     return ckpt, root
 
 

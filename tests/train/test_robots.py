@@ -141,6 +141,17 @@ def test_correct_refuses_a_checkpoint_trained_on_another_robot(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_correct_refuses_a_checkpoint_of_several_robots(tmp_path):
+    """Its rounds would retrain it on one robot's episodes alone (msta-train --more_datasets
+    trains one of both)."""
+    root = dataset_of(tmp_path / "ds", "a1")
+    ckpt = student(root, tmp_path / "ckpt", robots=("a1", "go1"))
+    with pytest.raises(ValueError) as err:
+        correct(correct_cfg(root, ckpt, tmp_path / "out"))
+    one_line_naming(err, "robots a1, go1", "a1's episodes alone", "--more_datasets")
+    assert not (tmp_path / "out").exists()
+
+
 def test_correct_refuses_a_per_round_evaluation_on_another_robot(tmp_path):
     root = dataset_of(tmp_path / "ds", "a1")
     spec = write_robot_spec(tmp_path)
