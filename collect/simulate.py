@@ -20,6 +20,7 @@ from msta.collect.sim.env import QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig
 from msta.collect.sim.render import save_strip, save_video
 from msta.data.cli import parse_config
+from msta.data.robot import LEGACY_ROBOT
 from msta.policies.teacher.config import TeacherConfig, build_teacher
 
 
@@ -27,7 +28,8 @@ from msta.policies.teacher.config import TeacherConfig, build_teacher
 class SimRunConfig:
     """Args:
         robot: the simulated robot: a shipped robot's name (``a1``) or the path of a
-            ``.toml`` spec file (docs/robots.md); sets ``env.robot``. The control fields
+            ``.toml`` spec file (docs/robots.md); sets ``env.robot`` (left at ``a1`` while
+            ``env.robot`` names another robot: that one). The control fields
             left unset (``--env.control.*``) take this robot's values.
         env: simulator configuration.
         teacher: the teacher that drives (``--teacher.type=gait``; ``zero`` holds the
@@ -39,7 +41,7 @@ class SimRunConfig:
         progress: show a progress bar.
     """
 
-    robot: str = "a1"
+    robot: str = LEGACY_ROBOT
     env: EnvConfig = field(default_factory=lambda: EnvConfig(num_envs=64))
     teacher: TeacherConfig = field(default_factory=TeacherConfig)
     seconds: float = 5.0
@@ -49,7 +51,9 @@ class SimRunConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.env.robot != self.robot:  # EnvConfig loads and checks the robot (one line)
+        if self.env.robot != self.robot and self.robot == LEGACY_ROBOT:
+            self.robot = self.env.robot  # named in env alone (the Python API): env's wins
+        elif self.env.robot != self.robot:  # EnvConfig loads and checks the robot (one line)
             self.env = replace(self.env, robot=self.robot)
         self.teacher = self.teacher.on_robot(self.robot, "msta-sim")
 

@@ -104,7 +104,8 @@ def step_teacher(out: Path, seconds: float, envs_per_type: int, teacher: Teacher
                  robot: str) -> None:
     # Curriculum on: robots start at levels 0-2 (off would spread them over all 10 levels).
     terrain = TerrainConfig(curriculum=True, max_init_level=2)
-    cfg = SimRunConfig(env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
+    cfg = SimRunConfig(robot=robot,
+                       env=EnvConfig(num_envs=envs_per_type * len(terrain.types), seed=0,
                                      terrain=terrain, robot=robot),
                        teacher=teacher, seconds=seconds,
                        output_dir=str(out / "teacher"), progress=False)

@@ -165,6 +165,8 @@ def test_msta_sim_passes_robot_through(tmp_path, capsys):
     spec = str(write_spec(tmp_path, **OTHER))
     assert SimRunConfig(robot=spec, teacher=TeacherConfig(type="zero")).env.robot == spec
     assert SimRunConfig().env.robot == "a1"
+    in_env = SimRunConfig(env=EnvConfig(robot=spec), teacher=TeacherConfig(type="zero"))
+    assert in_env.robot == in_env.env.robot == spec  # named in env alone, it is not undone
     sim_main([f"--robot={spec}", "--teacher.type=zero", "--seconds=0.1", "--env.num_envs=2",
               "--env.terrain.types=[flat]", "--env.terrain.num_levels=1", "--image=false",
               "--progress=false", f"--output_dir={tmp_path / 'out'}"])

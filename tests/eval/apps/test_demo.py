@@ -121,6 +121,7 @@ def test_demo_runs_on_another_robot(tmp_path, capsys):
           "--eval_trials=5", "--eval_episode_length_s=0.3", "--num_threads=1",
           "--history=2", "--action_noise=0", "--extra_inputs=joint_torque,base_accel"])
     text = capsys.readouterr().out
+    assert "robot=go1  teacher=gait" in text and "robot=a1" not in text  # step 1 walks the Go1
     meta = json.loads((out / "datasets" / "go1_teacher" / "meta" / "msta.json").read_text())
     assert meta["robot"] == "go1"
     for ckpt in (out / "stage1" / "final", out / "stage2" / "round_1"):
