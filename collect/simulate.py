@@ -51,8 +51,8 @@ class SimRunConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        if self.env.robot != self.robot and self.robot == LEGACY_ROBOT:
-            self.robot = self.env.robot  # named in env alone (the Python API): env's wins
+        if self.robot == LEGACY_ROBOT:  # env alone may name it (the Python API): env's wins
+            self.robot = self.env.robot
         elif self.env.robot != self.robot:  # EnvConfig loads and checks the robot (one line)
             self.env = replace(self.env, robot=self.robot)
         self.teacher = self.teacher.on_robot(self.robot, "msta-sim")
