@@ -305,8 +305,9 @@ class DemoConfig:
         train_mask_ratio: stage-1 training mask ratio (the paper's 0.75).
         aux_target: a privileged signal the student also learns to predict in both stages
             (``--policy.aux_target`` of msta-train, e.g. ``base_lin_vel``); empty = none.
-        attention: the student's ``--policy.attention``: ``full`` (the paper's) or ``step``
-            (per-step blocks, then readout blocks over every step; docs/msta_model.md).
+        attention: the student's ``--policy.attention``: ``full`` (the paper's), ``step``
+            (per-step blocks, then readout blocks over every step) or ``axial`` (blocks
+            alternating between a step's tokens and a channel's; docs/msta_model.md).
         readout_layers: with ``step`` attention, how many of the student's blocks read out.
         tokens: the student's ``--policy.tokens``: ``sensor`` (the ``cpu`` preset's: one
             token per sensor and step, removal still per reading) or ``scalar`` (the

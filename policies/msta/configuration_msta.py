@@ -22,7 +22,7 @@ VALUE_EMBEDDINGS = ("shared", "sensor", "channel")
 #: Choices of ``value_init``.
 VALUE_INITS = ("sincos", "linear", "arc")
 #: Choices of ``attention``.
-ATTENTIONS = ("full", "step")
+ATTENTIONS = ("full", "step", "axial")
 #: Choices of ``tokens``.
 TOKENS = ("scalar", "sensor")
 
@@ -84,7 +84,10 @@ class MSTAConfig(PolicyConfig):
             only the readout tokens, which attend to every token with its age added to its
             key and value. A step's tokens then depend on that step alone, so a robot
             encodes only the newest step each control step and reuses the rest
-            (:class:`~msta.policies.msta.step_attention.StepStream`).
+            (:class:`~msta.policies.msta.step_attention.StepStream`). Or ``axial``: blocks
+            alternate between attending within one step's tokens and within one channel's
+            over the window, and the readout tokens attend to every token in every block
+            (:mod:`~msta.policies.msta.axial_attention`).
         readout_layers: with ``attention`` = ``step``: how many of the ``num_layers``
             blocks are readout blocks (1 to ``num_layers``).
         tokens: ``scalar`` (the paper: one token per scalar reading) or ``sensor``: one

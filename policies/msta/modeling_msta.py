@@ -35,7 +35,9 @@ PPO needs when it re-evaluates its rollout (msta-finetune-ppo ``--dummy_tokens``
 
 Per-step attention (``attention`` = ``step``, :mod:`~msta.policies.msta.step_attention`):
 the same tokens without their age, blocks that attend within one step, then readout blocks
-over every token with its age added to key and value.
+over every token with its age added to key and value. Axial attention (``attention`` =
+``axial``, :mod:`~msta.policies.msta.axial_attention`): the paper's tokens, blocks that
+alternate between a step's tokens and a channel's, readout tokens over every token.
 
 Sensor tokens (one per sensor and step, ``tokens`` = ``sensor``): :mod:`~msta.policies.msta.sensor_tokens`.
 
@@ -60,6 +62,7 @@ from torch import Tensor, nn
 
 from msta.data.sensors import get
 from msta.policies.base import Absent, StudentPolicy, uniform
+from msta.policies.msta.axial_attention import axial_features, token_keys
 from msta.policies.msta.configuration_msta import MSTAConfig
 from msta.policies.msta.dummy import draw_dummy_tokens
 from msta.policies.msta.inputs_copy import with_inputs
@@ -74,13 +77,13 @@ from msta.policies.msta.removal import (
 )
 from msta.policies.msta.sensor_tokens import make_encoders, sensor_embed_steps
 from msta.policies.msta.step_attention import make_age_proj, step_features
+from msta.policies.msta.value_tables import initial_tables
 from msta.policies.processor import Batch, Channels
 from msta.policies.registry import register_policy
 from msta.policies.transformer import (
     init_linears,
     make_blocks,
     scale_residuals,
-    sincos_1d,
     sincos_2d,
 )
 
@@ -163,26 +166,9 @@ class MSTATransformer(nn.Module):
 
         init_linears([self], std)
         scale_residuals(self.blocks, std)  # GPT-2: residual projections scaled by depth
-        # Value tables start smooth in the bin (neighbouring bins similar); trained after.
-        bins = torch.arange(self.cfg.num_bins, dtype=torch.float32)
-        with torch.no_grad():
-            if not self._num_tables():
-                code = self.bin_embed.weight  # sensor tokens: no tables to initialise
-            elif self.cfg.value_init == "linear":  # bin centre's z-score x a direction per table
-                nb, clip = self.cfg.num_bins, self.cfg.clip_std
-                z = -clip + (bins + 0.5) * (2 * clip / nb)  # (nb,)
-                w = torch.randn(self._num_tables(), 1, self.cfg.dim)  # (tables, 1, d)
-                code = (z[None, :, None] * w).reshape(-1, self.cfg.dim)  # (tables * nb, d)
-            elif self.cfg.value_init == "arc":  # constant norm: cos/sin of 0.5 z on 2 directions
-                nb, clip = self.cfg.num_bins, self.cfg.clip_std
-                z = -clip + (bins + 0.5) * (2 * clip / nb)  # (nb,)
-                u, v = torch.randn(2, self._num_tables(), 1, self.cfg.dim)  # (tables, 1, d) each
-                code = ((0.5 * z).cos()[None, :, None] * u + (0.5 * z).sin()[None, :, None] * v)
-                code = code.reshape(-1, self.cfg.dim)  # (tables * nb, d)
-            else:
-                code = sincos_1d(bins, self.cfg.dim, float(self.cfg.num_bins))  # (nb, d)
-                code = code.repeat(self._num_tables(), 1)  # (tables * nb, d)
-            self.bin_embed.weight.copy_(code)
+        with torch.no_grad():  # value tables start smooth in the bin; trained after
+            if self._num_tables():  # sensor tokens: no tables to initialise
+                self.bin_embed.weight.copy_(initial_tables(self.cfg, self._num_tables()))
         for p in (self.state_token, self.extra_state_tokens, self.mask_token):
             if p is not None:
                 nn.init.normal_(p, std=0.02)
@@ -219,23 +205,27 @@ class MSTATransformer(nn.Module):
 
     @torch.inference_mode(False)  # cached: must stay usable by training after an act()
     def _build_layout(self, channels: dict[str, Tensor], T: int, encoded: tuple[str, ...]
-                      ) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+                      ) -> tuple[Tensor, Tensor, Tensor, Tensor, Tensor]:
         with torch.no_grad():
             dev = self.bin_embed.weight.device
             pos, sid, step, offset = [], [], [], [torch.zeros(0, dtype=torch.long, device=dev)]
+            chan, first = [], 0  # every input channel's number, counted over the sensors
             groups = [(name, ch.to(dev), True) for name, ch in channels.items()]
             groups += [(name, torch.arange(get(name).encoder_tokens, device=dev), False)
                        for name in encoded]  # token j of step t at "channel" j
             for s, (name, ch, scalar) in enumerate(groups):
                 t = torch.arange(T, device=dev).repeat_interleave(len(ch))  # (T*c,) oldest first
                 c = ch.repeat(T)  # (T*c,)
-                age = (T - 1 - t) if self.cfg.attention == "full" else torch.zeros_like(t)  # step: ages at readout
+                age = (T - 1 - t) if self.cfg.attention != "step" else torch.zeros_like(t)  # step: ages at readout
                 pos.append(sincos_2d(c.float(), age.float(), self.cfg.dim, self.cfg.pos_base))
                 sid.append(torch.full_like(t, s))
                 step.append(t)
+                chan.append(first + torch.arange(len(ch), device=dev).repeat(T))
+                first += len(ch)
                 if scalar:
                     offset.append(self.table_of(name, c) * self.cfg.num_bins)  # (T*c,)
-            return torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset)
+            return (torch.cat(pos), torch.cat(sid), torch.cat(step), torch.cat(offset),
+                    token_keys(torch.cat(step), torch.cat(chan), T))
 
     def embed(self, inputs: MSTAInputs, mask_ratio: float,
               generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
@@ -248,7 +238,7 @@ class MSTATransformer(nn.Module):
                     generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
                     ) -> tuple[Tensor, Tensor | None, Tensor | None, int]:
         """:meth:`embed`; with ``attention`` = ``step`` also the age (B, K + D) of each token
-        before the readout tokens (None otherwise), and T when those are the whole token
+        before the readout tokens (``axial``: its key, ``token_keys``; None in ``full``), and T when those are the whole token
         layout of the T-step window in its order (nothing removed, no dummy; else 0)."""
         if self.cfg.tokens == "sensor":
             return sensor_embed_steps(self, inputs, mask_ratio, generator, dummy_tokens)
@@ -294,12 +284,14 @@ class MSTATransformer(nn.Module):
             x = self._gather(tokens, static, keep)
         else:
             x, key_pad, keep = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
-        ages = self._ages(T - 1 - step, keep, B)  # (B, K) or None
+        where = (T - 1 - step if self.cfg.attention == "step"  # ages; axial: token keys
+                 else self._cached_layout(inputs.channels, T, encoded)[4])
+        ages = self._ages(where, keep, B)  # (B, K) or None
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
         if D:
             dummy, slot = draw_dummy_tokens(self, inputs, pos, sensor, B, dummy_tokens, generator)
             x = torch.cat([x, dummy], dim=1)  # (B, K + D, d)
-            ages = None if ages is None else torch.cat([ages, T - 1 - step[slot]], dim=1)
+            ages = None if ages is None else torch.cat([ages, where[slot]], dim=1)
         x = torch.cat([x, self.readout_tokens().expand(B, -1, -1)], dim=1)  # (B, K + D + R, d)
         whole = T if keep is None and not D and self.mask_token is None else 0
         attn_mask = None
@@ -314,8 +306,8 @@ class MSTATransformer(nn.Module):
 
     def _ages(self, age: Tensor, keep: Tensor | None, B: int) -> Tensor | None:
         """The kept tokens' ages (B, K) from the layout's ``age`` (N,), which step attention
-        reads (None in full attention)."""
-        if self.cfg.attention != "step":
+        reads, or their keys in axial attention (None in full attention)."""
+        if self.cfg.attention == "full":
             return None
         age = age[None].expand(B, -1)  # (B, N)
         return age if keep is None else torch.gather(age, 1, keep)
@@ -407,8 +399,9 @@ class MSTATransformer(nn.Module):
                  whole: int) -> Tensor:
         """The readout features (B, R * d) the head reads, from :meth:`embed_steps`'s tokens,
         key mask, ages and whole-layout T."""
-        if self.cfg.attention == "step":
-            return step_features(self, x, attn_mask, ages, whole)
+        if self.cfg.attention != "full":
+            features = step_features if self.cfg.attention == "step" else axial_features
+            return features(self, x, attn_mask, ages, whole)
         R, last = self.cfg.state_tokens, len(self.blocks) - 1
         for i, block in enumerate(self.blocks):
             # the head reads only the readout tokens: the last block computes only theirs

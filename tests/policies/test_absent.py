@@ -32,8 +32,10 @@ CASES = [
     ("tert_separate", {}),
     ("mlp", {}),
     ("msta", {"attention": "step", "num_layers": 2}),
+    ("msta", {"attention": "axial", "num_layers": 2}),
 ]
-IDS = [n + ("_mask" if o.get("learnable_mask") else "_step" if o.get("attention") else "")
+IDS = [n + ("_mask" if o.get("learnable_mask") else f"_{o['attention']}" if o.get("attention")
+            else "")
        for n, o in CASES]
 
 

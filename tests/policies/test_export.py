@@ -22,12 +22,14 @@ from msta.policies.input_spec import MINIMIZED_SENSORS
 
 REPO = Path(__file__).resolve().parents[2]
 #: MSTA (the paper's single <S>, more readout tokens, the learnable-mask variant, per-step
-#: attention, sensor tokens) and every baseline and reference learner
+#: attention, axial attention, sensor tokens) and every baseline and reference learner
 CASES = [("msta", {}), ("msta", {"state_tokens": 3}), ("msta", {"learnable_mask": True}),
          ("msta", {"attention": "step", "num_layers": 2, "state_tokens": 2}),
+         ("msta", {"attention": "axial", "num_layers": 3, "state_tokens": 2}),
          ("msta", {"tokens": "sensor"})] + [
     (name, {}) for name in BASELINES + REFERENCES]
-IDS = [n + "".join(f"-{k}" for k in o) for n, o in CASES]
+IDS = [n + "".join(f"-{v}" if isinstance(v, str) else f"-{k}" for k, v in o.items())
+       for n, o in CASES]
 FIXED_T = ("rma_tcn", "mlp")  # learners that only run at their training window length
 
 pytestmark = pytest.mark.usefixtures("one_thread")

@@ -26,10 +26,11 @@ def _batch(policy, n: int = 6, seed: int = 0) -> dict[str, np.ndarray]:
     return batch
 
 
-DESIGNS = [{"attention": "full"}, {"attention": "step"}, {"tokens": "sensor"}]
+DESIGNS = [{"attention": "full"}, {"attention": "step"}, {"attention": "axial"},
+           {"tokens": "sensor"}]
 
 
-@pytest.mark.parametrize("design", DESIGNS, ids=["full", "step", "sensor_tokens"])
+@pytest.mark.parametrize("design", DESIGNS, ids=["full", "step", "axial", "sensor_tokens"])
 @pytest.mark.parametrize("mask_ratio", [0.0, 0.5])
 def test_the_fp32_graph_acts_as_the_policy(design: dict, mask_ratio: float) -> None:
     policy = tiny_msta(T, **design).eval()
