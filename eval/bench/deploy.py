@@ -15,8 +15,9 @@ the eager model) before it is timed; a runtime that fails it is reported and not
 Next to each latency: the model's FLOPs per step (counted from the shapes), the rate that
 achieves, and the machine's fp32 matmul rate measured in the same run on one thread (the
 roofline: latency cannot go below FLOPs / that rate without fewer FLOPs or lower precision).
-Then two cheaper designs at the same preset and windows, in the same run: per-step attention
-(:mod:`msta.eval.bench.deploy_step`) and sensor tokens (:mod:`msta.eval.bench.deploy_tokens`).
+Then three cheaper designs at the same preset and windows, in the same run: per-step
+attention (:mod:`msta.eval.bench.deploy_step`), sensor tokens and axial attention
+(:mod:`msta.eval.bench.deploy_designs`).
 ``full speed-up vs paper attention: <x>`` and ``minimized speed-up vs paper attention: <x>``
 report the one that walks best in closed loop (``WINNER``). The last two lines are
 ``minimized latency (ms): <x>`` and ``full latency (ms): <x>``, the paper attention's best
@@ -47,8 +48,8 @@ import torch
 
 from msta.data import sensors as registry
 from msta.data.cli import parse_config
+from msta.eval.bench.deploy_designs import DESIGNS, bench_design
 from msta.eval.bench.deploy_step import INT8, bench_step
-from msta.eval.bench.deploy_tokens import bench_tokens
 from msta.policies import guard as guard_mod
 from msta.policies.export import DeployedStudent, export_student, random_windows, resolve_sensors
 from msta.policies.export_files import ExportParityError
@@ -264,7 +265,8 @@ def speed_lines(results: dict, best: dict[str, str]) -> None:
               f"{step['int8']['speedup']:.2f} / {tok['int8']['speedup']:.2f}; |int8 - fp32| action "
               f"{max(step['int8']['max_abs_diff'], tok['int8']['max_abs_diff']):.1e} (accepted on "
               "closed loop only: python -m msta.eval.bench.deploy_loop)")
-    for design, key in (("step attention", "step"), ("sensor tokens", "tokens")):
+    for design, key in (("step attention", "step"), ("sensor tokens", "tokens"),
+                        ("axial attention", "axial")):
         r = results[key]["observations"]
         print(f"{design} speed-up vs paper attention: full {r['full']['speedup']:.2f}, "
               f"minimized {r['minimized']['speedup']:.2f}")
@@ -316,8 +318,9 @@ def main(argv: list[str] | None = None) -> None:
         stats = synthetic_stats(cfg.input_sensors)
         results["step"] = bench_step(cfg, observations, stats, Path(tmp) / "step", a.seconds,
                                      time_call, runtimes, paper_ms)
-        results["tokens"] = bench_tokens(cfg, observations, stats, Path(tmp) / "tokens",
-                                         a.seconds, time_call, runtimes, paper_ms, model_flops)
+        for key in DESIGNS:
+            results[key] = bench_design(key, cfg, observations, stats, Path(tmp) / key,
+                                        a.seconds, time_call, runtimes, paper_ms, model_flops)
         results["winner"] = WINNER
     out = Path(a.output_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import pytest
 import torch
 
 from msta.eval.bench.deploy import main, model_flops
+from msta.eval.bench.deploy_designs import design_flops
 from msta.policies.msta import MSTAConfig
 
 
@@ -48,6 +50,12 @@ def test_bench_deploy_times_every_runtime_and_ends_with_both_latencies(tmp_path,
         assert tok["parity"]["parity_max_abs_diff"] <= 1e-5 and tok["best"] != "onnxruntime-int8"
         assert abs(tok["speedup"] * tok["runtimes"][tok["best"]]["median_ms"]
                    - r["runtimes"][r["best"]]["median_ms"]) < 1e-9
+        ax = results["axial"]["observations"][obs]  # the paper's tokens, factorized blocks
+        assert ax["tokens"] == r["tokens"] and ax["gflop"] <= r["flops"] / 1e9  # tiny: 1 block
+        assert set(ax["runtimes"]) == set(r["runtimes"])
+        assert ax["parity"]["parity_max_abs_diff"] <= 1e-5 and ax["best"] != "onnxruntime-int8"
+        assert abs(ax["speedup"] * ax["runtimes"][ax["best"]]["median_ms"]
+                   - r["runtimes"][r["best"]]["median_ms"]) < 1e-9
     g = results["guard"]  # the guard and guard + student, against the plain student
     student = results["observations"]["full"]["runtimes"]["onnxruntime"]["median_ms"]
     assert g["student_ms"] == student and g["parity_max_abs_diff"] <= 1e-5
@@ -71,6 +79,20 @@ def test_flops_count_the_readout_only_last_block():
     head = 2 * d * cfg.head_hidden_dim + 2 * cfg.head_hidden_dim * 12
     assert model_flops(cfg, L) == 3 * full_layer + last_layer + head
     assert 1.45e9 < model_flops(cfg, L) < 1.47e9  # the figure docs/deploy.md quotes
+
+
+def test_axial_flops_count_grouped_scores():
+    """Axial attention at the paper preset's full observation: the three token blocks score
+    T·n² (within a step) or n·T² (within a channel) pairs instead of L², the readout token
+    scores all L tokens in each, and the rest is the paper attention's count."""
+    cfg = replace(MSTAConfig.from_preset("paper"), attention="axial")
+    names = list(cfg.input_sensors)
+    T, n, d, L = 15, 49, 128, 736
+    tokens, count = design_flops(cfg, names, T, model_flops)
+    assert tokens == L
+    grouped = 4 * d * (2 * T * n * n + n * T * T) + 3 * 4 * L * d
+    assert count == model_flops(cfg, L) - 3 * 4 * L * L * d + grouped
+    assert 0.6e9 < count < 0.7e9
 
 
 def test_history_sets_the_full_observations_window(tmp_path, capsys):
