@@ -185,7 +185,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
                  episodes: int, mask: float, threads: int, select_trials: int,
                  select_s: float, teacher: TeacherConfig,
                  rollout_masks: tuple[float, ...] = (), robot: str = "a1",
-                 **loop: float) -> int:
+                 type_weights: tuple[float, ...] = (), **loop: float) -> int:
     """The stage-2 rounds; returns the round to evaluate (0 = the stage-1 checkpoint): the
     best on the selection trials (DAgger promises a good policy among its iterates, not
     that the last is best). ``select_trials=0``: no round evaluation (it costs about as
@@ -198,7 +198,7 @@ def step_correct(out: Path, stage1: Path, dataset: str, rounds: int, steps: int,
           f"{steps} steps at lr 1e-3, mask ratio {mask:g}) ==")
     cfg = CorrectConfig(policy=PolicyPath(str(stage1)), dataset=dataset, output_dir=str(out / "stage2"),
                         push_to=f"{HUB_USER}/msta_{robot_name(robot)}", num_threads=threads,
-                        env=EnvConfig(robot=robot),
+                        env=EnvConfig(robot=robot, type_weights=type_weights),
                         rounds=rounds, episodes_per_round=episodes, num_envs=min(episodes, 32),
                         episode_length_s=10.0, steps=steps, batch_size=64, lr=1e-3, beta=0.0,
                         mask_ratio=mask, teacher=teacher, rollout_mask_ratios=rollout_masks,
@@ -326,6 +326,10 @@ class DemoConfig:
             over the round's environments (msta-correct's option; the default: half of
             them with half of the tokens removed, so the rounds also hold the states the
             test at mask 50 % reaches); empty = all at 0.
+        correct_type_weights: the stage-2 rollouts' share of robots per terrain type
+            (msta-correct's ``--env.type_weights``, one weight per type: flat, smooth slope,
+            rough slope, stairs up, stairs down, discrete); empty = as the simulator's
+            default. Puts the rounds' episodes where the student falls.
         select_trials: trials per test mask on which the rounds are compared (seed 1); 0 = no
             comparison, the last round is evaluated.
         select_episode_length_s: episode length of those trials (s).
@@ -369,6 +373,7 @@ class DemoConfig:
     correct_episodes: int = 32
     correct_mask_ratio: float = STAGE2_MASK_RATIO
     rollout_mask_ratios: tuple[float, ...] = STAGE2_ROLLOUT_MASK_RATIOS
+    correct_type_weights: tuple[float, ...] = ()
     sensor_dropout: float = 0.0
     unmasked_share: float = 0.0
     ema_decay: float = 0.0
@@ -408,6 +413,10 @@ class DemoConfig:
         if not 0.0 <= self.correct_mask_ratio < 1.0:
             raise ValueError(f"correct_mask_ratio={self.correct_mask_ratio} must be in [0, 1)")
         self.teacher = self.teacher.on_robot(self.robot, "msta-demo")
+        try:
+            EnvConfig(robot=self.robot, type_weights=self.correct_type_weights)
+        except ValueError as e:
+            raise ValueError(f"correct_type_weights: {e}") from None
 
     def model(self) -> dict[str, Any]:
         """The student's config fields this demo sets over the ``cpu`` preset (the inputs only
@@ -456,7 +465,8 @@ def main(argv: list[str] | None = None) -> None:
                                     cfg.correct_episodes, cfg.correct_mask_ratio,
                                     cfg.num_threads, cfg.select_trials,
                                     cfg.select_episode_length_s, cfg.teacher,
-                                    cfg.rollout_mask_ratios, robot=cfg.robot, **loop)
+                                    cfg.rollout_mask_ratios, robot=cfg.robot,
+                                    type_weights=cfg.correct_type_weights, **loop)
         with timed("step 6"):
             metrics = step_eval(out, best, cfg.eval_trials, cfg.eval_episode_length_s,
                                 cfg.num_threads, cfg.teacher, cfg.robot)

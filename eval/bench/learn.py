@@ -53,7 +53,9 @@ from msta.train.step import train_step, validate
 SEED = 0
 #: Validation windows (evenly spaced over the 5 val episodes), the same for every learner.
 VAL = 512
-LEARNERS = ("msta_cpu", "msta_paper", "gru", "mlp")
+LEARNERS = ("msta_demo", "msta_cpu", "msta_paper", "gru", "mlp")
+#: the MSTA window of ``make demo`` and the reference study (``msta_demo``)
+DEMO_HISTORY = 4
 
 
 def record_dataset(root: Path, episodes: int, seconds: float) -> Path:
@@ -188,7 +190,10 @@ def run_learner(name: str, root: Path, budget_s: float, eval_every_s: float,
 
 
 def policy_config(name: str) -> Any:
-    """The student config a learner name stands for (each at its own defaults)."""
+    """The student config a learner name stands for (each at its own defaults; ``msta_demo``:
+    the ``cpu`` preset at the demo's and the reference study's window, T = 4)."""
+    if name == "msta_demo":
+        return MSTAConfig.from_preset("cpu", history=DEMO_HISTORY)
     if name.startswith("msta"):
         return MSTAConfig.from_preset(name.split("_", 1)[1])
 
@@ -226,7 +231,8 @@ class BenchLearnConfig:
         num_threads: torch threads.
         episodes: teacher episodes to record (>= 40 for the issue's benchmark).
         episode_length_s: teacher episode length (s).
-        learners: comma-separated subset of msta_cpu, msta_paper, gru, mlp.
+        learners: comma-separated subset of msta_demo (the ``cpu`` preset at the demo's
+            T = 4), msta_cpu (T = 15), msta_paper, gru, mlp.
         lr: learning rate (every learner).
         optimizer: adamw, or muon (Muon on the transformer block matrices of the MSTA
             learners, AdamW on the rest; the GRU and the MLP have no such blocks and keep

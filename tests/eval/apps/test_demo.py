@@ -119,7 +119,8 @@ def test_demo_runs_on_another_robot(tmp_path, capsys):
           "--episode_length_s=0.5", "--train_steps=2", "--rounds=1", "--correct_steps=2",
           "--correct_episodes=2", "--teacher_seconds=0.4", "--envs_per_type=1",
           "--eval_trials=5", "--eval_episode_length_s=0.3", "--num_threads=1",
-          "--history=2", "--action_noise=0", "--extra_inputs=joint_torque,base_accel"])
+          "--history=2", "--action_noise=0", "--extra_inputs=joint_torque,base_accel",
+          "--correct_type_weights=[0,0,0,1,0,0]"])
     text = capsys.readouterr().out
     assert "robot=go1  teacher=gait" in text and "robot=a1" not in text  # step 1 walks the Go1
     meta = json.loads((out / "datasets" / "go1_teacher" / "meta" / "msta.json").read_text())
@@ -134,6 +135,13 @@ def test_demo_runs_on_another_robot(tmp_path, capsys):
     assert {"observation.joint_torque", "observation.base_accel"} <= set(info["features"])
     assert "demo/msta_go1@stage2-r1" in text and "dataset  demo/go1_teacher  commit" in text
     assert json.loads((out / "eval" / "metrics.json").read_text())["config"]["robot"] == "go1"
+    # --correct_type_weights reaches the stage-2 rollouts: every round episode on stairs up
+    progress = json.loads((out / "stage2" / "progress.json").read_text())
+    assert progress["config"]["env"]["type_weights"] == [0, 0, 0, 1, 0, 0]
+    episodes = pd.concat(pd.read_parquet(f) for f in sorted(
+        (out / "stage2" / "dataset" / "meta" / "episodes").rglob("*.parquet")))
+    student = episodes[episodes["provenance/source"] != "teacher"]
+    assert len(student) and set(student["provenance/terrain"]) == {"stairs_up"}
 
 
 def test_demo_takes_the_robots_own_teacher(tmp_path, capsys):
@@ -155,3 +163,10 @@ def test_demo_takes_the_robots_own_teacher(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert f"robot={spec}: the teacher" in err and "rma_ppo was trained on the A1" in err
     assert not (tmp_path / "demo").exists()
+
+
+def test_bad_correct_type_weights_are_one_line(capsys):
+    with pytest.raises(SystemExit):
+        main(["--correct_type_weights=[1,2]"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "correct_type_weights: type_weights (1.0, 2.0) must have one weight per terrain" in err
