@@ -19,8 +19,9 @@ constant rate, and is validated every ``--eval_every`` s on the same 512 validat
 The figure is the validation MSE of the z-scored actions (1.0 = predicting the mean). It
 prints a table, writes ``learning_curves.png`` and ``results.json`` under ``--output_dir`` and ends
 with the line ``msta/gru val-mse ratio: <x>`` (cpu preset, unmasked; the issue's goal is
-<= 1.5), after ``msta_demo/gru val-mse ratio: <x>`` (the same at the demo's T = 4). Both are measured in the same run, so the ratio holds on a slower or busier machine
-better than either absolute figure.
+<= 1.5), after ``msta_demo/gru val-mse ratio: <x>`` (the same at the demo's T = 4). Both
+are measured in the same run, so the ratio holds on a slower or busier machine better than
+either absolute figure.
 """
 
 from __future__ import annotations

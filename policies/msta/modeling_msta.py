@@ -238,8 +238,9 @@ class MSTATransformer(nn.Module):
                     generator: torch.Generator | None = None, dummy_tokens: int | Tensor = 0
                     ) -> tuple[Tensor, Tensor | None, Tensor | None, int]:
         """:meth:`embed`; with ``attention`` = ``step`` also the age (B, K + D) of each token
-        before the readout tokens (``axial``: its key, ``token_keys``; None in ``full``), and T when those are the whole token
-        layout of the T-step window in its order (nothing removed, no dummy; else 0)."""
+        before the readout tokens (``axial``: its key, ``token_keys``; None in ``full``), and
+        T when those are the whole token layout of the T-step window in its order (nothing
+        removed, no dummy; else 0)."""
         if self.cfg.tokens == "sensor":
             return sensor_embed_steps(self, inputs, mask_ratio, generator, dummy_tokens)
         return self._embed_scalar_steps(inputs, mask_ratio, generator, dummy_tokens)
@@ -284,8 +285,11 @@ class MSTATransformer(nn.Module):
             x = self._gather(tokens, static, keep)
         else:
             x, key_pad, keep = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
-        where = (T - 1 - step if self.cfg.attention == "step"  # ages; axial: token keys
-                 else self._cached_layout(inputs.channels, T, encoded)[4])
+        where = None  # what the attention reads of each token: step: its age; axial: its key
+        if self.cfg.attention == "step":
+            where = T - 1 - step
+        elif self.cfg.attention == "axial":
+            where = self._cached_layout(inputs.channels, T, encoded)[4]
         ages = self._ages(where, keep, B)  # (B, K) or None
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
         if D:
@@ -304,10 +308,10 @@ class MSTATransformer(nn.Module):
                 attn_mask = additive_mask(attn_mask, x.dtype)
         return x, attn_mask, ages, whole
 
-    def _ages(self, age: Tensor, keep: Tensor | None, B: int) -> Tensor | None:
+    def _ages(self, age: Tensor | None, keep: Tensor | None, B: int) -> Tensor | None:
         """The kept tokens' ages (B, K) from the layout's ``age`` (N,), which step attention
-        reads, or their keys in axial attention (None in full attention)."""
-        if self.cfg.attention == "full":
+        reads, or their keys in axial attention (None in full attention: ``age`` None)."""
+        if age is None:
             return None
         age = age[None].expand(B, -1)  # (B, N)
         return age if keep is None else torch.gather(age, 1, keep)

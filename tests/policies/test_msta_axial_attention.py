@@ -54,7 +54,7 @@ def test_a_token_block_sees_only_its_step_or_its_channel(axis):
 def test_the_whole_window_and_the_masked_path_agree():
     """Without removal the token blocks run on reshaped groups; the masked path (all tokens,
     each kept to its group by a mask: the one training's removal takes) gives the same
-    action on the same tokens, with padding hidden as well."""
+    action on the same tokens."""
     policy = tiny_msta(T, attention="axial", num_layers=3, state_tokens=2).eval()
     seq = sequence(policy, T, batch=3)
     with torch.no_grad():
