@@ -285,12 +285,7 @@ class MSTATransformer(nn.Module):
             x = self._gather(tokens, static, keep)
         else:
             x, key_pad, keep = self._remove_masked(tokens, static, pad, n_drop, generator)  # (B, K, d)
-        where = None  # what the attention reads of each token: step: its age; axial: its key
-        if self.cfg.attention == "step":
-            where = T - 1 - step
-        elif self.cfg.attention == "axial":
-            where = self._cached_layout(inputs.channels, T, encoded)[4]
-        ages = self._ages(where, keep, B)  # (B, K) or None
+        where, ages = self._ages(step, T, inputs.channels, encoded, keep, B)  # (N,), (B, K)
         D = dummy_tokens.shape[1] if isinstance(dummy_tokens, Tensor) else dummy_tokens
         if D:
             dummy, slot = draw_dummy_tokens(self, inputs, pos, sensor, B, dummy_tokens, generator)
@@ -308,13 +303,17 @@ class MSTATransformer(nn.Module):
                 attn_mask = additive_mask(attn_mask, x.dtype)
         return x, attn_mask, ages, whole
 
-    def _ages(self, age: Tensor | None, keep: Tensor | None, B: int) -> Tensor | None:
-        """The kept tokens' ages (B, K) from the layout's ``age`` (N,), which step attention
-        reads, or their keys in axial attention (None in full attention: ``age`` None)."""
-        if age is None:
-            return None
-        age = age[None].expand(B, -1)  # (B, N)
-        return age if keep is None else torch.gather(age, 1, keep)
+    def _ages(self, step: Tensor, T: int, channels: dict[str, Tensor], encoded: tuple[str, ...],
+              keep: Tensor | None, B: int) -> tuple[Tensor | None, Tensor | None]:
+        """What the attention reads of each token of the layout (N,) and of the kept ones
+        (B, K): step attention its age, axial attention its key (``token_keys``); full
+        attention nothing (None, None). ``step`` (N,) is each token's step, 0 the oldest."""
+        if self.cfg.attention == "full":
+            return None, None
+        where = (T - 1 - step if self.cfg.attention == "step"
+                 else self._cached_layout(channels, T, encoded)[4])
+        age = where[None].expand(B, -1)  # (B, N)
+        return where, age if keep is None else torch.gather(age, 1, keep)
 
     def _encode(self, inputs: MSTAInputs, rows: Tensor | None, B: int, T: int) -> Tensor:
         """Every token's value (B, N, d): the scalar tokens' table rows, then each encoded
