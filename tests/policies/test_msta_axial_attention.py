@@ -1,14 +1,13 @@
 """MSTA with attention factorized over sensors and time (``--policy.attention=axial``): each
 token block attends within one step or within one channel, the whole-window path equals the
-masked one, removal and training work."""
+masked one (removal and training: the gradient test of test_msta_step_attention.py)."""
 
 from __future__ import annotations
 
 import pytest
 import torch
-from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
+from msta_test_helpers import random_batch, tiny_msta  # registered by tests/conftest.py
 
-from msta.data import sensors
 from msta.policies.msta.axial_attention import KEY, axial_features
 from msta.policies.msta.axial_attention import _Grouped as Grouped
 
@@ -16,9 +15,7 @@ T = 5
 
 
 def sequence(policy, steps: int, batch: int = 2, seed: int = 1) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    return {n: torch.randn(batch, steps, sensors.get(n).dim, generator=g)
-            for n in policy.config.input_sensors}
+    return random_batch(batch, steps, seed, policy.config.input_sensors)
 
 
 def first_block_tokens(policy, seq: dict, axis: str) -> tuple[torch.Tensor, ...]:
@@ -79,22 +76,6 @@ def test_the_window_is_more_than_a_bag_of_steps_and_differs_from_full_attention(
         c = full(seq)
     assert not torch.allclose(a, b, atol=1e-4)
     assert not torch.allclose(a, c, atol=1e-4)
-
-
-def test_training_with_removal_and_dummy_tokens_reaches_every_weight():
-    """Random removal, dummy tokens and per-sample absent channels go through the masked
-    blocks: finite loss and a gradient on every block weight the action depends on."""
-    policy = tiny_msta(T, attention="axial", num_layers=3, state_tokens=2).train()
-    seq = sequence(policy, T, batch=4)
-    absent = {"joint_pos": torch.zeros(4, 12, dtype=torch.bool)}
-    absent["joint_pos"][0, :6] = True
-    out = policy(seq, mask_ratio=0.5, generator=torch.Generator().manual_seed(0),
-                 dummy_tokens=3, absent=absent)
-    assert out.shape == (4, 12) and torch.isfinite(out).all()
-    out.square().mean().backward()
-    for name, p in policy.model.named_parameters():
-        if name.startswith("blocks.") and "mlp.3" not in name:
-            assert p.grad is not None and p.grad.abs().sum() > 0, name
 
 
 def test_sensor_tokens_refuse_axial_attention_in_one_line():

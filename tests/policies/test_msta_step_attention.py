@@ -71,11 +71,12 @@ def test_the_readout_tells_steps_apart_by_their_age():
     assert not torch.allclose(a, b, atol=1e-4)
 
 
-def test_training_with_removal_and_dummy_tokens_reaches_every_weight():
+@pytest.mark.parametrize(("attention", "num_layers"), [("step", 2), ("axial", 3)])
+def test_training_with_removal_and_dummy_tokens_reaches_every_weight(attention, num_layers):
     """Random removal (the training mask), dummy tokens and per-sample absent channels go
-    through the masked per-step blocks: finite loss, a gradient on every weight of the
-    per-step and readout blocks and on the age maps."""
-    policy = tiny_msta(T, attention="step", num_layers=2, state_tokens=2).train()
+    through the masked blocks (per-step, or axial: a step's and a channel's tokens): finite
+    loss, a gradient on every weight of the blocks and on step attention's age maps."""
+    policy = tiny_msta(T, attention=attention, num_layers=num_layers, state_tokens=2).train()
     seq = sequence(policy, T, batch=4)
     absent = {"joint_pos": torch.zeros(4, 12, dtype=torch.bool)}
     absent["joint_pos"][0, :6] = True
