@@ -8,7 +8,9 @@ run's progress is measured here on fixed tiles instead: the snapshots the run ke
 starting point (``init/`` or ``warmstart/``) and the gait controller each walk
 ``--episodes`` episodes of ``--episode_length_s`` per terrain type at ``--level`` (the
 harness of ``msta.eval.teacher_report``: terrain curriculum off, randomization and observation
-noise on, seed 0; 95 % Wilson intervals). Results are cached in ``<run>/curve_eval.json``,
+noise on, seed 0; 95 % Wilson intervals), each giving its survival and its mean velocity error
+|v_xy - cmd_xy| (m/s): a snapshot that survives by walking slower than the command shows it
+there. Results are cached in ``<run>/curve_eval.json``,
 one cache per setting, each entry with the evaluated checkpoint's content revision:
 re-running evaluates only snapshots that are new or whose files changed. The image has two
 panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
@@ -126,14 +128,16 @@ def start_teacher(run: Path) -> TeacherConfig | None:
     return None
 
 
-def survival_of(teacher: TeacherConfig, cfg: TeacherCurveConfig) -> dict[str, float]:
-    """Survival per terrain type at ``cfg.level`` for one teacher."""
+def figures_of(teacher: TeacherConfig, cfg: TeacherCurveConfig) -> dict[str, dict[str, float]]:
+    """One teacher at ``cfg.level``: ``survival`` and ``lin_err`` (mean |v_xy - cmd_xy|, m/s),
+    each per terrain type."""
     rc = TeacherReportConfig(teacher=teacher, robot=cfg.robot, episodes=cfg.episodes,
                              envs_per_tile=cfg.envs_per_tile, terrains=cfg.terrains,
                              levels=str(cfg.level), episode_length_s=cfg.episode_length_s,
                              nthread=cfg.nthread, report="-", image="", progress=False)
     stats = evaluate(rc)
-    return {t: float(stats[(t, cfg.level)]["survival"]) for t in rc.terrain_list}
+    return {key: {t: float(stats[(t, cfg.level)][key]) for t in rc.terrain_list}
+            for key in ("survival", "lin_err")}
 
 
 def env_steps_at(run: Path) -> dict[int, int]:
@@ -153,7 +157,8 @@ def settings_key(cfg: TeacherCurveConfig) -> dict:
 def build(cfg: TeacherCurveConfig) -> dict:
     """Evaluate what is not cached yet (new, or whose files changed); return this setting's
     cache: ``settings``, ``references`` and ``snapshots`` (name -> ``revision``,
-    ``survival`` per terrain type). Snapshots whose directory is gone are dropped."""
+    ``survival`` and ``lin_err`` per terrain type; caches written before ``lin_err`` was
+    recorded lack it). Snapshots whose directory is gone are dropped."""
     run = Path(cfg.run)
     cache_path = run / "curve_eval.json"
     caches = json.loads(cache_path.read_text())["caches"] if cache_path.is_file() else []
@@ -177,7 +182,7 @@ def build(cfg: TeacherCurveConfig) -> dict:
         if cache[group].get(name, {}).get("revision") != rev:
             todo.append((group, name, teacher, rev))
     for group, name, teacher, rev in tqdm(todo, desc="checkpoints", disable=not cfg.progress):
-        cache[group][name] = {"revision": rev, "survival": survival_of(teacher, cfg)}
+        cache[group][name] = {"revision": rev, **figures_of(teacher, cfg)}
         cache_path.write_text(json.dumps({"caches": caches}, indent=1) + "\n")
     cache_path.write_text(json.dumps({"caches": caches}, indent=1) + "\n")  # drops too
     return cache
@@ -255,25 +260,28 @@ def best_snapshot(cache: dict) -> tuple[str, float] | None:
 
 def table(cache: dict, run: Path) -> str:
     """A Markdown table of the cache: one row per checkpoint, survival with its 95 % Wilson
-    interval over the episodes."""
+    interval over the episodes, then the mean velocity error (m/s) where recorded."""
     steps = env_steps_at(run)
     terrains = cache["settings"]["terrains"].split(",")
     n = cache["settings"]["episodes"]
 
-    def cell(p: float) -> str:
+    def cell(res: dict, t: str) -> str:
+        p = res["survival"][t]
         lo, hi = _interval(p, n)
-        return f"{p:.2f} ({lo:.2f}-{hi:.2f})"
+        err = f", {res['lin_err'][t]:.2f} m/s" if "lin_err" in res else ""
+        return f"{p:.2f} ({lo:.2f}-{hi:.2f}){err}"
 
     def cells(res: dict) -> str:
-        return " | ".join(cell(res[t]) for t in terrains)
+        return " | ".join(cell(res, t) for t in terrains)
 
-    lines = ["| checkpoint | env steps | " + " | ".join(terrains) + " |",
+    lines = ["| checkpoint | env steps | " + " | ".join(f"{t}: survival, abs(v err)"
+                                                     for t in terrains) + " |",
              "|---|---|" + "---|" * len(terrains)]
     for name, res in cache["references"].items():
-        lines.append(f"| {name} | - | {cells(res['survival'])} |")
+        lines.append(f"| {name} | - | {cells(res)} |")
     for it in sorted(int(i) for i in cache["snapshots"]):
         st = f"{steps[it]:,}" if it in steps else "-"
-        lines.append(f"| iteration {it} | {st} | {cells(cache['snapshots'][str(it)]['survival'])} |")
+        lines.append(f"| iteration {it} | {st} | {cells(cache['snapshots'][str(it)])} |")
     return "\n".join(lines)
 
 
@@ -291,8 +299,11 @@ def main(argv: list[str] | None = None) -> None:
         print(f"image: {cfg.image}")
     best = best_snapshot(cache)
     if best is not None:
+        errs = cache["snapshots"][best[0]].get("lin_err")
+        err = f", mean abs(v err) {sum(errs.values()) / len(errs):.2f} m/s" if errs else ""
         print(f"best snapshot: iter_{best[0]} (worst margin to the gait controller "
-              f"{best[1]:+.2f} at level {cfg.level}; {cfg.episodes_run} episodes per point)")
+              f"{best[1]:+.2f} at level {cfg.level}{err}; {cfg.episodes_run} episodes per "
+              "point)")
 
 
 if __name__ == "__main__":

@@ -45,8 +45,8 @@ def test_every_snapshot_and_both_references_are_evaluated_once(run, tmp_path, mo
             "--envs_per_tile=2", "--episode_length_s=0.4", "--nthread=1",
             f"--image={tmp_path / 'curve.png'}", "--progress=false"]
     calls: list[str] = []
-    real = tc.survival_of
-    monkeypatch.setattr(tc, "survival_of",
+    real = tc.figures_of
+    monkeypatch.setattr(tc, "figures_of",
                         lambda teacher, cfg: calls.append(teacher.type) or real(teacher, cfg))
     tc.main(argv)
     assert calls == ["gait", "rma", "rma", "rma"]          # gait, start, iterations 2 and 4
@@ -55,7 +55,8 @@ def test_every_snapshot_and_both_references_are_evaluated_once(run, tmp_path, mo
     cache = caches[0]
     assert set(cache["references"]) == {"gait controller", "start"}
     assert set(cache["snapshots"]) == {"2", "4"}
-    assert all(0.0 <= v["survival"]["flat"] <= 1.0 for v in cache["snapshots"].values())
+    assert all(0.0 <= v["survival"]["flat"] <= 1.0 and v["lin_err"]["flat"] >= 0.0
+               for v in cache["snapshots"].values())
     assert (tmp_path / "curve.png").stat().st_size > 10_000
     # a re-run evaluates nothing already cached ...
     calls.clear()
@@ -104,9 +105,23 @@ def test_robot_is_the_robot_every_teacher_runs_on(tmp_path):
               "progress": False}
     a1, other = tc.TeacherCurveConfig(**common), tc.TeacherCurveConfig(**common, robot=str(limp))
     zero = TeacherConfig(type="zero")
-    assert tc.survival_of(zero, a1) == {"flat": 1.0}
-    assert tc.survival_of(zero, other) == {"flat": 0.0}
+    standing, limp_falls = tc.figures_of(zero, a1), tc.figures_of(zero, other)
+    assert standing["survival"] == {"flat": 1.0}
+    assert limp_falls["survival"] == {"flat": 0.0}
+    assert standing["lin_err"]["flat"] > 0.1           # it stands while the command moves
     assert "robot" not in tc.settings_key(a1)
     assert tc.settings_key(other) == {**tc.settings_key(a1), "robot": str(limp)}
     with pytest.raises(ValueError, match="robot=b2: unknown robot 'b2'"):
         tc.TeacherCurveConfig(**common, robot="b2")
+
+
+def test_the_table_shows_the_velocity_error_where_it_was_recorded(tmp_path):
+    """A snapshot's cells carry its mean velocity error; an entry cached before the error
+    was recorded shows survival alone."""
+    (tmp_path / "curve.json").write_text('[{"iteration": 100, "env_steps": 12288}]')
+    cache = {"settings": {"terrains": "flat", "level": 2, "episodes": 100},
+             "references": {"start": {"survival": {"flat": 0.9}}},
+             "snapshots": {"100": {"survival": {"flat": 0.97}, "lin_err": {"flat": 0.214}}}}
+    start, snap = tc.table(cache, tmp_path).splitlines()[2:]
+    assert start.startswith("| start | - | 0.90 (") and "m/s" not in start
+    assert snap.startswith("| iteration 100 | 12,288 | 0.97 (") and snap.endswith(", 0.21 m/s |")
