@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 import torch
-from msta_test_helpers import tiny_msta  # registered by tests/conftest.py
+from msta_test_helpers import random_batch, tiny_msta  # registered by tests/conftest.py
 
-from msta.data import sensors
 from msta.policies.msta import MSTAConfig
+from msta.policies.msta.axial_attention import axial_features
 from msta.policies.msta.step_attention import step_features
 from msta.policies.msta.step_stream import StepStream
 
@@ -16,9 +16,7 @@ T = 5
 
 
 def sequence(policy, steps: int, batch: int = 2, seed: int = 1) -> dict[str, torch.Tensor]:
-    g = torch.Generator().manual_seed(seed)
-    return {n: torch.randn(batch, steps, sensors.get(n).dim, generator=g)
-            for n in policy.config.input_sensors}
+    return random_batch(batch, steps, seed, policy.config.input_sensors)
 
 
 @pytest.mark.parametrize(("layers", "runtime"), [
@@ -89,18 +87,21 @@ def test_training_with_removal_and_dummy_tokens_reaches_every_weight(attention, 
             assert p.grad is not None and p.grad.abs().sum() > 0, name
 
 
-def test_the_whole_window_and_the_masked_path_agree():
-    """Without removal the per-step blocks run on T groups of a step's tokens; the masked
-    path (all tokens, each step kept to itself by the mask: the one training's removal
-    takes) gives the same action on the same tokens."""
-    policy = tiny_msta(T, attention="step", num_layers=3, state_tokens=2).eval()
+@pytest.mark.parametrize(("attention", "features"), [("step", step_features),
+                                                     ("axial", axial_features)])
+def test_the_whole_window_and_the_masked_path_agree(attention, features):
+    """Without removal the token blocks run on reshaped groups (step: T groups of a step's
+    tokens; axial: those, then n groups of a channel's); the masked path (all tokens, each
+    kept to its group by a mask: the one training's removal takes) gives the same action
+    on the same tokens."""
+    policy = tiny_msta(T, attention=attention, num_layers=3, state_tokens=2).eval()
     seq = sequence(policy, T, batch=3)
     with torch.no_grad():
         grouped = policy(seq)
         inputs = policy.processor.discretize(policy.as_tensors(seq))
         x, mask, ages, whole = policy.model.embed_steps(inputs, 0.0)
-        assert whole == T
-        masked = policy.model.head(step_features(policy.model, x, mask, ages, 0))
+        assert whole == T and mask is None
+        masked = policy.model.head(features(policy.model, x, mask, ages, 0))
     torch.testing.assert_close(masked, grouped, atol=1e-5, rtol=0)
 
 
