@@ -15,8 +15,9 @@ one cache per setting, each entry with the evaluated checkpoint's content revisi
 re-running evaluates only snapshots that are new or whose files changed. The image has two
 panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
 controller as dashed lines), and from ``curve.json`` the curriculum's mean level and the
-chance of a full episode at its fall rate. The last line names the snapshot whose worst margin to the gait controller
-over the terrain types is highest.
+chance of a full episode at its fall rate. The last line names the snapshot whose worst
+margin to the gait controller over the terrain types is highest (ties: the higher mean
+survival, then the lower mean velocity error).
 """
 
 from __future__ import annotations
@@ -248,13 +249,20 @@ def render(cache: dict, run: Path, image: Path) -> None:
 
 def best_snapshot(cache: dict) -> tuple[str, float] | None:
     """The snapshot whose worst margin to the gait controller over the terrain types is
-    highest, with that margin."""
+    highest, with that margin; ties go to the higher mean survival, then to the lower mean
+    velocity error (where recorded), then to the newer snapshot."""
     gait = cache["references"].get(GAIT)
     if gait is None or not cache["snapshots"]:
         return None
+    snaps = cache["snapshots"]
     margins = {k: min(v["survival"][t] - gait["survival"][t] for t in gait["survival"])
-               for k, v in cache["snapshots"].items()}
-    best = max(margins, key=lambda k: (margins[k], int(k)))
+               for k, v in snaps.items()}
+
+    def mean(values: dict) -> float:
+        return round(sum(values.values()) / len(values), 6)  # 6 digits: sums tie as reals
+
+    best = max(margins, key=lambda k: (round(margins[k], 6), mean(snaps[k]["survival"]),
+                                       -mean(snaps[k].get("lin_err", {"-": 0.0})), int(k)))
     return best, margins[best]
 
 

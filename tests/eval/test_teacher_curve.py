@@ -125,3 +125,18 @@ def test_the_table_shows_the_velocity_error_where_it_was_recorded(tmp_path):
     start, snap = tc.table(cache, tmp_path).splitlines()[2:]
     assert start.startswith("| start | - | 0.90 (") and "m/s" not in start
     assert snap.startswith("| iteration 100 | 12,288 | 0.97 (") and snap.endswith(", 0.21 m/s |")
+
+
+def test_the_best_snapshot_breaks_ties_on_mean_survival_then_velocity_error():
+    gait = {"survival": {"a": 0.5, "b": 0.5}}
+
+    def snap(a: float, b: float, err: float | None = None) -> dict:
+        return {"survival": {"a": a, "b": b}} | ({"lin_err": {"a": err, "b": err}} if err else {})
+
+    cache = {"references": {"gait controller": gait},
+             "snapshots": {"100": snap(0.97, 0.94, 0.25), "200": snap(0.94, 0.97, 0.20),
+                           "300": snap(0.94, 0.94, 0.10), "400": snap(0.90, 1.00, 0.05)}}
+    assert tc.best_snapshot(cache) == ("200", pytest.approx(0.44))  # 100 and 200 tie twice
+    cache["snapshots"]["500"] = snap(0.94, 0.98)                     # no error recorded
+    assert tc.best_snapshot(cache)[0] == "500"                       # higher mean survival
+    assert tc.best_snapshot({"references": {}, "snapshots": cache["snapshots"]}) is None
