@@ -10,9 +10,9 @@ starting point (``init/`` or ``warmstart/``) and the gait controller each walk
 harness of ``msta.eval.teacher_report``: terrain curriculum off, randomization and observation
 noise on, seed 0; 95 % Wilson intervals), each giving its survival and its mean velocity error
 |v_xy - cmd_xy| (m/s): a snapshot that survives by walking slower than the command shows it
-there. Results are cached in ``<run>/curve_eval.json``,
-one cache per setting, each entry with the evaluated checkpoint's content revision:
-re-running evaluates only snapshots that are new or whose files changed. The image has two
+there. Results are cached in ``<run>/curve_eval.json``, one cache per setting, each entry
+with the evaluated checkpoint's content revision: re-running evaluates only snapshots that
+are new or whose files changed. The image has two
 panels: survival per terrain type vs environment steps (PPO's start at 0 steps, the gait
 controller as dashed lines), and from ``curve.json`` the curriculum's mean level and the
 chance of a full episode at its fall rate. The last line names the snapshot whose worst
@@ -261,8 +261,11 @@ def best_snapshot(cache: dict) -> tuple[str, float] | None:
     def mean(values: dict) -> float:
         return round(sum(values.values()) / len(values), 6)  # 6 digits: sums tie as reals
 
-    best = max(margins, key=lambda k: (round(margins[k], 6), mean(snaps[k]["survival"]),
-                                       -mean(snaps[k].get("lin_err", {"-": 0.0})), int(k)))
+    def rank(k: str) -> tuple:
+        err = mean(snaps[k]["lin_err"]) if "lin_err" in snaps[k] else math.inf
+        return round(margins[k], 6), mean(snaps[k]["survival"]), -err, int(k)
+
+    best = max(margins, key=rank)
     return best, margins[best]
 
 

@@ -137,6 +137,8 @@ def test_the_best_snapshot_breaks_ties_on_mean_survival_then_velocity_error():
              "snapshots": {"100": snap(0.97, 0.94, 0.25), "200": snap(0.94, 0.97, 0.20),
                            "300": snap(0.94, 0.94, 0.10), "400": snap(0.90, 1.00, 0.05)}}
     assert tc.best_snapshot(cache) == ("200", pytest.approx(0.44))  # 100 and 200 tie twice
-    cache["snapshots"]["500"] = snap(0.94, 0.98)                     # no error recorded
+    cache["snapshots"]["150"] = snap(0.97, 0.94)                     # no error recorded ...
+    assert tc.best_snapshot(cache)[0] == "200"                       # ... loses the tie
+    cache["snapshots"]["500"] = snap(0.94, 0.98)
     assert tc.best_snapshot(cache)[0] == "500"                       # higher mean survival
     assert tc.best_snapshot({"references": {}, "snapshots": cache["snapshots"]}) is None
