@@ -261,13 +261,13 @@ class QuadrupedEnv:
     def _finish_step(self, blown: np.ndarray) -> StepResult:
         m, cfg = self.meas, self.cfg
         self.commands.update_yaw_rate(m["yaw"])
-        rew = self._rewards(m)
+        fell = ((m["trunk_contact"] > self.robot.contact_threshold)
+                | (m["gravity"][:, 2] > cfg.fall_gravity_z))
+        rew = self._rewards(m, fell)
         for k in rew:
             rew[k][blown] = 0.0
         self.episode_step += 1
         self.episode_return += rew["total"]
-        fell = ((m["trunk_contact"] > self.robot.contact_threshold)
-                | (m["gravity"][:, 2] > cfg.fall_gravity_z))
         terminated = (fell & ~blown) | blown
         truncated = (self.episode_step >= self.max_steps) & ~terminated
         reason = np.zeros(self.num_envs, dtype=np.int64)
@@ -306,7 +306,7 @@ class QuadrupedEnv:
             "variant": self.variant.copy(),
         }
 
-    def _rewards(self, m: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def _rewards(self, m: dict[str, np.ndarray], fell: np.ndarray) -> dict[str, np.ndarray]:
         contact = m["foot_contact"] > 0.5
         self.air_time += self.dt
         first = contact & ~self.last_contact
@@ -316,7 +316,7 @@ class QuadrupedEnv:
             last_joint_vel=self.last_joint_vel, action=self.action, last_action=self.last_action,
             leg_collisions=m["leg_collisions"], first_contact=first, air_time=self.air_time,
             soft_limits=self.soft_limits, dt=self.dt, sigma=self.cfg.rewards.tracking_sigma,
-            air_time_target=self.cfg.rewards.air_time_target)
+            air_time_target=self.cfg.rewards.air_time_target, fell=fell)
         out = compute_rewards(self.cfg.rewards, inputs)
         self.air_time[contact] = 0.0
         self.last_contact = contact

@@ -28,6 +28,9 @@ class RewardScales:
         collision: penalty per thigh or calf in contact.
         action_rate: penalty on the squared change of the action.
         dof_pos_limits: penalty on the summed distance of joints beyond their soft limits.
+        termination: penalty (a negative scale) on a step that ends its episode in a fall, not
+            in a timeout. It is added after the ``only_positive`` clip, as in legged_gym, so
+            the clip cannot hide it. Off by default.
     """
 
     tracking_lin_vel: float = 1.0
@@ -40,6 +43,7 @@ class RewardScales:
     collision: float = -1.0
     action_rate: float = -0.01
     dof_pos_limits: float = -10.0
+    termination: float = 0.0
 
 
 @dataclass
@@ -79,6 +83,7 @@ class RewardInputs:
     dt: float
     sigma: float
     air_time_target: float
+    fell: np.ndarray           # (N,) bool, the episode ends in a fall this step
 
 
 def _reward_tracking_lin_vel(x: RewardInputs) -> np.ndarray:
@@ -125,6 +130,10 @@ def _reward_dof_pos_limits(x: RewardInputs) -> np.ndarray:
     return np.sum(out, axis=1)
 
 
+def _reward_termination(x: RewardInputs) -> np.ndarray:
+    return x.fell.astype(np.float64)
+
+
 REWARD_TERMS = {f.name: globals()[f"_reward_{f.name}"] for f in fields(RewardScales)}
 
 
@@ -139,7 +148,8 @@ def compute_rewards(cfg: RewardConfig, x: RewardInputs) -> dict[str, np.ndarray]
     """Per-term scaled rewards plus ``total``, ``lin_vel_tracking`` and ``ang_vel_tracking``.
 
     Returns:
-        dict of (N,) arrays. ``total`` is clipped at 0 when ``only_positive``.
+        dict of (N,) arrays. ``total`` is clipped at 0 when ``only_positive``, before the
+        termination penalty is added.
     """
     out: dict[str, np.ndarray] = {}
     total = np.zeros(len(x.command))
@@ -148,10 +158,11 @@ def compute_rewards(cfg: RewardConfig, x: RewardInputs) -> dict[str, np.ndarray]
         if scale == 0.0:
             continue
         out[name] = fn(x) * scale * x.dt
-        total += out[name]
+        if name != "termination":
+            total += out[name]
     if cfg.only_positive:
         total = np.clip(total, 0.0, None)
-    out["total"] = total
+    out["total"] = total + out.get("termination", 0.0)
     lin = _reward_tracking_lin_vel(x) * cfg.scales.tracking_lin_vel * x.dt
     ang = _reward_tracking_ang_vel(x) * cfg.scales.tracking_ang_vel * x.dt
     out["lin_vel_tracking"], out["ang_vel_tracking"] = lin, ang

@@ -10,6 +10,7 @@ import pytest
 from msta.collect.sim.env import REASONS, QuadrupedEnv
 from msta.collect.sim.env_config import EnvConfig, NoiseConfig
 from msta.collect.sim.randomization import RandomizationConfig
+from msta.collect.sim.rewards import RewardConfig, RewardScales
 from msta.collect.sim.terrain import TERRAIN_TYPES, TerrainConfig
 from msta.data.robot import A1
 from msta.data.sensors import SENSORS
@@ -129,6 +130,28 @@ def test_fall_is_detected_and_counted():
             assert REASONS[res.reason[0]] == "fall"
     assert ended[0] and not ended[1]
     assert env.resets_by_reason[REASONS.index("fall")] >= 1
+
+
+def test_termination_penalty_lands_on_the_fall_step_after_the_clip_and_not_on_timeouts():
+    rewards = RewardConfig(scales=RewardScales(termination=-100.0))
+    env = QuadrupedEnv(flat_cfg(n=2, rewards=rewards, episode_length_s=0.2))
+    env.reset()
+    env.state[0, env.layout.base_quat] = [0.0, 1.0, 0.0, 0.0]  # upside down: it falls
+    falls = truncations = 0
+    for _ in range(10):
+        res = env.step(np.zeros((2, 12)))
+        penalty = res.metrics["termination"]
+        assert np.array_equal(penalty != 0, res.terminated)  # none on timeouts
+        for i in np.flatnonzero(res.terminated):
+            falls += 1
+            assert penalty[i] == pytest.approx(-100.0 * env.dt)
+            assert res.reward[i] < 0  # the only_positive clip does not hide it
+        truncations += int(res.truncated.sum())
+        assert (res.reward[~res.terminated] >= 0).all()
+    assert falls >= 1 and truncations >= 1
+    off = QuadrupedEnv(flat_cfg(n=1))
+    off.reset()
+    assert "termination" not in off.step(np.zeros((1, 12))).metrics  # off by default
 
 
 def test_timeout_truncates_and_resets():
